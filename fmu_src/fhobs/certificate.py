@@ -1,0 +1,189 @@
+"""Independent numpy check of a design: homogeneity identities and LMI certificates.
+
+numpy-only: it also runs inside the FMU, on parameters a user may have edited.
+
+Every check yields one number, compared with one bound:
+
+============================  ===========================================================  =======
+check                         value                                                        pass if
+============================  ===========================================================  =======
+``homogenisation_residual``   ||A0 G_d - (G_d + nu I) A0|| / (||A0|| ||G_d||)               <= tol
+``output_homogeneity``        ||C G_d - (1 + nu) C|| / ||C||                               <= tol
+``nilpotency``                ||A0^n_tilde|| / ||A0||^n_tilde                                <= tol
+``dilation_anti_hurwitz``     min Re eig(G_d)                                              > 0
+``gamma_rho``                 rho - gamma / 2                                              > 0
+``P_bar_positive``            lambda_min(P_bar) / lambda_max(P_bar)                        > margin
+``P_bar_monotone``            lambda_min(sym(P_bar bar_G)) / lambda_min(P_bar)             > margin
+``lmi_filtering``             lambda_max(sym(P_bar (H + rho bar_G))) / lambda_min(P_bar)   < -margin
+``hurwitz_filtering``         max Re eig(H + rho bar_G), H = bar_A0 + bar_L bar_C          < 0
+``P_pt_positive`` etc.        the same three LMI checks for Theorem 1 with G = G_d - nu I  ...
+``hurwitz_luenberger``        max Re eig(A + L_lin C)                                      < 0
+============================  ===========================================================  =======
+
+sym(M) = (M + M^T) / 2. The LMI values are scaled by lambda_min(P) because the LMIs are
+homogeneous in (P, Y); so scaled, an LMI value reads as a decay rate (1/s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .gains import ObserverGains
+
+DEFAULT_TOLERANCE = 1e-7
+DEFAULT_MARGIN = 1e-6
+
+
+class CertificateError(ValueError):
+    """A design fails a check; the message names the check, the value and the bound."""
+
+
+def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (psi, z) system of Theorem 2: bar_A0, bar_G, bar_C.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+
+    Returns
+    -------
+    bar_A0 : numpy.ndarray
+        [[0, C], [0, A0]], (k+n) x (k+n).
+    bar_G : numpy.ndarray
+        diag(I_k, G_d).
+    bar_C : numpy.ndarray
+        [I_k, 0], k x (k+n).
+    """
+    n, k = gains.n, gains.k
+    bar_A0 = np.block([[np.zeros((k, k)), gains.C], [np.zeros((n, k)), gains.A0]])
+    bar_G = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), gains.G_d]])
+    bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
+    return bar_A0, bar_G, bar_C
+
+
+def sym(M: np.ndarray) -> np.ndarray:
+    """Symmetric part (M + M^T) / 2."""
+    return 0.5 * (M + M.T)
+
+
+def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
+    """The four homogeneity figures of the table in the module docstring."""
+    A0, G_d, C, nu = gains.A0, gains.G_d, gains.C, gains.nu
+    eye = np.eye(gains.n)
+    a0_norm = max(np.linalg.norm(A0), 1e-300)
+    return {
+        "homogenisation_residual": float(
+            np.linalg.norm(A0 @ G_d - (G_d + nu * eye) @ A0) / (a0_norm * np.linalg.norm(G_d))
+        ),
+        "output_homogeneity": float(
+            np.linalg.norm(C @ G_d - (1.0 + nu) * C) / max(np.linalg.norm(C), 1e-300)
+        ),
+        "nilpotency": float(
+            np.linalg.norm(np.linalg.matrix_power(A0, gains.n_tilde)) / a0_norm**gains.n_tilde
+        ),
+        "dilation_anti_hurwitz": float(np.min(np.linalg.eigvals(G_d).real)),
+    }
+
+
+def lmi_values(
+    P: np.ndarray, H: np.ndarray, G: np.ndarray, rho: float, prefix: str
+) -> dict[str, float]:
+    """Figures of one LMI  sym(P (H + rho G)) < 0,  sym(P G) > 0,  P > 0.
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        Candidate Lyapunov matrix.
+    H : numpy.ndarray
+        Closed-loop matrix (bar_A0 + bar_L bar_C, or A0 + L_pt C).
+    G : numpy.ndarray
+        Dilation generator of the LMI.
+    rho : float
+        Decay parameter.
+    prefix : str
+        ``"filtering"`` or ``"pt"``: names the figures.
+
+    Returns
+    -------
+    dict
+        ``P_<x>_positive``, ``P_<x>_monotone``, ``lmi_<x>``, ``hurwitz_<x>``.
+    """
+    name = "P_bar" if prefix == "filtering" else f"P_{prefix}"
+    P_sym = sym(P)
+    p_eigs = np.linalg.eigvalsh(P_sym)
+    p_min, p_max = float(p_eigs[0]), float(p_eigs[-1])
+    scale = p_min if p_min > 0 else max(abs(p_max), 1e-300)
+    return {
+        f"{name}_positive": p_min / max(abs(p_max), 1e-300),
+        f"{name}_monotone": float(np.linalg.eigvalsh(sym(P_sym @ G))[0]) / scale,
+        f"lmi_{prefix}": float(np.linalg.eigvalsh(sym(P_sym @ (H + rho * G)))[-1]) / scale,
+        f"hurwitz_{prefix}": float(np.max(np.linalg.eigvals(H + rho * G).real)),
+    }
+
+
+def certificate_values(gains: ObserverGains) -> dict[str, float]:
+    """Every figure of the module docstring's table, without judging them."""
+    values = homogeneity_values(gains)
+    values["gamma_rho"] = gains.rho - gains.gamma / 2
+    bar_A0, bar_G, bar_C = augmented_matrices(gains)
+    bar_L = np.vstack([gains.L_tilde, gains.L])
+    values |= lmi_values(gains.P_bar, bar_A0 + bar_L @ bar_C, bar_G, gains.rho, "filtering")
+    G_pt = gains.G_d - gains.nu * np.eye(gains.n)
+    values |= lmi_values(gains.P_pt, gains.A0 + gains.L_pt @ gains.C, G_pt, gains.rho, "pt")
+    values["hurwitz_luenberger"] = float(
+        np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real)
+    )
+    return values
+
+
+def _violations(
+    values: dict[str, float], tolerance: float, margin: float
+) -> list[tuple[str, float, str]]:
+    """List (check, value, requirement) for every figure out of its bound."""
+    bad = []
+    for name, value in values.items():
+        if name in ("homogenisation_residual", "output_homogeneity", "nilpotency"):
+            ok, need = value <= tolerance, f"<= {tolerance:g}"
+        elif name.startswith("lmi_"):
+            ok, need = value < -margin, f"< {-margin:g}"
+        elif name.startswith("hurwitz_"):
+            ok, need = value < 0.0, "< 0"
+        elif name.endswith(("_positive", "_monotone")):
+            ok, need = value > margin, f"> {margin:g}"
+        else:  # dilation_anti_hurwitz, gamma_rho
+            ok, need = value > 0.0, "> 0"
+        if not (ok and np.isfinite(value)):
+            bad.append((name, value, need))
+    return bad
+
+
+def certify(
+    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = DEFAULT_MARGIN
+) -> dict[str, float]:
+    """Check a design and return its figures; raise if any is out of bounds.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design (possibly with user-edited entries).
+    tolerance : float
+        Bound of the relative identity residuals.
+    margin : float
+        Margin required on each strict LMI inequality (scaled as in the module docstring).
+
+    Returns
+    -------
+    dict
+        Check name -> value, as in the module docstring's table.
+
+    Raises
+    ------
+    CertificateError
+        Naming every failed check with its value and bound.
+    """
+    values = certificate_values(gains)
+    bad = _violations(values, tolerance, margin)
+    if bad:
+        detail = "; ".join(f"{name} = {value:.3e} (required {need})" for name, value, need in bad)
+        raise CertificateError(f"design fails {len(bad)} check(s): {detail}")
+    return values

@@ -1,0 +1,153 @@
+"""Observer design: from a plant spec to certified gains (Theorems 1 and 2 of the paper).
+
+The steps, in the shape of python-control's design functions (``design_observer(spec)`` returns
+everything a user needs):
+
+1. homogenisation (:mod:`fhobs.homogenisation`): n_tilde, G0, L0, G_d;
+2. Theorem 2's LMI for the filtering observer: (L_tilde; L) and P_bar;
+3. Theorem 1's LMI for the prescribed-time observer: L_pt and P_pt;
+4. the Luenberger baseline L_lin (given in the spec, or an LMI with decay equal to the
+   filtering observer's slowest linear mode, so both observers are compared at equal speed);
+5. the numpy certificate (:mod:`fhobs.certificate`), which must pass.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .certificate import augmented_matrices, certify
+from .gains import ObserverGains
+from .homogenisation import homogenise
+from .lmi import DEFAULT_MARGIN, certify_gain_lmi, solve_gain_lmi
+from .spec import PlantSpec, spec_from_dict
+
+PAPER_REFERENCE = Path(__file__).resolve().parents[2] / "examples" / "pendulum-paper.json"
+
+
+def matched_perturbation_residual(G_d: np.ndarray, E: np.ndarray, n_tilde: int) -> float:
+    """Relative residual of Corollary 1's condition (n_tilde + 1) G_d E = E.
+
+    Parameters
+    ----------
+    G_d : numpy.ndarray
+        Dilation generator (Theorem 2's form).
+    E : numpy.ndarray
+        Perturbation input matrix.
+    n_tilde : int
+        Observability index.
+
+    Returns
+    -------
+    float
+        ||(n_tilde + 1) G_d E - E|| / ||E||; about 0 when the HOSM observer rejects E q.
+    """
+    return float(np.linalg.norm((n_tilde + 1) * G_d @ E - E) / max(np.linalg.norm(E), 1e-300))
+
+
+def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: float) -> np.ndarray:
+    if spec.L_lin is not None:
+        return spec.L_lin
+    n = spec.A.shape[0]
+    return solve_gain_lmi(spec.A, np.eye(n), spec.C, decay, objective, margin).gain
+
+
+def design_observer(
+    spec: PlantSpec, objective: str | None = None, margin: float = DEFAULT_MARGIN
+) -> ObserverGains:
+    """Design and certify the filtering homogeneous observer for a plant spec.
+
+    Parameters
+    ----------
+    spec : PlantSpec
+        Validated plant and tuning (nu, rho, gamma).
+    objective : str, optional
+        LMI objective (see :mod:`fhobs.lmi`); defaults to the spec's.
+    margin : float
+        Margin imposed on the strict LMI inequalities.
+
+    Returns
+    -------
+    ObserverGains
+        With ``certificate`` holding the checked figures.
+
+    Raises
+    ------
+    fhobs.lmi.LMIError
+        If an LMI solve fails.
+    fhobs.certificate.CertificateError
+        If the solver's result does not pass the numpy certificate.
+    """
+    objective = objective or spec.objective
+    hom = homogenise(spec.A, spec.C, spec.nu)
+    n, k = spec.A.shape[0], spec.C.shape[0]
+    base = dict(
+        A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=spec.rho, gamma=spec.gamma,
+        n_tilde=hom.n_tilde, G0=hom.G0, L0=hom.L0, G_d=hom.G_d,
+        L_tilde=np.zeros((k, k)), L=np.zeros((n, k)), P_bar=np.eye(n + k),
+        L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros((n, k)),
+    )
+    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
+    filtering = solve_gain_lmi(bar_A0, bar_G, bar_C, spec.rho, objective, margin)
+    A0 = spec.A + hom.L0 @ spec.C
+    pt = solve_gain_lmi(A0, hom.G_d - spec.nu * np.eye(n), spec.C, spec.rho, objective, margin)
+    decay = -float(np.max(np.linalg.eigvals(bar_A0 + filtering.gain @ bar_C).real))
+    base |= dict(
+        L_tilde=filtering.gain[:k], L=filtering.gain[k:], P_bar=filtering.P,
+        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, objective, margin),
+    )
+    return _certified(base, objective, margin)
+
+
+def _certified(base: dict, objective: str, margin: float) -> ObserverGains:
+    """Run the numpy certificate on a candidate and attach its figures."""
+    values = certify(ObserverGains(**base))
+    report = {
+        "checks": values,
+        "objective": objective,
+        "lmi_margin": margin,
+        "matched_perturbation_residual": (
+            None if base["E"] is None
+            else matched_perturbation_residual(base["G_d"], base["E"], base["n_tilde"])
+        ),
+    }
+    return ObserverGains(**base, certificate=report)
+
+
+def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
+    """The paper's pendulum design: published L_tilde, L, L_lin, certified here.
+
+    L0 and G_d are recomputed by :func:`fhobs.homogenisation.homogenise` (they equal the
+    published values to the printed digits, which the tests check) because the printed,
+    rounded values satisfy the identities only to about 1e-5. P_bar and P_pt are found by
+    :func:`fhobs.lmi.certify_gain_lmi` for the published gains; L_pt is designed (the paper
+    publishes none).
+
+    Parameters
+    ----------
+    reference : str or Path
+        The JSON file of published numbers (``examples/pendulum-paper.json``).
+
+    Returns
+    -------
+    ObserverGains
+    """
+    ref = json.loads(Path(reference).read_text())
+    plant, published = ref["plant"], ref["design"]
+    spec = spec_from_dict(
+        {
+            "A": plant["A"], "B": plant["B"], "C": plant["C"], "E": plant["B"],
+            "L_lin": ref["linear_observer"]["L_lin"],
+            "observer": {k: published[k] for k in ("nu", "rho", "gamma")},
+        },
+        source=str(reference),
+    )
+    tuned = design_observer(spec, objective="min_gain")
+    base = {f: getattr(tuned, f) for f in tuned.__dataclass_fields__ if f != "certificate"}
+    base |= dict(L_tilde=np.array(published["L_tilde"]), L=np.array(published["L"]))
+    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
+    bar_L = np.vstack([base["L_tilde"], base["L"]])
+    base["P_bar"] = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
+    return _certified(base, "published", DEFAULT_MARGIN)

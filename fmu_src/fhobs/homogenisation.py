@@ -1,0 +1,156 @@
+"""Homogenisation of (A, C): observability index, G0 and Y0, then L0 and G_d.
+
+The paper (Theorem 1) prints the homogenisation equation as ``G0 A - A G0 + Y0 C = A``; its own
+numerical example (the pendulum's published L0 and G_d) solves the equation with the commutator's
+sign flipped,
+
+    A G0 - G0 A + Y0 C = A,   C G0 = 0,                                       (H)
+
+and only (H) makes A0 = A + L0 C homogeneous: with the printed sign the identity
+A0 G_d = (G_d + nu I) A0 fails by orders of magnitude (checked in the tests). From a solution,
+
+    L0  = -(I + G0)^-1 Y0,      A0 = A + L0 C  (nilpotent),
+    G_d = I + nu (G0 + I)       (Theorem 2's form: C G_d = (1 + nu) C).
+
+(H) is a square linear system in (G0, Y0); it can be singular (several solutions) when the
+observability indices differ. We take its minimum-norm solution (least squares with a complete
+orthogonal factorisation), which is unique, reproduces the paper's pendulum exactly, and gives
+G0 the eigenvalues 0, 1, ..., n_tilde - 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+RANK_RTOL = 1e-9
+
+
+@dataclass(frozen=True)
+class Homogenisation:
+    """Solution of the homogenisation equation (H) and the derived L0, G_d.
+
+    Attributes
+    ----------
+    n_tilde : int
+        Observability index of (A, C).
+    G0, Y0 : numpy.ndarray
+        Minimum-norm solution of (H).
+    L0 : numpy.ndarray
+        Homogenisation gain, n x k.
+    G_d : numpy.ndarray
+        Dilation generator in Theorem 2's form.
+    residual : float
+        Relative residual of (H) at the solution.
+    """
+
+    n_tilde: int
+    G0: np.ndarray
+    Y0: np.ndarray
+    L0: np.ndarray
+    G_d: np.ndarray
+    residual: float
+
+
+def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
+    """Observability index of (A, C) and the rank of the observability matrix.
+
+    The subspaces K_j = span(C^T, A^T C^T, ..., (A^T)^(j-1) C^T) are grown with an orthonormal
+    basis (K_(j+1) = C^T + A^T K_j), which stays well conditioned where the plain stacked matrix
+    [C; CA; ...] would not.
+
+    Parameters
+    ----------
+    A : numpy.ndarray
+        n x n system matrix.
+    C : numpy.ndarray
+        k x n output matrix.
+
+    Returns
+    -------
+    n_tilde : int or None
+        Least j with rank [C; CA; ...; CA^(j-1)] = n, or None when (A, C) is unobservable.
+    rank : int
+        Rank of the observability matrix (dimension of the observable subspace).
+    """
+    n = A.shape[0]
+    scale = max(np.linalg.norm(A, 2), 1.0)
+    basis = _orth(C.T / max(np.linalg.norm(C, 2), 1e-300))
+    for j in range(1, n + 1):
+        if basis.shape[1] == n:
+            return j, n
+        grown = _orth(np.hstack([basis, A.T @ basis / scale]))
+        if grown.shape[1] == basis.shape[1]:
+            return None, basis.shape[1]
+        basis = grown
+    return (n, n) if basis.shape[1] == n else (None, basis.shape[1])
+
+
+def _orth(M: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the range of M, rank decided with :data:`RANK_RTOL`."""
+    u, s, _ = np.linalg.svd(M, full_matrices=False)
+    if s.size == 0 or s[0] == 0.0:
+        return u[:, :0]
+    return u[:, s > RANK_RTOL * s[0]]
+
+
+def solve_homogenisation(A: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Minimum-norm solution (G0, Y0) of A G0 - G0 A + Y0 C = A, C G0 = 0.
+
+    Parameters
+    ----------
+    A, C : numpy.ndarray
+        Plant matrices (n x n, k x n).
+
+    Returns
+    -------
+    G0 : numpy.ndarray
+        n x n.
+    Y0 : numpy.ndarray
+        n x k.
+    residual : float
+        ||residual|| / ||A|| of the linear system at the solution.
+    """
+    n, k = A.shape[0], C.shape[0]
+    eye = np.eye(n)
+    # Column-major vec: vec(A X - X A) = (I kron A - A^T kron I) vec(X), vec(Y C) = (C^T kron I) vec(Y)
+    top = np.hstack([np.kron(eye, A) - np.kron(A.T, eye), np.kron(C.T, eye)])
+    bottom = np.hstack([np.kron(eye, C), np.zeros((k * n, n * k))])
+    M = np.vstack([top, bottom])
+    rhs = np.concatenate([A.ravel(order="F"), np.zeros(k * n)])
+    sol, *_ = scipy.linalg.lstsq(M, rhs, lapack_driver="gelsy", check_finite=False)
+    residual = np.linalg.norm(M @ sol - rhs) / max(np.linalg.norm(A), 1e-300)
+    G0 = sol[: n * n].reshape(n, n, order="F")
+    Y0 = sol[n * n :].reshape(n, k, order="F")
+    return G0, Y0, float(residual)
+
+
+def homogenise(A: np.ndarray, C: np.ndarray, nu: float) -> Homogenisation:
+    """Compute L0 and G_d for an observable pair (A, C) and a degree nu.
+
+    Parameters
+    ----------
+    A, C : numpy.ndarray
+        Plant matrices.
+    nu : float
+        Homogeneity degree.
+
+    Returns
+    -------
+    Homogenisation
+
+    Raises
+    ------
+    ValueError
+        If (A, C) is unobservable or I + G0 is singular.
+    """
+    n_tilde, rank = observability_index(A, C)
+    if n_tilde is None:
+        raise ValueError(f"(A, C) is not observable: observability rank {rank} < n = {A.shape[0]}")
+    G0, Y0, residual = solve_homogenisation(A, C)
+    eye = np.eye(A.shape[0])
+    L0 = -np.linalg.solve(eye + G0, Y0)
+    G_d = eye + nu * (G0 + eye)
+    return Homogenisation(n_tilde, G0, Y0, L0, G_d, residual)

@@ -1,0 +1,228 @@
+"""Plant specification: a TOML file describing dx/dt = A x + B u + E q, y = C x.
+
+Format::
+
+    A = [[...], ...]          # n x n, arrays of rows
+    B = [[...], ...]          # n x m
+    C = [[...], ...]          # k x n
+    E = [[...], ...]          # optional, n x r: perturbation input matrix
+    L_lin = [[...], ...]      # optional, n x k: a given Luenberger baseline gain
+
+    [observer]                # optional table, every key optional
+    nu = -0.25                # homogeneity degree in [-1/(n_tilde+1), 0); default -1/(n_tilde+1)
+    rho = 1.5                 # LMI decay parameter; default 1.5 (the paper's)
+    gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default 2.75 (the paper's)
+    objective = "min_gain"    # LMI objective, see fhobs.lmi.OBJECTIVES
+
+Every defect raises :class:`SpecError` naming the field and the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .homogenisation import observability_index
+from .lmi import OBJECTIVES
+
+DEFAULT_RHO = 1.5
+DEFAULT_GAMMA = 2.75
+DEFAULT_OBJECTIVE = "min_gain"
+TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
+OBSERVER_KEYS = ("nu", "rho", "gamma", "objective")
+
+
+class SpecError(ValueError):
+    """A plant specification is malformed; the message names the field and the reason."""
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """A validated plant and the observer's tuning parameters.
+
+    Attributes
+    ----------
+    A, B, C : numpy.ndarray
+        Plant matrices (n x n, n x m, k x n).
+    E : numpy.ndarray or None
+        Perturbation input matrix (n x r), if given.
+    L_lin : numpy.ndarray or None
+        A given Luenberger baseline gain (n x k); designed by LMI when None.
+    nu, rho, gamma : float
+        Homogeneity degree, LMI decay parameter, xi-equation gain.
+    n_tilde : int
+        Observability index of (A, C).
+    objective : str
+        LMI objective (a key of :data:`fhobs.lmi.OBJECTIVES`).
+    source : str
+        Where the spec came from (file name), for messages.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    E: np.ndarray | None
+    L_lin: np.ndarray | None
+    nu: float
+    rho: float
+    gamma: float
+    n_tilde: int
+    objective: str
+    source: str = "<dict>"
+
+
+def load_spec(path: str | Path) -> PlantSpec:
+    """Read and validate a plant spec TOML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    PlantSpec
+
+    Raises
+    ------
+    SpecError
+        If the file is missing, not TOML, or any field is invalid.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read the spec file ({exc.strerror})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML ({exc})") from exc
+    return spec_from_dict(data, source=str(path))
+
+
+def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
+    """Validate a spec given as a dict (the parsed TOML).
+
+    Parameters
+    ----------
+    data : dict
+        Keys ``A``, ``B``, ``C``, optional ``E``, ``L_lin`` and ``observer``.
+    source : str
+        Name used in error messages.
+
+    Returns
+    -------
+    PlantSpec
+    """
+    _reject_unknown(data, TOP_KEYS, source, "")
+    A = _matrix(data, "A", source)
+    n = _check_square(A, source)
+    B = _matrix(data, "B", source, rows=n)
+    C = _matrix(data, "C", source, cols=n)
+    E = _matrix(data, "E", source, rows=n) if "E" in data else None
+    L_lin = _matrix(data, "L_lin", source, rows=n) if "L_lin" in data else None
+    if L_lin is not None and L_lin.shape[1] != C.shape[0]:
+        raise SpecError(
+            f"{source}: L_lin has {L_lin.shape[1]} columns, but C has {C.shape[0]} rows (k)"
+        )
+    n_tilde, rank = observability_index(A, C)
+    if n_tilde is None:
+        raise SpecError(
+            f"{source}: (A, C) is not observable: the observability matrix has rank {rank}, "
+            f"n = {n}"
+        )
+    obs = data.get("observer", {})
+    if not isinstance(obs, dict):
+        raise SpecError(f"{source}: observer must be a table, got {type(obs).__name__}")
+    _reject_unknown(obs, OBSERVER_KEYS, source, "observer.")
+    nu = _scalar(obs, "nu", -1.0 / (n_tilde + 1), source)
+    rho = _scalar(obs, "rho", DEFAULT_RHO, source)
+    gamma = _scalar(obs, "gamma", DEFAULT_GAMMA, source)
+    _check_tuning(nu, rho, gamma, n_tilde, source)
+    objective = obs.get("objective", DEFAULT_OBJECTIVE)
+    if objective not in OBJECTIVES:
+        raise SpecError(
+            f"{source}: observer.objective = {objective!r} is not one of {sorted(OBJECTIVES)}"
+        )
+    return PlantSpec(A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source)
+
+
+def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise SpecError(
+            f"{source}: unknown key {prefix}{unknown[0]} (allowed: {', '.join(allowed)})"
+        )
+
+
+def _matrix(
+    data: dict[str, Any], name: str, source: str, rows: int | None = None, cols: int | None = None
+) -> np.ndarray:
+    """Parse ``data[name]`` as a finite real matrix given as a list of rows."""
+    if name not in data:
+        raise SpecError(f"{source}: {name} is missing (a matrix given as a list of rows)")
+    value = data[name]
+    if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
+        raise SpecError(f"{source}: {name} must be a non-empty list of rows, e.g. [[1, 0], [0, 1]]")
+    width = len(value[0])
+    if width == 0:
+        raise SpecError(f"{source}: {name} row 1 is empty")
+    for i, row in enumerate(value, start=1):
+        if len(row) != width:
+            raise SpecError(
+                f"{source}: {name} is ragged: row {i} has {len(row)} entries, row 1 has {width}"
+            )
+        for j, entry in enumerate(row, start=1):
+            _check_entry(entry, f"{name}[{i},{j}]", source)
+    matrix = np.array(value, dtype=float)
+    if rows is not None and matrix.shape[0] != rows:
+        raise SpecError(
+            f"{source}: {name} has {matrix.shape[0]} rows, expected {rows} (the size of A)"
+        )
+    if cols is not None and matrix.shape[1] != cols:
+        raise SpecError(
+            f"{source}: {name} has {matrix.shape[1]} columns, expected {cols} (the size of A)"
+        )
+    return matrix
+
+
+def _check_entry(entry: Any, label: str, source: str) -> None:
+    if isinstance(entry, bool) or not isinstance(entry, int | float):
+        raise SpecError(f"{source}: {label} = {entry!r} is not a number")
+    if not math.isfinite(entry):
+        raise SpecError(f"{source}: {label} = {entry!r} is not finite")
+
+
+def _check_square(A: np.ndarray, source: str) -> int:
+    n, cols = A.shape
+    if n != cols:
+        raise SpecError(f"{source}: A must be square, got {n} x {cols}")
+    return n
+
+
+def _scalar(table: dict[str, Any], name: str, default: float, source: str) -> float:
+    if name not in table:
+        return default
+    _check_entry(table[name], f"observer.{name}", source)
+    return float(table[name])
+
+
+def _check_tuning(nu: float, rho: float, gamma: float, n_tilde: int, source: str) -> None:
+    """Enforce Theorem 2's ranges: nu in [-1/(n_tilde+1), 0), gamma > 0, rho > gamma/2."""
+    nu_min = -1.0 / (n_tilde + 1)
+    if not (nu_min - 1e-12 <= nu < 0.0):
+        raise SpecError(
+            f"{source}: observer.nu = {nu!r} is outside [-1/(n_tilde+1), 0) = [{nu_min:.6g}, 0) "
+            f"(n_tilde = {n_tilde})"
+        )
+    if gamma <= 0.0:
+        raise SpecError(f"{source}: observer.gamma = {gamma!r} must be > 0")
+    if rho <= gamma / 2:
+        raise SpecError(
+            f"{source}: observer.rho = {rho!r} must be > gamma/2 = {gamma / 2!r} (Theorem 2)"
+        )
