@@ -1,0 +1,1 @@
+"""fmpy co-simulation harness: system descriptions, a Jacobi master, SSP export, CLI."""

@@ -1,0 +1,100 @@
+"""Build the utility blocks into FMUs on demand, into a cache directory.
+
+Each (kind, dimensions) gets its own FMU whose Python module and class names encode the
+dimensions and a hash of the block's source, so that two different blocks loaded in one
+process never share a module (pythonfmu FMUs reuse the host's ``sys.modules``, PythonFMU#228).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+CACHE_ENV = "FHOBS_HARNESS_CACHE"
+
+
+@dataclass(frozen=True)
+class BlockKind:
+    """A block template: its source module, its class and the names of its dimensions."""
+
+    module: str
+    class_name: str
+    dimensions: tuple[str, ...]
+
+    @property
+    def source(self) -> Path:
+        return Path(__file__).with_name(f"{self.module}.py")
+
+
+BLOCK_KINDS: dict[str, BlockKind] = {
+    "sine": BlockKind("sine_source", "SineSource", ("n_outputs",)),
+    "gain": BlockKind("matrix_gain", "MatrixGain", ("n_outputs", "n_inputs")),
+}
+
+
+def default_cache_dir() -> Path:
+    """``$FHOBS_HARNESS_CACHE`` if set, else ``~/.cache/fhobs/harness-blocks``."""
+    env = os.environ.get(CACHE_ENV)
+    return Path(env) if env else Path.home() / ".cache" / "fhobs" / "harness-blocks"
+
+
+def _script(kind: BlockKind, dims: tuple[int, ...], digest: str) -> tuple[str, str]:
+    """Module name and source of the generated slave script for ``kind`` with ``dims``."""
+    suffix = "x".join(str(d) for d in dims)
+    class_name = f"{kind.class_name}{suffix}_{digest}"
+    args = ", ".join(f"{name}={d}" for name, d in zip(kind.dimensions, dims, strict=True))
+    text = kind.source.read_text() + (
+        f"\n\nclass {class_name}({kind.class_name}):\n"
+        f"    def __init__(self, **kwargs):\n"
+        f"        super().__init__({args}, **kwargs)\n"
+    )
+    return f"harness_{kind.module}_{suffix}_{digest}", text
+
+
+def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = None) -> Path:
+    """Path of the block FMU ``kind_name`` with dimensions ``dims``, building it if needed.
+
+    Parameters
+    ----------
+    kind_name
+        A key of :data:`BLOCK_KINDS` (``"sine"``: ``(n_outputs,)``; ``"gain"``:
+        ``(n_outputs, n_inputs)``).
+    dims
+        Positive dimensions, one per name in the kind's ``dimensions``.
+    cache_dir
+        Where built FMUs are kept; :func:`default_cache_dir` if None.
+
+    Returns
+    -------
+    Path
+        The ``.fmu`` file.
+    """
+    kind = BLOCK_KINDS[kind_name]
+    dims = tuple(int(d) for d in dims)
+    if len(dims) != len(kind.dimensions) or min(dims) < 1:
+        raise ValueError(
+            f"block {kind_name!r} needs positive dimensions {kind.dimensions}, got {dims}"
+        )
+    digest = hashlib.sha256(kind.source.read_bytes()).hexdigest()[:10]
+    module, text = _script(kind, dims, digest)
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    target = cache / f"{module}.fmu"
+    if not target.exists():
+        _build(module, text, target)
+    return target
+
+
+def _build(module: str, text: str, target: Path) -> None:
+    """Build the script ``text`` as module ``module`` into ``target`` (atomic rename)."""
+    from pythonfmu import FmuBuilder
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+        script = Path(tmp) / f"{module}.py"
+        script.write_text(text)
+        built = FmuBuilder.build_FMU(script, dest=tmp, needsExecutionTool="false")
+        shutil.move(str(built), target)

@@ -1,0 +1,79 @@
+"""Static matrix gain block: ``y = K u`` (direct feedthrough, no state).
+
+A pythonfmu slave (FMI 2.0 co-simulation) with inputs ``u[1..m]``, outputs ``y[1..p]`` and
+parameters ``K[i,j]`` (row-major). The outputs are evaluated from the current inputs whenever
+they are read. A co-simulation master that only exchanges values at communication points
+therefore sees this block as one communication step of delay on the path through it; the
+harness applies connection gains itself (no delay) and uses this block only where an external
+engine needs the gain as an FMU (SSP export).
+"""
+
+from __future__ import annotations
+
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
+
+
+class MatrixGain(Fmi2Slave):
+    """``y = K u`` with ``K`` of shape ``(n_outputs, n_inputs)``, parameters ``K[i,j]``."""
+
+    author = "fhobs harness"
+    description = "Static matrix gain y = K u"
+
+    def __init__(self, n_outputs: int = 1, n_inputs: int = 1, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.gain = [[0.0] * n_inputs for _ in range(n_outputs)]
+        self.inputs = [0.0] * n_inputs
+        for i in range(n_outputs):
+            for j in range(n_inputs):
+                self._register_entry(i, j)
+        for j in range(n_inputs):
+            self._register_input(j)
+        for i in range(n_outputs):
+            self.register_variable(
+                Real(
+                    f"y[{i + 1}]",
+                    causality=Fmi2Causality.output,
+                    variability=Fmi2Variability.continuous,
+                    initial=Fmi2Initial.exact,
+                    getter=lambda i=i: self.value(i),
+                )
+            )
+
+    def _register_entry(self, i: int, j: int) -> None:
+        row = self.gain[i]
+
+        def setter(v: float) -> None:
+            row[j] = float(v)
+
+        self.register_variable(
+            Real(
+                f"K[{i + 1},{j + 1}]",
+                causality=Fmi2Causality.parameter,
+                variability=Fmi2Variability.tunable,
+                getter=lambda: row[j],
+                setter=setter,
+            )
+        )
+
+    def _register_input(self, j: int) -> None:
+        inputs = self.inputs
+
+        def setter(v: float) -> None:
+            inputs[j] = float(v)
+
+        self.register_variable(
+            Real(
+                f"u[{j + 1}]",
+                causality=Fmi2Causality.input,
+                variability=Fmi2Variability.continuous,
+                getter=lambda: inputs[j],
+                setter=setter,
+            )
+        )
+
+    def value(self, i: int) -> float:
+        """Output ``i`` (0-based): row ``i`` of ``K`` times the current inputs."""
+        return sum(k * u for k, u in zip(self.gain[i], self.inputs, strict=True))
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        return True

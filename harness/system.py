@@ -1,0 +1,459 @@
+"""Declarative system description (TOML): FMUs, start values, connections, run settings.
+
+A description is loaded with :func:`load_system` into a :class:`SystemSpec` (plain data, paths
+resolved) and checked against the FMUs' model descriptions with :func:`resolve_system`, which
+returns a :class:`ResolvedSystem`: every variable looked up once, every connection as a pair of
+scalar variable lists with its gain matrix. All problems raise :class:`DescriptionError` with a
+message naming the FMU, the variable and what was expected.
+
+File format (all keys except ``fmus`` optional)::
+
+    name = "pendulum_nominal"
+    [variables]                      # ${NAME} placeholders in FMU paths; overridable by callers
+    fmu_dir = "../../build/pendulum"
+    [run]
+    step = 5e-5
+    stop_time = 3.0
+    seed = "plant.noise_seed"        # the start value that --seed sets
+    record = ["plant.x", "observer.x_hat"]   # extra signals; connected outputs are always kept
+    [fmus.plant]
+    path = "${fmu_dir}/plant.fmu"    # relative to this file
+    start = { x0 = [2, 2, 1, 2], noise_amplitude = 0.0 }   # list -> x0[1..4]; matrix -> K[i,j]
+    [fmus.q]
+    block = "sine"                   # a harness block (harness.blocks), built on demand
+    outputs = 1                      # block dimensions: outputs (sine); outputs, inputs (gain)
+    start = { amplitude = [0.1], omega = [5.0] }
+    [[connections]]
+    from = "observer.x_hat"          # a vector name expands to x_hat[1..n], or one scalar
+    to = "plant.u"
+    gain = [[2, -35, 1.5, -3]]       # optional: to = gain @ from, applied by the master
+    [evaluation]                     # summary.json figures, see harness.results
+    at = [1.5]
+    windows = [[1.0, 3.0]]
+    [evaluation.errors]
+    homogeneous = ["plant.x", "observer.x_hat"]   # error = ||first - second||
+
+Inputs must each be connected exactly once or given a start value (a constant input).
+Connections carry Real signals only. Algebraic loops: under the Jacobi exchange no loop passes
+through ``doStep``, and connection gains are applied in one exchange, so a loop can only arise
+through FMUs that *declare* direct feedthrough (``<Outputs><Unknown dependencies=...>`` naming an
+input). A cycle made only of declared feedthrough and connections is rejected, because its value
+would depend on the exchange scheme; undeclared dependencies are not assumed (pythonfmu writes
+none).
+"""
+
+from __future__ import annotations
+
+import re
+import string
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from fmpy import read_model_description
+from fmpy.model_description import ModelDescription, ScalarVariable
+
+from harness.blocks import BLOCK_KINDS, block_fmu
+
+StartValue = float | int | bool
+
+
+class DescriptionError(ValueError):
+    """An invalid system description (message names the offending item)."""
+
+
+@dataclass(frozen=True)
+class FmuSpec:
+    """One FMU of the system: its file and its start values (scalar variable names)."""
+
+    name: str
+    path: Path
+    start: dict[str, StartValue] = field(default_factory=dict)
+    block: tuple[str, tuple[int, ...]] | None = None
+
+
+@dataclass(frozen=True)
+class ConnectionSpec:
+    """``to = gain @ from`` between vector or scalar signals ``"fmu.variable"``."""
+
+    source: str
+    target: str
+    gain: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Instants and windows for summary figures, and named error signals (reference, estimate)."""
+
+    at: tuple[float, ...] = ()
+    windows: tuple[tuple[float, float], ...] = ()
+    errors: dict[str, tuple[str, str]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SystemSpec:
+    """A loaded system description (see the module docstring for the file format)."""
+
+    name: str
+    fmus: dict[str, FmuSpec]
+    connections: tuple[ConnectionSpec, ...]
+    step: float
+    stop_time: float
+    start_time: float = 0.0
+    record: tuple[str, ...] = ()
+    seed: str | None = None
+    evaluation: Evaluation = field(default_factory=Evaluation)
+    source: Path | None = None
+
+    def with_start(self, overrides: dict[str, StartValue]) -> SystemSpec:
+        """Copy with start values ``{"fmu.variable": value}`` overriding the file's."""
+        fmus = dict(self.fmus)
+        for key, value in overrides.items():
+            fmu, var = split_signal(key)
+            if fmu not in fmus:
+                raise DescriptionError(
+                    f"start value {key!r}: unknown FMU {fmu!r} (have {sorted(fmus)})"
+                )
+            fmus[fmu] = replace(fmus[fmu], start={**fmus[fmu].start, **expand_start(var, value)})
+        return replace(self, fmus=fmus)
+
+    def with_seed(self, seed: int) -> SystemSpec:
+        """Copy with the start value named by ``run.seed`` set to ``seed``."""
+        if self.seed is None:
+            raise DescriptionError(
+                f"system {self.name!r} names no seed variable ([run] seed = ...)"
+            )
+        return self.with_start({self.seed: int(seed)})
+
+
+def split_signal(signal: str) -> tuple[str, str]:
+    """``"fmu.var[1]"`` -> ``("fmu", "var[1]")``."""
+    fmu, sep, var = signal.partition(".")
+    if not sep or not fmu or not var:
+        raise DescriptionError(f"signal {signal!r} is not of the form 'fmu.variable'")
+    return fmu, var
+
+
+def expand_start(name: str, value: Any) -> dict[str, StartValue]:
+    """Scalar start values from a scalar, a vector (``x[i]``) or a matrix (``K[i,j]``)."""
+    if isinstance(value, list):
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim == 1:
+            return {f"{name}[{i + 1}]": float(v) for i, v in enumerate(arr)}
+        if arr.ndim == 2:
+            return {
+                f"{name}[{i + 1},{j + 1}]": float(arr[i, j])
+                for i in range(arr.shape[0])
+                for j in range(arr.shape[1])
+            }
+        raise DescriptionError(f"start value {name!r}: only scalars, vectors and matrices")
+    if not isinstance(value, bool | int | float):
+        raise DescriptionError(f"start value {name!r}: {value!r} is not a number or boolean")
+    return {name: value}
+
+
+def load_system(
+    path: str | Path, variables: dict[str, str] | None = None, block_cache: Path | None = None
+) -> SystemSpec:
+    """Load a system description TOML file.
+
+    Parameters
+    ----------
+    path
+        The TOML file; relative FMU paths are relative to its directory.
+    variables
+        Values for ``${NAME}`` placeholders in FMU paths, overriding ``[variables]``.
+    block_cache
+        Where harness blocks are built (see :func:`harness.blocks.block_fmu`).
+
+    Returns
+    -------
+    SystemSpec
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DescriptionError(f"system description {path} does not exist")
+    with path.open("rb") as f:
+        data = tomllib.load(f)
+    subst = {**data.get("variables", {}), **(variables or {})}
+    run = data.get("run", {})
+    fmus = {
+        name: _fmu_spec(name, entry, path.parent, subst, block_cache)
+        for name, entry in data.get("fmus", {}).items()
+    }
+    if not fmus:
+        raise DescriptionError(f"{path}: no [fmus.NAME] tables")
+    connections = tuple(_connection_spec(c) for c in data.get("connections", []))
+    ev = data.get("evaluation", {})
+    evaluation = Evaluation(
+        at=tuple(float(t) for t in ev.get("at", [])),
+        windows=tuple((float(a), float(b)) for a, b in ev.get("windows", [])),
+        errors={k: (v[0], v[1]) for k, v in ev.get("errors", {}).items()},
+    )
+    return SystemSpec(
+        name=data.get("name", path.stem),
+        fmus=fmus,
+        connections=connections,
+        step=float(run.get("step", 1e-3)),
+        stop_time=float(run.get("stop_time", 1.0)),
+        start_time=float(run.get("start_time", 0.0)),
+        record=tuple(run.get("record", [])),
+        seed=run.get("seed"),
+        evaluation=evaluation,
+        source=path,
+    )
+
+
+def _fmu_spec(
+    name: str, entry: dict[str, Any], base: Path, subst: dict[str, str], block_cache: Path | None
+) -> FmuSpec:
+    start: dict[str, StartValue] = {}
+    for var, value in entry.get("start", {}).items():
+        start.update(expand_start(var, value))
+    if "block" in entry:
+        kind = entry["block"]
+        if kind not in BLOCK_KINDS:
+            raise DescriptionError(
+                f"FMU {name!r}: unknown block {kind!r} (have {sorted(BLOCK_KINDS)})"
+            )
+        dims = tuple(int(entry[d.removeprefix("n_")]) for d in BLOCK_KINDS[kind].dimensions)
+        return FmuSpec(name, block_fmu(kind, dims, block_cache), start, (kind, dims))
+    if "path" not in entry:
+        raise DescriptionError(f"FMU {name!r}: needs 'path' or 'block'")
+    try:
+        raw = string.Template(entry["path"]).substitute(subst)
+    except KeyError as err:
+        raise DescriptionError(
+            f"FMU {name!r}: path {entry['path']!r} uses undefined {err}"
+        ) from None
+    return FmuSpec(name, (base / raw).resolve(), start)
+
+
+def _connection_spec(entry: dict[str, Any]) -> ConnectionSpec:
+    try:
+        source, target = entry["from"], entry["to"]
+    except KeyError as err:
+        raise DescriptionError(f"connection {entry!r} lacks {err}") from None
+    gain = entry.get("gain")
+    return ConnectionSpec(
+        source, target, None if gain is None else np.atleast_2d(np.asarray(gain, dtype=float))
+    )
+
+
+# ---------------------------------------------------------------- resolution against the FMUs
+
+
+@dataclass(frozen=True)
+class ResolvedFmu:
+    """An FMU with its model description and its variables by name."""
+
+    spec: FmuSpec
+    description: ModelDescription
+    variables: dict[str, ScalarVariable]
+
+
+@dataclass(frozen=True)
+class ResolvedConnection:
+    """Scalar sources and targets of one connection and its gain, ``targets = gain @ sources``."""
+
+    sources: tuple[tuple[str, ScalarVariable], ...]
+    targets: tuple[tuple[str, ScalarVariable], ...]
+    gain: np.ndarray
+
+
+@dataclass(frozen=True)
+class ResolvedSystem:
+    """A system checked against its FMUs: everything the master needs, looked up once."""
+
+    spec: SystemSpec
+    fmus: dict[str, ResolvedFmu]
+    connections: tuple[ResolvedConnection, ...]
+    recorded: tuple[str, ...]  # scalar "fmu.var" outputs recorded, connected ones included
+
+
+_INDEXED = re.compile(r"^(?P<base>.+)\[(?P<idx>[0-9, ]+)\]$")
+
+
+def vector_names(variables: dict[str, ScalarVariable], name: str) -> list[str]:
+    """``name`` itself if it is a variable, else its elements ``name[1]``, ``name[2]``, ...
+
+    Elements are ordered by their indices (row-major for matrices), not by file order.
+    """
+    if name in variables:
+        return [name]
+    elements = []
+    for var in variables:
+        m = _INDEXED.match(var)
+        if m and m["base"] == name:
+            elements.append((tuple(int(i) for i in m["idx"].split(",")), var))
+    return [var for _, var in sorted(elements)]
+
+
+def resolve_system(spec: SystemSpec) -> ResolvedSystem:
+    """Check ``spec`` against the FMUs' model descriptions and look every variable up.
+
+    Raises
+    ------
+    DescriptionError
+        Unknown FMU file or variable, wrong causality or type, size mismatch, an input
+        connected twice or neither connected nor given a start value, an algebraic loop.
+    """
+    fmus = {name: _resolve_fmu(fs) for name, fs in spec.fmus.items()}
+    connections = tuple(_resolve_connection(c, fmus) for c in spec.connections)
+    _check_inputs(fmus, connections)
+    _check_algebraic_loops(fmus, connections)
+    recorded: list[str] = []
+    for conn in connections:
+        recorded += [f"{f}.{v.name}" for f, v in conn.sources]
+    for signal in spec.record + tuple(s for pair in spec.evaluation.errors.values() for s in pair):
+        recorded += [f"{f}.{v.name}" for f, v in _signals(signal, fmus, "output")]
+    return ResolvedSystem(spec, fmus, connections, tuple(dict.fromkeys(recorded)))
+
+
+def _resolve_fmu(fs: FmuSpec) -> ResolvedFmu:
+    if not fs.path.is_file():
+        raise DescriptionError(f"FMU {fs.name!r}: file {fs.path} does not exist")
+    try:
+        md = read_model_description(str(fs.path), validate=False)
+    except Exception as err:  # noqa: BLE001 - any parse failure is reported the same way
+        raise DescriptionError(f"FMU {fs.name!r}: cannot read {fs.path}: {err}") from err
+    if md.fmiVersion != "2.0" or md.coSimulation is None:
+        raise DescriptionError(f"FMU {fs.name!r}: {fs.path} is not an FMI 2.0 co-simulation FMU")
+    variables = {v.name: v for v in md.modelVariables}
+    for var, value in fs.start.items():
+        _check_start(fs.name, variables, var, value)
+    return ResolvedFmu(fs, md, variables)
+
+
+def _check_start(
+    fmu: str, variables: dict[str, ScalarVariable], name: str, value: StartValue
+) -> None:
+    v = _variable(fmu, variables, name)
+    settable = v.causality in ("parameter", "input") or v.initial in ("exact", "approx")
+    if v.variability == "constant" or v.causality == "calculatedParameter" or not settable:
+        raise DescriptionError(
+            f"{fmu}.{name}: cannot be given a start value (causality "
+            f"{v.causality}, variability {v.variability}, initial {v.initial})"
+        )
+    if v.type == "Real" and isinstance(value, bool):
+        raise DescriptionError(f"{fmu}.{name}: Real variable given boolean {value!r}")
+    if v.type in ("Integer", "Enumeration") and float(value) != int(value):
+        raise DescriptionError(f"{fmu}.{name}: {v.type} variable given non-integer {value!r}")
+    if v.type not in ("Real", "Integer", "Enumeration", "Boolean"):
+        raise DescriptionError(f"{fmu}.{name}: start values of type {v.type} are not supported")
+
+
+def _variable(fmu: str, variables: dict[str, ScalarVariable], name: str) -> ScalarVariable:
+    if name not in variables:
+        near = [v for v in variables if v.split("[")[0] == name.split("[")[0]][:6]
+        hint = f"; similar: {near}" if near else f"; has {list(variables)[:12]}"
+        raise DescriptionError(f"FMU {fmu!r} has no variable {name!r}{hint}")
+    return variables[name]
+
+
+def _signals(
+    signal: str, fmus: dict[str, ResolvedFmu], causality: str
+) -> list[tuple[str, ScalarVariable]]:
+    """Scalar variables of a vector or scalar signal, checked for causality and type Real."""
+    fmu, name = split_signal(signal)
+    if fmu not in fmus:
+        raise DescriptionError(f"signal {signal!r}: unknown FMU {fmu!r} (have {sorted(fmus)})")
+    variables = fmus[fmu].variables
+    names = vector_names(variables, name) or [_variable(fmu, variables, name).name]
+    out = []
+    for n in names:
+        v = variables[n]
+        if v.causality != causality:
+            raise DescriptionError(
+                f"{fmu}.{n}: causality is {v.causality}, a connection needs {causality} here"
+            )
+        if v.type != "Real":
+            raise DescriptionError(f"{fmu}.{n}: type {v.type}; connections carry Real signals only")
+        out.append((fmu, v))
+    return out
+
+
+def _resolve_connection(c: ConnectionSpec, fmus: dict[str, ResolvedFmu]) -> ResolvedConnection:
+    sources = _signals(c.source, fmus, "output")
+    targets = _signals(c.target, fmus, "input")
+    gain = np.eye(len(targets)) if c.gain is None else c.gain
+    if gain.shape != (len(targets), len(sources)):
+        what = "gain shape " + str(gain.shape) if c.gain is not None else "sizes differ:"
+        raise DescriptionError(
+            f"connection {c.source} -> {c.target}: {what} for {len(sources)} "
+            f"sources and {len(targets)} targets"
+        )
+    if not np.all(np.isfinite(gain)):
+        raise DescriptionError(f"connection {c.source} -> {c.target}: gain is not finite")
+    return ResolvedConnection(tuple(sources), tuple(targets), gain)
+
+
+def _check_inputs(
+    fmus: dict[str, ResolvedFmu], connections: tuple[ResolvedConnection, ...]
+) -> None:
+    connected: set[str] = set()
+    for conn in connections:
+        for fmu, v in conn.targets:
+            key = f"{fmu}.{v.name}"
+            if key in connected:
+                raise DescriptionError(f"input {key} is connected more than once")
+            if v.name in fmus[fmu].spec.start:
+                raise DescriptionError(f"input {key} is connected and also given a start value")
+            connected.add(key)
+    for name, rf in fmus.items():
+        for v in rf.description.modelVariables:
+            key = f"{name}.{v.name}"
+            if v.causality == "input" and key not in connected and v.name not in rf.spec.start:
+                raise DescriptionError(
+                    f"input {key} is unconnected: connect it or give it a start "
+                    f"value (a constant input)"
+                )
+
+
+def _check_algebraic_loops(
+    fmus: dict[str, ResolvedFmu], connections: tuple[ResolvedConnection, ...]
+) -> None:
+    """Reject cycles made of connections and *declared* direct feedthrough."""
+    edges: dict[str, set[str]] = {}
+    for conn in connections:
+        for (sf, sv), row in zip(conn.targets, conn.gain, strict=True):
+            for (of, ov), g in zip(conn.sources, row, strict=True):
+                if g != 0.0:
+                    edges.setdefault(f"{of}.{ov.name}", set()).add(f"{sf}.{sv.name}")
+    for name, rf in fmus.items():
+        for unknown in rf.description.outputs:
+            for dep in unknown.dependencies or []:
+                if dep.causality == "input":
+                    edges.setdefault(f"{name}.{dep.name}", set()).add(
+                        f"{name}.{unknown.variable.name}"
+                    )
+    cycle = _find_cycle(edges)
+    if cycle:
+        raise DescriptionError(
+            "algebraic loop through declared direct feedthrough: " + " -> ".join(cycle)
+        )
+
+
+def _find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
+    """A cycle of the directed graph ``edges`` as a closed list of nodes, or None."""
+    state: dict[str, int] = {}  # 1 on the stack, 2 done
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt) :] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(edges):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
