@@ -1,0 +1,41 @@
+"""pythonfmu slave script of ``luenberger.fmu``: the linear baseline observer.
+
+dz/dt = A z + B u + L_lin (C z - y). Copied into the FMU by :mod:`fhobs.build` like
+``observer.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fhobs.fmu.slave_base import ObserverSlave
+from fhobs.runtime import LuenbergerObserver
+
+
+class FhobsLuenberger(ObserverSlave):
+    """Luenberger observer; A + L_lin C must stay Hurwitz when parameters are edited."""
+
+    description = "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)"
+
+    def _declare_gains(self) -> None:
+        self.add_array("L_lin", self.design.L_lin, "parameter", "observer gain (n x k)")
+
+    def _check_gains(self) -> None:
+        design = self.edited_design()
+        abscissa = float(np.max(np.linalg.eigvals(design.A + design.L_lin @ design.C).real))
+        if not abscissa < 0.0:
+            raise ValueError(
+                f"check hurwitz_luenberger failed: max Re eig(A + L_lin C) = {abscissa:.3e} "
+                "(required < 0)"
+            )
+
+    def _make_model(self) -> LuenbergerObserver:
+        return LuenbergerObserver(
+            self.edited_design(),
+            h=float(self.array("h")),
+            scheme=self.scheme_name(),
+            z0=self.array("z0"),
+        )
+
+    def _model_outputs(self) -> dict[str, object]:
+        return {"x_hat": self.model.z}

@@ -1,0 +1,60 @@
+"""pythonfmu slave script of ``observer.fmu``: the filtering homogeneous observer (Theorem 2).
+
+Copied into the FMU by :mod:`fhobs.build` with ``fhobs`` renamed to a build-unique package
+and the class renamed, so that FMUs of different designs never share Python modules.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fhobs.certificate import certify
+from fhobs.fmu.slave_base import ObserverSlave
+from fhobs.runtime import FilteringObserver
+
+
+class FhobsObserver(ObserverSlave):
+    """Filtering homogeneous observer with the certificate re-checked at initialisation."""
+
+    description = "Filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov), Theorem 2"
+
+    def _declare_gains(self) -> None:
+        design, config = self.design, self.config
+        for name, text in (
+            ("L0", "homogenisation gain, A0 = A + L0 C nilpotent (n x k)"),
+            ("G_d", "dilation generator of Theorem 2 (n x n)"),
+            ("L_tilde", "gain of the output filter psi (k x k)"),
+            ("L", "gain of the estimate z (n x k)"),
+            ("P_bar", "Lyapunov matrix of the Theorem 2 LMI ((k+n) x (k+n))"),
+        ):
+            self.add_array(name, getattr(design, name), "parameter", text)
+        self.add_array("nu", design.nu, "parameter", "homogeneity degree")
+        self.add_array("gamma", design.gamma, "parameter", "gain of the xi equation")
+        self.add_array("rho", design.rho, "parameter", "LMI decay parameter, rho > gamma/2")
+        self.add_array("psi0", config["psi0"], "parameter", "initial output-filter state")
+        self.add_array("xi0", config["xi0"], "parameter", "initial xi")
+        self.add_array("psi", np.zeros(design.k), "output", "output-filter state psi")
+        self.add_array("xi", 0.0, "output", "scalar gain state xi")
+        self.add_array("sigma", 0.0, "output", "sigma = sqrt(max(xi, |psi|^2 / 2))")
+
+    def _check_gains(self) -> None:
+        certify(self.edited_design())
+
+    def _make_model(self) -> FilteringObserver:
+        return FilteringObserver(
+            self.edited_design(),
+            h=float(self.array("h")),
+            scheme=self.scheme_name(),
+            z0=self.array("z0"),
+            psi0=self.array("psi0"),
+            xi0=float(self.array("xi0")),
+        )
+
+    def _model_outputs(self) -> dict[str, object]:
+        diagnostics = self.model.diagnostics()
+        return {
+            "x_hat": self.model.z,
+            "psi": diagnostics["psi"],
+            "xi": diagnostics["xi"],
+            "sigma": diagnostics["sigma"],
+        }

@@ -1,0 +1,62 @@
+"""pythonfmu slave script of ``plant.fmu``: the LTI plant with reproducible measurement noise.
+
+dx/dt = A x + B u + E q, y = C x + eta, with eta uniform in [-a, a], a function of
+(noise_seed, step index) only. Copied into the FMU by :mod:`fhobs.build` like ``observer.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fhobs.fmu.slave_base import FhobsSlave
+from fhobs.plant import LTIPlant
+
+
+class FhobsPlant(FhobsSlave):
+    """The plant of the spec, stepped exactly (zero-order hold) by the numpy runtime."""
+
+    description = "LTI plant dx/dt = A x + B u + E q, y = C x + noise"
+
+    def _declare(self) -> None:
+        design, config = self.design, self.config
+        self.add_array("A", design.A, "parameter", "state matrix (n x n)")
+        self.add_array("B", design.B, "parameter", "input matrix (n x m)")
+        self.add_array("C", design.C, "parameter", "output matrix (k x n)")
+        if design.E is not None:
+            self.add_array("E", design.E, "parameter", "perturbation matrix (n x r)")
+        self.add_array("x0", config["x0"], "parameter", "initial state")
+        self.add_array(
+            "noise_amplitude", config["noise_amplitude"], "parameter",
+            "measurement noise is uniform in [-noise_amplitude, noise_amplitude]",
+        )
+        self.add_integer("noise_seed", config["noise_seed"], "seed of the measurement noise")
+        self.add_array("u", np.zeros(design.m), "input", "control input")
+        if design.E is not None:
+            self.add_array("q", np.zeros(design.E.shape[1]), "input", "perturbation (through E)")
+        self.add_array("y", np.zeros(design.k), "output", "measured output C x + noise")
+        self.add_array("x", np.zeros(design.n), "output", "true state")
+
+    def _perturbation(self) -> np.ndarray:
+        return self.array("q") if "q" in self._arrays else np.zeros(0)
+
+    def _check_parameters(self) -> None:
+        amplitude = float(self.array("noise_amplitude"))
+        if amplitude < 0.0:
+            raise ValueError(f"noise_amplitude = {amplitude!r} is negative")
+
+    def _make_model(self) -> LTIPlant:
+        return LTIPlant(
+            self.array("A"),
+            self.array("B"),
+            self.array("C"),
+            E=self.array("E") if "E" in self._arrays else None,
+            x0=self.array("x0"),
+            noise_amplitude=float(self.array("noise_amplitude")),
+            seed=self.integer("noise_seed"),
+        )
+
+    def _advance(self, step_size: float) -> None:
+        self.model.step(self.array("u"), self._perturbation(), step_size)
+
+    def _model_outputs(self) -> dict[str, object]:
+        return {"y": self.model.y, "x": self.model.x}

@@ -1,0 +1,353 @@
+"""FMI plumbing shared by the observer, Luenberger and plant slaves.
+
+A slave declares array-valued parameters, inputs and outputs; this base class turns each
+array into consecutive, row-major scalar variables (``A[1,1]``, ``A[1,2]``, ..., ``y[1]``),
+re-checks the parameters at ``exitInitializationMode``, validates the inputs of every
+``doStep``, keeps the model's state at its last valid value when a call is rejected, and
+captures the complete state (parameters, inputs, the numpy model's internal state) for
+``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``.
+
+Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
+an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
+``fmi2Discard``. The slave therefore records the status of its last call in the Integer
+variable ``status`` (value reference 0, ``3`` = error) and logs the reason; the small C
+wrapper that :mod:`fhobs.build` places in front of pythonfmu's binary (linux64) reads it
+after ``fmi2DoStep`` and ``fmi2ExitInitializationMode`` and returns ``fmi2Error``. Without
+that wrapper (win64), a rejected step returns ``fmi2Discard`` and a rejected
+initialisation ``fmi2Fatal``.
+
+Only numpy, the standard library, pythonfmu and numpy-only fhobs modules are imported here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from abc import abstractmethod
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu.enums import Fmi2Status
+
+from ..gains import ObserverGains
+from ..runtime import SCHEMES
+
+DESIGN_FILE = "design.json"
+CONFIG_FILE = "fmu_config.json"
+STATUS_VALUE_REFERENCE = 0
+STATUS_OK = int(Fmi2Status.ok)
+STATUS_ERROR = int(Fmi2Status.error)
+
+_KINDS: dict[str, dict[str, Any]] = {
+    "parameter": {"causality": Fmi2Causality.parameter, "variability": Fmi2Variability.fixed},
+    "input": {"causality": Fmi2Causality.input, "variability": Fmi2Variability.continuous},
+    "output": {
+        "causality": Fmi2Causality.output,
+        "variability": Fmi2Variability.continuous,
+        "initial": Fmi2Initial.exact,
+    },
+}
+
+
+class SlaveModel(Protocol):
+    """What the base class needs from a runtime object (observer or plant)."""
+
+    def get_state(self) -> np.ndarray:
+        """Return the complete internal state as a flat float array (a copy)."""
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Restore a state returned by :meth:`get_state`."""
+
+
+def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
+    """FMI names of the elements of an array, row-major, 1-based (``A[1,1]``, ``A[1,2]``...).
+
+    Parameters
+    ----------
+    name : str
+        Base name of the array.
+    shape : tuple of int
+        ``()`` for a scalar (the name is returned unchanged), ``(n,)`` or ``(n, m)``.
+
+    Returns
+    -------
+    list of str
+    """
+    if not shape:
+        return [name]
+    return [f"{name}[{','.join(str(i + 1) for i in idx)}]" for idx in np.ndindex(*shape)]
+
+
+class FhobsSlave(Fmi2Slave):
+    """Common base of the fhobs slaves (abstract: subclasses define the model).
+
+    Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`,
+    :meth:`_advance` and :meth:`_model_outputs`. The design record and the build options are
+    read from the instance's own ``resources`` folder, never from module globals, so that
+    two FMUs sharing Python modules in one process stay independent.
+    """
+
+    author = "fhobs"
+    license = "MIT"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        resources = Path(self.resources)
+        self.design = ObserverGains.load_json(resources / DESIGN_FILE)
+        self.config: dict[str, Any] = json.loads((resources / CONFIG_FILE).read_text())
+        self._status_via_wrapper = bool(self.config["status_wrapper"]) and sys.platform == "linux"
+        self._arrays: dict[str, np.ndarray] = {}
+        self._integers: dict[str, int] = {}
+        self._kinds: dict[str, list[str]] = {kind: [] for kind in _KINDS}
+        self.status = STATUS_OK
+        self.register_variable(
+            Integer(
+                "status",
+                causality=Fmi2Causality.local,
+                variability=Fmi2Variability.discrete,
+                initial=Fmi2Initial.exact,
+                description="status of the last doStep/exitInitializationMode (0 ok, 3 error)",
+            )
+        )
+        self._declare()
+        self.add_array(
+            "input_bound", float(self.config["input_bound"]), "parameter",
+            "inputs of larger magnitude are rejected as absurd",
+        )
+        self._ready = False
+        self.model: SlaveModel = self._make_model()
+        self._publish()
+
+    # -- declaration helpers -------------------------------------------------------------
+    def add_array(self, name: str, value: Any, kind: str, description: str) -> None:
+        """Register a float array (or scalar) as consecutive row-major scalar variables.
+
+        Parameters
+        ----------
+        name : str
+            Base name (``A``, ``y``, ``nu``...).
+        value : array_like
+            Start value; its shape fixes the variables.
+        kind : {"parameter", "input", "output"}
+        description : str
+        """
+        array = np.array(value, dtype=float)
+        self._arrays[name] = array
+        self._kinds[kind].append(name)
+        labels = element_names(name, array.shape)
+        for index, label in zip(np.ndindex(*array.shape), labels, strict=True):
+            self.register_variable(
+                Real(
+                    label,
+                    description=description,
+                    getter=lambda n=name, i=index: float(self._arrays[n][i]),
+                    setter=lambda v, n=name, i=index: self._arrays[n].__setitem__(i, v),
+                    **_KINDS[kind],
+                )
+            )
+
+    def add_integer(self, name: str, value: int, description: str) -> None:
+        """Register an Integer parameter."""
+        self._integers[name] = int(value)
+        self.register_variable(
+            Integer(
+                name,
+                description=description,
+                getter=lambda n=name: self._integers[n],
+                setter=lambda v, n=name: self._integers.__setitem__(n, int(v)),
+                **_KINDS["parameter"],
+            )
+        )
+
+    def array(self, name: str) -> np.ndarray:
+        """Current value of an array variable (a copy)."""
+        return self._arrays[name].copy()
+
+    def _elements(self, name: str) -> Iterator[tuple[str, float]]:
+        """(FMI name, value) of each element of an array variable, row-major."""
+        values = self._arrays[name]
+        return zip(element_names(name, values.shape), values.flat, strict=True)
+
+    def integer(self, name: str) -> int:
+        """Current value of an Integer parameter."""
+        return self._integers[name]
+
+    def edited_design(self) -> ObserverGains:
+        """The design record with every design field replaced by its current parameter value."""
+        changes: dict[str, Any] = {}
+        for field in dataclasses.fields(ObserverGains):
+            if field.name in self._kinds["parameter"]:
+                value = self.array(field.name)
+                changes[field.name] = float(value) if value.ndim == 0 else value
+        return dataclasses.replace(self.design, **changes)
+
+    # -- FMI lifecycle -------------------------------------------------------------------
+    def exit_initialization_mode(self) -> None:
+        """Re-check the (possibly edited) parameters and build the model from them."""
+        self.status = STATUS_OK
+        self._ready = False
+        try:
+            self._check_finite_parameters()
+            self._check_parameters()
+            self.model = self._make_model()
+        except ValueError as err:
+            self._fail(f"initialisation rejected the parameters: {err}")
+            if not self._status_via_wrapper:
+                raise
+            return
+        self._ready = True
+        self._publish()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        """Advance by ``step_size`` with the inputs held; reject invalid calls, state kept."""
+        self.status = STATUS_OK
+        if not self._ready:
+            return self._fail("doStep called without a successful initialisation")
+        problem = self._input_problem(step_size)
+        if problem:
+            return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
+        saved = self.model.get_state()
+        try:
+            self._advance(step_size)
+            outputs = self._finite_outputs()
+        except ValueError as err:
+            self.model.set_state(saved)
+            return self._fail(f"doStep at t = {current_time!r} rejected: {err}")
+        self._store_outputs(outputs)
+        return True
+
+    def _check_finite_parameters(self) -> None:
+        """Raise ValueError naming the first parameter element that is not finite."""
+        for name in self._kinds["parameter"]:
+            for label, value in self._elements(name):
+                if not np.isfinite(value):
+                    raise ValueError(f"parameter {label} = {value!r} is not finite")
+
+    def _fail(self, message: str) -> bool:
+        """Log ``message`` with status error, record the status, and return False."""
+        self.status = STATUS_ERROR
+        self.log(message, Fmi2Status.error)
+        return False
+
+    def _input_problem(self, step_size: float) -> str:
+        """Describe what is wrong with the step size or the inputs ('' when nothing is)."""
+        if not (np.isfinite(step_size) and step_size > 0.0):
+            return f"communication step size {step_size!r} is not a positive finite number"
+        bound = float(self._arrays["input_bound"])
+        for name in self._kinds["input"]:
+            for label, value in self._elements(name):
+                if not np.isfinite(value):
+                    return f"input {label} = {value!r} is not finite"
+                if abs(value) > bound:
+                    return f"input {label} = {value!r} exceeds input_bound = {bound!r}"
+        return ""
+
+    def _finite_outputs(self) -> dict[str, np.ndarray]:
+        """The model's outputs as arrays; ValueError if one is not finite."""
+        outputs = {name: np.asarray(v, dtype=float) for name, v in self._model_outputs().items()}
+        for name, value in outputs.items():
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"the model produced a non-finite output {name} = {value}")
+        return outputs
+
+    def _store_outputs(self, outputs: dict[str, np.ndarray]) -> None:
+        for name, value in outputs.items():
+            self._arrays[name][...] = value
+
+    def _publish(self) -> None:
+        """Copy the model's outputs to the output variables."""
+        self._store_outputs(self._finite_outputs())
+
+    # -- FMU state -----------------------------------------------------------------------
+    def _get_fmu_state(self) -> dict[str, Any]:
+        """Everything needed to continue bit for bit: variables, readiness, model state."""
+        return {
+            "arrays": {name: value.tolist() for name, value in self._arrays.items()},
+            "integers": dict(self._integers),
+            "ready": self._ready,
+            "model": self.model.get_state().tolist(),
+        }
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        """Restore a state from :meth:`_get_fmu_state` (possibly of another instance)."""
+        for name, value in state["arrays"].items():
+            self._arrays[name] = np.array(value, dtype=float)
+        self._integers.update(state["integers"])
+        self.model = self._make_model()
+        self.model.set_state(np.array(state["model"], dtype=float))
+        self._ready = bool(state["ready"])
+        self.status = STATUS_OK
+
+    # -- what a slave defines ------------------------------------------------------------
+    @abstractmethod
+    def _declare(self) -> None:
+        """Register the slave's parameters, inputs and outputs (start values from the design)."""
+
+    @abstractmethod
+    def _check_parameters(self) -> None:
+        """Raise ValueError, naming the check and the amount, if the parameters are unusable."""
+
+    @abstractmethod
+    def _make_model(self) -> SlaveModel:
+        """Build the runtime object from the current parameter values."""
+
+    @abstractmethod
+    def _advance(self, step_size: float) -> None:
+        """Step the model by ``step_size`` with the current inputs."""
+
+    @abstractmethod
+    def _model_outputs(self) -> dict[str, Any]:
+        """Map each output array name to the model's current value."""
+
+
+class ObserverSlave(FhobsSlave):
+    """Base of the two observer slaves: plant matrices, z0, h, scheme, inputs y, u, x_hat.
+
+    Subclasses add their gains with :meth:`_declare_gains` and may add outputs.
+    """
+
+    def _declare(self) -> None:
+        design, config = self.design, self.config
+        self.add_array("A", design.A, "parameter", "plant state matrix (n x n)")
+        self.add_array("B", design.B, "parameter", "plant input matrix (n x m)")
+        self.add_array("C", design.C, "parameter", "plant output matrix (k x n)")
+        self._declare_gains()
+        self.add_array("z0", config["z0"], "parameter", "initial state estimate")
+        self.add_array("h", config["h"], "parameter", "internal integration step (s)")
+        self.add_integer(
+            "scheme",
+            SCHEMES.index(config["scheme"]),
+            "integration scheme: " + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
+        )
+        self.add_array("y", np.zeros(design.k), "input", "measured plant output")
+        self.add_array("u", np.zeros(design.m), "input", "plant input")
+        self.add_array("x_hat", np.zeros(design.n), "output", "state estimate z")
+
+    def scheme_name(self) -> str:
+        """Name of the selected integration scheme; ValueError if the index is unknown."""
+        index = self.integer("scheme")
+        if not 0 <= index < len(SCHEMES):
+            raise ValueError(f"scheme = {index} is not in 0..{len(SCHEMES) - 1} ({SCHEMES})")
+        return SCHEMES[index]
+
+    def _check_parameters(self) -> None:
+        h = float(self.array("h"))
+        if not (np.isfinite(h) and h > 0.0):
+            raise ValueError(f"internal step h = {h!r} is not a positive finite number")
+        self.scheme_name()
+        self._check_gains()
+
+    def _advance(self, step_size: float) -> None:
+        self.model.step(self.array("y"), self.array("u"), step_size)
+
+    @abstractmethod
+    def _declare_gains(self) -> None:
+        """Register the observer's gain parameters."""
+
+    @abstractmethod
+    def _check_gains(self) -> None:
+        """Raise ValueError (CertificateError) if the edited design is not certified."""
