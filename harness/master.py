@@ -100,8 +100,23 @@ def _alias(arr: np.ndarray, start: int, count: int) -> ctypes.Array:
 class Master:
     """Co-simulate a :class:`~harness.system.ResolvedSystem` (see the module docstring)."""
 
-    def __init__(self, system: ResolvedSystem) -> None:
+    def __init__(self, system: ResolvedSystem, first_inputs: str = "outputs") -> None:
+        """Prepare the exchange for ``system``.
+
+        Parameters
+        ----------
+        system
+            The resolved system.
+        first_inputs
+            ``"outputs"``: the first step's inputs come from the outputs at ``t0`` (the
+            convention, as libcosim does). ``"zero"``: connected inputs are 0 during the first
+            step, which is what ``fmpy.ssp.simulation.simulate_ssp`` does; only for comparing
+            with it.
+        """
+        if first_inputs not in ("outputs", "zero"):
+            raise ValueError(f"first_inputs must be 'outputs' or 'zero', not {first_inputs!r}")
         self.system = system
+        self.first_inputs = first_inputs
         self.names = tuple(
             s for f in system.fmus for s in system.recorded if s.partition(".")[0] == f
         )
@@ -146,10 +161,13 @@ class Master:
             self._read_outputs(slaves, t0)
             values[0] = outputs
             show = sys.stderr.isatty() if progress is None else progress
+            buffers = (values, outputs, inputs)
             for k0 in self._chunks(steps, show):
-                self._steps(
-                    slaves, k0, min(k0 + PROGRESS_CHUNK, steps), t0, h, values, outputs, inputs
-                )
+                k1 = min(k0 + PROGRESS_CHUNK, steps)
+                if k0 == 0 and self.first_inputs == "zero":
+                    self._steps(slaves, 0, 1, t0, h, *buffers, np.zeros_like(self.matrix))
+                    k0 = 1
+                self._steps(slaves, k0, k1, t0, h, *buffers, self.matrix)
         wall = time.perf_counter() - started
         return CoSimResult(t0 + h * np.arange(steps + 1), self.names, values, steps, wall)
 
@@ -172,9 +190,10 @@ class Master:
         values: np.ndarray,
         outputs: np.ndarray,
         inputs: np.ndarray,
+        matrix: np.ndarray,
     ) -> None:
-        """Steps ``k_from .. k_to - 1``; the hot loop (no allocation, no lookup)."""
-        matrix, matmul = self.matrix, np.matmul
+        """Steps ``k_from .. k_to - 1`` with inputs ``matrix @ outputs``: the hot loop."""
+        matmul = np.matmul
         setters = [
             (s.fmu.dll.fmi2SetReal, s.fmu.component, s.in_vr, len(s.in_vr), s.in_buf, s.name)
             for s in slaves
@@ -279,7 +298,10 @@ def _set_start_values(fmu: FMU2Slave, rf: ResolvedFmu) -> None:
 
 
 def run_system(
-    system: ResolvedSystem, stop_time: float | None = None, progress: bool | None = None
+    system: ResolvedSystem,
+    stop_time: float | None = None,
+    progress: bool | None = None,
+    first_inputs: str = "outputs",
 ) -> CoSimResult:
-    """Shorthand for ``Master(system).run(stop_time, progress)``."""
-    return Master(system).run(stop_time, progress)
+    """Shorthand for ``Master(system, first_inputs).run(stop_time, progress)``."""
+    return Master(system, first_inputs).run(stop_time, progress)

@@ -1,0 +1,196 @@
+"""Export a system description as an SSP 1.0 file (``SystemStructure.ssd`` + FMUs).
+
+What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6):
+
+- connections: both; transformations on connections: fmpy ignores them, and SSP 1.0 has no
+  matrix transformation or summation anyway. So every connection gain ``u = K x`` is carried as
+  a :mod:`harness.blocks` matrix-gain FMU (:func:`lower_gains`). Under a Jacobi exchange that
+  block delays its path by one communication step (its output is read at ``t_k`` before its
+  input of ``t_k`` is set): the exported system is the *lowered* system, which the harness runs
+  the same way (``resolve_system(lower_gains(spec))``).
+- start values: written as component ``ParameterBindings`` with inline ``ssv:ParameterSet``
+  values (libcosim applies them; fmpy's ``simulate_ssp`` parses but does not apply them, so
+  :mod:`harness.engines` hands them over as its ``parameter_set``).
+- signal sources: carried as :mod:`harness.blocks` sine FMUs (the systems already use them).
+
+The default experiment (start, stop) is written; the step size goes into the OSP annotation
+``osp:FixedStepAlgorithm baseStepSize`` that libcosim reads.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+from harness.blocks import block_fmu
+from harness.system import (
+    ConnectionSpec,
+    FmuSpec,
+    ResolvedSystem,
+    SystemSpec,
+    resolve_system,
+    split_signal,
+)
+
+NS = {
+    "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+    "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+    "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+    "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+}
+FMU_MIME = "application/x-fmu-sharedlibrary"
+
+
+def lower_gains(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec:
+    """The same system with every connection gain replaced by a matrix-gain block FMU.
+
+    A connection ``from -> to`` with gain ``K`` (p x m) becomes ``from -> gain_i.u`` and
+    ``gain_i.y -> to`` with a block ``gain_i`` whose start values are ``K``.
+    """
+    fmus = dict(spec.fmus)
+    connections: list[ConnectionSpec] = []
+    for i, conn in enumerate(spec.connections, start=1):
+        if conn.gain is None:
+            connections.append(conn)
+            continue
+        name = f"gain_{i}"
+        if name in fmus:
+            raise ValueError(f"cannot lower gains: the system already has an FMU {name!r}")
+        p, m = conn.gain.shape
+        start = {f"K[{r + 1},{c + 1}]": float(conn.gain[r, c]) for r in range(p) for c in range(m)}
+        fmus[name] = FmuSpec(name, block_fmu("gain", (p, m), block_cache), start, ("gain", (p, m)))
+        connections += [
+            ConnectionSpec(conn.source, f"{name}.u"),
+            ConnectionSpec(f"{name}.y", conn.target),
+        ]
+    return replace(spec, fmus=fmus, connections=tuple(connections))
+
+
+def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None) -> Path:
+    """Write ``spec`` (gains lowered to blocks) as an SSP file at ``path``.
+
+    Parameters
+    ----------
+    spec
+        The system; its connections, start values, recorded signals and experiment go in.
+    path
+        The ``.ssp`` file to write.
+    block_cache
+        Where the gain blocks are built (see :func:`harness.blocks.block_fmu`).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    system = resolve_system(lower_gains(spec, block_cache))
+    resources = _resource_names(system)
+    root = _ssd(system, resources)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(
+            "SystemStructure.ssd", ET.tostring(root, encoding="unicode", xml_declaration=True)
+        )
+        for source, resource in {src: res for src, res in resources.values()}.items():
+            zf.write(source, resource)
+    return path
+
+
+def _resource_names(system: ResolvedSystem) -> dict[str, tuple[Path, str]]:
+    """Component name -> (FMU file, resource path); one resource per distinct FMU file."""
+    by_file: dict[Path, str] = {}
+    out = {}
+    for name, rf in system.fmus.items():
+        src = rf.spec.path
+        if src not in by_file:
+            stem = src.stem if src.stem not in {Path(r).stem for r in by_file.values()} else name
+            by_file[src] = f"resources/{stem}.fmu"
+        out[name] = (src, by_file[src])
+    return out
+
+
+def _q(prefix: str, tag: str) -> str:
+    return f"{{{NS[prefix]}}}{tag}"
+
+
+def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.Element:
+    for prefix, uri in NS.items():
+        ET.register_namespace(prefix, uri)
+    spec = system.spec
+    root = ET.Element(_q("ssd", "SystemStructureDescription"), version="1.0", name=spec.name)
+    sys_el = ET.SubElement(root, _q("ssd", "System"), name=spec.name)
+    elements = ET.SubElement(sys_el, _q("ssd", "Elements"))
+    connectors = _connectors(system)
+    for name, rf in system.fmus.items():
+        comp = ET.SubElement(
+            elements, _q("ssd", "Component"), name=name, source=resources[name][1], type=FMU_MIME
+        )
+        conns = ET.SubElement(comp, _q("ssd", "Connectors"))
+        for var, kind in connectors[name]:
+            c = ET.SubElement(conns, _q("ssd", "Connector"), name=var, kind=kind)
+            ET.SubElement(c, _q("ssc", "Real"))
+        if rf.spec.start:
+            _bindings(comp, rf.spec.start, rf.variables)
+    links = ET.SubElement(sys_el, _q("ssd", "Connections"))
+    for conn in system.connections:
+        for (sf, sv), (tf, tv) in zip(conn.sources, conn.targets, strict=True):
+            ET.SubElement(
+                links,
+                _q("ssd", "Connection"),
+                startElement=sf,
+                startConnector=sv.name,
+                endElement=tf,
+                endConnector=tv.name,
+            )
+    exp = ET.SubElement(
+        root,
+        _q("ssd", "DefaultExperiment"),
+        startTime=repr(spec.start_time),
+        stopTime=repr(spec.stop_time),
+    )
+    notes = ET.SubElement(
+        ET.SubElement(exp, _q("ssd", "Annotations")),
+        _q("ssc", "Annotation"),
+        type="com.opensimulationplatform",
+    )
+    algo = ET.SubElement(notes, _q("osp", "Algorithm"))
+    ET.SubElement(algo, _q("osp", "FixedStepAlgorithm"), baseStepSize=repr(spec.step))
+    return root
+
+
+def _connectors(system: ResolvedSystem) -> dict[str, list[tuple[str, str]]]:
+    """Per component: the connected inputs and the connected or recorded outputs."""
+    out: dict[str, list[tuple[str, str]]] = {name: [] for name in system.fmus}
+    for conn in system.connections:
+        for fmu, v in conn.targets:
+            out[fmu].append((v.name, "input"))
+    for signal in system.recorded:
+        fmu, var = split_signal(signal)
+        out[fmu].append((var, "output"))
+    return {name: list(dict.fromkeys(items)) for name, items in out.items()}
+
+
+def _bindings(comp: ET.Element, start: dict, variables: dict) -> None:
+    binding = ET.SubElement(
+        ET.SubElement(comp, _q("ssd", "ParameterBindings")), _q("ssd", "ParameterBinding")
+    )
+    pset = ET.SubElement(
+        ET.SubElement(binding, _q("ssd", "ParameterValues")),
+        _q("ssv", "ParameterSet"),
+        version="1.0",
+        name="start_values",
+    )
+    params = ET.SubElement(pset, _q("ssv", "Parameters"))
+    for var, value in start.items():
+        kind = variables[var].type
+        p = ET.SubElement(params, _q("ssv", "Parameter"), name=var)
+        if kind == "Real":
+            text = repr(float(value))
+        elif kind == "Boolean":
+            text = str(bool(value)).lower()
+        else:
+            text = str(int(value))
+        ET.SubElement(p, _q("ssv", "Integer" if kind == "Enumeration" else kind), value=text)
