@@ -115,7 +115,8 @@ def solve_homogenisation(A: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.n
     """
     n, k = A.shape[0], C.shape[0]
     eye = np.eye(n)
-    # Column-major vec: vec(A X - X A) = (I kron A - A^T kron I) vec(X), vec(Y C) = (C^T kron I) vec(Y)
+    # Column-major vec: vec(A X - X A) = (I kron A - A^T kron I) vec(X),
+    # vec(Y C) = (C^T kron I) vec(Y).
     top = np.hstack([np.kron(eye, A) - np.kron(A.T, eye), np.kron(C.T, eye)])
     bottom = np.hstack([np.kron(eye, C), np.zeros((k * n, n * k))])
     M = np.vstack([top, bottom])

@@ -1,0 +1,30 @@
+"""Shared fixtures: the bundled pendulum example, its tuned design and the paper's design."""
+
+from pathlib import Path
+
+import pytest
+
+from fhobs.design import design_observer, paper_gains
+from fhobs.gains import ObserverGains
+from fhobs.spec import PlantSpec, load_spec
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = REPO / "examples"
+
+
+@pytest.fixture(scope="session")
+def pendulum_spec() -> PlantSpec:
+    """The paper's pendulum, as shipped in examples/pendulum.toml."""
+    return load_spec(EXAMPLES / "pendulum.toml")
+
+
+@pytest.fixture(scope="session")
+def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
+    """Our design for the pendulum (default objective)."""
+    return design_observer(pendulum_spec)
+
+
+@pytest.fixture(scope="session")
+def paper_design() -> ObserverGains:
+    """The paper's published gains, certified."""
+    return paper_gains(EXAMPLES / "pendulum-paper.json")

@@ -1,0 +1,105 @@
+"""Plant spec loading: the examples load, and every defect gets an error naming its field."""
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fhobs.spec import SpecError, load_spec, spec_from_dict
+
+from conftest import EXAMPLES
+
+GOOD = {
+    "A": [[0.0, 1.0], [-2.0, -3.0]],
+    "B": [[0.0], [1.0]],
+    "C": [[1.0, 0.0]],
+    "observer": {"nu": -0.3, "rho": 1.5, "gamma": 2.0},
+}
+
+
+def with_change(path: tuple, value) -> dict:
+    """A copy of GOOD with one entry replaced (value None deletes it)."""
+    data = copy.deepcopy(GOOD)
+    target = data
+    for key in path[:-1]:
+        target = target[key]
+    if value is None:
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("name", ["pendulum", "triple_integrator", "mass_chain"])
+def test_examples_load(name):
+    spec = load_spec(EXAMPLES / f"{name}.toml")
+    assert spec.A.shape[0] == spec.C.shape[1]
+    assert -1 / (spec.n_tilde + 1) - 1e-12 <= spec.nu < 0
+    assert spec.rho > spec.gamma / 2
+
+
+def test_defaults_are_documented_values():
+    spec = spec_from_dict(with_change(("observer",), None))
+    assert spec.n_tilde == 2
+    assert spec.nu == pytest.approx(-1 / 3)
+    assert (spec.rho, spec.gamma, spec.objective) == (1.5, 2.75, "min_gain")
+
+
+BAD_CASES = [
+    (("A",), None, r"A is missing"),
+    (("B",), [[0.0], [1.0, 2.0]], r"B is ragged: row 2 has 2 entries, row 1 has 1"),
+    (("C",), [[1.0, "x"]], r"C\[1,2\] = 'x' is not a number"),
+    (("C",), [[1.0, True]], r"C\[1,2\] = True is not a number"),
+    (("A",), [[0.0, math.nan], [-2.0, -3.0]], r"A\[1,2\] = nan is not finite"),
+    (("B",), [[math.inf], [1.0]], r"B\[1,1\] = inf is not finite"),
+    (("A",), [[0.0, 1.0, 0.0], [-2.0, -3.0, 0.0]], r"A must be square, got 2 x 3"),
+    (("B",), [[1.0]], r"B has 1 rows, expected 2"),
+    (("C",), [[1.0, 0.0, 0.0]], r"C has 3 columns, expected 2"),
+    (("E",), [[1.0]], r"E has 1 rows, expected 2"),
+    (("A",), "not a matrix", r"A must be a non-empty list of rows"),
+    (("A",), [], r"A must be a non-empty list of rows"),
+    (("A",), [[0.0, 0.0], [0.0, -3.0]], r"not observable: the observability matrix has rank 1, n = 2"),
+    (("observer", "nu"), -0.5, r"observer.nu = -0.5 is outside \[-1/\(n_tilde\+1\), 0\)"),
+    (("observer", "nu"), 0.0, r"observer.nu = 0.0 is outside"),
+    (("observer", "nu"), 0.2, r"observer.nu = 0.2 is outside"),
+    (("observer", "nu"), "fast", r"observer.nu = 'fast' is not a number"),
+    (("observer", "gamma"), 0.0, r"observer.gamma = 0.0 must be > 0"),
+    (("observer", "gamma"), -1.0, r"observer.gamma = -1.0 must be > 0"),
+    (("observer", "rho"), 1.0, r"observer.rho = 1.0 must be > gamma/2 = 1.0"),
+    (("observer", "objective"), "fastest", r"observer.objective = 'fastest' is not one of"),
+    (("observer", "mu"), 1.0, r"unknown key observer.mu"),
+    (("D",), [[0.0]], r"unknown key D"),
+    (("L_lin",), [[1.0, 2.0], [3.0, 4.0]], r"L_lin has 2 columns, but C has 1 rows"),
+]
+
+
+@pytest.mark.parametrize(("path", "value", "message"), BAD_CASES)
+def test_bad_spec_names_field(path, value, message):
+    with pytest.raises(SpecError, match=message):
+        spec_from_dict(with_change(path, value), source="bad.toml")
+
+
+def test_unobservable_mimo_reports_rank():
+    A = np.diag([1.0, 2.0, 3.0, 4.0]).tolist()
+    C = [[1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
+    data = {"A": A, "B": [[1.0]] * 4, "C": C}
+    with pytest.raises(SpecError, match=r"rank 3, n = 4"):
+        spec_from_dict(data)
+
+
+def test_missing_file_and_bad_toml(tmp_path: Path):
+    with pytest.raises(SpecError, match="cannot read the spec file"):
+        load_spec(tmp_path / "absent.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("A = [[1, 2]\n")
+    with pytest.raises(SpecError, match="not valid TOML"):
+        load_spec(bad)
+
+
+def test_toml_nan_literal_is_rejected(tmp_path: Path):
+    spec = tmp_path / "nan.toml"
+    spec.write_text("A = [[0, 1], [nan, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n")
+    with pytest.raises(SpecError, match=r"A\[2,1\] = nan is not finite"):
+        load_spec(spec)
