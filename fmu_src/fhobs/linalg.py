@@ -1,0 +1,143 @@
+"""Numpy-only matrix exponentials for the runtime: scaling-and-squaring expm and a precomputed
+eigen-decomposition for the repeated evaluation of expm(tau R) and phi1(tau R).
+
+``phi1(X) = sum_j X^j / (j+1)!`` is the function with ``expm(h M) x0 + h phi1(h M) b`` being the
+exact solution at time h of ``dx/dt = M x + b``.
+
+This module is numpy-only: it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Pade(13) coefficients and the 1-norm bound theta_13 of Higham, SIAM J. Matrix Anal. Appl. 2005.
+_PADE13 = (
+    64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+    129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
+    40840800.0, 960960.0, 16380.0, 182.0, 1.0,
+)
+_THETA13 = 5.371920351148152
+COND_LIMIT = 1e8
+"""Eigenvector condition number above which :class:`ExpmFamily` falls back to :func:`expm`."""
+
+
+def expm(M: np.ndarray) -> np.ndarray:
+    """Matrix exponential by Pade(13) scaling and squaring (Higham 2005), numpy only.
+
+    Parameters
+    ----------
+    M : np.ndarray
+        Square real matrix.
+
+    Returns
+    -------
+    np.ndarray
+        ``expm(M)``, agreeing with ``scipy.linalg.expm`` to a few ulps times cond.
+    """
+    M = np.asarray(M, dtype=float)
+    norm = np.linalg.norm(M, 1)
+    squarings = max(0, int(np.ceil(np.log2(norm / _THETA13)))) if norm > _THETA13 else 0
+    X = M / 2.0**squarings
+    b = _PADE13
+    eye = np.eye(M.shape[0])
+    X2 = X @ X
+    X4 = X2 @ X2
+    X6 = X4 @ X2
+    U = X @ (X6 @ (b[13] * X6 + b[11] * X4 + b[9] * X2)
+             + b[7] * X6 + b[5] * X4 + b[3] * X2 + b[1] * eye)
+    V = X6 @ (b[12] * X6 + b[10] * X4 + b[8] * X2) + b[6] * X6 + b[4] * X4 + b[2] * X2 + b[0] * eye
+    E = np.linalg.solve(V - U, V + U)
+    for _ in range(squarings):
+        E = E @ E
+    return E
+
+
+def zoh_blocks(A: np.ndarray, inputs: list[np.ndarray], h: float) -> list[np.ndarray]:
+    """Exact zero-order-hold discretisation of ``dx/dt = A x + sum_i B_i w_i``.
+
+    Parameters
+    ----------
+    A : np.ndarray
+        (n, n) state matrix.
+    inputs : list of np.ndarray
+        Input matrices ``B_i`` of shape (n, m_i), inputs held over the step.
+    h : float
+        Step size.
+
+    Returns
+    -------
+    list of np.ndarray
+        ``[expm(h A), Gamma_1, ...]`` with ``Gamma_i = int_0^h expm(t A) dt B_i``, all from one
+        exponential of the augmented matrix ``[[A, B_1, ...], [0, 0, ...]]``.
+    """
+    n = A.shape[0]
+    widths = [B.shape[1] for B in inputs]
+    size = n + sum(widths)
+    aug = np.zeros((size, size))
+    aug[:n, :n] = A
+    if inputs:
+        aug[:n, n:] = np.hstack(inputs)
+    E = expm(h * aug)
+    blocks = [E[:n, :n]]
+    col = n
+    for w in widths:
+        blocks.append(E[:n, col:col + w])
+        col += w
+    return blocks
+
+
+def phi1(X: np.ndarray) -> np.ndarray:
+    """``phi1(X) = X^-1 (expm(X) - I)`` (also for singular X), from one augmented exponential."""
+    n = X.shape[0]
+    aug = np.zeros((2 * n, 2 * n))
+    aug[:n, :n] = X
+    aug[:n, n:] = np.eye(n)
+    return expm(aug)[:n, n:]
+
+
+def _phi1_scalar(mu: np.ndarray) -> np.ndarray:
+    """Elementwise ``(exp(mu) - 1) / mu`` for complex mu, with the limit 1 at mu = 0."""
+    small = np.abs(mu) < 1e-8
+    safe = np.where(small, 1.0, mu)
+    return np.where(small, 1.0 + 0.5 * mu, np.expm1(safe) / safe)
+
+
+class ExpmFamily:
+    """Cheap repeated evaluation of ``expm(tau R) r`` and ``phi1(tau R) r`` for a fixed R.
+
+    ``R = V diag(lam) V^-1`` is computed once; each evaluation then costs two small
+    matrix-vector products. If the eigenvectors are ill-conditioned (cond(V) > ``COND_LIMIT``,
+    e.g. a defective R), every evaluation uses :func:`expm` of an augmented matrix instead.
+
+    Parameters
+    ----------
+    R : np.ndarray
+        Square real matrix.
+    force_fallback : bool
+        Use the :func:`expm` path even if R is well diagonalisable (for tests).
+    """
+
+    def __init__(self, R: np.ndarray, force_fallback: bool = False) -> None:
+        self.R = np.array(R, dtype=float)
+        lam, V = np.linalg.eig(self.R)
+        self.use_eig = (not force_fallback) and np.linalg.cond(V) < COND_LIMIT
+        if self.use_eig:
+            self._lam = lam
+            self._V = V
+            self._Vinv = np.linalg.inv(V)
+
+    def apply(self, tau: float, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(expm(tau R) r, phi1(tau R) r)`` for tau >= 0."""
+        if self.use_eig:
+            c = self._Vinv @ r
+            mu = tau * self._lam
+            exp_r = (self._V @ (np.exp(mu) * c)).real
+            phi_r = (self._V @ (_phi1_scalar(mu) * c)).real
+            return exp_r, phi_r
+        size = self.R.shape[0]
+        aug = np.zeros((size + 1, size + 1))
+        aug[:size, :size] = tau * self.R
+        aug[:size, size] = r
+        E = expm(aug)
+        return E[:size, :size] @ r, E[:size, size]

@@ -1,0 +1,164 @@
+"""Numpy-only LTI plant ``dx/dt = A x + B u + E q``, ``y = C x + eta`` with an exact ZOH step.
+
+The measurement noise ``eta_k`` (uniform in [-a, a] per output) is a function of
+``(seed, k)`` only, k being the number of steps taken: a restored state replays the same noise.
+
+This module is numpy-only: it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fhobs.linalg import zoh_blocks
+
+NOISE_BLOCK = 1024
+"""Noise samples are drawn in blocks of this many steps, block b from the seed (seed, b)."""
+
+PLANT_SCHEMES = ("zoh", "euler")
+"""``zoh``: exact step (default); ``euler``: explicit Euler, only to reproduce the paper's runs."""
+
+
+def as_finite_vector(value: np.ndarray | float, size: int, name: str) -> np.ndarray:
+    """Return ``value`` as a finite float vector of length ``size``, else raise ValueError."""
+    vec = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+    if vec.size != size:
+        raise ValueError(f"{name} must have {size} entries, got {vec.size}")
+    if not np.all(np.isfinite(vec)):
+        raise ValueError(f"{name} must be finite, got {vec}")
+    return vec
+
+
+def check_step_size(dt: float) -> float:
+    """Return dt as a float if it is finite and positive, else raise ValueError."""
+    dt = float(dt)
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ValueError(f"the step size must be finite and positive, got {dt}")
+    return dt
+
+
+def uniform_noise(seed: int, k: int, amplitude: float, size: int) -> np.ndarray:
+    """Noise sample ``eta_k``: uniform in [-amplitude, amplitude]^size, a function of (seed, k).
+
+    Parameters
+    ----------
+    seed : int
+        Noise seed (non-negative).
+    k : int
+        Step index (non-negative).
+    amplitude : float
+        Half-width a of the uniform distribution; 0 gives zeros.
+    size : int
+        Number of outputs.
+    """
+    if amplitude == 0.0:
+        return np.zeros(size)
+    block, index = divmod(int(k), NOISE_BLOCK)
+    draws = _noise_block(int(seed), block, size)
+    return amplitude * draws[index]
+
+
+_BLOCK_CACHE: dict[tuple[int, int, int], np.ndarray] = {}
+
+
+def _noise_block(seed: int, block: int, size: int) -> np.ndarray:
+    """Uniform [-1, 1] draws for steps ``block * NOISE_BLOCK ...``, cached (last few blocks)."""
+    key = (seed, block, size)
+    if key not in _BLOCK_CACHE:
+        if len(_BLOCK_CACHE) > 64:
+            _BLOCK_CACHE.clear()
+        rng = np.random.default_rng([seed, block])
+        _BLOCK_CACHE[key] = rng.uniform(-1.0, 1.0, size=(NOISE_BLOCK, size))
+    return _BLOCK_CACHE[key]
+
+
+class LTIPlant:
+    """The plant, stepped exactly with u and q held (zero-order hold).
+
+    Parameters
+    ----------
+    A, B, C : np.ndarray
+        Plant matrices (n x n, n x m, k x n).
+    E : np.ndarray or None
+        Perturbation matrix (n x r); None means no perturbation input (r = 0).
+    x0 : array_like or None
+        Initial state (zeros if None).
+    noise_amplitude : float
+        Half-width a of the uniform measurement noise.
+    seed : int
+        Noise seed.
+    scheme : str
+        One of ``PLANT_SCHEMES``.
+    """
+
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        E: np.ndarray | None = None,
+        x0: np.ndarray | None = None,
+        noise_amplitude: float = 0.0,
+        seed: int = 0,
+        scheme: str = "zoh",
+    ) -> None:
+        if scheme not in PLANT_SCHEMES:
+            raise ValueError(f"unknown plant scheme {scheme!r}; choose one of {PLANT_SCHEMES}")
+        self.A = np.array(A, dtype=float, ndmin=2)
+        self.B = np.array(B, dtype=float, ndmin=2)
+        self.C = np.array(C, dtype=float, ndmin=2)
+        n = self.A.shape[0]
+        self.E = np.zeros((n, 0)) if E is None else np.array(E, dtype=float, ndmin=2)
+        if not (noise_amplitude >= 0.0 and np.isfinite(noise_amplitude)):
+            raise ValueError(f"noise_amplitude must be finite and >= 0, got {noise_amplitude}")
+        if int(seed) < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        self.noise_amplitude = float(noise_amplitude)
+        self.seed = int(seed)
+        self.scheme = scheme
+        self._x = np.zeros(n) if x0 is None else as_finite_vector(x0, n, "x0")
+        self._k = 0
+        self._zoh: dict[float, list[np.ndarray]] = {}
+
+    @property
+    def x(self) -> np.ndarray:
+        """True state (copy)."""
+        return self._x.copy()
+
+    @property
+    def y(self) -> np.ndarray:
+        """Measured output ``C x_k + eta_k`` at the current step index k."""
+        eta = uniform_noise(self.seed, self._k, self.noise_amplitude, self.C.shape[0])
+        return self.C @ self._x + eta
+
+    def step(self, u: np.ndarray, q: np.ndarray | None, dt: float) -> None:
+        """Advance by dt with u and q held; ``q`` may be None when the plant has no E."""
+        dt = check_step_size(dt)
+        u = as_finite_vector(u, self.B.shape[1], "u")
+        r = self.E.shape[1]
+        q = np.zeros(r) if q is None else as_finite_vector(q, r, "q")
+        if self.scheme == "euler":
+            x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
+        else:
+            Phi, Gamma_B, Gamma_E = self._blocks(dt)
+            x_new = Phi @ self._x + Gamma_B @ u + Gamma_E @ q
+        if not np.all(np.isfinite(x_new)):
+            raise ValueError("the plant state overflowed; state left unchanged")
+        self._x = x_new
+        self._k += 1
+
+    def _blocks(self, dt: float) -> list[np.ndarray]:
+        """ZOH matrices for the step dt (cached per dt)."""
+        if dt not in self._zoh:
+            self._zoh[dt] = zoh_blocks(self.A, [self.B, self.E], dt)
+        return self._zoh[dt]
+
+    def get_state(self) -> np.ndarray:
+        """Full state ``[x, k]`` (a copy; k is exact as a float below 2**53)."""
+        return np.append(self._x, float(self._k))
+
+    def set_state(self, arr: np.ndarray) -> None:
+        """Restore a state returned by :meth:`get_state`."""
+        arr = as_finite_vector(arr, self._x.size + 1, "plant state")
+        self._x = arr[:-1].copy()
+        self._k = int(arr[-1])

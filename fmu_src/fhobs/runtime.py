@@ -1,0 +1,405 @@
+"""Discrete-time observers (numpy only): filtering homogeneous, prescribed-time and Luenberger.
+
+Every observer advances by a communication step ``dt`` with ``y`` and ``u`` held, in internal
+substeps of size ``<= h``, with one of two schemes:
+
+``euler``
+    The paper's explicit Euler transcription (the paper's numerical example). Faithful, but the
+    filtering observer's gain ``sigma^(nu-1) d(ln sigma) L`` grows without bound as the error
+    vanishes and explicit Euler loses stability (h * gain large).
+
+``split`` (default)
+    A sampled-data scheme whose estimation error obeys an autonomous linear recursion whatever
+    the plant's motion between samples, so the nominal error converges to round-off:
+
+    1. *correction*: the observer's output-injection part (everything driven by ``psi`` and the
+       innovation ``v = C z - y``: ``dpsi = v + sigma^nu L_tilde psi``,
+       ``dz = sigma^(nu-1) d(ln sigma) L psi``) is integrated *exactly* with the gain frozen at
+       the step's start. Because ``C G_d = (1 + nu) C``, the innovation pair ``(psi, v)`` obeys
+       ``d/dt (psi/s, v/s^(1+nu)) = s^nu R (psi/s, v/s^(1+nu))`` with the constant
+       ``R = [[L_tilde, I], [C L, 0]]``, so one eigen-decomposition of R (done once) gives the
+       exact flow for every sigma;
+    2. *prediction*: ``z <- expm(h A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of the
+       model, the innovation held), the very map that the plant applies to x.
+
+    Within a communication step with several substeps the innovation is propagated with the
+    observer's own model (``v = C (z - m) + (C z_k - y_k)``, m the open-loop prediction from
+    ``z_k``), so that it stays a linear function of the error at ``t_k``.
+
+    **Gain cap.** The frozen-gain map is contractive only while ``tau = h sigma^nu`` stays
+    moderate (for large tau the sampled measurement, not the gain, limits what can be known):
+    the gain level is therefore floored at ``sigma_min = (tau_max / h)^(1/nu)``. Below that
+    level the scheme is a fixed linear discrete-time observer (the discrete limit of the
+    homogeneous one) with contraction ``rho(tau_max)`` per step. ``tau_max`` defaults to the
+    value minimising that spectral radius (computed at construction).
+
+Edges: ``sigma = 0`` (all-zero start) and ``xi = 0`` (prescribed time reached) use the capped
+level, so no 0 * inf appears; a step that would produce a non-finite state raises ValueError
+and leaves the state untouched.
+
+Prescribed-time observer at and after ``T0 = xi0^(-nu) / (-nu rho)``: ``xi`` is integrated
+exactly (``|xi|^(-nu)`` decreases linearly), reaches 0 exactly and stays 0; the gain
+``|xi|^(nu-1) expm(ln|xi| (G_d - nu I)) L_pt`` is evaluated at ``max(|xi|, xi_min)`` with
+``xi_min = (tau_max / h)^(1/nu)`` (both schemes), so after T0 the observer is the capped
+constant-gain discrete observer: finite, convergent in the nominal case, never NaN.
+
+This module is numpy-only: it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from fhobs.dilation import Dilation
+from fhobs.gains import ObserverGains
+from fhobs.linalg import ExpmFamily, zoh_blocks
+from fhobs.plant import as_finite_vector, check_step_size
+
+SCHEMES = ("split", "euler")
+"""Integration schemes; the first one is the default."""
+
+TAU_GRID = np.geomspace(0.05, 3.0, 40)
+"""Candidate values of tau_max scanned at construction (spectral radius of the capped map)."""
+
+LEVEL_MISMATCH = 2.0
+"""Split scheme: the frozen level is made self-consistent when sigma would exceed it by this."""
+BISECTION_STEPS = 40
+BISECTION_TOL = 0.05
+"""Bracket expansion steps and tolerance (in ln sigma) of the self-consistent level."""
+
+SIGMA_GUARD = 1e-150
+"""Euler scheme of the filtering observer: the gain is evaluated at max(sigma, SIGMA_GUARD).
+Since |psi| <= sqrt(2) sigma, the gain term stays finite and the guard never acts in practice."""
+
+
+def signed_power(w: float, p: float) -> float:
+    """``floor(w)^p = |w|^p sign(w)``."""
+    return float(np.sign(w) * abs(w) ** p)
+
+
+def signed_power_decay(w: float, gamma: float, p: float, h: float) -> float:
+    """Exact flow over h of ``dw/dt = -gamma floor(w)^p`` with 0 < p < 1 (reaches 0, stays 0)."""
+    q = 1.0 - p
+    return float(np.sign(w) * max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q))
+
+
+def spectral_radius(step: Callable[[np.ndarray], np.ndarray], size: int) -> float:
+    """Spectral radius of the linear map ``step`` on R^size (built column by column)."""
+    F = np.column_stack([step(col) for col in np.eye(size)])
+    return float(np.max(np.abs(np.linalg.eigvals(F))))
+
+
+class _Observer:
+    """Common machinery: input checks, substepping, ZOH model, transactional state.
+
+    Subclasses set ``_aux`` (their extra states), ``_L_inj`` (the gain of the held innovation in
+    the prediction) and implement ``_correct``, ``_euler_rates`` and ``_level``.
+    """
+
+    _aux: np.ndarray
+
+    def __init__(self, gains: ObserverGains, h: float, scheme: str, z0: np.ndarray | None,
+                 L_inj: np.ndarray) -> None:
+        if scheme not in SCHEMES:
+            raise ValueError(f"unknown scheme {scheme!r}; choose one of {SCHEMES}")
+        self.gains = gains
+        self.h = check_step_size(h)
+        self.scheme = scheme
+        self._z = np.zeros(gains.n) if z0 is None else as_finite_vector(z0, gains.n, "z0")
+        self._L_inj = L_inj
+        self._zoh: dict[float, list[np.ndarray]] = {}
+
+    # -- public interface -------------------------------------------------------------------
+    @property
+    def z(self) -> np.ndarray:
+        """State estimate (copy)."""
+        return self._z.copy()
+
+    def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """Advance by dt with y and u held, in substeps of size <= h.
+
+        Raises
+        ------
+        ValueError
+            On invalid y, u or dt, or if the step would make the state non-finite (the state is
+            then left unchanged).
+        """
+        g = self.gains
+        dt = check_step_size(dt)
+        y = as_finite_vector(y, g.k, "y")
+        u = as_finite_vector(u, g.m, "u")
+        n_sub = max(1, int(np.ceil(dt / self.h * (1.0 - 1e-12))))
+        hs = dt / n_sub
+        run = self._run_split if self.scheme == "split" else self._run_euler
+        z, aux = run(self._z.copy(), self._aux.copy(), y, u, hs, n_sub)
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(aux))):
+            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                             "state left unchanged")
+        self._z, self._aux = z, aux
+
+    def get_state(self) -> np.ndarray:
+        """Full internal state ``[z, aux]`` (a copy)."""
+        return np.concatenate([self._z, self._aux])
+
+    def set_state(self, arr: np.ndarray) -> None:
+        """Restore a state from :meth:`get_state` exactly."""
+        n = self.gains.n
+        arr = as_finite_vector(arr, n + self._aux.size, "observer state")
+        self._z, self._aux = arr[:n].copy(), arr[n:].copy()
+
+    def diagnostics(self) -> dict[str, float | np.ndarray]:
+        """Scalars/arrays describing the internal state (subclasses add theirs)."""
+        return {"z": self.z}
+
+    # -- schemes ----------------------------------------------------------------------------
+    def _prediction(self, hs: float) -> list[np.ndarray]:
+        """``[expm(hs A), Gamma_B, Gamma_inj]`` (cached per substep size)."""
+        if hs not in self._zoh:
+            g = self.gains
+            self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
+        return self._zoh[hs]
+
+    def _run_split(self, z, aux, y, u, hs, n_sub):
+        """The split scheme over n_sub substeps (see the module docstring)."""
+        C = self.gains.C
+        Phi, _, Gamma_inj = self._prediction(hs)
+        innovation0 = C @ z - y
+        drift = np.zeros_like(z)  # z - m, m the observer's open-loop model prediction
+        for _ in range(n_sub):
+            v = C @ drift + innovation0
+            z, aux, dz, v = self._split_substep(z, aux, v, u, hs, self._level(aux, v, hs))
+            drift = Phi @ (drift + dz) + Gamma_inj @ v
+        return z, aux
+
+    def _split_substep(self, z, aux, v, u, hs, level):
+        """Correction (exact, gain frozen at ``level``) then ZOH prediction with v held.
+
+        Returns the new z and aux, the correction's increment of z and the corrected v.
+        """
+        Phi, Gamma_B, Gamma_inj = self._prediction(hs)
+        aux, dz = self._correct(aux, v, hs, level)
+        v = v + self.gains.C @ dz
+        return Phi @ (z + dz) + Gamma_B @ u + Gamma_inj @ v, aux, dz, v
+
+    def _run_euler(self, z, aux, y, u, hs, n_sub):
+        """The paper's explicit Euler over n_sub substeps, y held."""
+        g = self.gains
+        for _ in range(n_sub):
+            v = g.C @ z - y
+            daux, dz_gain = self._euler_rates(aux, v, hs)
+            z = z + hs * (g.A @ z + g.B @ u + self._L_inj @ v + dz_gain)
+            aux = aux + hs * daux
+        return z, aux
+
+    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
+        """Gain level (sigma or |xi|) at which the split substep freezes the gain."""
+        return 1.0
+
+    def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
+                 level: float) -> tuple[np.ndarray, np.ndarray]:
+        """Exact correction flow over hs: return (new aux, increment of z)."""
+        return aux, np.zeros(self.gains.n)
+
+    def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
+                     hs: float) -> tuple[np.ndarray, np.ndarray]:
+        """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz)."""
+        return np.zeros_like(aux), np.zeros(self.gains.n)
+
+    def _error_step(self, e: np.ndarray, level: float) -> np.ndarray:
+        """One split substep (size h, gain frozen at ``level``) acting on the error
+        ``(aux[:n_lin], z - x)``: the observer's step with y = C x = 0 and u = 0, which is linear
+        in those variables (n_lin = the number of aux entries that belong to the error)."""
+        g = self.gains
+        n_lin = e.size - g.n
+        aux = np.zeros_like(self._aux)
+        aux[:n_lin] = e[:n_lin]
+        z = e[n_lin:]
+        z, aux, _, _ = self._split_substep(z, aux, g.C @ z, np.zeros(g.m), self.h, level)
+        return np.concatenate([aux[:n_lin], z])
+
+    def _auto_tau_max(self, error_size: int) -> float:
+        """tau in TAU_GRID minimising the spectral radius of the capped error map (size h)."""
+        nu = self.gains.nu
+        radii = [spectral_radius(lambda e, t=t: self._error_step(e, (t / self.h) ** (1.0 / nu)),
+                                 error_size) for t in TAU_GRID]
+        return float(TAU_GRID[int(np.argmin(radii))])
+
+
+class FilteringObserver(_Observer):
+    """Filtering homogeneous observer (Theorem 2; HOSM case nu = -1/(n_tilde+1) included).
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design (uses A, B, C, L0, G_d, L_tilde, L, nu, gamma).
+    h : float
+        Maximal internal step.
+    scheme : str
+        One of ``SCHEMES``.
+    z0, psi0 : array_like or None
+        Initial estimate and filter state (zeros if None).
+    xi0 : float
+        Initial xi.
+    tau_max : float or None
+        Gain cap of the split scheme, ``h sigma^nu <= tau_max``; None picks it automatically.
+    """
+
+    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+                 z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
+                 xi0: float = 0.0, tau_max: float | None = None) -> None:
+        super().__init__(gains, h, scheme, z0, gains.L0)
+        k = gains.k
+        psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
+        self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
+        self._dilation = Dilation(gains.G_d)
+        self._R = ExpmFamily(np.block([[gains.L_tilde, np.eye(k)],
+                                       [gains.C @ gains.L, np.zeros((k, k))]]))
+        self._p = gains.nu / 2.0 + 1.0
+        self.tau_max = (self._auto_tau_max(k + gains.n)
+                        if tau_max is None else float(tau_max))
+
+    def diagnostics(self) -> dict[str, float | np.ndarray]:
+        """``z``, ``psi``, ``xi``, ``sigma`` and the capped gain level of the split scheme."""
+        psi, xi = self._aux[:-1], float(self._aux[-1])
+        return {"z": self.z, "psi": psi.copy(), "xi": xi, "sigma": self._sigma(self._aux),
+                "sigma_min": (self.tau_max / self.h) ** (1.0 / self.gains.nu)}
+
+    @staticmethod
+    def _sigma(aux: np.ndarray) -> float:
+        """``sigma = sqrt(max(xi, |psi|^2 / 2))``."""
+        psi, xi = aux[:-1], aux[-1]
+        return float(np.sqrt(max(xi, 0.5 * psi @ psi, 0.0)))
+
+    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
+        """``max(sigma, sigma_min)``, raised to a self-consistent level when the substep would
+        leave sigma above twice the frozen level (e.g. at an all-zero start, where sigma = 0
+        but psi grows at once): then the level s solves ``sigma_after(s) = s`` (bisection in
+        ln s; sigma_after decreases in s), so the frozen gain matches the psi it produces."""
+        level = max(self._sigma(aux), (self.tau_max / hs) ** (1.0 / self.gains.nu))
+        after = self._sigma(self._correct(aux, v, hs, level)[0])
+        if after <= LEVEL_MISMATCH * level:
+            return level
+        lo, hi = np.log(level), np.log(after)
+        for _ in range(BISECTION_STEPS):
+            if self._sigma(self._correct(aux, v, hs, np.exp(hi))[0]) <= np.exp(hi):
+                break
+            lo, hi = hi, hi + 2.0
+        while hi - lo > BISECTION_TOL:
+            mid = 0.5 * (lo + hi)
+            consistent = self._sigma(self._correct(aux, v, hs, np.exp(mid))[0]) <= np.exp(mid)
+            lo, hi = (lo, mid) if consistent else (mid, hi)
+        return float(np.exp(hi))
+
+    def _correct(self, aux, v, hs, level):
+        """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
+        g = self.gains
+        k = g.k
+        psi, xi = aux[:-1], float(aux[-1])
+        log_s = np.log(level)
+        tau = hs * np.exp(g.nu * log_s)
+        r_hat = np.concatenate([psi / level, v * np.exp(-(1.0 + g.nu) * log_s)])
+        exp_r, phi_r = self._R.apply(tau, r_hat)
+        psi_new = level * exp_r[:k]
+        dz = tau * self._dilation.apply(log_s, g.L @ phi_r[:k])
+        return np.append(psi_new, self._xi_update(psi, psi_new, xi, hs)), dz
+
+    def _xi_update(self, psi: np.ndarray, psi_new: np.ndarray, xi: float, hs: float) -> float:
+        """xi: ``|psi^T dpsi/dt|`` integrated as ``|Delta |psi|^2/2|``, then the exact decay of
+        ``w = xi - |psi|^2/2`` under ``-gamma floor(w)^(nu/2+1)``."""
+        half_old, half_new = 0.5 * psi @ psi, 0.5 * psi_new @ psi_new
+        w = xi + abs(half_new - half_old) - half_new
+        return signed_power_decay(w, self.gains.gamma, self._p, hs) + half_new
+
+    def _euler_rates(self, aux, v, hs):
+        g = self.gains
+        psi, xi = aux[:-1], float(aux[-1])
+        sigma = self._sigma(aux)
+        if sigma > 0.0:
+            log_s = np.log(max(sigma, SIGMA_GUARD))
+            dz_gain = np.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, g.L @ psi)
+            dpsi = v + np.exp(g.nu * log_s) * (g.L_tilde @ psi)
+        else:  # sigma = 0 forces psi = 0: the homogeneous terms vanish
+            dz_gain, dpsi = np.zeros(g.n), v
+        dxi = abs(psi @ dpsi) - g.gamma * signed_power(xi - 0.5 * psi @ psi, self._p)
+        return np.append(dpsi, dxi), dz_gain
+
+
+class PrescribedTimeObserver(_Observer):
+    """Prescribed-time observer (Theorem 1), dilation generator ``G = G_d - nu I``.
+
+    The gain ``|xi|^(nu-1) expm(ln|xi| G) L_pt = |xi|^-1 d(ln|xi|) L_pt`` is evaluated at
+    ``max(|xi|, (tau_max/h)^(1/nu))`` (see the module docstring for the behaviour after T0).
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design (uses A, B, C, L0, G_d, L_pt, nu, rho).
+    h, scheme, z0 :
+        As for :class:`FilteringObserver`.
+    xi0 : float
+        Initial xi (nonzero); the prescribed time is ``T0 = |xi0|^(-nu) / (-nu rho)``.
+    tau_max : float or None
+        Gain cap ``h |xi|^nu <= tau_max``; None picks it automatically.
+    """
+
+    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+                 z0: np.ndarray | None = None, xi0: float = 1.0,
+                 tau_max: float | None = None) -> None:
+        super().__init__(gains, h, scheme, z0, gains.L0)
+        self._aux = as_finite_vector(xi0, 1, "xi0")
+        self._dilation = Dilation(gains.G_d)
+        self._Q = ExpmFamily(gains.C @ gains.L_pt)
+        self.tau_max = (self._auto_tau_max(gains.n)
+                        if tau_max is None else float(tau_max))
+
+    @property
+    def T0(self) -> float:
+        """Time (from the current state) at which xi reaches 0."""
+        g = self.gains
+        return abs(float(self._aux[0])) ** (-g.nu) / (-g.nu * g.rho)
+
+    def diagnostics(self) -> dict[str, float | np.ndarray]:
+        """``z``, ``xi`` and the gain level actually used."""
+        level = self._level(self._aux, np.zeros(self.gains.k), self.h)
+        return {"z": self.z, "xi": float(self._aux[0]), "level": level}
+
+    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
+        """``max(|xi|, xi_min)``."""
+        return max(abs(float(aux[0])), (self.tau_max / hs) ** (1.0 / self.gains.nu))
+
+    def _xi_exact(self, xi: float, hs: float) -> float:
+        """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
+        g = self.gains
+        return float(np.sign(xi) * max(abs(xi) ** (-g.nu) + g.nu * g.rho * hs, 0.0)
+                     ** (-1.0 / g.nu))
+
+    def _correct(self, aux, v, hs, level):
+        """Exact flow of ``dz = gain (C z - y)`` with x frozen: ``dv = xi^nu C L_pt v``."""
+        g = self.gains
+        log_x = np.log(level)
+        tau = hs * np.exp(g.nu * log_x)
+        _, phi_v = self._Q.apply(tau, v * np.exp(-(1.0 + g.nu) * log_x))
+        dz = tau * self._dilation.apply(log_x, g.L_pt @ phi_v)
+        return np.array([self._xi_exact(float(aux[0]), hs)]), dz
+
+    def _euler_rates(self, aux, v, hs):
+        g = self.gains
+        xi = float(aux[0])
+        log_x = np.log(self._level(aux, v, hs))
+        dz_gain = np.exp(-log_x) * self._dilation.apply(log_x, g.L_pt @ v)
+        return np.array([-g.rho * signed_power(xi, 1.0 + g.nu)]), dz_gain
+
+
+class LuenbergerObserver(_Observer):
+    """Luenberger baseline ``dz/dt = A z + B u + L_lin (C z - y)``.
+
+    The split scheme is the exact ZOH of the model with the innovation held, i.e. the error
+    obeys ``e_{k+1} = (expm(h A) + Gamma_Llin C) e_k`` exactly; ``euler`` is explicit Euler.
+    """
+
+    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+                 z0: np.ndarray | None = None) -> None:
+        super().__init__(gains, h, scheme, z0, gains.L_lin)
+        self._aux = np.zeros(0)
