@@ -1,0 +1,240 @@
+"""Command line: ``python -m harness {run,paper,export-ssp} ...``.
+
+- ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
+  bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
+  the plots into DIR. ``--seeds N`` runs N seeds and averages the figures.
+- ``paper --out DIR``: the main job. Designs and builds the pendulum FMUs (build_fmu.py's
+  machinery) into ``DIR/fmus``, runs the three paper scenarios (the noisy one over 5 seeds) into
+  ``DIR/<scenario>/`` and prints a table of the summary figures.
+- ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harness.master import CoSimResult, run_system
+from harness.results import summary, write_csv, write_summary
+from harness.system import DescriptionError, SystemSpec, load_system, resolve_system
+
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+REPO = Path(__file__).resolve().parents[1]
+PAPER_SCENARIOS = ("pendulum_nominal", "pendulum_perturbed", "pendulum_noisy")
+PAPER_SEEDS = {"pendulum_noisy": 5}
+
+
+def scenario_path(name: str) -> Path:
+    """A file path, or a bundled scenario's name (``pendulum_nominal``)."""
+    path = Path(name)
+    if path.suffix == ".toml" or path.exists():
+        return path
+    bundled = SCENARIO_DIR / f"{name}.toml"
+    if not bundled.exists():
+        have = sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+        raise DescriptionError(f"no scenario file {name!r} and no bundled scenario (have {have})")
+    return bundled
+
+
+def parse_value(text: str) -> Any:
+    """``--set`` values: JSON (numbers, true/false, lists) or a plain number."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number, boolean or list") from None
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``fmu.var=VALUE`` -> ``("fmu.var", value)``."""
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name.strip(), parse_value(value.strip())
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m harness", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--fmu-dir", type=Path, help="value of ${fmu_dir} in FMU paths")
+    common.add_argument("--block-cache", type=Path, help="where harness blocks are built")
+    run = sub.add_parser("run", parents=[common], help="run one scenario")
+    run.add_argument("scenario", help="system description file or bundled scenario name")
+    run.add_argument("--out", type=Path, required=True, help="results folder")
+    run.add_argument("--stop-time", type=float, help="override the stop time")
+    run.add_argument("--step", type=float, help="override the communication step")
+    seeds = run.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, help="set the scenario's seed variable")
+    seeds.add_argument("--seeds", type=int, help="run seeds 0..N-1 and average the figures")
+    run.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        type=parse_assignment,
+        default=[],
+        metavar="FMU.VAR=VALUE",
+        help="start-value override (repeat)",
+    )
+    run.add_argument("--jobs", type=int, default=2, help="parallel processes for --seeds")
+    run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    paper = sub.add_parser("paper", parents=[common], help="build the FMUs, run the paper")
+    paper.add_argument("--out", type=Path, default=Path("results"), help="results folder")
+    paper.add_argument("--spec", type=Path, default=REPO / "examples" / "pendulum.toml")
+    paper.add_argument("--stop-time", type=float, help="override the stop time")
+    paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
+    ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
+    ssp.add_argument("scenario")
+    ssp.add_argument("--out", type=Path, required=True, help="the .ssp file")
+    return parser
+
+
+def load_scenario(name: str, fmu_dir: Path | None, block_cache: Path | None) -> SystemSpec:
+    """Load a scenario with an optional ``${fmu_dir}``."""
+    variables = {} if fmu_dir is None else {"fmu_dir": str(Path(fmu_dir).resolve())}
+    return load_system(scenario_path(name), variables, block_cache)
+
+
+def _run_one(spec: SystemSpec, stop_time: float | None) -> CoSimResult:
+    return run_system(resolve_system(spec), stop_time)
+
+
+def run_seeds(
+    spec: SystemSpec, seeds: list[int], stop_time: float | None, jobs: int
+) -> list[CoSimResult]:
+    """Run ``spec`` once per seed, in up to ``jobs`` processes."""
+    specs = [spec.with_seed(s) for s in seeds]
+    if jobs <= 1 or len(specs) == 1:
+        return [_run_one(s, stop_time) for s in specs]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        return list(pool.map(_run_one, specs, [stop_time] * len(specs)))
+
+
+def mean_summary(
+    results: list[CoSimResult], spec: SystemSpec, seeds: list[int] | None, **run: Any
+) -> dict[str, Any]:
+    """summary.json of one or several seeded runs: figures averaged over the seeds."""
+    each = [summary(r, spec.evaluation) for r in results]
+    out = {
+        **run,
+        "scenario": spec.name,
+        "step": spec.step,
+        "stop_time": float(results[0].time[-1]),
+        "steps": results[0].steps,
+        "wall_time_s": float(np.mean([r.wall_time_s for r in results])),
+    }
+    for name in spec.evaluation.errors:
+        out[name] = {k: float(np.mean([s[name][k] for s in each])) for k in each[0][name]}
+    if seeds is not None:
+        out["seeds"] = seeds
+        out["per_seed"] = [{name: s[name] for name in spec.evaluation.errors} for s in each]
+    return out
+
+
+def run_scenario(
+    spec: SystemSpec,
+    out: Path,
+    stop_time: float | None = None,
+    seeds: list[int] | None = None,
+    jobs: int = 2,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """Run, write results.csv (first seed), summary.json and plots into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    results = (
+        run_seeds(spec, seeds, stop_time, jobs)
+        if seeds is not None
+        else [_run_one(spec, stop_time)]
+    )
+    write_csv(results[0], out / "results.csv")
+    data = mean_summary(results, spec, seeds)
+    if plots:
+        from harness.plotting import plot_results
+
+        data["plots"] = [str(p) for p in plot_results(results[0], spec, out)]
+    write_summary(data, out / "summary.json")
+    return data
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
+    if args.step is not None:
+        spec = replace(spec, step=args.step)
+    spec = spec.with_start(dict(args.overrides))
+    seeds = None
+    if args.seed is not None:
+        seeds = [args.seed]
+    if args.seeds is not None:
+        seeds = list(range(args.seeds))
+    data = run_scenario(spec, args.out, args.stop_time, seeds, args.jobs, not args.no_plots)
+    print(format_table({spec.name: data}))
+    print(f"results in {args.out}")
+    return 0
+
+
+def build_paper_fmus(spec: Path, out: Path) -> Path:
+    """Design and build the pendulum FMUs with build_fmu.py's machinery into ``out``."""
+    from fhobs.cli import main as build_main
+
+    if build_main([str(spec), "--out", str(out)]) != 0:
+        raise RuntimeError(f"building the FMUs from {spec} failed")
+    return out
+
+
+def _cmd_paper(args: argparse.Namespace) -> int:
+    fmu_dir = build_paper_fmus(args.spec, args.out / "fmus")
+    table = {}
+    for name in PAPER_SCENARIOS:
+        spec = load_scenario(name, fmu_dir, args.block_cache)
+        n = PAPER_SEEDS.get(name)
+        seeds = list(range(n)) if n else None
+        print(f"running {name}" + (f" ({n} seeds)" if n else ""), flush=True)
+        table[name] = run_scenario(spec, args.out / name, args.stop_time, seeds, args.jobs)
+    print(format_table(table))
+    for name, data in table.items():
+        print(f"{name}: {args.out / name} (plots: {', '.join(data.get('plots', []))})")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from harness.ssp import export_ssp
+
+    spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
+    print(export_ssp(spec, args.out, args.block_cache))
+    return 0
+
+
+def format_table(summaries: dict[str, dict[str, Any]]) -> str:
+    """Plain-text table: one row per (scenario, error signal), one column per figure."""
+    rows = []
+    for scenario, data in summaries.items():
+        for name, figures in data.items():
+            if isinstance(figures, dict):
+                rows.append((scenario, name, figures, data["steps"], data["wall_time_s"]))
+    keys = list(dict.fromkeys(k for r in rows for k in r[2]))
+    head = ["scenario", "observer", *keys, "steps", "wall_s"]
+    lines = [head] + [
+        [s, n, *(f"{f[k]:.3e}" if k in f else "-" for k in keys), str(st), f"{w:.2f}"]
+        for s, n, f, st, w in rows
+    ]
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    return "\n".join(
+        "  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (2 for an invalid system description)."""
+    args = _parser().parse_args(argv)
+    commands = {"run": _cmd_run, "paper": _cmd_paper, "export-ssp": _cmd_export}
+    try:
+        return commands[args.command](args)
+    except DescriptionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2

@@ -1,0 +1,88 @@
+"""Results of a run: summary figures, the CSV of recorded signals, summary.json.
+
+The system description's ``[evaluation]`` names instants, windows and error signals; for each
+error signal ``name = [reference, estimate]`` (vector signals), with ``e(t) = ||ref - est||``:
+
+- ``error_at_<t>``: ``e`` at the sample nearest to ``t``,
+- ``max_error_<a>_<b>``, ``rms_error_<a>_<b>``: max and RMS of ``e`` over ``a <= t <= b``,
+
+where ``<t>`` is the number with ``.`` replaced by ``_`` (``1.5 -> 1_5``, ``3.0 -> 3``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harness.master import CoSimResult
+from harness.system import Evaluation
+
+
+def time_key(t: float) -> str:
+    """``1.5 -> "1_5"``, ``3.0 -> "3"``."""
+    return f"{t:g}".replace(".", "_").replace("-", "m")
+
+
+def error_norm(result: CoSimResult, reference: str, estimate: str) -> np.ndarray:
+    """``||reference - estimate||`` at every recorded time."""
+    return np.linalg.norm(result.vector(reference) - result.vector(estimate), axis=1)
+
+
+def window_mask(time: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Samples with ``a <= t <= b`` (with a tolerance of 1e-9 relative to the bounds)."""
+    tol = 1e-9 * max(1.0, abs(a), abs(b))
+    return (time >= a - tol) & (time <= b + tol)
+
+
+def error_figures(result: CoSimResult, evaluation: Evaluation) -> dict[str, dict[str, float]]:
+    """The evaluation's figures per error signal (see the module docstring)."""
+    figures: dict[str, dict[str, float]] = {}
+    for name, (reference, estimate) in evaluation.errors.items():
+        e = error_norm(result, reference, estimate)
+        out: dict[str, float] = {}
+        for t in evaluation.at:
+            if not result.time[0] <= t <= result.time[-1] + 1e-12:
+                continue
+            out[f"error_at_{time_key(t)}"] = float(e[int(np.argmin(np.abs(result.time - t)))])
+        for a, b in evaluation.windows:
+            mask = window_mask(result.time, a, b)
+            if result.time[-1] + 1e-12 < b or not mask.any():
+                continue
+            key = f"{time_key(a)}_{time_key(b)}"
+            out[f"max_error_{key}"] = float(np.max(e[mask]))
+            out[f"rms_error_{key}"] = float(np.sqrt(np.mean(e[mask] ** 2)))
+        figures[name] = out
+    return figures
+
+
+def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str, Any]:
+    """summary.json content: the figures per error signal and the run's ``steps``, ``wall_time_s``
+    and any extra ``run`` items (scenario name, seed, ...)."""
+    return {
+        **run,
+        "steps": result.steps,
+        "wall_time_s": result.wall_time_s,
+        **error_figures(result, evaluation),
+    }
+
+
+def write_csv(result: CoSimResult, path: Path) -> Path:
+    """Write the recorded signals (``time`` first) as CSV with fmpy's writer."""
+    from fmpy.util import write_csv as fmpy_write_csv
+
+    dtype = [("time", np.float64)] + [(n, np.float64) for n in result.names]
+    table = np.empty(len(result.time), dtype=dtype)
+    table["time"] = result.time
+    for j, name in enumerate(result.names):
+        table[name] = result.values[:, j]
+    fmpy_write_csv(str(path), table)
+    return path
+
+
+def write_summary(data: dict[str, Any], path: Path) -> Path:
+    """Write ``data`` as indented JSON."""
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    return path

@@ -1,0 +1,156 @@
+"""The paper's scenarios through the FMUs: equal to the in-process reference, accurate, and
+working with a third-party plant FMU (tests/test_harness_plantfmu.py) in place of ours."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fhobs.gains import ObserverGains
+from fhobs.reference import simulate
+from test_harness_plantfmu import build_vendor_plant
+
+from harness.cli import REPO, build_paper_fmus, load_scenario, main, run_seeds
+from harness.master import run_system
+from harness.results import error_figures
+from harness.system import load_system, resolve_system
+
+REFERENCE_NAMES = {"pendulum_nominal": "nominal", "pendulum_perturbed": "perturbed",
+                   "pendulum_noisy": "perturbed_noisy"}
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(tmp_path_factory) -> Path:
+    return build_paper_fmus(REPO / "examples" / "pendulum.toml", tmp_path_factory.mktemp("fmus"))
+
+
+@pytest.fixture(scope="module")
+def block_cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("blocks")
+
+
+@pytest.fixture(scope="module")
+def gains(fmu_dir) -> ObserverGains:
+    return ObserverGains.load_json(fmu_dir / "design.json")
+
+
+def _scenario(name, fmu_dir, block_cache):
+    return load_scenario(name, fmu_dir, block_cache)
+
+
+def _deviation(result, ref) -> float:
+    """Largest |co-simulation - reference| over x, the two estimates and all samples."""
+    pairs = [("plant.x", ref.x), ("observer.x_hat", ref.z), ("linear.x_hat", ref.z_lin)]
+    assert result.values.shape[0] == ref.x.shape[0]
+    return max(float(np.max(np.abs(result.vector(s) - r))) for s, r in pairs)
+
+
+@pytest.mark.parametrize("name", ["pendulum_nominal", "pendulum_noisy"])
+def test_cosimulation_equals_reference_short(name, fmu_dir, block_cache, gains):
+    spec = _scenario(name, fmu_dir, block_cache).with_seed(3)
+    result = run_system(resolve_system(spec), stop_time=0.1, progress=False)
+    ref = simulate(gains, REFERENCE_NAMES[name], t_end=0.1, seed=3)
+    assert _deviation(result, ref) <= 1e-9
+
+
+def test_perturbed_full_length_equals_reference_and_meets_target(fmu_dir, block_cache, gains):
+    spec = _scenario("pendulum_perturbed", fmu_dir, block_cache)
+    result = run_system(resolve_system(spec), progress=False)
+    ref = simulate(gains, "perturbed", t_end=3.0)
+    deviation = _deviation(result, ref)
+    figures = error_figures(result, spec.evaluation)
+    print(f"perturbed: max deviation from reference {deviation:.2e}; {figures}")
+    assert deviation <= 1e-9
+    assert figures["homogeneous"]["max_error_1_3"] <= 1e-3
+    assert figures["linear"]["max_error_1_3"] > 10 * figures["homogeneous"]["max_error_1_3"]
+
+
+def test_nominal_accuracy_at_1_5(fmu_dir, block_cache):
+    spec = _scenario("pendulum_nominal", fmu_dir, block_cache)
+    result = run_system(resolve_system(spec), stop_time=1.5, progress=False)
+    figures = error_figures(result, spec.evaluation)
+    print(f"nominal: {figures}")
+    assert figures["homogeneous"]["error_at_1_5"] <= 1e-9
+
+
+def test_noisy_rms_over_five_seeds(fmu_dir, block_cache):
+    spec = _scenario("pendulum_noisy", fmu_dir, block_cache)
+    results = run_seeds(spec, list(range(5)), None, jobs=2)
+    figures = [error_figures(r, spec.evaluation) for r in results]
+    rms = np.mean([f["homogeneous"]["rms_error_1_3"] for f in figures])
+    rms_lin = np.mean([f["linear"]["rms_error_1_3"] for f in figures])
+    print(f"noisy: mean RMS homogeneous {rms:.3e}, linear {rms_lin:.3e}, ratio {rms_lin / rms:.1f}")
+    assert len({f["homogeneous"]["rms_error_1_3"] for f in figures}) == 5  # seeds differ
+    assert rms <= 1.5e-2
+    assert rms_lin >= 25 * rms
+
+
+VENDOR_LOOP = """
+name = "vendor_plant_nominal"
+[run]
+step = 5e-5
+stop_time = 0.1
+record = ["plant.state", "observer.x_hat", "linear.x_hat"]
+[fmus.plant]
+path = "{plant}"
+start = {{ initial_state = [2.0, 2.0, 1.0, 2.0], disturbance = 0.0 }}
+[fmus.observer]
+path = "{fmu_dir}/observer.fmu"
+[fmus.linear]
+path = "{fmu_dir}/luenberger.fmu"
+[[connections]]
+from = "plant.angles"
+to = "observer.y"
+[[connections]]
+from = "plant.angles"
+to = "linear.y"
+[[connections]]
+from = "observer.x_hat"
+to = "plant.torque"
+gain = [[2.0, -35.0, 1.5, -3.0]]
+[[connections]]
+from = "observer.x_hat"
+to = "observer.u"
+gain = [[2.0, -35.0, 1.5, -3.0]]
+[[connections]]
+from = "observer.x_hat"
+to = "linear.u"
+gain = [[2.0, -35.0, 1.5, -3.0]]
+"""
+
+
+def test_third_party_plant_in_the_paper_loop(tmp_path, fmu_dir, gains):
+    """A plant FMU the harness did not build, its names mapped in the description."""
+    path = tmp_path / "vendor.toml"
+    path.write_text(VENDOR_LOOP.format(plant=build_vendor_plant(tmp_path), fmu_dir=fmu_dir))
+    result = run_system(resolve_system(load_system(path)), progress=False)
+    ref = simulate(gains, "nominal", t_end=0.1)
+    for signal, expected in [("plant.state", ref.x), ("observer.x_hat", ref.z),
+                             ("linear.x_hat", ref.z_lin)]:
+        assert np.max(np.abs(result.vector(signal) - expected)) <= 1e-9, signal
+
+
+def test_cli_run_writes_csv_summary_and_plots(tmp_path, fmu_dir, block_cache):
+    out = tmp_path / "out"
+    code = main(["run", "pendulum_perturbed", "--fmu-dir", str(fmu_dir), "--out", str(out),
+                 "--block-cache", str(block_cache), "--stop-time", "0.2", "--step", "1e-4",
+                 "--seed", "2", "--set", "plant.x0=[1.0, 0.5, 0.0, 0.0]"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 2000 and summary["step"] == 1e-4
+    assert summary["seeds"] == [2]
+    assert summary["homogeneous"] == {}  # t = 1.5 and [1, 3] lie beyond the stop time
+    header = (out / "results.csv").read_text().splitlines()[:2]
+    columns = [c.strip('"') for c in header[0].split(",")]
+    first = dict(zip(columns, map(float, header[1].split(",")), strict=True))
+    assert [first[f"plant.x[{i}]"] for i in range(1, 5)] == [1.0, 0.5, 0.0, 0.0]
+    assert (out / "errors.png").stat().st_size > 0
+
+
+def test_cli_rejects_unknown_variable(tmp_path, fmu_dir, block_cache, capsys):
+    code = main(["run", "pendulum_nominal", "--fmu-dir", str(fmu_dir), "--out", str(tmp_path),
+                 "--block-cache", str(block_cache), "--set", "plant.x9=1"])
+    assert code == 2
+    assert "FMU 'plant' has no variable 'x9'" in capsys.readouterr().err
