@@ -34,6 +34,7 @@ import numpy as np
 from .certificate import certify
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE, STATUS_VALUE_REFERENCE
 from .gains import ObserverGains
+from .plant import PLANT_SCHEMES
 from .runtime import SCHEMES
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -60,6 +61,7 @@ def build_fmus(
     x0: Iterable[float] | None = None,
     noise_amplitude: float = 0.0,
     noise_seed: int = 0,
+    plant_scheme: str = "zoh",
     input_bound: float = DEFAULT_INPUT_BOUND,
     status_wrapper: bool | None = None,
 ) -> dict[str, Path]:
@@ -82,6 +84,8 @@ def build_fmus(
         Start value of the plant's initial state (default zero).
     noise_amplitude, noise_seed : float, int
         Start values of the plant's measurement noise.
+    plant_scheme : str
+        Start value of the plant's step scheme (``fhobs.plant.PLANT_SCHEMES``).
     input_bound : float
         Start value of every FMU's ``input_bound`` (larger inputs are rejected).
     status_wrapper : bool, optional
@@ -113,9 +117,12 @@ def build_fmus(
         "x0": _vector(x0, gains.n),
         "noise_amplitude": float(noise_amplitude),
         "noise_seed": int(noise_seed),
+        "plant_scheme": plant_scheme,
     }
     if config["scheme"] not in SCHEMES:
         raise ValueError(f"scheme {config['scheme']!r} is not one of {SCHEMES}")
+    if plant_scheme not in PLANT_SCHEMES:
+        raise ValueError(f"plant_scheme {plant_scheme!r} is not one of {PLANT_SCHEMES}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fhobs_build_") as tmp:

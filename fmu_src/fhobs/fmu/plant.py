@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from fhobs.fmu.slave_base import FhobsSlave
-from fhobs.plant import LTIPlant
+from fhobs.plant import PLANT_SCHEMES, LTIPlant
 
 
 class FhobsPlant(FhobsSlave):
@@ -30,6 +30,11 @@ class FhobsPlant(FhobsSlave):
             "measurement noise is uniform in [-noise_amplitude, noise_amplitude]",
         )
         self.add_integer("noise_seed", config["noise_seed"], "seed of the measurement noise")
+        self.add_integer(
+            "scheme",
+            PLANT_SCHEMES.index(config["plant_scheme"]),
+            "plant step: " + ", ".join(f"{i} = {s}" for i, s in enumerate(PLANT_SCHEMES)),
+        )
         self.add_array("u", np.zeros(design.m), "input", "control input")
         if design.E is not None:
             self.add_array("q", np.zeros(design.E.shape[1]), "input", "perturbation (through E)")
@@ -39,10 +44,15 @@ class FhobsPlant(FhobsSlave):
     def _perturbation(self) -> np.ndarray:
         return self.array("q") if "q" in self._arrays else np.zeros(0)
 
+    def _scheme_name(self) -> str:
+        index = self.integer("scheme")
+        if not 0 <= index < len(PLANT_SCHEMES):
+            raise ValueError(f"scheme = {index} is not in 0..{len(PLANT_SCHEMES) - 1}")
+        return PLANT_SCHEMES[index]
+
     def _check_parameters(self) -> None:
-        amplitude = float(self.array("noise_amplitude"))
-        if amplitude < 0.0:
-            raise ValueError(f"noise_amplitude = {amplitude!r} is negative")
+        """LTIPlant itself rejects a negative noise amplitude or seed (ValueError)."""
+        self._scheme_name()
 
     def _make_model(self) -> LTIPlant:
         return LTIPlant(
@@ -53,6 +63,7 @@ class FhobsPlant(FhobsSlave):
             x0=self.array("x0"),
             noise_amplitude=float(self.array("noise_amplitude")),
             seed=self.integer("noise_seed"),
+            scheme=self._scheme_name(),
         )
 
     def _advance(self, step_size: float) -> None:

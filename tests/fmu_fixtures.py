@@ -1,0 +1,147 @@
+"""Helpers of the FMU tests: FMUs built once per session and a small fmpy FMU2Slave driver.
+
+Imported by ``tests/test_fmu*.py`` (not a conftest: the lead owns ``tests/conftest.py``).
+Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fhobs.build import build_fmus
+from fhobs.design import design_observer
+from fhobs.gains import ObserverGains
+from fhobs.spec import load_spec
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import (
+    FMU2Slave,
+    calloc,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    free,
+)
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+PENDULUM_X0 = (2.0, 2.0, 1.0, 2.0)
+NOISE_AMPLITUDE = 1e-3
+NOISE_SEED = 7
+H = 5e-5
+
+
+def names(base: str, shape: tuple[int, ...]) -> list[str]:
+    """FMI names of an array's elements, row-major and 1-based, as the contract specifies."""
+    if len(shape) == 0:
+        return [base]
+    if len(shape) == 1:
+        return [f"{base}[{i + 1}]" for i in range(shape[0])]
+    return [f"{base}[{i + 1},{j + 1}]" for i in range(shape[0]) for j in range(shape[1])]
+
+
+class FmuDriver:
+    """One FMU instance driven through fmpy's ``FMU2Slave``, its log messages captured.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.fmu`` file.
+    unzip_dir : str
+        Where it was extracted (several instances may share one extraction).
+    instance_name : str
+    """
+
+    def __init__(self, path: Path, unzip_dir: str, instance_name: str = "instance") -> None:
+        self.description = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in self.description.modelVariables}
+        self.messages: list[tuple[int, str]] = []
+        self._callbacks = fmi2CallbackFunctions()
+        self._callbacks.logger = fmi2CallbackLoggerTYPE(self._on_log)
+        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.fmu = FMU2Slave(
+            guid=self.description.guid,
+            unzipDirectory=unzip_dir,
+            modelIdentifier=self.description.coSimulation.modelIdentifier,
+            instanceName=instance_name,
+        )
+        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
+
+    def _on_log(self, env, instance, status, category, message) -> None:  # noqa: ANN001
+        self.messages.append((int(status), message.decode()))
+
+    def start(self, parameters: dict[str, np.ndarray | float] | None = None) -> None:
+        """setupExperiment, set parameter values, enter and exit initialisation mode."""
+        self.fmu.setupExperiment(startTime=0.0)
+        for name, value in (parameters or {}).items():
+            self.set(name, value)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+
+    def set(self, base: str, value: np.ndarray | float) -> None:
+        """Set an array variable (all its elements)."""
+        value = np.asarray(value, dtype=float)
+        refs = [self.vr[name] for name in names(base, value.shape)]
+        self.fmu.setReal(refs, value.ravel().tolist())
+
+    def get(self, base: str, shape: tuple[int, ...]) -> np.ndarray:
+        """Read an array variable."""
+        return np.array(self.fmu.getReal([self.vr[n] for n in names(base, shape)])).reshape(shape)
+
+
+@pytest.fixture(scope="session")
+def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: ObserverGains):
+    """observer.fmu, luenberger.fmu and plant.fmu of the pendulum design, built once."""
+    return build_fmus(
+        tuned_gains,
+        tmp_path_factory.mktemp("pendulum_fmus"),
+        x0=PENDULUM_X0,
+        noise_amplitude=NOISE_AMPLITUDE,
+        noise_seed=NOISE_SEED,
+        h=H,
+    )
+
+
+@pytest.fixture(scope="session")
+def chain_gains() -> ObserverGains:
+    """A second design with other dimensions (n = 3, k = 1): the triple integrator."""
+    return design_observer(load_spec(EXAMPLES / "triple_integrator.toml"))
+
+
+@pytest.fixture(scope="session")
+def chain_observer(tmp_path_factory: pytest.TempPathFactory, chain_gains: ObserverGains) -> Path:
+    """observer.fmu of the triple integrator."""
+    built = build_fmus(chain_gains, tmp_path_factory.mktemp("chain_fmus"), kinds=("observer",))
+    return built["observer"]
+
+
+@pytest.fixture(scope="session")
+def unzipped(pendulum_fmus: dict[str, Path], chain_observer: Path) -> dict[str, str]:
+    """Each FMU extracted once: kind (or ``chain``) -> directory."""
+    dirs = {kind: extract(str(path)) for kind, path in pendulum_fmus.items()}
+    dirs["chain"] = extract(str(chain_observer))
+    return dirs
+
+
+@pytest.fixture
+def open_fmu(pendulum_fmus: dict[str, Path], chain_observer: Path, unzipped: dict[str, str]):
+    """Factory ``open_fmu(kind, name)`` of FMU instances, all freed after the test."""
+    paths = dict(pendulum_fmus, chain=chain_observer)
+    opened: list[FmuDriver] = []
+
+    def factory(kind: str, instance_name: str = "instance") -> FmuDriver:
+        driver = FmuDriver(paths[kind], unzipped[kind], instance_name)
+        opened.append(driver)
+        return driver
+
+    yield factory
+    for driver in opened:
+        driver.fmu.freeInstance()
+
+
+def random_walk(seed: int, steps: int, size: int, scale: float) -> np.ndarray:
+    """A seeded input sequence: a Gaussian random walk, ``steps`` x ``size``."""
+    rng = np.random.default_rng(seed)
+    return np.cumsum(rng.normal(scale=scale, size=(steps, size)), axis=0)

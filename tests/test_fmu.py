@@ -1,0 +1,409 @@
+"""observer.fmu, luenberger.fmu and plant.fmu through fmpy's FMU2Slave (issue 4).
+
+Every FMU result is compared with an independent computation: the in-process numpy runtime
+stepped the same way, a second run of the FMU, or the modelDescription parsed here.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import fmu_fixtures
+import numpy as np
+import pytest
+from fhobs.plant import LTIPlant
+from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from fmpy.fmi1 import FMICallException
+from fmpy.validation import validate_fmu
+from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names, random_walk
+
+# the session fixtures this module uses, made visible to pytest here
+pendulum_fmus = fmu_fixtures.pendulum_fmus
+chain_gains = fmu_fixtures.chain_gains
+chain_observer = fmu_fixtures.chain_observer
+unzipped = fmu_fixtures.unzipped
+open_fmu = fmu_fixtures.open_fmu
+
+DT = 1e-3  # communication step: 20 internal steps of H
+STEPS = 120
+FMI_ERROR = 3
+
+
+def observer_inputs(gains, seed: int = 1, steps: int = STEPS) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded y and u sequences for an observer."""
+    return random_walk(seed, steps, gains.k, 0.05), random_walk(seed + 1, steps, gains.m, 0.1)
+
+
+def run_filtering_fmu(driver, gains, ys, us, first_step: int = 0) -> np.ndarray:
+    """Step an initialised observer FMU; rows = [x_hat, psi, xi, sigma] after each step."""
+    rows = []
+    for k, (y, u) in enumerate(zip(ys, us, strict=True), start=first_step):
+        driver.set("y", y)
+        driver.set("u", u)
+        driver.fmu.doStep(k * DT, DT)
+        rows.append(np.concatenate([
+            driver.get("x_hat", (gains.n,)), driver.get("psi", (gains.k,)),
+            driver.get("xi", ()).ravel(), driver.get("sigma", ()).ravel(),
+        ]))
+    return np.array(rows)
+
+
+def run_filtering_runtime(gains, ys, us) -> np.ndarray:
+    """The same rows from the in-process runtime, started at zero like the FMU's defaults."""
+    obs = FilteringObserver(gains, h=H, scheme=SCHEMES[0])
+    rows = []
+    for y, u in zip(ys, us, strict=True):
+        obs.step(y, u, DT)
+        d = obs.diagnostics()
+        rows.append(np.concatenate([obs.z, np.ravel(d["psi"]), [d["xi"], d["sigma"]]]))
+    return np.array(rows)
+
+
+# -- model description -----------------------------------------------------------------------
+def model_variables(fmu: Path) -> list[ET.Element]:
+    with zipfile.ZipFile(fmu) as z:
+        root = ET.fromstring(z.read("modelDescription.xml"))
+    return list(root.find("ModelVariables"))
+
+
+@pytest.mark.parametrize("kind", ["observer", "luenberger", "plant"])
+def test_fmpy_validate_reports_no_problem(pendulum_fmus, kind):
+    assert validate_fmu(str(pendulum_fmus[kind])) == []
+
+
+def test_fmpy_validate_second_design(chain_observer):
+    assert validate_fmu(str(chain_observer)) == []
+
+
+@pytest.mark.parametrize("kind", ["observer", "luenberger", "plant"])
+def test_array_elements_consecutive_and_row_major(pendulum_fmus, kind):
+    """Elements of one array: adjacent in the file, value references consecutive, row-major."""
+    variables = model_variables(pendulum_fmus[kind])
+    groups: dict[str, list[tuple[int, tuple[int, ...], int]]] = {}
+    for position, var in enumerate(variables):
+        match = re.fullmatch(r"(\w+)\[(\d+)(?:,(\d+))?\]", var.get("name"))
+        if match:
+            index = tuple(int(g) for g in match.groups()[1:] if g is not None)
+            groups.setdefault(match.group(1), []).append(
+                (position, index, int(var.get("valueReference")))
+            )
+    assert {"A", "B", "C", "u", "y"} <= set(groups)
+    for base, elements in groups.items():
+        positions = [p for p, _, _ in elements]
+        refs = [r for _, _, r in elements]
+        assert positions == list(range(positions[0], positions[0] + len(elements))), base
+        assert refs == list(range(refs[0], refs[0] + len(elements))), base
+        indices = [i for _, i, _ in elements]
+        shape = tuple(max(i[d] for i in indices) for d in range(len(indices[0])))
+        expected = [tuple(int(v) for v in n[len(base):].strip("[]").split(","))
+                    for n in names(base, shape)]
+        assert indices == expected, base
+
+
+def test_observer_interface_and_start_values(pendulum_fmus, tuned_gains):
+    g = tuned_gains
+    variables = {v.get("name"): v for v in model_variables(pendulum_fmus["observer"])}
+
+    def start(name):
+        return float(variables[name].find("Real").get("start"))
+
+    for base in ("A", "B", "C", "L0", "G_d", "L_tilde", "L", "P_bar"):
+        value = getattr(g, base)
+        starts = np.array([start(n) for n in names(base, value.shape)]).reshape(value.shape)
+        np.testing.assert_allclose(starts, value, rtol=1e-15, atol=0, err_msg=base)
+        assert variables[names(base, value.shape)[0]].get("causality") == "parameter"
+    for name in ("nu", "gamma", "rho"):
+        assert start(name) == pytest.approx(getattr(g, name), rel=1e-15)
+    for name in ["h", "xi0", *names("z0", (g.n,)), *names("psi0", (g.k,))]:
+        assert variables[name].get("causality") == "parameter"
+    assert start("h") == H
+    assert variables["scheme"].get("causality") == "parameter"
+    causality = {
+        "input": names("y", (g.k,)) + names("u", (g.m,)),
+        "output": names("x_hat", (g.n,)) + names("psi", (g.k,)) + ["xi", "sigma"],
+    }
+    for expected, listed in causality.items():
+        assert all(variables[n].get("causality") == expected for n in listed)
+
+
+def test_plant_and_luenberger_interface(pendulum_fmus, tuned_gains):
+    g = tuned_gains
+    plant = {v.get("name"): v.get("causality") for v in model_variables(pendulum_fmus["plant"])}
+    for name in names("u", (g.m,)) + names("q", (g.E.shape[1],)):
+        assert plant[name] == "input"
+    for name in names("y", (g.k,)) + names("x", (g.n,)):
+        assert plant[name] == "output"
+    for name in [*names("x0", (g.n,)), "noise_amplitude", "noise_seed"]:
+        assert plant[name] == "parameter"
+    luen = {v.get("name"): v.get("causality") for v in model_variables(pendulum_fmus["luenberger"])}
+    assert all(luen[n] == "parameter" for n in names("L_lin", g.L_lin.shape))
+    assert all(luen[n] == "output" for n in names("x_hat", (g.n,)))
+
+
+# -- results against the in-process runtime ----------------------------------------------------
+def test_observer_equals_runtime(open_fmu, tuned_gains):
+    ys, us = observer_inputs(tuned_gains)
+    driver = open_fmu("observer")
+    driver.start()
+    fmu_rows = run_filtering_fmu(driver, tuned_gains, ys, us)
+    runtime_rows = run_filtering_runtime(tuned_gains, ys, us)
+    assert np.max(np.abs(runtime_rows)) > 1e-3  # the estimate moved
+    np.testing.assert_allclose(fmu_rows, runtime_rows, rtol=0, atol=1e-12)
+
+
+def test_luenberger_equals_runtime(open_fmu, tuned_gains):
+    g = tuned_gains
+    ys, us = observer_inputs(g, seed=5)
+    driver = open_fmu("luenberger")
+    z0 = np.array([0.1, -0.2, 0.3, -0.4])
+    driver.start({"z0": z0})
+    obs = LuenbergerObserver(g, h=H, scheme=SCHEMES[0], z0=z0)
+    for k, (y, u) in enumerate(zip(ys, us, strict=True)):
+        driver.set("y", y)
+        driver.set("u", u)
+        driver.fmu.doStep(k * DT, DT)
+        obs.step(y, u, DT)
+        np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.z, rtol=0, atol=1e-12)
+
+
+def test_plant_equals_runtime_with_noise(open_fmu, tuned_gains):
+    g = tuned_gains
+    us = random_walk(9, STEPS, g.m, 0.1)
+    qs = random_walk(10, STEPS, g.E.shape[1], 0.1)
+    driver = open_fmu("plant")
+    driver.start()
+    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+                     seed=NOISE_SEED)
+    np.testing.assert_allclose(driver.get("y", (g.k,)), plant.y, rtol=0, atol=1e-12)
+    for k, (u, q) in enumerate(zip(us, qs, strict=True)):
+        driver.set("u", u)
+        driver.set("q", q)
+        driver.fmu.doStep(k * DT, DT)
+        plant.step(u, q, DT)
+        np.testing.assert_allclose(driver.get("x", (g.n,)), plant.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(driver.get("y", (g.k,)), plant.y, rtol=0, atol=1e-12)
+    assert np.ptp(driver.get("y", (g.k,)) - g.C @ plant.x) > 0  # noise is on
+
+
+def test_edited_initial_state_is_used(open_fmu, tuned_gains):
+    g = tuned_gains
+    driver = open_fmu("observer")
+    z0, psi0 = np.arange(1.0, g.n + 1), np.full(g.k, 0.5)
+    driver.start({"z0": z0, "psi0": psi0, "xi0": 2.0})
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), z0)
+    ys, us = observer_inputs(g, steps=3)
+    obs = FilteringObserver(g, h=H, scheme=SCHEMES[0], z0=z0, psi0=psi0, xi0=2.0)
+    for k, (y, u) in enumerate(zip(ys, us, strict=True)):
+        run_filtering_fmu(driver, g, [y], [u], first_step=k)
+        obs.step(y, u, DT)
+    np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.z, rtol=0, atol=1e-12)
+
+
+# -- FMU state ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["observer", "plant"])
+def test_restore_and_replay_is_bit_identical(open_fmu, tuned_gains, kind):
+    g = tuned_gains
+    driver = open_fmu(kind)
+    driver.start()
+    inputs = {"y": random_walk(3, 40, g.k, 0.05), "u": random_walk(4, 40, g.m, 0.1)}
+    if kind == "plant":
+        inputs = {"u": inputs["u"], "q": random_walk(5, 40, g.E.shape[1], 0.1)}
+    outputs = ["x_hat", "psi", "xi", "sigma"] if kind == "observer" else ["x", "y"]
+    out_vrs = [driver.vr[n] for n in driver.vr if n.split("[")[0] in outputs]
+
+    def run(fmu_driver, ks):
+        rows = []
+        for k in ks:
+            for base, seq in inputs.items():
+                fmu_driver.set(base, seq[k])
+            fmu_driver.fmu.doStep(k * DT, DT)
+            rows.append(fmu_driver.fmu.getReal(out_vrs))
+        return np.array(rows)
+
+    run(driver, range(20))
+    state = driver.fmu.getFMUstate()
+    first = run(driver, range(20, 40))
+    driver.fmu.setFMUstate(state)
+    replay = run(driver, range(20, 40))
+    np.testing.assert_array_equal(replay, first)
+
+    fresh = open_fmu(kind, "fresh")
+    fresh.start()
+    fresh.fmu.setFMUstate(fresh.fmu.deSerializeFMUstate(driver.fmu.serializeFMUstate(state)))
+    np.testing.assert_array_equal(run(fresh, range(20, 40)), first)
+    driver.fmu.freeFMUstate(state)
+
+
+def test_reset_returns_to_initial_state(open_fmu, tuned_gains):
+    g = tuned_gains
+    ys, us = observer_inputs(g, steps=30)
+    driver = open_fmu("observer")
+    driver.start({"xi0": 0.7})
+    first = run_filtering_fmu(driver, g, ys, us)
+    driver.fmu.reset()
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), np.zeros(g.n))
+    driver.start({"xi0": 0.7})
+    np.testing.assert_array_equal(run_filtering_fmu(driver, g, ys, us), first)
+    driver.fmu.reset()
+    driver.start()  # parameters are back at their start values (xi0 = 0)
+    np.testing.assert_array_equal(run_filtering_fmu(driver, g, ys, us),
+                                  run_filtering_runtime(g, ys, us))
+
+
+# -- rejected inputs and parameters ---------------------------------------------------------
+@pytest.mark.parametrize(
+    ("bad", "words"),
+    [(np.nan, "not finite"), (np.inf, "not finite"), (-np.inf, "not finite"),
+     (1e20, "exceeds input_bound")],
+)
+def test_bad_input_is_an_error_state_kept_instance_usable(open_fmu, tuned_gains, bad, words):
+    g = tuned_gains
+    ys, us = observer_inputs(g, steps=20)
+    driver = open_fmu("observer")
+    driver.start()
+    before = run_filtering_fmu(driver, g, ys[:10], us[:10])[-1]
+    driver.set("y", np.array([ys[10][0], bad]))
+    driver.set("u", us[10])
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.doStep(10 * DT, DT)
+    assert err.value.status == FMI_ERROR
+    status, message = driver.messages[-1]
+    assert status == FMI_ERROR and "y[2]" in message and words in message
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[: g.n])
+    # still usable: the rest of the run equals an uninterrupted run
+    rest = run_filtering_fmu(driver, g, ys[10:], us[10:], first_step=10)
+    np.testing.assert_array_equal(rest, run_filtering_runtime(g, ys, us)[10:])
+
+
+def test_bad_step_size_is_an_error(open_fmu):
+    driver = open_fmu("plant")
+    driver.start()
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.doStep(0.0, -1e-3)
+    assert err.value.status == FMI_ERROR
+    assert "step size" in driver.messages[-1][1]
+    driver.fmu.doStep(0.0, 1e-3)
+
+
+@pytest.mark.parametrize(
+    ("edit", "check"),
+    [
+        ({"A[3,2]": 160.0}, "nilpotency"),
+        ({"G_d[1,1]": 0.9}, "output_homogeneity"),
+        ({"rho": 1.0}, "gamma_rho"),
+        ({"h": -1.0}, "internal step h"),
+        ({"A[1,1]": np.nan}, "A[1,1]"),
+    ],
+)
+def test_edited_parameters_fail_initialisation_with_fmi_error(open_fmu, tuned_gains, edit, check):
+    driver = open_fmu("observer")
+    driver.fmu.setupExperiment(startTime=0.0)
+    for name, value in edit.items():
+        driver.fmu.setReal([driver.vr[name]], [value])
+    driver.fmu.enterInitializationMode()
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.exitInitializationMode()
+    assert err.value.status == FMI_ERROR
+    status, message = driver.messages[-1]
+    assert status == FMI_ERROR and check in message
+    if check not in ("internal step h", "A[1,1]"):
+        assert re.search(rf"{check} = [-+0-9.e]+ \(required", message)  # says by how much
+    with pytest.raises(FMICallException) as err:  # no step on a rejected design
+        driver.fmu.doStep(0.0, DT)
+    assert err.value.status == FMI_ERROR
+    driver.fmu.reset()  # usable again
+    driver.start()
+    driver.fmu.doStep(0.0, DT)
+
+
+def test_scheme_index_checked(open_fmu):
+    driver = open_fmu("luenberger")
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.fmu.setInteger([driver.vr["scheme"]], [99])
+    driver.fmu.enterInitializationMode()
+    with pytest.raises(FMICallException):
+        driver.fmu.exitInitializationMode()
+    assert "scheme = 99" in driver.messages[-1][1]
+
+
+def test_luenberger_rejects_unstable_gain(open_fmu, tuned_gains):
+    driver = open_fmu("luenberger")
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.set("L_lin", -tuned_gains.L_lin)
+    driver.fmu.enterInitializationMode()
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.exitInitializationMode()
+    assert err.value.status == FMI_ERROR
+    assert "hurwitz_luenberger" in driver.messages[-1][1]
+
+
+# -- several instances, several designs -------------------------------------------------------
+def test_instances_and_designs_are_independent(open_fmu, tuned_gains, chain_gains):
+    """Two pendulum instances and a triple-integrator observer, stepped interleaved."""
+    assert (chain_gains.n, chain_gains.k) != (tuned_gains.n, tuned_gains.k)
+    cases = [
+        (open_fmu("observer", "p1"), tuned_gains, observer_inputs(tuned_gains, seed=11)),
+        (open_fmu("chain", "c1"), chain_gains, observer_inputs(chain_gains, seed=12)),
+        (open_fmu("observer", "p2"), tuned_gains, observer_inputs(tuned_gains, seed=13)),
+    ]
+    for driver, _, _ in cases:
+        driver.start()
+    rows = [[] for _ in cases]
+    for k in range(STEPS):
+        for i, (driver, g, (ys, us)) in enumerate(cases):
+            rows[i].append(run_filtering_fmu(driver, g, [ys[k]], [us[k]], first_step=k)[0])
+    for i, (_, g, (ys, us)) in enumerate(cases):
+        np.testing.assert_allclose(np.array(rows[i]), run_filtering_runtime(g, ys, us),
+                                   rtol=0, atol=1e-12)
+
+
+# -- what the FMU ships and imports ----------------------------------------------------------
+def test_shipped_code_imports_numpy_only(pendulum_fmus):
+    allowed = {"numpy", "pythonfmu", "__future__"} | set(sys.stdlib_module_names)
+    with zipfile.ZipFile(pendulum_fmus["observer"]) as z:
+        sources = {n: z.read(n) for n in z.namelist()
+                   if n.endswith(".py") and not n.startswith("resources/pythonfmu/")}
+    packages = {n.split("/")[1] for n in sources if n.count("/") > 1}
+    assert len(packages) == 1 and re.fullmatch(r"fhobs_[0-9a-f]{12}", packages.pop())
+    assert {"runtime.py", "certificate.py", "gains.py"} <= {Path(n).name for n in sources}
+    for name, source in sources.items():
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Import):
+                tops = [a.name.split(".")[0] for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                tops = [node.module.split(".")[0]]
+            else:
+                continue
+            for top in tops:
+                assert top in allowed or re.fullmatch(r"fhobs_[0-9a-f]{12}", top), (name, top)
+
+
+def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_gains, tmp_path):
+    """In a fresh interpreter where importing scipy/cvxpy/fhobs fails, the FMU still runs."""
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('scipy', 'cvxpy', 'matplotlib', 'fhobs'):\n"
+        "            raise ImportError('blocked ' + name)\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "from fmpy import simulate_fmu\n"
+        f"r = simulate_fmu({str(pendulum_fmus['observer'])!r}, stop_time=0.01,"
+        " output_interval=0.001, input=None)\n"
+        "assert not [m for m in sys.modules if m.split('.')[0] in ('scipy', 'cvxpy')]\n"
+        "print(len(r), flush=True)\n"
+        # pythonfmu 0.7.0 sometimes aborts at interpreter teardown after the FMU library was
+        # unloaded (seen with and without fhobs' wrapper): leave without the teardown.
+        "import os; os._exit(0)\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "11"
