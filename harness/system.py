@@ -33,7 +33,8 @@ File format (all keys except ``fmus`` optional)::
     [evaluation.errors]
     homogeneous = ["plant.x", "observer.x_hat"]   # error = ||first - second||
 
-Inputs must each be connected exactly once or given a start value (a constant input).
+Inputs must each be connected exactly once or given a start value (a constant input). Start
+values go to parameters, inputs and locals with ``initial`` exact or approx, never outputs.
 Connections carry Real signals only. Algebraic loops: under the Jacobi exchange no loop passes
 through ``doStep``, and connection gains are applied in one exchange, so a loop can only arise
 through FMUs that *declare* direct feedthrough (``<Outputs><Unknown dependencies=...>`` naming an
@@ -175,8 +176,11 @@ def load_system(
     path = Path(path)
     if not path.is_file():
         raise DescriptionError(f"system description {path} does not exist")
-    with path.open("rb") as f:
-        data = tomllib.load(f)
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as err:
+        raise DescriptionError(f"{path}: invalid TOML: {err}") from None
     subst = {**data.get("variables", {}), **(variables or {})}
     run = data.get("run", {})
     fmus = {
@@ -331,8 +335,10 @@ def _check_start(
     fmu: str, variables: dict[str, ScalarVariable], name: str, value: StartValue
 ) -> None:
     v = _variable(fmu, variables, name)
-    settable = v.causality in ("parameter", "input") or v.initial in ("exact", "approx")
-    if v.variability == "constant" or v.causality == "calculatedParameter" or not settable:
+    settable = v.causality in ("parameter", "input") or (
+        v.causality == "local" and v.initial in ("exact", "approx")
+    )
+    if v.variability == "constant" or not settable:
         raise DescriptionError(
             f"{fmu}.{name}: cannot be given a start value (causality "
             f"{v.causality}, variability {v.variability}, initial {v.initial})"
