@@ -1,0 +1,168 @@
+"""Benchmark: the nominal pendulum scenario to t = 1.5 (30,000 steps, plant + two observers)
+through the harness, beside the in-process reference loop (fhobs.reference), as a ratio.
+
+Targets (issue 5): harness <= 1.0 s and <= 1.5 x the in-process loop.
+
+It also splits the cost: per FMU, the three calls the master makes per step (fmi2SetReal,
+fmi2DoStep, fmi2GetReal, straight through ctypes) are timed in isolation, and the same
+arithmetic without FMI (the runtime objects' ``step``) likewise; what remains of the harness
+step is the master's own overhead.
+
+Usage: ``python bench/bench_harness.py [--fmu-dir DIR] [--repeat N] [--json FILE]``
+(builds the FMUs into a temporary folder unless --fmu-dir is given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from fhobs.gains import ObserverGains
+from fhobs.plant import LTIPlant
+from fhobs.reference import H_PAPER, K_PAPER, X0_PAPER, simulate
+from fhobs.runtime import FilteringObserver, LuenbergerObserver
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+from harness.cli import build_paper_fmus, load_scenario
+from harness.master import run_system
+from harness.system import resolve_system
+
+T_END = 1.5
+CALLS = 3000
+
+
+def best_of(repeat: int, fn) -> float:
+    """Smallest wall time of ``repeat`` calls of ``fn`` (seconds)."""
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> dict[str, float]:
+    """Microseconds per fmi2SetReal / fmi2DoStep / fmi2GetReal as the master makes them."""
+    md = read_model_description(str(fmu))
+    vrs = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(str(fmu)),
+        instanceName="bench",
+        modelIdentifier=md.coSimulation.modelIdentifier,
+    )
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    dll, comp = slave.dll, slave.component
+    in_vr = (ctypes.c_uint * len(inputs))(*[vrs[n] for n in inputs])
+    in_buf = (ctypes.c_double * len(inputs))(*inputs.values())
+    out_vr = (ctypes.c_uint * len(outputs))(*[vrs[n] for n in outputs])
+    out_buf = (ctypes.c_double * len(outputs))()
+    costs = {}
+    for name, call in [
+        ("fmi2SetReal", lambda: dll.fmi2SetReal(comp, in_vr, len(inputs), in_buf)),
+        ("fmi2DoStep", lambda: dll.fmi2DoStep(comp, 0.0, H_PAPER, 1)),
+        ("fmi2GetReal", lambda: dll.fmi2GetReal(comp, out_vr, len(outputs), out_buf)),
+    ]:
+        start = time.perf_counter()
+        for _ in range(CALLS):
+            call()
+        costs[name] = (time.perf_counter() - start) / CALLS * 1e6
+    slave.terminate()
+    slave.freeInstance()
+    return costs
+
+
+def runtime_step_costs(gains: ObserverGains) -> dict[str, float]:
+    """Microseconds per in-process ``step`` of the plant and of each observer."""
+    plant = LTIPlant(gains.A, gains.B, gains.C, gains.B, x0=X0_PAPER)
+    observers = {
+        "observer": FilteringObserver(gains, h=H_PAPER),
+        "linear": LuenbergerObserver(gains, h=H_PAPER),
+    }
+    y, u, q = plant.y, K_PAPER @ np.zeros(4), np.zeros(1)
+    steps = {"plant": lambda: plant.step(u, q, H_PAPER)}
+    steps |= {name: (lambda o=o: o.step(y, u, H_PAPER)) for name, o in observers.items()}
+    out = {}
+    for name, step in steps.items():
+        start = time.perf_counter()
+        for _ in range(CALLS):
+            step()
+        out[name] = (time.perf_counter() - start) / CALLS * 1e6
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--fmu-dir", type=Path)
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu_dir = args.fmu_dir or build_paper_fmus(
+            Path(__file__).resolve().parents[1] / "examples" / "pendulum.toml", Path(tmp)
+        )
+        gains = ObserverGains.load_json(fmu_dir / "design.json")
+        system = resolve_system(load_scenario("pendulum_nominal", fmu_dir, Path(tmp) / "b"))
+        steps = int(round(T_END / system.spec.step))
+        harness_s = best_of(args.repeat, lambda: run_system(system, T_END, progress=False))
+        reference_s = best_of(args.repeat, lambda: simulate(gains, "nominal", t_end=T_END))
+        fmu_costs = {
+            "plant": fmu_call_costs(
+                fmu_dir / "plant.fmu",
+                {"u[1]": 0.0, "q[1]": 0.0},
+                [f"y[{i}]" for i in (1, 2)] + [f"x[{i}]" for i in range(1, 5)],
+            ),
+            "observer": fmu_call_costs(
+                fmu_dir / "observer.fmu",
+                {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0},
+                [f"x_hat[{i}]" for i in range(1, 5)],
+            ),
+            "linear": fmu_call_costs(
+                fmu_dir / "luenberger.fmu",
+                {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0},
+                [f"x_hat[{i}]" for i in range(1, 5)],
+            ),
+        }
+    runtime_costs = runtime_step_costs(gains)
+    fmu_us = sum(sum(c.values()) for c in fmu_costs.values())
+    report = {
+        "steps": steps,
+        "harness_s": harness_s,
+        "reference_s": reference_s,
+        "ratio": harness_s / reference_s,
+        "harness_us_per_step": harness_s / steps * 1e6,
+        "reference_us_per_step": reference_s / steps * 1e6,
+        "fmu_calls_us_per_step": fmu_us,
+        "runtime_step_us": runtime_costs,
+        "fmu_call_us": fmu_costs,
+        "master_overhead_us_per_step": harness_s / steps * 1e6 - fmu_us,
+        "targets": {
+            "harness_s<=1.0": harness_s <= 1.0,
+            "ratio<=1.5": harness_s / reference_s <= 1.5,
+        },
+    }
+    print(f"nominal to t = {T_END} ({steps} steps), best of {args.repeat}:")
+    print(f"  harness   {harness_s:7.3f} s  ({report['harness_us_per_step']:.1f} us/step)")
+    print(f"  reference {reference_s:7.3f} s  ({report['reference_us_per_step']:.1f} us/step)")
+    print(f"  ratio     {report['ratio']:7.2f}   targets: {report['targets']}")
+    print("  per step, us: FMU calls (set/doStep/get) vs in-process step")
+    for name, costs in fmu_costs.items():
+        calls = " ".join(f"{k}={v:.1f}" for k, v in costs.items())
+        print(f"    {name:9s} {calls}  | runtime step {runtime_costs[name]:.1f}")
+    print(f"  master overhead {report['master_overhead_us_per_step']:.1f} us/step")
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+if __name__ == "__main__":
+    main()
