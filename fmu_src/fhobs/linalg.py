@@ -99,6 +99,8 @@ def phi1(X: np.ndarray) -> np.ndarray:
 def _phi1_scalar(mu: np.ndarray) -> np.ndarray:
     """Elementwise ``(exp(mu) - 1) / mu`` for complex mu, with the limit 1 at mu = 0."""
     small = np.abs(mu) < 1e-8
+    if not small.any():
+        return np.expm1(mu) / mu
     safe = np.where(small, 1.0, mu)
     return np.where(small, 1.0 + 0.5 * mu, np.expm1(safe) / safe)
 
@@ -132,9 +134,8 @@ class ExpmFamily:
         if self.use_eig:
             c = self._Vinv @ r
             mu = tau * self._lam
-            exp_r = (self._V @ (np.exp(mu) * c)).real
-            phi_r = (self._V @ (_phi1_scalar(mu) * c)).real
-            return exp_r, phi_r
+            both = (self._V @ np.stack((np.exp(mu) * c, _phi1_scalar(mu) * c), axis=1)).real
+            return both[:, 0], both[:, 1]
         size = self.R.shape[0]
         aug = np.zeros((size + 1, size + 1))
         aug[:size, :size] = tau * self.R

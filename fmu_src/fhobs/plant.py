@@ -21,10 +21,10 @@ PLANT_SCHEMES = ("zoh", "euler")
 
 def as_finite_vector(value: np.ndarray | float, size: int, name: str) -> np.ndarray:
     """Return ``value`` as a finite float vector of length ``size``, else raise ValueError."""
-    vec = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+    vec = np.asarray(value, dtype=float).reshape(-1)
     if vec.size != size:
         raise ValueError(f"{name} must have {size} entries, got {vec.size}")
-    if not np.all(np.isfinite(vec)):
+    if not np.isfinite(vec).all():
         raise ValueError(f"{name} must be finite, got {vec}")
     return vec
 
@@ -142,7 +142,7 @@ class LTIPlant:
         else:
             Phi, Gamma_B, Gamma_E = self._blocks(dt)
             x_new = Phi @ self._x + Gamma_B @ u + Gamma_E @ q
-        if not np.all(np.isfinite(x_new)):
+        if not np.isfinite(x_new).all():
             raise ValueError("the plant state overflowed; state left unchanged")
         self._x = x_new
         self._k += 1

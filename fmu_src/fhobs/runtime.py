@@ -48,6 +48,7 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -76,13 +77,13 @@ Since |psi| <= sqrt(2) sigma, the gain term stays finite and the guard never act
 
 def signed_power(w: float, p: float) -> float:
     """``floor(w)^p = |w|^p sign(w)``."""
-    return float(np.sign(w) * abs(w) ** p)
+    return math.copysign(abs(w) ** p, w) if w else 0.0
 
 
 def signed_power_decay(w: float, gamma: float, p: float, h: float) -> float:
     """Exact flow over h of ``dw/dt = -gamma floor(w)^p`` with 0 < p < 1 (reaches 0, stays 0)."""
     q = 1.0 - p
-    return float(np.sign(w) * max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q))
+    return math.copysign(max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q), w) if w else 0.0
 
 
 def spectral_radius(step: Callable[[np.ndarray], np.ndarray], size: int) -> float:
@@ -134,7 +135,7 @@ class _Observer:
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler
         z, aux = run(self._z.copy(), self._aux.copy(), y, u, hs, n_sub)
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(aux))):
+        if not (np.isfinite(z).all() and np.isfinite(aux).all()):
             raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
                              "state left unchanged")
         self._z, self._aux = z, aux
@@ -166,20 +167,26 @@ class _Observer:
         C = self.gains.C
         Phi, _, Gamma_inj = self._prediction(hs)
         innovation0 = C @ z - y
-        drift = np.zeros_like(z)  # z - m, m the observer's open-loop model prediction
-        for _ in range(n_sub):
-            v = C @ drift + innovation0
-            z, aux, dz, v = self._split_substep(z, aux, v, u, hs, self._level(aux, v, hs))
-            drift = Phi @ (drift + dz) + Gamma_inj @ v
+        v = innovation0
+        drift = 0.0  # z - m, m the observer's open-loop model prediction from the step's start
+        for i in range(n_sub):
+            z, aux, dz, v = self._split_substep(z, aux, v, u, hs)
+            if i + 1 < n_sub:
+                drift = Phi @ (drift + dz) + Gamma_inj @ v
+                v = C @ drift + innovation0
         return z, aux
 
-    def _split_substep(self, z, aux, v, u, hs, level):
-        """Correction (exact, gain frozen at ``level``) then ZOH prediction with v held.
+    def _split_substep(self, z, aux, v, u, hs, level=None):
+        """Correction (exact, gain frozen at ``level``, by default the observer's own level)
+        then ZOH prediction with v held.
 
         Returns the new z and aux, the correction's increment of z and the corrected v.
         """
         Phi, Gamma_B, Gamma_inj = self._prediction(hs)
-        aux, dz = self._correct(aux, v, hs, level)
+        if level is None:
+            aux, dz = self._correct_own_level(aux, v, hs)
+        else:
+            aux, dz = self._correct(aux, v, hs, level)
         v = v + self.gains.C @ dz
         return Phi @ (z + dz) + Gamma_B @ u + Gamma_inj @ v, aux, dz, v
 
@@ -193,9 +200,14 @@ class _Observer:
             aux = aux + hs * daux
         return z, aux
 
-    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
-        """Gain level (sigma or |xi|) at which the split substep freezes the gain."""
+    def _level(self, aux: np.ndarray, hs: float) -> float:
+        """Gain level (sigma or |xi|, capped) at which the split substep freezes the gain."""
         return 1.0
+
+    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
+                           hs: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_correct` at the observer's own gain level."""
+        return self._correct(aux, v, hs, self._level(aux, hs))
 
     def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
                  level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -270,36 +282,46 @@ class FilteringObserver(_Observer):
     def _sigma(aux: np.ndarray) -> float:
         """``sigma = sqrt(max(xi, |psi|^2 / 2))``."""
         psi, xi = aux[:-1], aux[-1]
-        return float(np.sqrt(max(xi, 0.5 * psi @ psi, 0.0)))
+        return math.sqrt(max(float(xi), 0.5 * float(psi @ psi), 0.0))
 
-    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
-        """``max(sigma, sigma_min)``, raised to a self-consistent level when the substep would
-        leave sigma above twice the frozen level (e.g. at an all-zero start, where sigma = 0
-        but psi grows at once): then the level s solves ``sigma_after(s) = s`` (bisection in
-        ln s; sigma_after decreases in s), so the frozen gain matches the psi it produces."""
-        level = max(self._sigma(aux), (self.tau_max / hs) ** (1.0 / self.gains.nu))
-        after = self._sigma(self._correct(aux, v, hs, level)[0])
+    def _level(self, aux: np.ndarray, hs: float) -> float:
+        """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / hs)^(1/nu)``."""
+        return max(self._sigma(aux), (self.tau_max / hs) ** (1.0 / self.gains.nu))
+
+    def _correct_own_level(self, aux, v, hs):
+        """Correction at ``max(sigma, sigma_min)``, redone at a self-consistent level when it
+        leaves sigma above ``LEVEL_MISMATCH`` times the frozen level (e.g. at an all-zero start,
+        where sigma = 0 but psi grows at once): that level s solves ``sigma_after(s) = s``
+        (bisection in ln s; sigma_after(s) / s decreases in s), so the frozen gain matches the
+        psi it produces."""
+        level = self._level(aux, hs)
+        result = self._correct(aux, v, hs, level)
+        after = self._sigma(result[0])
         if after <= LEVEL_MISMATCH * level:
-            return level
-        lo, hi = np.log(level), np.log(after)
+            return result
+        lo, hi = math.log(level), math.log(after)
         for _ in range(BISECTION_STEPS):
-            if self._sigma(self._correct(aux, v, hs, np.exp(hi))[0]) <= np.exp(hi):
+            result = self._correct(aux, v, hs, math.exp(hi))
+            if self._sigma(result[0]) <= math.exp(hi):
                 break
             lo, hi = hi, hi + 2.0
         while hi - lo > BISECTION_TOL:
             mid = 0.5 * (lo + hi)
-            consistent = self._sigma(self._correct(aux, v, hs, np.exp(mid))[0]) <= np.exp(mid)
-            lo, hi = (lo, mid) if consistent else (mid, hi)
-        return float(np.exp(hi))
+            trial = self._correct(aux, v, hs, math.exp(mid))
+            if self._sigma(trial[0]) <= math.exp(mid):
+                hi, result = mid, trial
+            else:
+                lo = mid
+        return result
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
         g = self.gains
         k = g.k
         psi, xi = aux[:-1], float(aux[-1])
-        log_s = np.log(level)
-        tau = hs * np.exp(g.nu * log_s)
-        r_hat = np.concatenate([psi / level, v * np.exp(-(1.0 + g.nu) * log_s)])
+        log_s = math.log(level)
+        tau = hs * math.exp(g.nu * log_s)
+        r_hat = np.concatenate([psi / level, v * math.exp(-(1.0 + g.nu) * log_s)])
         exp_r, phi_r = self._R.apply(tau, r_hat)
         psi_new = level * exp_r[:k]
         dz = tau * self._dilation.apply(log_s, g.L @ phi_r[:k])
@@ -317,9 +339,9 @@ class FilteringObserver(_Observer):
         psi, xi = aux[:-1], float(aux[-1])
         sigma = self._sigma(aux)
         if sigma > 0.0:
-            log_s = np.log(max(sigma, SIGMA_GUARD))
-            dz_gain = np.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, g.L @ psi)
-            dpsi = v + np.exp(g.nu * log_s) * (g.L_tilde @ psi)
+            log_s = math.log(max(sigma, SIGMA_GUARD))
+            dz_gain = math.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, g.L @ psi)
+            dpsi = v + math.exp(g.nu * log_s) * (g.L_tilde @ psi)
         else:  # sigma = 0 forces psi = 0: the homogeneous terms vanish
             dz_gain, dpsi = np.zeros(g.n), v
         dxi = abs(psi @ dpsi) - g.gamma * signed_power(xi - 0.5 * psi @ psi, self._p)
@@ -362,33 +384,34 @@ class PrescribedTimeObserver(_Observer):
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
         """``z``, ``xi`` and the gain level actually used."""
-        level = self._level(self._aux, np.zeros(self.gains.k), self.h)
-        return {"z": self.z, "xi": float(self._aux[0]), "level": level}
+        return {"z": self.z, "xi": float(self._aux[0]), "level": self._level(self._aux, self.h)}
 
-    def _level(self, aux: np.ndarray, v: np.ndarray, hs: float) -> float:
-        """``max(|xi|, xi_min)``."""
+    def _level(self, aux: np.ndarray, hs: float) -> float:
+        """``max(|xi|, xi_min)`` with ``xi_min = (tau_max / hs)^(1/nu)``."""
         return max(abs(float(aux[0])), (self.tau_max / hs) ** (1.0 / self.gains.nu))
 
     def _xi_exact(self, xi: float, hs: float) -> float:
         """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
         g = self.gains
-        return float(np.sign(xi) * max(abs(xi) ** (-g.nu) + g.nu * g.rho * hs, 0.0)
-                     ** (-1.0 / g.nu))
+        if xi == 0.0:
+            return 0.0
+        return math.copysign(max(abs(xi) ** (-g.nu) + g.nu * g.rho * hs, 0.0) ** (-1.0 / g.nu),
+                             xi)
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of ``dz = gain (C z - y)`` with x frozen: ``dv = xi^nu C L_pt v``."""
         g = self.gains
-        log_x = np.log(level)
-        tau = hs * np.exp(g.nu * log_x)
-        _, phi_v = self._Q.apply(tau, v * np.exp(-(1.0 + g.nu) * log_x))
+        log_x = math.log(level)
+        tau = hs * math.exp(g.nu * log_x)
+        _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + g.nu) * log_x))
         dz = tau * self._dilation.apply(log_x, g.L_pt @ phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
     def _euler_rates(self, aux, v, hs):
         g = self.gains
         xi = float(aux[0])
-        log_x = np.log(self._level(aux, v, hs))
-        dz_gain = np.exp(-log_x) * self._dilation.apply(log_x, g.L_pt @ v)
+        log_x = math.log(self._level(aux, hs))
+        dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, g.L_pt @ v)
         return np.array([-g.rho * signed_power(xi, 1.0 + g.nu)]), dz_gain
 
 

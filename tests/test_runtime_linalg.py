@@ -1,0 +1,69 @@
+"""The runtime's numpy-only matrix functions against scipy."""
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+from fhobs.dilation import Dilation
+from fhobs.linalg import ExpmFamily, expm, phi1, zoh_blocks
+
+
+@pytest.mark.parametrize("scale", [1e-6, 0.1, 1.0, 30.0, 80.0])
+def test_expm_matches_scipy(scale):
+    rng = np.random.default_rng(1)
+    M = scale * rng.standard_normal((6, 6))
+    ref = sl.expm(M)
+    assert np.allclose(expm(M), ref, rtol=1e-11, atol=1e-13 * np.abs(ref).max())
+
+
+def test_expm_nilpotent_is_polynomial():
+    N = np.diag([1.0, 2.0, 3.0], k=1)
+    assert np.allclose(expm(N), np.eye(4) + N + N @ N / 2 + N @ N @ N / 6, rtol=0, atol=1e-15)
+
+
+def test_phi1_and_zoh_blocks_match_scipy():
+    rng = np.random.default_rng(2)
+    A, B, E = rng.standard_normal((4, 4)), rng.standard_normal((4, 1)), rng.standard_normal((4, 2))
+    h = 0.3
+    Phi, Gamma_B, Gamma_E = zoh_blocks(A, [B, E], h)
+    assert np.allclose(Phi, sl.expm(h * A), rtol=1e-12)
+    integral = np.linalg.solve(A, sl.expm(h * A) - np.eye(4))
+    assert np.allclose(Gamma_B, integral @ B, rtol=1e-10, atol=1e-13)
+    assert np.allclose(Gamma_E, integral @ E, rtol=1e-10, atol=1e-13)
+    assert np.allclose(phi1(h * A), integral / h, rtol=1e-10)
+    singular = np.diag([0.0, 1.0])
+    assert np.allclose(phi1(singular), np.diag([1.0, np.e - 1.0]), rtol=1e-13)
+
+
+@pytest.mark.parametrize("force_fallback", [False, True])
+@pytest.mark.parametrize("tau", [0.0, 1e-9, 1e-3, 0.7, 40.0])
+def test_expm_family_exp_and_phi1(force_fallback, tau):
+    R = np.array([[-13.9, 0.0, 1.0, 0.0], [0.0, -13.9, 0.0, 1.0],
+                  [-90.0, 0.0, 0.0, 0.0], [0.0, -90.0, 0.0, 0.0]])
+    r = np.array([0.3, -1.0, 2.0, 0.5])
+    family = ExpmFamily(R, force_fallback=force_fallback)
+    assert family.use_eig is not force_fallback
+    exp_r, phi_r = family.apply(tau, r)
+    aug = np.zeros((5, 5))
+    aug[:4, :4], aug[:4, 4] = tau * R, r
+    ref = sl.expm(aug)
+    assert np.allclose(exp_r, ref[:4, :4] @ r, rtol=1e-10, atol=1e-14)
+    assert np.allclose(phi_r, ref[:4, 4], rtol=1e-10, atol=1e-14)
+
+
+def test_expm_family_falls_back_on_defective_matrix():
+    jordan = np.array([[-1.0, 1.0], [0.0, -1.0]])
+    family = ExpmFamily(jordan)
+    assert not family.use_eig
+    exp_r, _ = family.apply(2.0, np.array([0.0, 1.0]))
+    assert np.allclose(exp_r, sl.expm(2.0 * jordan) @ [0.0, 1.0], rtol=1e-13)
+
+
+@pytest.mark.parametrize("force_fallback", [False, True])
+def test_dilation_matches_scipy(paper_design, force_fallback):
+    dilation = Dilation(paper_design.G_d, force_fallback=force_fallback)
+    x = np.array([1.0, -2.0, 0.5, 3.0])
+    for s in (-30.0, -1.0, 0.0, 2.0):
+        ref = sl.expm(s * paper_design.G_d)
+        atol = 1e-13 * np.abs(ref).max()
+        assert np.allclose(dilation.apply(s, x), ref @ x, rtol=1e-10, atol=atol * np.abs(x).max())
+        assert np.allclose(dilation.matrix(s), ref, rtol=1e-10, atol=atol)
