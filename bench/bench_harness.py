@@ -107,9 +107,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        fmu_dir = args.fmu_dir or build_paper_fmus(
-            Path(__file__).resolve().parents[1] / "examples" / "pendulum.toml", Path(tmp)
-        )
+        fmu_dir = args.fmu_dir or build_paper_fmus(Path(tmp))
         gains = ObserverGains.load_json(fmu_dir / "design.json")
         system = resolve_system(load_scenario("pendulum_nominal", fmu_dir, Path(tmp) / "b"))
         steps = int(round(T_END / system.spec.step))

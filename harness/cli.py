@@ -3,8 +3,9 @@
 - ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
   bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
   the plots into DIR. ``--seeds N`` runs N seeds and averages the figures.
-- ``paper --out DIR``: the main job. Designs and builds the pendulum FMUs (build_fmu.py's
-  machinery) into ``DIR/fmus``, runs the three paper scenarios (the noisy one over 5 seeds) into
+- ``paper --out DIR``: the main job. Builds the pendulum FMUs (build_fmu.py's machinery; the
+  paper's published gains, or ``--design spec`` for our design of the spec) into
+  ``DIR/fmus``, runs the three paper scenarios (the noisy one over 5 seeds) into
   ``DIR/<scenario>/`` and prints a table of the summary figures.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 """
@@ -27,6 +28,8 @@ from harness.system import DescriptionError, SystemSpec, load_system, resolve_sy
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 REPO = Path(__file__).resolve().parents[1]
+PENDULUM_SPEC = REPO / "examples" / "pendulum.toml"
+PAPER_REFERENCE = REPO / "examples" / "pendulum-paper.json"
 PAPER_SCENARIOS = ("pendulum_nominal", "pendulum_perturbed", "pendulum_noisy")
 PAPER_SEEDS = {"pendulum_noisy": 5}
 
@@ -86,7 +89,15 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     paper = sub.add_parser("paper", parents=[common], help="build the FMUs, run the paper")
     paper.add_argument("--out", type=Path, default=Path("results"), help="results folder")
-    paper.add_argument("--spec", type=Path, default=REPO / "examples" / "pendulum.toml")
+    paper.add_argument(
+        "--design",
+        choices=("paper", "spec"),
+        default="paper",
+        help="paper: the published gains; spec: our design of --spec",
+    )
+    paper.add_argument(
+        "--spec", type=Path, default=PENDULUM_SPEC, help="plant spec (--design spec)"
+    )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
@@ -178,17 +189,40 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_paper_fmus(spec: Path, out: Path) -> Path:
-    """Design and build the pendulum FMUs with build_fmu.py's machinery into ``out``."""
-    from fhobs.cli import main as build_main
+def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPEC) -> Path:
+    """Build the pendulum FMUs (and design.json) into ``out`` with build_fmu.py's machinery.
 
-    if build_main([str(spec), "--out", str(out)]) != 0:
-        raise RuntimeError(f"building the FMUs from {spec} failed")
+    Parameters
+    ----------
+    out
+        Folder for observer.fmu, luenberger.fmu, plant.fmu and design.json.
+    design
+        ``"paper"``: the paper's published gains (``examples/pendulum-paper.json``, certified),
+        which reproduce its figures; ``"spec"``: our own design of ``spec``, as
+        ``python build_fmu.py SPEC`` makes it.
+    spec
+        The plant spec for ``design="spec"``.
+    """
+    if design == "spec":
+        from fhobs.cli import main as build_main
+
+        if build_main([str(spec), "--out", str(out)]) != 0:
+            raise RuntimeError(f"designing and building the FMUs from {spec} failed")
+        return out
+    if design != "paper":
+        raise ValueError(f"design must be 'paper' or 'spec', not {design!r}")
+    from fhobs.build import build_fmus
+    from fhobs.design import paper_gains
+
+    gains = paper_gains(PAPER_REFERENCE)
+    out.mkdir(parents=True, exist_ok=True)
+    gains.save_json(out / "design.json")
+    build_fmus(gains, out)
     return out
 
 
 def _cmd_paper(args: argparse.Namespace) -> int:
-    fmu_dir = build_paper_fmus(args.spec, args.out / "fmus")
+    fmu_dir = build_paper_fmus(args.out / "fmus", args.design, args.spec)
     table = {}
     for name in PAPER_SCENARIOS:
         spec = load_scenario(name, fmu_dir, args.block_cache)

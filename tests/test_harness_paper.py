@@ -4,6 +4,7 @@ working with a third-party plant FMU (tests/test_harness_plantfmu.py) in place o
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,18 +13,23 @@ from fhobs.gains import ObserverGains
 from fhobs.reference import simulate
 from test_harness_plantfmu import build_vendor_plant
 
-from harness.cli import REPO, build_paper_fmus, load_scenario, main, run_seeds
+from harness.cli import build_paper_fmus, load_scenario, main, run_seeds
+from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import run_system
 from harness.results import error_figures
+from harness.ssp import export_ssp, lower_gains
 from harness.system import load_system, resolve_system
 
-REFERENCE_NAMES = {"pendulum_nominal": "nominal", "pendulum_perturbed": "perturbed",
-                   "pendulum_noisy": "perturbed_noisy"}
+REFERENCE_NAMES = {
+    "pendulum_nominal": "nominal",
+    "pendulum_perturbed": "perturbed",
+    "pendulum_noisy": "perturbed_noisy",
+}
 
 
 @pytest.fixture(scope="module")
 def fmu_dir(tmp_path_factory) -> Path:
-    return build_paper_fmus(REPO / "examples" / "pendulum.toml", tmp_path_factory.mktemp("fmus"))
+    return build_paper_fmus(tmp_path_factory.mktemp("fmus"))
 
 
 @pytest.fixture(scope="module")
@@ -127,16 +133,36 @@ def test_third_party_plant_in_the_paper_loop(tmp_path, fmu_dir, gains):
     path.write_text(VENDOR_LOOP.format(plant=build_vendor_plant(tmp_path), fmu_dir=fmu_dir))
     result = run_system(resolve_system(load_system(path)), progress=False)
     ref = simulate(gains, "nominal", t_end=0.1)
-    for signal, expected in [("plant.state", ref.x), ("observer.x_hat", ref.z),
-                             ("linear.x_hat", ref.z_lin)]:
+    for signal, expected in [
+        ("plant.state", ref.x),
+        ("observer.x_hat", ref.z),
+        ("linear.x_hat", ref.z_lin),
+    ]:
         assert np.max(np.abs(result.vector(signal) - expected)) <= 1e-9, signal
 
 
 def test_cli_run_writes_csv_summary_and_plots(tmp_path, fmu_dir, block_cache):
     out = tmp_path / "out"
-    code = main(["run", "pendulum_perturbed", "--fmu-dir", str(fmu_dir), "--out", str(out),
-                 "--block-cache", str(block_cache), "--stop-time", "0.2", "--step", "1e-4",
-                 "--seed", "2", "--set", "plant.x0=[1.0, 0.5, 0.0, 0.0]"])
+    code = main(
+        [
+            "run",
+            "pendulum_perturbed",
+            "--fmu-dir",
+            str(fmu_dir),
+            "--out",
+            str(out),
+            "--block-cache",
+            str(block_cache),
+            "--stop-time",
+            "0.2",
+            "--step",
+            "1e-4",
+            "--seed",
+            "2",
+            "--set",
+            "plant.x0=[1.0, 0.5, 0.0, 0.0]",
+        ]
+    )
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 2000 and summary["step"] == 1e-4
@@ -150,7 +176,37 @@ def test_cli_run_writes_csv_summary_and_plots(tmp_path, fmu_dir, block_cache):
 
 
 def test_cli_rejects_unknown_variable(tmp_path, fmu_dir, block_cache, capsys):
-    code = main(["run", "pendulum_nominal", "--fmu-dir", str(fmu_dir), "--out", str(tmp_path),
-                 "--block-cache", str(block_cache), "--set", "plant.x9=1"])
+    code = main(
+        [
+            "run",
+            "pendulum_nominal",
+            "--fmu-dir",
+            str(fmu_dir),
+            "--out",
+            str(tmp_path),
+            "--block-cache",
+            str(block_cache),
+            "--set",
+            "plant.x9=1",
+        ]
+    )
     assert code == 2
     assert "FMU 'plant' has no variable 'x9'" in capsys.readouterr().err
+
+
+def test_paper_scenario_ssp_in_fmpy_and_libcosim(tmp_path, fmu_dir, block_cache):
+    """The perturbed scenario exported as SSP (sine source and three gain blocks as FMUs)."""
+    spec = replace(_scenario("pendulum_perturbed", fmu_dir, block_cache), stop_time=0.02)
+    ssp = export_ssp(spec, tmp_path / "perturbed.ssp", block_cache)
+    lowered = resolve_system(lower_gains(spec, block_cache))
+    signals = [f"plant.x[{i}]" for i in range(1, 5)] + [f"observer.x_hat[{i}]" for i in range(1, 5)]
+
+    def table(result):
+        return np.column_stack([result.signal(s) for s in signals])
+
+    harness = table(run_system(lowered, progress=False))[1:]
+    cosim = table(run_libcosim(ssp, spec.step, spec.stop_time, signals))
+    assert np.max(np.abs(cosim - harness)) <= 1e-9
+    harness_zero = table(run_system(lowered, progress=False, first_inputs="zero"))[1:]
+    fmpy_rows = table(run_fmpy_ssp(ssp, spec.step, spec.stop_time))
+    assert np.max(np.abs(fmpy_rows - harness_zero)) <= 1e-9
