@@ -44,7 +44,7 @@ def test_defaults_are_documented_values():
     spec = spec_from_dict(with_change(("observer",), None))
     assert spec.n_tilde == 2
     assert spec.nu == pytest.approx(-1 / 3)
-    assert (spec.rho, spec.gamma, spec.objective) == (1.5, 2.75, "min_gain")
+    assert (spec.rho, spec.gamma, spec.objective) == (1.5, 2.75, "min_cond")
 
 
 BAD_CASES = [

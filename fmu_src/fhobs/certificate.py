@@ -12,16 +12,20 @@ check                         value                                             
 ``nilpotency``                ||A0^n_tilde|| / ||A0||^n_tilde                                <= tol
 ``dilation_anti_hurwitz``     min Re eig(G_d)                                              > 0
 ``gamma_rho``                 rho - gamma / 2                                              > 0
-``P_bar_positive``            lambda_min(P_bar) / lambda_max(P_bar)                        > margin
-``P_bar_monotone``            lambda_min(sym(P_bar bar_G)) / lambda_min(P_bar)             > margin
-``lmi_filtering``             lambda_max(sym(P_bar (H + rho bar_G))) / lambda_min(P_bar)   < -margin
+``P_bar_positive``            lambda_min(P_bar) / lambda_max(P_bar)                        > r
+``P_bar_monotone``            lambda_min(P^-1/2 sym(P_bar bar_G) P^-1/2)                   > m + r
+``lmi_filtering``             lambda_max(P^-1/2 sym(P_bar (H + rho bar_G)) P^-1/2)         < -m - r
 ``hurwitz_filtering``         max Re eig(H + rho bar_G), H = bar_A0 + bar_L bar_C          < 0
-``P_pt_positive`` etc.        the same three LMI checks for Theorem 1 with G = G_d - nu I  ...
+``P_pt_positive`` etc.        the same four checks for Theorem 1 with G = G_d - nu I       ...
 ``hurwitz_luenberger``        max Re eig(A + L_lin C)                                      < 0
 ============================  ===========================================================  =======
 
-sym(M) = (M + M^T) / 2. The LMI values are scaled by lambda_min(P) because the LMIs are
-homogeneous in (P, Y); so scaled, an LMI value reads as a decay rate (1/s).
+sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
+eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
+LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
+margin; ``r`` (reported as ``<P>_rounding``) bounds the rounding error of the computed figures,
+n eps cond(P) max(||H + rho G||, ||G||): a check passes only if it holds by more than the
+rounding could explain.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from .gains import ObserverGains
 
 DEFAULT_TOLERANCE = 1e-7
 DEFAULT_MARGIN = 1e-6
+EPS = float(np.finfo(float).eps)
 
 
 class CertificateError(ValueError):
@@ -110,14 +115,25 @@ def lmi_values(
     """
     name = "P_bar" if prefix == "filtering" else f"P_{prefix}"
     P_sym = sym(P)
+    M = H + rho * G
     p_eigs = np.linalg.eigvalsh(P_sym)
-    p_min, p_max = float(p_eigs[0]), float(p_eigs[-1])
-    scale = p_min if p_min > 0 else max(abs(p_max), 1e-300)
+    positive = float(p_eigs[0]) / max(float(np.max(np.abs(p_eigs))), 1e-300)
+    monotone = lmi = rounding = float("nan")
+    if positive > 0:
+        chol_inv = np.linalg.inv(np.linalg.cholesky(P_sym))
+        def rate(Q: np.ndarray) -> np.ndarray:
+            return np.linalg.eigvalsh(sym(chol_inv @ sym(Q) @ chol_inv.T))
+
+        monotone = float(rate(P_sym @ G)[0])
+        lmi = float(rate(P_sym @ M)[-1])
+        scale = max(np.linalg.norm(M, 2), np.linalg.norm(G, 2))
+        rounding = P.shape[0] * EPS * scale / positive
     return {
-        f"{name}_positive": p_min / max(abs(p_max), 1e-300),
-        f"{name}_monotone": float(np.linalg.eigvalsh(sym(P_sym @ G))[0]) / scale,
-        f"lmi_{prefix}": float(np.linalg.eigvalsh(sym(P_sym @ (H + rho * G)))[-1]) / scale,
-        f"hurwitz_{prefix}": float(np.max(np.linalg.eigvals(H + rho * G).real)),
+        f"{name}_positive": positive,
+        f"{name}_monotone": monotone,
+        f"lmi_{prefix}": lmi,
+        f"hurwitz_{prefix}": float(np.max(np.linalg.eigvals(M).real)),
+        f"{name}_rounding": rounding,
     }
 
 
@@ -142,19 +158,34 @@ def _violations(
     """List (check, value, requirement) for every figure out of its bound."""
     bad = []
     for name, value in values.items():
+        rounding = values.get(_rounding_key(name), 0.0)
+        if name.endswith("_rounding"):
+            continue
         if name in ("homogenisation_residual", "output_homogeneity", "nilpotency"):
             ok, need = value <= tolerance, f"<= {tolerance:g}"
         elif name.startswith("lmi_"):
-            ok, need = value < -margin, f"< {-margin:g}"
+            bound = margin + rounding
+            ok, need = value < -bound, f"< {-bound:.3g}"
         elif name.startswith("hurwitz_"):
             ok, need = value < 0.0, "< 0"
-        elif name.endswith(("_positive", "_monotone")):
-            ok, need = value > margin, f"> {margin:g}"
+        elif name.endswith("_monotone"):
+            bound = margin + rounding
+            ok, need = value > bound, f"> {bound:.3g}"
+        elif name.endswith("_positive"):
+            ok, need = value > 1e-14, "> 1e-14"
         else:  # dilation_anti_hurwitz, gamma_rho
             ok, need = value > 0.0, "> 0"
         if not (ok and np.isfinite(value)):
             bad.append((name, value, need))
     return bad
+
+
+def _rounding_key(name: str) -> str:
+    """The rounding figure that goes with an LMI figure name."""
+    if name.startswith("lmi_"):
+        prefix = name[4:]
+        return "P_bar_rounding" if prefix == "filtering" else f"P_{prefix}_rounding"
+    return name.rsplit("_", 1)[0] + "_rounding"
 
 
 def certify(

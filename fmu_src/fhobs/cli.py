@@ -27,7 +27,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--objective", choices=OBJECTIVES, default=None,
-        help="LMI objective (default: the spec's, else min_gain)",
+        help="LMI objective (default: the spec's, else min_cond)",
     )
     return parser.parse_args(argv)
 

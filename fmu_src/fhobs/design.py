@@ -20,7 +20,7 @@ import numpy as np
 
 from .certificate import augmented_matrices, certify
 from .gains import ObserverGains
-from .homogenisation import homogenise
+from .homogenisation import dilation_basis, homogenise
 from .lmi import DEFAULT_MARGIN, certify_gain_lmi, solve_gain_lmi
 from .spec import PlantSpec, spec_from_dict
 
@@ -89,10 +89,13 @@ def design_observer(
         L_tilde=np.zeros((k, k)), L=np.zeros((n, k)), P_bar=np.eye(n + k),
         L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros((n, k)),
     )
+    V = dilation_basis(hom.G_d, spec.nu, hom.n_tilde)
     bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
-    filtering = solve_gain_lmi(bar_A0, bar_G, bar_C, spec.rho, objective, margin)
+    bar_V = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), V]])
+    filtering = solve_gain_lmi(bar_A0, bar_G, bar_C, spec.rho, objective, margin, bar_V)
     A0 = spec.A + hom.L0 @ spec.C
-    pt = solve_gain_lmi(A0, hom.G_d - spec.nu * np.eye(n), spec.C, spec.rho, objective, margin)
+    G_pt = hom.G_d - spec.nu * np.eye(n)
+    pt = solve_gain_lmi(A0, G_pt, spec.C, spec.rho, objective, margin, V)
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + filtering.gain @ bar_C).real))
     base |= dict(
         L_tilde=filtering.gain[:k], L=filtering.gain[k:], P_bar=filtering.P,
@@ -144,7 +147,7 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
         },
         source=str(reference),
     )
-    tuned = design_observer(spec, objective="min_gain")
+    tuned = design_observer(spec)
     base = {f: getattr(tuned, f) for f in tuned.__dataclass_fields__ if f != "certificate"}
     base |= dict(L_tilde=np.array(published["L_tilde"]), L=np.array(published["L"]))
     bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))

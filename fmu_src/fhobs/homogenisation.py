@@ -155,3 +155,43 @@ def homogenise(A: np.ndarray, C: np.ndarray, nu: float) -> Homogenisation:
     L0 = -np.linalg.solve(eye + G0, Y0)
     G_d = eye + nu * (G0 + eye)
     return Homogenisation(n_tilde, G0, Y0, L0, G_d, residual)
+
+
+def dilation_basis(G_d: np.ndarray, nu: float, n_tilde: int) -> np.ndarray:
+    """Real basis of eigenvectors of G_d, eigenspace by eigenspace (orthonormal within each).
+
+    G_d's eigenvalues are the weights 1 + nu + j nu, j = 0, ..., n_tilde - 1, each with the
+    multiplicity of the j-th observability block. Used as the LMI's working coordinates.
+
+    Parameters
+    ----------
+    G_d : numpy.ndarray
+        Dilation generator (Theorem 2's form).
+    nu : float
+        Homogeneity degree.
+    n_tilde : int
+        Observability index.
+
+    Returns
+    -------
+    numpy.ndarray
+        n x n invertible matrix V with G_d V = V diag(weights).
+
+    Raises
+    ------
+    ValueError
+        If the eigenspaces do not add up to n (G_d not diagonalisable).
+    """
+    n = G_d.shape[0]
+    columns = []
+    for j in range(n_tilde):
+        _, s, vt = np.linalg.svd(G_d - (1.0 + nu + j * nu) * np.eye(n))
+        rank = int(np.sum(s > RANK_RTOL * max(s[0], 1.0) * 10.0))
+        columns.append(vt[rank:].T)
+    V = np.hstack(columns)
+    if V.shape[1] != n or np.linalg.cond(V) > 1e12:
+        raise ValueError(
+            "G_d is not diagonalisable with the weights 1 + nu + j nu "
+            f"(found {V.shape[1]} of {n} eigenvectors)"
+        )
+    return V

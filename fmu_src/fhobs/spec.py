@@ -12,7 +12,7 @@ Format::
     nu = -0.25                # homogeneity degree in [-1/(n_tilde+1), 0); default -1/(n_tilde+1)
     rho = 1.5                 # LMI decay parameter; default 1.5 (the paper's)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default 2.75 (the paper's)
-    objective = "min_gain"    # LMI objective, see fhobs.lmi.OBJECTIVES
+    objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
 
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
@@ -32,7 +32,7 @@ from .lmi import OBJECTIVES
 
 DEFAULT_RHO = 1.5
 DEFAULT_GAMMA = 2.75
-DEFAULT_OBJECTIVE = "min_gain"
+DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
 OBSERVER_KEYS = ("nu", "rho", "gamma", "objective")
 
