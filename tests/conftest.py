@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import pytest
-
 from fhobs.design import design_observer, paper_gains
 from fhobs.gains import ObserverGains
 from fhobs.spec import PlantSpec, load_spec

@@ -6,11 +6,10 @@ import json
 import subprocess
 import sys
 
+import fhobs.design
 import numpy as np
 import pytest
 import scipy.linalg
-
-import fhobs.design
 from conftest import EXAMPLES, REPO
 from fhobs.certificate import CertificateError, augmented_matrices, certify
 from fhobs.design import design_observer, matched_perturbation_residual

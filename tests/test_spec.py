@@ -6,10 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from fhobs.spec import SpecError, load_spec, spec_from_dict
-
 from conftest import EXAMPLES
+from fhobs.spec import SpecError, load_spec, spec_from_dict
 
 GOOD = {
     "A": [[0.0, 1.0], [-2.0, -3.0]],
@@ -60,7 +58,8 @@ BAD_CASES = [
     (("E",), [[1.0]], r"E has 1 rows, expected 2"),
     (("A",), "not a matrix", r"A must be a non-empty list of rows"),
     (("A",), [], r"A must be a non-empty list of rows"),
-    (("A",), [[0.0, 0.0], [0.0, -3.0]], r"not observable: the observability matrix has rank 1, n = 2"),
+    (("A",), [[0.0, 0.0], [0.0, -3.0]],
+     r"not observable: the observability matrix has rank 1, n = 2"),
     (("observer", "nu"), -0.5, r"observer.nu = -0.5 is outside \[-1/\(n_tilde\+1\), 0\)"),
     (("observer", "nu"), 0.0, r"observer.nu = 0.0 is outside"),
     (("observer", "nu"), 0.2, r"observer.nu = 0.2 is outside"),

@@ -14,12 +14,12 @@ a decay rate (1/s) beyond rho, in the norm of P, which is what the certificate m
 - Luenberger baseline: H0 = A, G = I, Cout = C, rho = decay rate: every eigenvalue of
   A + L_lin C then has real part <= -rho.
 
-Normalisation: the LMIs are homogeneous in (P, Y), so P >= I fixes the scale. Conditioning: the LMI is solved in the coordinates of a given ``basis`` T
-(the design passes the eigenvectors of the dilation generator, in which G is diagonal); the
-solution maps back by congruence, P = T^-T P' T^-1 and gain = T gain', and still satisfies the
-LMI exactly (the certificate re-checks it in the original coordinates). In the original
-coordinates Clarabel fails on about a third of random plants with n >= 4; in the dilation's
-eigenbasis it solved every test plant (n <= 50).
+Normalisation: the LMIs are homogeneous in (P, Y), so P >= I fixes the scale.
+Conditioning: the LMI is solved in the coordinates of a given ``basis`` T (the design passes
+the eigenvectors of the dilation generator, in which G is diagonal); the solution maps back by
+congruence, P = T^-T P' T^-1 and gain = T gain', and still satisfies the LMI exactly (the
+certificate re-checks it in the original coordinates). In the original coordinates Clarabel
+failed on about a third of the random test plants with n >= 4; in the eigenbasis it solves them.
 
 Objectives (``OBJECTIVES``):
 
