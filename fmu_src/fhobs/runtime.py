@@ -49,7 +49,6 @@ This module is numpy-only: it runs inside the FMUs.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
@@ -86,9 +85,8 @@ def signed_power_decay(w: float, gamma: float, p: float, h: float) -> float:
     return math.copysign(max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q), w) if w else 0.0
 
 
-def spectral_radius(step: Callable[[np.ndarray], np.ndarray], size: int) -> float:
-    """Spectral radius of the linear map ``step`` on R^size (built column by column)."""
-    F = np.column_stack([step(col) for col in np.eye(size)])
+def spectral_radius(F: np.ndarray) -> float:
+    """Spectral radius of a square matrix."""
     return float(np.max(np.abs(np.linalg.eigvals(F))))
 
 
@@ -100,6 +98,8 @@ class _Observer:
     """
 
     _aux: np.ndarray
+    _n_error_aux = 0
+    """Number of leading aux entries that belong to the estimation error (psi)."""
 
     def __init__(self, gains: ObserverGains, h: float, scheme: str, z0: np.ndarray | None,
                  L_inj: np.ndarray) -> None:
@@ -134,7 +134,8 @@ class _Observer:
         n_sub = max(1, int(np.ceil(dt / self.h * (1.0 - 1e-12))))
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler
-        z, aux = run(self._z.copy(), self._aux.copy(), y, u, hs, n_sub)
+        with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
+            z, aux = run(self._z.copy(), self._aux.copy(), y, u, hs, n_sub)
         if not (np.isfinite(z).all() and np.isfinite(aux).all()):
             raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
                              "state left unchanged")
@@ -219,23 +220,26 @@ class _Observer:
         """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz)."""
         return np.zeros_like(aux), np.zeros(self.gains.n)
 
-    def _error_step(self, e: np.ndarray, level: float) -> np.ndarray:
-        """One split substep (size h, gain frozen at ``level``) acting on the error
-        ``(aux[:n_lin], z - x)``: the observer's step with y = C x = 0 and u = 0, which is linear
-        in those variables (n_lin = the number of aux entries that belong to the error)."""
+    def error_map(self, level: float) -> np.ndarray:
+        """Matrix of one split substep (size h) acting on the estimation error at a frozen gain
+        level (sigma or |xi|): the error is ``(psi, z - x)`` for the filtering observer and
+        ``z - x`` otherwise. It is the observer's step with y = C x = 0 and u = 0, which is
+        linear in the error; for analysis and tests."""
         g = self.gains
-        n_lin = e.size - g.n
-        aux = np.zeros_like(self._aux)
-        aux[:n_lin] = e[:n_lin]
-        z = e[n_lin:]
-        z, aux, _, _ = self._split_substep(z, aux, g.C @ z, np.zeros(g.m), self.h, level)
-        return np.concatenate([aux[:n_lin], z])
+        n_lin = self._n_error_aux
+        columns = []
+        for e in np.eye(n_lin + g.n):
+            aux = np.zeros_like(self._aux)
+            aux[:n_lin] = e[:n_lin]
+            z = e[n_lin:]
+            z, aux, _, _ = self._split_substep(z, aux, g.C @ z, np.zeros(g.m), self.h, level)
+            columns.append(np.concatenate([aux[:n_lin], z]))
+        return np.column_stack(columns)
 
-    def _auto_tau_max(self, error_size: int) -> float:
+    def _auto_tau_max(self) -> float:
         """tau in TAU_GRID minimising the spectral radius of the capped error map (size h)."""
         nu = self.gains.nu
-        radii = [spectral_radius(lambda e, t=t: self._error_step(e, (t / self.h) ** (1.0 / nu)),
-                                 error_size) for t in TAU_GRID]
+        radii = [spectral_radius(self.error_map((t / self.h) ** (1.0 / nu))) for t in TAU_GRID]
         return float(TAU_GRID[int(np.argmin(radii))])
 
 
@@ -265,11 +269,12 @@ class FilteringObserver(_Observer):
         k = gains.k
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
         self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
+        self._n_error_aux = k
         self._dilation = Dilation(gains.G_d)
         self._R = ExpmFamily(np.block([[gains.L_tilde, np.eye(k)],
                                        [gains.C @ gains.L, np.zeros((k, k))]]))
         self._p = gains.nu / 2.0 + 1.0
-        self.tau_max = (self._auto_tau_max(k + gains.n)
+        self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
@@ -373,7 +378,7 @@ class PrescribedTimeObserver(_Observer):
         self._aux = as_finite_vector(xi0, 1, "xi0")
         self._dilation = Dilation(gains.G_d)
         self._Q = ExpmFamily(gains.C @ gains.L_pt)
-        self.tau_max = (self._auto_tau_max(gains.n)
+        self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
 
     @property

@@ -1,0 +1,263 @@
+"""Maths of the discrete-time observers (fhobs.runtime) against independent scipy computations."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+from fhobs.plant import LTIPlant
+from fhobs.reference import K_PAPER, X0_PAPER
+from fhobs.runtime import (
+    SCHEMES,
+    FilteringObserver,
+    LuenbergerObserver,
+    PrescribedTimeObserver,
+    spectral_radius,
+)
+from scipy.integrate import solve_ivp
+
+
+def d_scipy(G, s):
+    """d(s) = expm(s G) by scipy (independent of fhobs.dilation)."""
+    return sl.expm(s * G)
+
+
+def augmented(g):
+    """bar_A0, bar_G, bar_L, bar_C of Theorem 2."""
+    k, n = g.k, g.n
+    bar_A0 = np.block([[np.zeros((k, k)), g.C], [np.zeros((n, k)), g.A0]])
+    bar_G = sl.block_diag(np.eye(k), g.G_d)
+    bar_L = np.vstack([g.L_tilde, g.L])
+    bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
+    return bar_A0, bar_G, bar_L, bar_C
+
+
+def test_numpy_only_modules_do_not_import_scipy():
+    code = ("import sys, fhobs.runtime, fhobs.plant; "
+            "bad = [m for m in ('scipy', 'cvxpy', 'matplotlib') if m in sys.modules]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("s", [1e-6, 1e-2, 0.7, 5.0])
+def test_frozen_gain_identity_of_the_notes(paper_design, s):
+    """expm(h M(s)) = bar_d(ln s) expm(h s^nu H) bar_d(-ln s), H = bar_A0 + bar_L bar_C."""
+    g, h = paper_design, 5e-3
+    bar_A0, bar_G, bar_L, bar_C = augmented(g)
+    D = d_scipy(bar_G, np.log(s))
+    M = bar_A0 + s ** (g.nu - 1.0) * D @ bar_L @ bar_C
+    rhs = D @ sl.expm(h * s**g.nu * (bar_A0 + bar_L @ bar_C)) @ np.linalg.inv(D)
+    assert np.allclose(sl.expm(h * M), rhs, rtol=1e-8, atol=1e-9 * np.abs(rhs).max())
+
+
+def scipy_error_map(g, level, h):
+    """Split substep on (psi, z - x), built from scipy: ZOH prediction after the exact flow of
+    the injection (dpsi = C e + s^nu L_tilde psi, de = s^(nu-1) d(ln s) L psi)."""
+    k, n = g.k, g.n
+    D = d_scipy(g.G_d, np.log(level))
+    injection = np.block([[level**g.nu * g.L_tilde, g.C],
+                          [level ** (g.nu - 1.0) * D @ g.L, np.zeros((n, n))]])
+    aug = np.zeros((n + k, n + k))
+    aug[:n, :n], aug[:n, n:] = g.A, g.L0
+    E = sl.expm(h * aug)
+    prediction = sl.block_diag(np.eye(k), E[:n, :n] + E[:n, n:] @ g.C)
+    return prediction @ sl.expm(h * injection)
+
+
+@pytest.mark.parametrize("tau", [1e-4, 1e-2, 0.3])
+def test_split_error_map_matches_scipy(paper_design, tau):
+    obs = FilteringObserver(paper_design, h=5e-5)
+    level = (tau / obs.h) ** (1.0 / paper_design.nu)
+    ref = scipy_error_map(paper_design, level, obs.h)
+    assert np.allclose(obs.error_map(level), ref, rtol=1e-7, atol=1e-9 * np.abs(ref).max())
+
+
+def test_gain_cap_makes_the_limit_map_contractive(paper_design, tuned_gains):
+    for g in (paper_design, tuned_gains):
+        obs = FilteringObserver(g, h=5e-5)
+        sigma_min = obs.diagnostics()["sigma_min"]
+        assert spectral_radius(obs.error_map(sigma_min)) < 0.9
+        # without the cap, far below sigma_min the frozen map is unstable: the cap is needed
+        assert spectral_radius(obs.error_map(1e-6 * sigma_min)) > 1.0
+
+
+def continuous_rhs(g, t, state):
+    """Plant (u = 0) + filtering observer with the continuous output y = C x (scipy expm)."""
+    n, k = g.n, g.k
+    x, z, psi, xi = state[:n], state[n:2 * n], state[2 * n:2 * n + k], state[-1]
+    sigma = np.sqrt(max(xi, psi @ psi / 2))
+    v = g.C @ (z - x)
+    dpsi = v + sigma**g.nu * g.L_tilde @ psi
+    dz = g.A @ z + g.L0 @ v + sigma ** (g.nu - 1) * d_scipy(g.G_d, np.log(sigma)) @ g.L @ psi
+    w = xi - psi @ psi / 2
+    dxi = abs(psi @ dpsi) - g.gamma * np.sign(w) * abs(w) ** (g.nu / 2 + 1)
+    return np.concatenate([g.A @ x, dz, dpsi, [dxi]])
+
+
+def discrete_run(g, scheme, h, t_end, z0, psi0, xi0):
+    plant = LTIPlant(g.A, g.B, g.C, x0=X0_PAPER)
+    obs = FilteringObserver(g, h=h, scheme=scheme, z0=z0, psi0=psi0, xi0=xi0)
+    for _ in range(int(round(t_end / h))):
+        y = plant.y
+        plant.step([0.0], None, h)
+        obs.step(y, [0.0], h)
+    return np.concatenate([obs.z, obs.diagnostics()["psi"]]), plant.x
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_scheme_converges_to_fine_step_reference(paper_design, scheme):
+    """Short horizon, sigma away from 0: both schemes approach the solve_ivp solution of the
+    continuous plant + observer at first order in h."""
+    g = paper_design
+    z0, psi0, xi0, t_end = np.array([1.0, 1.5, 0.0, 0.0]), np.array([0.5, -0.3]), 0.5, 0.05
+    state0 = np.concatenate([X0_PAPER, z0, psi0, [xi0]])
+    sol = solve_ivp(lambda t, s: continuous_rhs(g, t, s), (0.0, t_end), state0,
+                    method="DOP853", rtol=1e-11, atol=1e-12)
+    ref = sol.y[g.n:-1, -1]
+    errors = []
+    for h in (2e-4, 1e-4):
+        zpsi, x = discrete_run(g, scheme, h, t_end, z0, psi0, xi0)
+        assert np.allclose(x, sol.y[:g.n, -1], rtol=1e-8)
+        errors.append(np.linalg.norm(zpsi - ref) / np.linalg.norm(ref))
+    assert errors[1] < 2e-3
+    assert 1.6 < errors[0] / errors[1] < 2.5
+
+
+def test_luenberger_split_is_the_closed_form_sampled_error(paper_design):
+    """e_k = (expm(h A) + int_0^h expm(tA) dt L_lin C)^k e_0 exactly, whatever u does, and it
+    approaches the continuous expm(t (A + L_lin C)) e_0 as h -> 0."""
+    g, h, steps = paper_design, 1e-3, 500
+    plant = LTIPlant(g.A, g.B, g.C, x0=X0_PAPER)
+    obs = LuenbergerObserver(g, h=h)
+    for k in range(steps):
+        u = [0.3 * np.sin(7.0 * k * h)]
+        y = plant.y
+        plant.step(u, None, h)
+        obs.step(y, u, h)
+    assert np.allclose(obs.z - plant.x, sampled_error(g, h, steps), rtol=1e-8, atol=1e-10)
+    e_cont = sl.expm(steps * h * (g.A + g.L_lin @ g.C)) @ -X0_PAPER
+    gaps = [np.linalg.norm(sampled_error(g, hh, round(steps * h / hh)) - e_cont)
+            for hh in (h, h / 10)]
+    assert gaps[0] < 0.1 * np.linalg.norm(e_cont) and 8.0 < gaps[0] / gaps[1] < 12.0
+
+
+def sampled_error(g, h, steps):
+    """(expm(h A) + int_0^h expm(t A) dt L_lin C)^steps e_0 with e_0 = -x0 (scipy)."""
+    aug = np.zeros((2 * g.n, 2 * g.n))
+    aug[:g.n, :g.n], aug[:g.n, g.n:] = g.A, np.eye(g.n)
+    Gamma = sl.expm(h * aug)[:g.n, g.n:]
+    F = sl.expm(h * g.A) + Gamma @ g.L_lin @ g.C
+    return np.linalg.matrix_power(F, steps) @ -X0_PAPER
+
+
+def test_luenberger_euler_is_explicit_euler(paper_design):
+    g, h, steps = paper_design, 1e-4, 300
+    plant = LTIPlant(g.A, g.B, g.C, x0=X0_PAPER, scheme="euler")
+    obs = LuenbergerObserver(g, h=h, scheme="euler")
+    for _ in range(steps):
+        y = plant.y
+        plant.step([0.5], None, h)
+        obs.step(y, [0.5], h)
+    F = np.eye(g.n) + h * (g.A + g.L_lin @ g.C)
+    assert np.allclose(obs.z - plant.x, np.linalg.matrix_power(F, steps) @ -X0_PAPER,
+                       rtol=1e-9, atol=1e-12)
+
+
+def test_xi_invariant_after_t_delta(paper_design):
+    """xi >= |psi|^2/2 once w = xi - |psi|^2/2 has reached 0 (T_delta = |w0|^(1-p)/((1-p) gamma)
+    for w0 < 0, p = nu/2 + 1), and it is then kept exactly by the split scheme."""
+    g, h = paper_design, 5e-5
+    p = g.nu / 2 + 1
+    xi0 = -1e-4
+    t_delta = abs(xi0) ** (1 - p) / ((1 - p) * g.gamma)
+    plant = LTIPlant(g.A, g.B, g.C, x0=X0_PAPER)
+    obs = FilteringObserver(g, h=h, xi0=xi0)
+    gaps = []
+    for k in range(int(round(0.8 / h))):
+        y, u = plant.y, K_PAPER @ obs.z
+        plant.step(u, None, h)
+        obs.step(y, u, h)
+        d = obs.diagnostics()
+        gaps.append((k + 1) * h > t_delta and d["xi"] < 0.5 * d["psi"] @ d["psi"])
+    assert 0.3 < t_delta < 0.6 and not any(gaps)
+
+
+def test_edges_stay_finite(paper_design):
+    g = paper_design
+    for scheme in SCHEMES:
+        obs = FilteringObserver(g, scheme=scheme)
+        obs.step(np.zeros(2), [0.0], 5e-5)  # sigma = 0 and zero innovation
+        assert np.array_equal(obs.get_state(), np.zeros(7))
+        for y in ([1e6, -1e6], [1e-14, 0.0], [0.0, 0.0], [3.0, 2.0]):
+            for _ in range(50):
+                obs.step(np.array(y), [0.0], 5e-5)
+            assert np.all(np.isfinite(obs.get_state()))
+    pt = PrescribedTimeObserver(g, xi0=0.0)  # xi = 0: capped gain, no 0 * inf
+    pt.step([1.0, 1.0], [0.0], 1e-3)
+    assert np.all(np.isfinite(pt.get_state()))
+
+
+def closed_loop_pt(g, h, t_end, xi0):
+    """Plant stabilised by u = K x, prescribed-time observer from zero."""
+    plant = LTIPlant(g.A, g.B, g.C, x0=X0_PAPER)
+    obs = PrescribedTimeObserver(g, h=h, xi0=xi0)
+    errors, xis = [], []
+    for _ in range(int(round(t_end / h))):
+        y, u = plant.y, K_PAPER @ plant.x
+        plant.step(u, None, h)
+        obs.step(y, u, h)
+        errors.append(np.linalg.norm(obs.z - plant.x))
+        xis.append(obs.diagnostics()["xi"])
+    return np.array(errors), np.array(xis)
+
+
+def test_prescribed_time_observer_through_t0(paper_design):
+    g, h, xi0 = paper_design, 1e-4, 0.125
+    t0 = xi0 ** (-g.nu) / (-g.nu * g.rho)
+    errors, xis = closed_loop_pt(g, h, 1.5, xi0)
+    t = h * np.arange(1, errors.size + 1)
+    assert abs(t0 - 1.0) < 1e-12 and np.all(np.isfinite(errors))
+    assert np.all(xis[t >= t0 + h] == 0.0) and np.all(xis[t < t0 - h] > 0.0)
+    assert errors[np.searchsorted(t, 0.3)] > 1e-2  # still converging ...
+    assert errors[-1] < 1e-9  # ... and at round-off after T0
+
+
+def test_state_round_trip_is_bit_exact(paper_design):
+    g = paper_design
+    for make in (lambda: FilteringObserver(g), lambda: PrescribedTimeObserver(g),
+                 lambda: LuenbergerObserver(g)):
+        obs = make()
+        obs.step([1.0, 2.0], [0.1], 1e-3)
+        saved = obs.get_state()
+        first = [(obs.step([1.0 + 0.1 * i, 2.0], [0.1], 1e-3), obs.get_state())[1]
+                 for i in range(4)]
+        obs.set_state(saved)
+        again = [(obs.step([1.0 + 0.1 * i, 2.0], [0.1], 1e-3), obs.get_state())[1]
+                 for i in range(4)]
+        assert np.array_equal(np.array(first), np.array(again))
+
+
+@pytest.mark.parametrize("y, u, dt", [([np.nan, 0.0], [0.0], 1e-3), ([1.0], [0.0], 1e-3),
+                                      ([0.0, 0.0], [np.inf], 1e-3), ([0.0, 0.0], [0.0], 0.0)])
+def test_invalid_inputs_raise_and_leave_state(paper_design, y, u, dt):
+    obs = FilteringObserver(paper_design, psi0=[0.1, 0.2], xi0=0.3)
+    saved = obs.get_state()
+    with pytest.raises(ValueError):
+        obs.step(y, u, dt)
+    assert np.array_equal(obs.get_state(), saved)
+
+
+def test_divergence_raises_instead_of_inf(paper_design):
+    obs = LuenbergerObserver(paper_design, h=1.0, scheme="euler")
+    saved = obs.get_state()
+    with pytest.raises(ValueError, match="diverged"):
+        for _ in range(100):
+            obs.step([1e300, 1e300], [0.0], 1.0)
+            saved = obs.get_state()
+    assert np.array_equal(obs.get_state(), saved)
+
+
+def test_unknown_scheme_is_rejected(paper_design):
+    with pytest.raises(ValueError, match="scheme"):
+        FilteringObserver(paper_design, scheme="rk4")
