@@ -53,7 +53,7 @@ def _deviation(result, ref) -> float:
     return max(float(np.max(np.abs(result.vector(s) - r))) for s, r in pairs)
 
 
-@pytest.mark.parametrize("name", ["pendulum_nominal", "pendulum_noisy"])
+@pytest.mark.parametrize("name", ["pendulum_nominal", "pendulum_perturbed", "pendulum_noisy"])
 def test_cosimulation_equals_reference_short(name, fmu_dir, block_cache, gains):
     spec = _scenario(name, fmu_dir, block_cache).with_seed(3)
     result = run_system(resolve_system(spec), stop_time=0.1, progress=False)
@@ -61,14 +61,10 @@ def test_cosimulation_equals_reference_short(name, fmu_dir, block_cache, gains):
     assert _deviation(result, ref) <= 1e-9
 
 
-def test_perturbed_full_length_equals_reference_and_meets_target(fmu_dir, block_cache, gains):
+def test_perturbed_max_error_over_1_3(fmu_dir, block_cache):
     spec = _scenario("pendulum_perturbed", fmu_dir, block_cache)
-    result = run_system(resolve_system(spec), progress=False)
-    ref = simulate(gains, "perturbed", t_end=3.0)
-    deviation = _deviation(result, ref)
-    figures = error_figures(result, spec.evaluation)
-    print(f"perturbed: max deviation from reference {deviation:.2e}; {figures}")
-    assert deviation <= 1e-9
+    figures = error_figures(run_system(resolve_system(spec), progress=False), spec.evaluation)
+    print(f"perturbed: {figures}")
     assert figures["homogeneous"]["max_error_1_3"] <= 1e-3
     assert figures["linear"]["max_error_1_3"] > 10 * figures["homogeneous"]["max_error_1_3"]
 
