@@ -32,6 +32,10 @@ File format (all keys except ``fmus`` optional)::
     windows = [[1.0, 3.0]]
     [evaluation.errors]
     homogeneous = ["plant.x", "observer.x_hat"]   # error = ||first - second||
+    [plots]                          # optional: the paper-style figure of fhobs.plots
+    figure = "perturbed"             # its scenario key (title: the paper's Figure 2)
+    [plots.signals]                  # fhobs.reference.SimulationResult field -> signal
+    x = "plant.x"                    # likewise z, z_lin, psi, xi, sigma
 
 Inputs must each be connected exactly once or given a start value (a constant input). Start
 values go to parameters, inputs and locals with ``initial`` exact or approx, never outputs.
@@ -94,6 +98,14 @@ class Evaluation:
 
 
 @dataclass(frozen=True)
+class FigureSpec:
+    """A paper-style figure: fhobs.plots scenario key and the signals of its fields."""
+
+    scenario: str
+    signals: dict[str, str]
+
+
+@dataclass(frozen=True)
 class SystemSpec:
     """A loaded system description (see the module docstring for the file format)."""
 
@@ -106,6 +118,7 @@ class SystemSpec:
     record: tuple[str, ...] = ()
     seed: str | None = None
     evaluation: Evaluation = field(default_factory=Evaluation)
+    figure: FigureSpec | None = None
     source: Path | None = None
 
     def with_start(self, overrides: dict[str, StartValue]) -> SystemSpec:
@@ -206,7 +219,16 @@ def load_system(
         record=tuple(run.get("record", [])),
         seed=run.get("seed"),
         evaluation=evaluation,
+        figure=_figure_spec(data.get("plots", {})),
         source=path,
+    )
+
+
+def _figure_spec(entry: dict[str, Any]) -> FigureSpec | None:
+    if "figure" not in entry:
+        return None
+    return FigureSpec(
+        str(entry["figure"]), {k: str(v) for k, v in entry.get("signals", {}).items()}
     )
 
 
@@ -311,7 +333,9 @@ def resolve_system(spec: SystemSpec) -> ResolvedSystem:
     recorded: list[str] = []
     for conn in connections:
         recorded += [f"{f}.{v.name}" for f, v in conn.sources]
-    for signal in spec.record + tuple(s for pair in spec.evaluation.errors.values() for s in pair):
+    figure = () if spec.figure is None else tuple(spec.figure.signals.values())
+    errors = tuple(s for pair in spec.evaluation.errors.values() for s in pair)
+    for signal in spec.record + errors + figure:
         recorded += [f"{f}.{v.name}" for f, v in _signals(signal, fmus, "output")]
     return ResolvedSystem(spec, fmus, connections, tuple(dict.fromkeys(recorded)))
 
