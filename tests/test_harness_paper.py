@@ -15,7 +15,7 @@ from test_harness_plantfmu import build_vendor_plant
 
 from harness.cli import build_paper_fmus, load_scenario, main, run_seeds
 from harness.engines import run_fmpy_ssp, run_libcosim
-from harness.master import run_system
+from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
 from harness.system import load_system, resolve_system
@@ -215,3 +215,10 @@ def test_paper_scenario_ssp_in_fmpy_and_libcosim(tmp_path, fmu_dir, block_cache)
     harness_zero = table(run_system(lowered, progress=False, first_inputs="zero"))[1:]
     fmpy_rows = table(run_fmpy_ssp(ssp, spec.step, spec.stop_time))
     assert np.max(np.abs(fmpy_rows - harness_zero)) <= 1e-9
+
+
+def test_fmu_error_status_stops_the_run(fmu_dir, block_cache):
+    """The plant FMU rejects an input beyond its input_bound with fmi2Error: MasterError."""
+    spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start({"plant.q[1]": 1e9})
+    with pytest.raises(MasterError, match=r"plant: fmi2DoStep at t = 0\.0 returned 3 \(error\)"):
+        run_system(resolve_system(spec), stop_time=0.01, progress=False)
