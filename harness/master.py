@@ -38,7 +38,7 @@ from harness.system import ResolvedFmu, ResolvedSystem, vector_names
 
 FMI2_WARNING = 1
 STATUS_LABELS = ("ok", "warning", "discard", "error", "fatal", "pending")
-PROGRESS_CHUNK = 2000
+PROGRESS_CHUNK = 500
 
 
 class MasterError(RuntimeError):
