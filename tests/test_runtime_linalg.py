@@ -48,6 +48,8 @@ def test_expm_family_exp_and_phi1(force_fallback, tau):
     ref = sl.expm(aug)
     assert np.allclose(exp_r, ref[:4, :4] @ r, rtol=1e-10, atol=1e-14)
     assert np.allclose(phi_r, ref[:4, 4], rtol=1e-10, atol=1e-14)
+    exp_top, phi_top = family.apply(tau, r, rows=2)
+    assert np.array_equal(exp_top, exp_r[:2]) and np.array_equal(phi_top, phi_r[:2])
 
 
 def test_expm_family_falls_back_on_defective_matrix():
@@ -61,9 +63,13 @@ def test_expm_family_falls_back_on_defective_matrix():
 @pytest.mark.parametrize("force_fallback", [False, True])
 def test_dilation_matches_scipy(paper_design, force_fallback):
     dilation = Dilation(paper_design.G_d, force_fallback=force_fallback)
+    with_gain = Dilation(paper_design.G_d, right=paper_design.L, force_fallback=force_fallback)
     x = np.array([1.0, -2.0, 0.5, 3.0])
     for s in (-30.0, -1.0, 0.0, 2.0):
         ref = sl.expm(s * paper_design.G_d)
+        ref_gain = ref @ paper_design.L @ x[:2]
+        assert np.allclose(with_gain.apply(s, x[:2]), ref_gain, rtol=1e-10,
+                           atol=1e-13 * np.abs(ref).max() * np.abs(paper_design.L).max())
         atol = 1e-13 * np.abs(ref).max()
         assert np.allclose(dilation.apply(s, x), ref @ x, rtol=1e-10, atol=atol * np.abs(x).max())
         assert np.allclose(dilation.matrix(s), ref, rtol=1e-10, atol=atol)

@@ -13,35 +13,41 @@ from fhobs.linalg import COND_LIMIT, expm
 class Dilation:
     """``d(s) = expm(s G)`` from one eigen-decomposition ``G = V diag(g) V^-1``.
 
-    ``d(s) x = V (exp(s g) * (V^-1 x))`` costs two small matrix-vector products. If V is
-    ill-conditioned (cond > ``COND_LIMIT``), :func:`fhobs.linalg.expm` of ``s G`` is used.
+    ``d(s) M x = V (exp(s g) * (V^-1 M x))`` costs two small matrix-vector products (``V^-1 M``
+    is precomputed). If V is ill-conditioned (cond > ``COND_LIMIT``), :func:`fhobs.linalg.expm`
+    of ``s G`` is used.
 
     Parameters
     ----------
     G : np.ndarray
         Generator of the dilation (anti-Hurwitz), e.g. ``G_d``.
+    right : np.ndarray or None
+        Fixed right factor M (identity if None), e.g. a gain ``L``.
     force_fallback : bool
         Use the expm path even if G is well diagonalisable (for tests).
     """
 
-    def __init__(self, G: np.ndarray, force_fallback: bool = False) -> None:
+    def __init__(self, G: np.ndarray, right: np.ndarray | None = None,
+                 force_fallback: bool = False) -> None:
         self.G = np.array(G, dtype=float)
+        self.right = np.eye(self.G.shape[0]) if right is None else np.array(right, dtype=float)
         g, V = np.linalg.eig(self.G)
         self.use_eig = (not force_fallback) and np.linalg.cond(V) < COND_LIMIT
         if self.use_eig:
             real = bool(np.all(g.imag == 0.0))
             self._g = g.real if real else g
             self._V = V.real if real else V
-            self._Vinv = np.linalg.inv(self._V)
+            self._Vinv_right = np.linalg.solve(self._V, self.right)
 
     def apply(self, s: float, x: np.ndarray) -> np.ndarray:
-        """Return ``d(s) x`` (x a vector or a matrix)."""
+        """Return ``d(s) M x`` (x a vector or a matrix)."""
         if self.use_eig:
             scale = np.exp(s * self._g)
             scale = scale if x.ndim == 1 else scale[:, None]
-            return np.real(self._V @ (scale * (self._Vinv @ x)))
-        return expm(s * self.G) @ x
+            out = self._V @ (scale * (self._Vinv_right @ x))
+            return out if out.dtype.kind == "f" else out.real
+        return expm(s * self.G) @ (self.right @ x)
 
     def matrix(self, s: float) -> np.ndarray:
-        """Return the matrix ``d(s)``."""
-        return self.apply(s, np.eye(self.G.shape[0]))
+        """Return the matrix ``d(s) M``."""
+        return self.apply(s, np.eye(self.right.shape[1]))

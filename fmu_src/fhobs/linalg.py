@@ -129,16 +129,18 @@ class ExpmFamily:
             self._V = V
             self._Vinv = np.linalg.inv(V)
 
-    def apply(self, tau: float, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(expm(tau R) r, phi1(tau R) r)`` for tau >= 0."""
+    def apply(self, tau: float, r: np.ndarray,
+              rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(expm(tau R) r, phi1(tau R) r)`` for tau >= 0, or their first ``rows``
+        entries only."""
         if self.use_eig:
             c = self._Vinv @ r
             mu = tau * self._lam
-            both = (self._V @ np.stack((np.exp(mu) * c, _phi1_scalar(mu) * c), axis=1)).real
+            both = (self._V[:rows] @ np.stack((np.exp(mu) * c, _phi1_scalar(mu) * c), 1)).real
             return both[:, 0], both[:, 1]
         size = self.R.shape[0]
         aug = np.zeros((size + 1, size + 1))
         aug[:size, :size] = tau * self.R
         aug[:size, size] = r
         E = expm(aug)
-        return E[:size, :size] @ r, E[:size, size]
+        return (E[:size, :size] @ r)[:rows], E[:size, size][:rows]

@@ -270,7 +270,7 @@ class FilteringObserver(_Observer):
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
         self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
         self._n_error_aux = k
-        self._dilation = Dilation(gains.G_d)
+        self._dilation = Dilation(gains.G_d, right=gains.L)
         self._R = ExpmFamily(np.block([[gains.L_tilde, np.eye(k)],
                                        [gains.C @ gains.L, np.zeros((k, k))]]))
         self._p = gains.nu / 2.0 + 1.0
@@ -327,9 +327,9 @@ class FilteringObserver(_Observer):
         log_s = math.log(level)
         tau = hs * math.exp(g.nu * log_s)
         r_hat = np.concatenate([psi / level, v * math.exp(-(1.0 + g.nu) * log_s)])
-        exp_r, phi_r = self._R.apply(tau, r_hat)
-        psi_new = level * exp_r[:k]
-        dz = tau * self._dilation.apply(log_s, g.L @ phi_r[:k])
+        exp_r, phi_r = self._R.apply(tau, r_hat, rows=k)
+        psi_new = level * exp_r
+        dz = tau * self._dilation.apply(log_s, phi_r)
         return np.append(psi_new, self._xi_update(psi, psi_new, xi, hs)), dz
 
     def _xi_update(self, psi: np.ndarray, psi_new: np.ndarray, xi: float, hs: float) -> float:
@@ -345,7 +345,7 @@ class FilteringObserver(_Observer):
         sigma = self._sigma(aux)
         if sigma > 0.0:
             log_s = math.log(max(sigma, SIGMA_GUARD))
-            dz_gain = math.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, g.L @ psi)
+            dz_gain = math.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, psi)
             dpsi = v + math.exp(g.nu * log_s) * (g.L_tilde @ psi)
         else:  # sigma = 0 forces psi = 0: the homogeneous terms vanish
             dz_gain, dpsi = np.zeros(g.n), v
@@ -376,7 +376,7 @@ class PrescribedTimeObserver(_Observer):
                  tau_max: float | None = None) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0)
         self._aux = as_finite_vector(xi0, 1, "xi0")
-        self._dilation = Dilation(gains.G_d)
+        self._dilation = Dilation(gains.G_d, right=gains.L_pt)
         self._Q = ExpmFamily(gains.C @ gains.L_pt)
         self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
@@ -409,14 +409,14 @@ class PrescribedTimeObserver(_Observer):
         log_x = math.log(level)
         tau = hs * math.exp(g.nu * log_x)
         _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + g.nu) * log_x))
-        dz = tau * self._dilation.apply(log_x, g.L_pt @ phi_v)
+        dz = tau * self._dilation.apply(log_x, phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
     def _euler_rates(self, aux, v, hs):
         g = self.gains
         xi = float(aux[0])
         log_x = math.log(self._level(aux, hs))
-        dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, g.L_pt @ v)
+        dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, v)
         return np.array([-g.rho * signed_power(xi, 1.0 + g.nu)]), dz_gain
 
 
