@@ -93,6 +93,14 @@ def test_noisy_homogeneous_beats_linear(paper_runs):
     assert metrics["ratio"] > 10.0
 
 
+def test_long_noisy_run_stays_finite_and_bounded(paper_design):
+    """15 s of perturbation and noise at dt = h = 1e-3: no NaN/Inf, no drift, no reset."""
+    r = simulate(paper_design, "perturbed_noisy", t_end=15.0, dt=1e-3, seed=11)
+    assert all(np.all(np.isfinite(a)) for a in (r.x, r.z, r.psi, r.xi, r.sigma))
+    late = r.window(5.0, 15.0)
+    assert np.max(r.error[late]) < 0.5 and np.min(r.sigma[late]) > 0.0
+
+
 def test_coarse_communication_step_keeps_nominal_floor(paper_design):
     """dt = 1e-3 with internal substeps of 5e-5: the error still converges to round-off, since
     the substeps propagate the innovation with the model (the sampled error is autonomous)."""
