@@ -8,7 +8,8 @@ Observed behaviour that the comparison has to account for:
 - ``fmpy.ssp.simulation.simulate_ssp`` starts every connector at 0.0 and only transfers values
   after the first step, so during the first step every connected input is 0 instead of the
   outputs at ``t0``; it records after each step (no row for ``t0``) and labels the row with the
-  time at the *start* of the step; it accumulates ``time += h``; and it does not apply the SSD's
+  time at the *start* of the step; it accumulates ``time += h`` (and loops while that is below
+  the stop time, so it can take one step too many); and it does not apply the SSD's
   parameter bindings itself (they are passed here as its ``parameter_set``).
 - libcosim exchanges the outputs at ``t0`` during initialisation (as the harness does) and
   steps with an integer nanosecond clock.
@@ -57,7 +58,11 @@ def run_fmpy_ssp(ssp: str | Path, step: float, stop_time: float) -> EngineResult
                     Parameter(name=f"{comp.name}.{p.name}", type=p.type, value=p.value)
                     for p in pset.parameters
                 ]
-    rows = simulate_ssp(str(ssp), stop_time=stop_time, step_size=step, parameter_set=start)
+    # fmpy loops "while time < stop_time" on an accumulated time: stop half a step early so
+    # that rounding cannot add a step
+    rows = simulate_ssp(
+        str(ssp), stop_time=stop_time - 0.5 * step, step_size=step, parameter_set=start
+    )
     names = tuple(n for n in rows.dtype.names if n != "time")
     values = np.column_stack([rows[n] for n in names])
     return EngineResult(rows["time"] + step, names, values)
