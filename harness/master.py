@@ -268,9 +268,15 @@ class Master:
             instanceName=name,
             modelIdentifier=md.coSimulation.modelIdentifier,
         )
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=t0, stopTime=t_end)
-        _set_start_values(fmu, rf)
+        try:
+            fmu.instantiate()
+            fmu.setupExperiment(startTime=t0, stopTime=t_end)
+            _set_start_values(fmu, rf)
+        except Exception:
+            if getattr(fmu, "component", None):
+                fmu.freeInstance()
+            shutil.rmtree(unzip_dir, ignore_errors=True)
+            raise
         out_vr = [
             rf.variables[n.partition(".")[2]].valueReference
             for n in self.names
