@@ -74,12 +74,16 @@ def test_split_error_map_matches_scipy(paper_design, tau):
 
 
 def test_gain_cap_makes_the_limit_map_contractive(paper_design, tuned_gains):
+    """At the cap sigma_min = (tau_max/dt)^(1/nu) the communication step's error map contracts,
+    also with substeps (dt = n_sub h); far below the cap the frozen map is unstable."""
+    h = 5e-5
     for g in (paper_design, tuned_gains):
-        obs = FilteringObserver(g, h=5e-5)
-        sigma_min = obs.diagnostics()["sigma_min"]
-        assert spectral_radius(obs.error_map(sigma_min)) < 0.9
-        # without the cap, far below sigma_min the frozen map is unstable: the cap is needed
-        assert spectral_radius(obs.error_map(1e-6 * sigma_min)) > 1.0
+        obs = FilteringObserver(g, h=h)
+        assert spectral_radius(obs.error_map(obs.diagnostics()["sigma_min"])) < 0.9
+        for n_sub in (2, 20):
+            sigma_min = (obs.tau_max / (n_sub * h)) ** (1.0 / g.nu)
+            assert spectral_radius(obs.error_map(sigma_min, n_sub)) < 0.9
+        assert spectral_radius(obs.error_map(1e-6 * obs.diagnostics()["sigma_min"])) > 1.0
 
 
 def continuous_rhs(g, t, state):

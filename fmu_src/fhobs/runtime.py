@@ -26,12 +26,14 @@ substeps of size ``<= h``, with one of two schemes:
     observer's own model (``v = C (z - m) + (C z_k - y_k)``, m the open-loop prediction from
     ``z_k``), so that it stays a linear function of the error at ``t_k``.
 
-    **Gain cap.** The frozen-gain map is contractive only while ``tau = h sigma^nu`` stays
-    moderate (for large tau the sampled measurement, not the gain, limits what can be known):
-    the gain level is therefore floored at ``sigma_min = (tau_max / h)^(1/nu)``. Below that
-    level the scheme is a fixed linear discrete-time observer (the discrete limit of the
-    homogeneous one) with contraction ``rho(tau_max)`` per step. ``tau_max`` defaults to the
-    value minimising that spectral radius (computed at construction).
+    **Gain cap.** The frozen-gain map is contractive only while ``tau = dt sigma^nu`` stays
+    moderate, dt the communication step (for large tau the sampled measurement, not the gain,
+    limits what can be known; one sample per dt is all the observer gets): the gain level is
+    therefore floored at ``sigma_min = (tau_max / dt)^(1/nu)``. Below that level the scheme is a
+    fixed linear discrete-time observer (the discrete limit of the homogeneous one) with
+    contraction ``rho(tau_max)`` per communication step. ``tau_max`` defaults to the value
+    minimising that spectral radius for dt = h (computed at construction); with substeps the
+    per-step map stays contractive (checked in the tests).
 
 Edges: ``sigma = 0`` (all-zero start) and ``xi = 0`` (prescribed time reached) use the capped
 level, so no 0 * inf appears; a step that would produce a non-finite state raises ValueError
@@ -40,7 +42,7 @@ and leaves the state untouched.
 Prescribed-time observer at and after ``T0 = xi0^(-nu) / (-nu rho)``: ``xi`` is integrated
 exactly (``|xi|^(-nu)`` decreases linearly), reaches 0 exactly and stays 0; the gain
 ``|xi|^(nu-1) expm(ln|xi| (G_d - nu I)) L_pt`` is evaluated at ``max(|xi|, xi_min)`` with
-``xi_min = (tau_max / h)^(1/nu)`` (both schemes), so after T0 the observer is the capped
+``xi_min = (tau_max / dt)^(1/nu)`` (both schemes), so after T0 the observer is the capped
 constant-gain discrete observer: finite, convergent in the nominal case, never NaN.
 
 This module is numpy-only: it runs inside the FMUs.
@@ -163,29 +165,30 @@ class _Observer:
             self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
         return self._zoh[hs]
 
-    def _run_split(self, z, aux, y, u, hs, n_sub):
-        """The split scheme over n_sub substeps (see the module docstring)."""
+    def _run_split(self, z, aux, y, u, hs, n_sub, level=None):
+        """The split scheme over n_sub substeps (see the module docstring); the gain level is
+        the observer's own (capped for the communication step hs * n_sub) unless given."""
         C = self.gains.C
         Phi, _, Gamma_inj = self._prediction(hs)
         innovation0 = C @ z - y
         v = innovation0
         drift = 0.0  # z - m, m the observer's open-loop model prediction from the step's start
         for i in range(n_sub):
-            z, aux, dz, v = self._split_substep(z, aux, v, u, hs)
+            z, aux, dz, v = self._split_substep(z, aux, v, u, hs, hs * n_sub, level)
             if i + 1 < n_sub:
                 drift = Phi @ (drift + dz) + Gamma_inj @ v
                 v = C @ drift + innovation0
         return z, aux
 
-    def _split_substep(self, z, aux, v, u, hs, level=None):
-        """Correction (exact, gain frozen at ``level``, by default the observer's own level)
-        then ZOH prediction with v held.
+    def _split_substep(self, z, aux, v, u, hs, dt, level=None):
+        """Correction (exact, gain frozen at ``level``, by default the observer's own level
+        capped for the communication step dt) then ZOH prediction with v held.
 
         Returns the new z and aux, the correction's increment of z and the corrected v.
         """
         Phi, Gamma_B, Gamma_inj = self._prediction(hs)
         if level is None:
-            aux, dz = self._correct_own_level(aux, v, hs)
+            aux, dz = self._correct_own_level(aux, v, hs, dt)
         else:
             aux, dz = self._correct(aux, v, hs, level)
         v = v + self.gains.C @ dz
@@ -196,19 +199,24 @@ class _Observer:
         g = self.gains
         for _ in range(n_sub):
             v = g.C @ z - y
-            daux, dz_gain = self._euler_rates(aux, v, hs)
+            daux, dz_gain = self._euler_rates(aux, v, hs * n_sub)
             z = z + hs * (g.A @ z + g.B @ u + self._L_inj @ v + dz_gain)
             aux = aux + hs * daux
         return z, aux
 
-    def _level(self, aux: np.ndarray, hs: float) -> float:
-        """Gain level (sigma or |xi|, capped) at which the split substep freezes the gain."""
+    def _level(self, aux: np.ndarray, dt: float) -> float:
+        """Gain level (sigma or |xi|, capped for the communication step dt) at which the split
+        substep freezes the gain."""
         return 1.0
 
-    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
-                           hs: float) -> tuple[np.ndarray, np.ndarray]:
+    def _floor(self, dt: float) -> float:
+        """Gain-level cap ``(tau_max / dt)^(1/nu)`` for the communication step dt."""
+        return (self.tau_max / dt) ** (1.0 / self.gains.nu)
+
+    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray, hs: float,
+                           dt: float) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_correct` at the observer's own gain level."""
-        return self._correct(aux, v, hs, self._level(aux, hs))
+        return self._correct(aux, v, hs, self._level(aux, dt))
 
     def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
                  level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -216,23 +224,24 @@ class _Observer:
         return aux, np.zeros(self.gains.n)
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
-                     hs: float) -> tuple[np.ndarray, np.ndarray]:
-        """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz)."""
+                     dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz);
+        dt is the communication step (for a gain cap)."""
         return np.zeros_like(aux), np.zeros(self.gains.n)
 
-    def error_map(self, level: float) -> np.ndarray:
-        """Matrix of one split substep (size h) acting on the estimation error at a frozen gain
-        level (sigma or |xi|): the error is ``(psi, z - x)`` for the filtering observer and
-        ``z - x`` otherwise. It is the observer's step with y = C x = 0 and u = 0, which is
-        linear in the error; for analysis and tests."""
+    def error_map(self, level: float, n_sub: int = 1) -> np.ndarray:
+        """Matrix of one split communication step of n_sub substeps of size h acting on the
+        estimation error at a frozen gain level (sigma or |xi|): the error is ``(psi, z - x)``
+        for the filtering observer and ``z - x`` otherwise. It is the observer's step with
+        x = 0, y = 0 and u = 0, which is linear in the error; for analysis and tests."""
         g = self.gains
         n_lin = self._n_error_aux
         columns = []
         for e in np.eye(n_lin + g.n):
             aux = np.zeros_like(self._aux)
             aux[:n_lin] = e[:n_lin]
-            z = e[n_lin:]
-            z, aux, _, _ = self._split_substep(z, aux, g.C @ z, np.zeros(g.m), self.h, level)
+            z, aux = self._run_split(e[n_lin:], aux, np.zeros(g.k), np.zeros(g.m), self.h,
+                                     n_sub, level)
             columns.append(np.concatenate([aux[:n_lin], z]))
         return np.column_stack(columns)
 
@@ -259,7 +268,8 @@ class FilteringObserver(_Observer):
     xi0 : float
         Initial xi.
     tau_max : float or None
-        Gain cap of the split scheme, ``h sigma^nu <= tau_max``; None picks it automatically.
+        Gain cap of the split scheme, ``dt sigma^nu <= tau_max`` (dt the communication step);
+        None picks it automatically.
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -281,7 +291,7 @@ class FilteringObserver(_Observer):
         """``z``, ``psi``, ``xi``, ``sigma`` and the capped gain level of the split scheme."""
         psi, xi = self._aux[:-1], float(self._aux[-1])
         return {"z": self.z, "psi": psi.copy(), "xi": xi, "sigma": self._sigma(self._aux),
-                "sigma_min": (self.tau_max / self.h) ** (1.0 / self.gains.nu)}
+                "sigma_min": self._floor(self.h)}
 
     @staticmethod
     def _sigma(aux: np.ndarray) -> float:
@@ -289,17 +299,17 @@ class FilteringObserver(_Observer):
         psi, xi = aux[:-1], aux[-1]
         return math.sqrt(max(float(xi), 0.5 * float(psi @ psi), 0.0))
 
-    def _level(self, aux: np.ndarray, hs: float) -> float:
-        """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / hs)^(1/nu)``."""
-        return max(self._sigma(aux), (self.tau_max / hs) ** (1.0 / self.gains.nu))
+    def _level(self, aux: np.ndarray, dt: float) -> float:
+        """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / dt)^(1/nu)``."""
+        return max(self._sigma(aux), self._floor(dt))
 
-    def _correct_own_level(self, aux, v, hs):
+    def _correct_own_level(self, aux, v, hs, dt):
         """Correction at ``max(sigma, sigma_min)``, redone at a self-consistent level when it
         leaves sigma above ``LEVEL_MISMATCH`` times the frozen level (e.g. at an all-zero start,
         where sigma = 0 but psi grows at once): that level s solves ``sigma_after(s) = s``
         (bisection in ln s; sigma_after(s) / s decreases in s), so the frozen gain matches the
         psi it produces."""
-        level = self._level(aux, hs)
+        level = self._level(aux, dt)
         result = self._correct(aux, v, hs, level)
         after = self._sigma(result[0])
         if after <= LEVEL_MISMATCH * level:
@@ -339,7 +349,7 @@ class FilteringObserver(_Observer):
         w = xi + abs(half_new - half_old) - half_new
         return signed_power_decay(w, self.gains.gamma, self._p, hs) + half_new
 
-    def _euler_rates(self, aux, v, hs):
+    def _euler_rates(self, aux, v, dt):
         g = self.gains
         psi, xi = aux[:-1], float(aux[-1])
         sigma = self._sigma(aux)
@@ -357,7 +367,7 @@ class PrescribedTimeObserver(_Observer):
     """Prescribed-time observer (Theorem 1), dilation generator ``G = G_d - nu I``.
 
     The gain ``|xi|^(nu-1) expm(ln|xi| G) L_pt = |xi|^-1 d(ln|xi|) L_pt`` is evaluated at
-    ``max(|xi|, (tau_max/h)^(1/nu))`` (see the module docstring for the behaviour after T0).
+    ``max(|xi|, (tau_max/dt)^(1/nu))`` (see the module docstring for the behaviour after T0).
 
     Parameters
     ----------
@@ -368,7 +378,7 @@ class PrescribedTimeObserver(_Observer):
     xi0 : float
         Initial xi (nonzero); the prescribed time is ``T0 = |xi0|^(-nu) / (-nu rho)``.
     tau_max : float or None
-        Gain cap ``h |xi|^nu <= tau_max``; None picks it automatically.
+        Gain cap ``dt |xi|^nu <= tau_max`` (dt the communication step); None: automatic.
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -391,9 +401,9 @@ class PrescribedTimeObserver(_Observer):
         """``z``, ``xi`` and the gain level actually used."""
         return {"z": self.z, "xi": float(self._aux[0]), "level": self._level(self._aux, self.h)}
 
-    def _level(self, aux: np.ndarray, hs: float) -> float:
-        """``max(|xi|, xi_min)`` with ``xi_min = (tau_max / hs)^(1/nu)``."""
-        return max(abs(float(aux[0])), (self.tau_max / hs) ** (1.0 / self.gains.nu))
+    def _level(self, aux: np.ndarray, dt: float) -> float:
+        """``max(|xi|, xi_min)`` with ``xi_min = (tau_max / dt)^(1/nu)``."""
+        return max(abs(float(aux[0])), self._floor(dt))
 
     def _xi_exact(self, xi: float, hs: float) -> float:
         """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
@@ -412,10 +422,10 @@ class PrescribedTimeObserver(_Observer):
         dz = tau * self._dilation.apply(log_x, phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
-    def _euler_rates(self, aux, v, hs):
+    def _euler_rates(self, aux, v, dt):
         g = self.gains
         xi = float(aux[0])
-        log_x = math.log(self._level(aux, hs))
+        log_x = math.log(self._level(aux, dt))
         dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, v)
         return np.array([-g.rho * signed_power(xi, 1.0 + g.nu)]), dz_gain
 
