@@ -96,11 +96,13 @@ def phi1(X: np.ndarray) -> np.ndarray:
     return expm(aug)[:n, n:]
 
 
+_PHI1_SERIES = 1e-8
+"""Below this |mu|, phi1(mu) = 1 + mu/2 (to double precision)."""
+
+
 def _phi1_scalar(mu: np.ndarray) -> np.ndarray:
     """Elementwise ``(exp(mu) - 1) / mu`` for complex mu, with the limit 1 at mu = 0."""
-    small = np.abs(mu) < 1e-8
-    if not small.any():
-        return np.expm1(mu) / mu
+    small = np.abs(mu) < _PHI1_SERIES
     safe = np.where(small, 1.0, mu)
     return np.where(small, 1.0 + 0.5 * mu, np.expm1(safe) / safe)
 
@@ -128,6 +130,7 @@ class ExpmFamily:
             self._lam = lam
             self._V = V
             self._Vinv = np.linalg.inv(V)
+            self._min_abs_lam = float(np.min(np.abs(lam)))
 
     def apply(self, tau: float, r: np.ndarray,
               rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -136,8 +139,13 @@ class ExpmFamily:
         if self.use_eig:
             c = self._Vinv @ r
             mu = tau * self._lam
-            both = (self._V[:rows] @ np.stack((np.exp(mu) * c, _phi1_scalar(mu) * c), 1)).real
-            return both[:, 0], both[:, 1]
+            exp_mu = np.exp(mu)
+            if tau * self._min_abs_lam > _PHI1_SERIES:
+                phi_mu = np.expm1(mu) / mu
+            else:
+                phi_mu = _phi1_scalar(mu)
+            V = self._V[:rows]
+            return (V @ (exp_mu * c)).real, (V @ (phi_mu * c)).real
         size = self.R.shape[0]
         aug = np.zeros((size + 1, size + 1))
         aug[:size, :size] = tau * self.R
