@@ -118,32 +118,25 @@ def simulate(
     obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max)
     lin = LuenbergerObserver(gains, h=h, scheme=scheme)
     n_steps = int(round(t_end / dt))
-    rows = {name: [] for name in ("x", "z", "z_lin", "psi", "xi", "sigma")}
-    for k in range(n_steps + 1):
-        _record(rows, plant, obs, lin)
-        if k == n_steps:
+    n, k = gains.n, gains.k
+    x = np.empty((n_steps + 1, n))
+    obs_state = np.empty((n_steps + 1, n + k + 1))  # [z, psi, xi] of the filtering observer
+    z_lin = np.empty((n_steps + 1, n))
+    for step in range(n_steps + 1):
+        x[step], obs_state[step], z_lin[step] = plant.x, obs.get_state(), lin.z
+        if step == n_steps:
             break
-        t_k = k * dt
+        t_k = step * dt
         y = plant.y
         u = K_PAPER @ obs.z
         q = np.full(E.shape[1], spec.q_amplitude * np.sin(Q_FREQUENCY * t_k))
         plant.step(u, q, dt)
         obs.step(y, u, dt)
         lin.step(y, u, dt)
-    arrays = {name: np.array(values) for name, values in rows.items()}
-    return SimulationResult(t=np.arange(n_steps + 1) * dt, **arrays)
-
-
-def _record(rows: dict[str, list], plant: LTIPlant, obs: FilteringObserver,
-            lin: LuenbergerObserver) -> None:
-    """Append the current sample of every trajectory."""
-    diag = obs.diagnostics()
-    rows["x"].append(plant.x)
-    rows["z"].append(diag["z"])
-    rows["z_lin"].append(lin.z)
-    rows["psi"].append(diag["psi"])
-    rows["xi"].append(diag["xi"])
-    rows["sigma"].append(diag["sigma"])
+    psi, xi = obs_state[:, n:n + k], obs_state[:, -1]
+    sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
+    return SimulationResult(t=np.arange(n_steps + 1) * dt, x=x, z=obs_state[:, :n], z_lin=z_lin,
+                            psi=psi, xi=xi, sigma=sigma)
 
 
 def accuracy_metrics(results: list[SimulationResult], scenario: str) -> dict[str, float]:
