@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 from fhobs.plant import LTIPlant, uniform_noise
+from scipy.integrate import solve_ivp
 
 A = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0],
               [0.0, 152.0057, -12.2542, -0.5005], [0.0, 264.3080, -12.1117, -0.8702]])
 B = np.array([[0.0], [0.0], [50.6372], [50.0484]])
 C = np.eye(2, 4)
-from scipy.integrate import solve_ivp
 
 
 @pytest.fixture()

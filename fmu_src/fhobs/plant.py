@@ -15,6 +15,9 @@ from fhobs.linalg import zoh_blocks
 NOISE_BLOCK = 1024
 """Noise samples are drawn in blocks of this many steps, block b from the seed (seed, b)."""
 
+ZOH_CACHE_SIZE = 16
+"""ZOH matrices are cached per step size; the cache is cleared when it holds this many."""
+
 PLANT_SCHEMES = ("zoh", "euler")
 """``zoh``: exact step (default); ``euler``: explicit Euler, only to reproduce the paper's runs."""
 
@@ -150,6 +153,8 @@ class LTIPlant:
     def _blocks(self, dt: float) -> list[np.ndarray]:
         """ZOH matrices for the step dt (cached per dt)."""
         if dt not in self._zoh:
+            if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
+                self._zoh.clear()
             self._zoh[dt] = zoh_blocks(self.A, [self.B, self.E], dt)
         return self._zoh[dt]
 

@@ -57,7 +57,7 @@ import numpy as np
 from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
 from fhobs.linalg import ExpmFamily, zoh_blocks
-from fhobs.plant import as_finite_vector, check_step_size
+from fhobs.plant import ZOH_CACHE_SIZE, as_finite_vector, check_step_size
 
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
@@ -161,6 +161,8 @@ class _Observer:
     def _prediction(self, hs: float) -> list[np.ndarray]:
         """``[expm(hs A), Gamma_B, Gamma_inj]`` (cached per substep size)."""
         if hs not in self._zoh:
+            if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
+                self._zoh.clear()
             g = self.gains
             self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
         return self._zoh[hs]
