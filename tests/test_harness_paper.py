@@ -4,6 +4,7 @@ working with a third-party plant FMU (tests/test_harness_plantfmu.py) in place o
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -84,6 +85,11 @@ def test_nominal_accuracy_at_1_5(fmu_dir, block_cache):
     assert figures["homogeneous"]["error_at_1_5"] <= 1e-9
 
 
+@pytest.mark.skipif(
+    not os.environ.get("FHOBS_FULL_ACCURACY"),
+    reason="5 x 60,000 noisy steps take 2-5 min on 2 cores; set FHOBS_FULL_ACCURACY=1 (the "
+    "noisy co-simulation equals the reference, test_cosimulation_equals_reference_short)",
+)
 @pytest.mark.xfail(strict=True, reason=PAPER_GAINS_MISS)
 def test_noisy_rms_over_five_seeds(fmu_dir, block_cache):
     spec = _scenario("pendulum_noisy", fmu_dir, block_cache)
