@@ -21,7 +21,7 @@ import numpy as np
 from .certificate import augmented_matrices, certify
 from .gains import ObserverGains
 from .homogenisation import dilation_basis, homogenise
-from .lmi import DEFAULT_MARGIN, certify_gain_lmi, solve_gain_lmi
+from .lmi import DEFAULT_MARGIN, ChainBasis, certify_gain_lmi, chain_basis, solve_gain_lmi
 from .spec import PlantSpec, spec_from_dict
 
 PAPER_REFERENCE = Path(__file__).resolve().parents[2] / "examples" / "pendulum-paper.json"
@@ -47,11 +47,13 @@ def matched_perturbation_residual(G_d: np.ndarray, E: np.ndarray, n_tilde: int) 
     return float(np.linalg.norm((n_tilde + 1) * G_d @ E - E) / max(np.linalg.norm(E), 1e-300))
 
 
-def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: float) -> np.ndarray:
+def _luenberger_gain(
+    spec: PlantSpec, decay: float, basis: ChainBasis, objective: str, margin: float
+) -> np.ndarray:
     if spec.L_lin is not None:
         return spec.L_lin
     n = spec.A.shape[0]
-    return solve_gain_lmi(spec.A, np.eye(n), spec.C, decay, objective, margin).gain
+    return solve_gain_lmi(spec.A, np.eye(n), spec.C, decay, basis, objective, margin).gain
 
 
 def design_observer(
@@ -90,16 +92,20 @@ def design_observer(
         L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros((n, k)),
     )
     V = dilation_basis(hom.G_d, spec.nu, hom.n_tilde)
-    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
-    bar_V = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), V]])
-    filtering = solve_gain_lmi(bar_A0, bar_G, bar_C, spec.rho, objective, margin, bar_V)
+    weights = np.linalg.solve(V, hom.G_d @ V).diagonal()
+    levels = [V[:, np.abs(weights - 1 - (j + 1) * spec.nu) < 1e-6] for j in range(hom.n_tilde)]
     A0 = spec.A + hom.L0 @ spec.C
+    chains = chain_basis(A0, levels)
+    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
+    filtering = solve_gain_lmi(
+        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, spec.C), objective, margin
+    )
     G_pt = hom.G_d - spec.nu * np.eye(n)
-    pt = solve_gain_lmi(A0, G_pt, spec.C, spec.rho, objective, margin, V)
+    pt = solve_gain_lmi(A0, G_pt, spec.C, spec.rho, chains, objective, margin)
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + filtering.gain @ bar_C).real))
     base |= dict(
         L_tilde=filtering.gain[:k], L=filtering.gain[k:], P_bar=filtering.P,
-        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, objective, margin),
+        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, chains, objective, margin),
     )
     return _certified(base, objective, margin)
 

@@ -1,4 +1,4 @@
-"""The design LMIs, solved with cvxpy + Clarabel.
+"""The design LMIs, solved with cvxpy + Clarabel in a chain basis of the dilation.
 
 One LMI shape serves the three observers. For a matrix ``H0``, a generator ``G``, an output
 matrix ``Cout`` and a decay parameter ``rho``, find ``P = P^T`` and ``Y`` with
@@ -15,32 +15,66 @@ a decay rate (1/s) beyond rho, in the norm of P, which is what the certificate m
   A + L_lin C then has real part <= -rho.
 
 Normalisation: the LMIs are homogeneous in (P, Y), so P >= I fixes the scale.
-Conditioning: the LMI is solved in the coordinates of a given ``basis`` T (the design passes
-the eigenvectors of the dilation generator, in which G is diagonal); the solution maps back by
-congruence, P = T^-T P' T^-1 and gain = T gain', and still satisfies the LMI exactly (the
-certificate re-checks it in the original coordinates). In the original coordinates Clarabel
-failed on about a third of the random test plants with n >= 4; in the eigenbasis it solves them.
 
-Objectives (``OBJECTIVES``):
+Working coordinates (:func:`chain_basis`). The LMI is solved in a basis T (N x N) made of
+chains v, A0 v, ..., A0^j v of eigenvectors of the dilation (the observer form of the
+nilpotent A0), each chain ordered head first, its head A0^j v on the level that C sees; for
+Theorem 2 the psi vector (C A0^j v; 0) heads each chain. The m chains of one length are mixed by
+one invertible m x m matrix, the same on every level, that makes them orthonormal in the sum
+over their levels, and every level is scaled to unit rms norm (this keeps T, hence P in the
+original coordinates, as well conditioned as the eigenvectors allow). In T:
 
-- ``"min_cond"`` (default): minimise kappa, the condition number bound of P (in the basis T):
-  the best-conditioned certificate, whose gains are moderate because a large gain needs an
+- ``T^-1 H0 T = Hs + X E``: Hs the direct sum of one matrix h_s (nonzero only on the first
+  superdiagonal) per chain of length s, E (k x N) the selector of the chain heads, X (N x k)
+  the head columns (zero for Theorems 1 and 2; -T^-1 L0 C heads for the Luenberger A = A0 - L0 C);
+- ``T^-1 G T = Gs``, the direct sum of diagonal g_s (the dilation weights);
+- ``Cout T = K E`` with K (k x k) invertible.
+
+solve_gain_lmi checks this structure (relative tolerance ``STRUCTURE_RTOL``). With
+P_t = T^T P T and Y~ = P_t (T^-1 gain K + X), the LMI is exactly
+
+    sym(P_t (Hs + rho Gs) + Y~ E) <= -margin P_t,  sym(P_t Gs) >= margin P_t,
+    I <= P_t <= kappa I,
+
+with Y~ free (X E is absorbed by the output injection; the feasible set of P_t is the same).
+Rotating the chains of one length among themselves (Q (x) I_s, Q orthogonal) maps a solution to
+a solution with the same kappa and the same ||Y~||_2, and the problem is convex, so averaging
+over the rotations shows that the optimum is attained, without loss, at P_t = (+) p_s and Y~ =
+(+) y_s: one s x s block p_s and one column y_s per chain, shared by the chains of one length,
+nothing between chains. Clarabel solves only these blocks (size <= n_tilde + 1, one set per
+distinct chain length), instead of four dense N x N cones with N^2/2 + N k unknowns: n = 50
+takes well under a second instead of minutes. The solution maps back exactly:
+P = T^-T P_t T^-1, gain = T (P_t^-1 Y~ - X) K^-1. The numpy certificate re-checks it in the
+original coordinates.
+
+Objectives (``OBJECTIVES``), in the basis T (before this basis, the LMIs were solved densely in
+the eigenbasis orthonormal within each eigenspace, and the Luenberger LMI in the original
+coordinates; the objectives are the same functions of P_t and Y~, measured in T instead):
+
+- ``"min_cond"`` (default): minimise kappa, the condition number bound of P_t: the
+  best-conditioned certificate, whose gains are moderate because a large gain needs an
   ill-conditioned P to satisfy the LMI.
-- ``"min_gain"``: two stages: min_cond first, then minimise ||Y||_2 with kappa allowed to grow
-  to ``GAIN_STAGE_KAPPA`` times its optimum: smaller gains (less noise amplification) at equal
-  decay rho. Numerically harder: on some plants Clarabel fails, and the error says so.
+- ``"min_gain"``: two stages: min_cond first, then minimise ||Y~||_2 = max_s ||y_s||_2 with kappa
+  allowed to grow to ``GAIN_STAGE_KAPPA`` times its optimum: smaller gains (less noise
+  amplification) at equal decay rho.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
+import scipy.linalg
 
 OBJECTIVES = ("min_cond", "min_gain")
 GAIN_STAGE_KAPPA = 10.0
 DEFAULT_MARGIN = 1e-2
+STRUCTURE_RTOL = 1e-8
+# A relative duality gap of 1e-7 on kappa (or ||Y~||) is plenty; at Clarabel's default 1e-8 some
+# reduced LMIs stop one step short with status "optimal_inaccurate".
+SOLVER_OPTIONS = {"tol_gap_rel": 1e-7}
 
 
 class LMIError(RuntimeError):
@@ -54,7 +88,7 @@ class LMISolution:
     Attributes
     ----------
     P : numpy.ndarray
-        Lyapunov matrix, symmetric, >= I.
+        Lyapunov matrix in the original coordinates, symmetric.
     Y : numpy.ndarray
         Auxiliary variable, P @ gain.
     gain : numpy.ndarray
@@ -72,8 +106,67 @@ class LMISolution:
     solve_time: float
 
 
-def _sym(M: cp.Expression) -> cp.Expression:
-    return 0.5 * (M + M.T)
+@dataclass(frozen=True)
+class ChainBasis:
+    """Working coordinates of the LMI (module docstring).
+
+    Attributes
+    ----------
+    T : numpy.ndarray
+        N x N invertible; its columns are the chains, one after the other, head first.
+    sizes : tuple of int
+        Length of each chain, in the order of T's columns.
+    """
+
+    T: np.ndarray
+    sizes: tuple[int, ...]
+
+
+def chain_basis(
+    A0: np.ndarray, levels: Sequence[np.ndarray], C: np.ndarray | None = None
+) -> ChainBasis:
+    """Chains v, A0 v, ..., A0^j v of dilation eigenvectors, heads on level 0.
+
+    Level j - 1 holds A0 times level j; the chains start on the orthogonal complement (within
+    the level) of the images from deeper levels, orthonormal. With ``C``, every chain gets the
+    head (C h; 0), h its level-0 vector: the (psi, z) coordinates of Theorem 2. Then the chains
+    of each length are mixed to be orthonormal in the sum over their levels, and each level
+    (position in the chains) is scaled to unit rms norm; neither changes the chain structure.
+
+    Parameters
+    ----------
+    A0 : numpy.ndarray
+        n x n nilpotent homogeneous matrix.
+    levels : sequence of numpy.ndarray
+        ``levels[j]``: orthonormal basis (n x r_j) of the eigenspace of G_d of weight
+        1 + nu + j nu; A0 maps level j into level j - 1 and level 0 to 0.
+    C : numpy.ndarray, optional
+        k x n output matrix, for the augmented (psi, z) basis.
+
+    Returns
+    -------
+    ChainBasis
+    """
+    chains: list[np.ndarray] = []
+    images = np.zeros((A0.shape[0], 0))
+    for j in range(len(levels) - 1, -1, -1):
+        u = np.linalg.svd(levels[j].T @ images, full_matrices=True)[0]
+        starts = levels[j] @ u[:, images.shape[1]:]
+        chains += [np.array([np.linalg.matrix_power(A0, i) @ v for i in range(j, -1, -1)])
+                   for v in starts.T]
+        images = np.hstack([A0 @ images, starts])
+    if C is not None:
+        chains = [np.vstack([np.hstack([C @ ch[0], 0 * ch[0]]),
+                             np.hstack([np.zeros((len(ch), C.shape[0])), ch])]) for ch in chains]
+    mixed = []
+    for s in sorted({len(ch) for ch in chains}, reverse=True):
+        W = np.array([ch for ch in chains if len(ch) == s])
+        w, U = np.linalg.eigh(np.einsum("ilx,jlx->ij", W, W))
+        mixed += list(np.einsum("ij,jlx->ilx", (U / np.sqrt(w)) @ U.T, W))
+    rms = [np.sqrt(np.mean([np.sum(ch[i] ** 2) for ch in mixed if len(ch) > i]))
+           for i in range(len(mixed[0]))]
+    T = np.vstack([ch / np.array(rms[: len(ch)])[:, None] for ch in mixed]).T
+    return ChainBasis(T, tuple(len(ch) for ch in mixed))
 
 
 def solve_gain_lmi(
@@ -81,11 +174,11 @@ def solve_gain_lmi(
     G: np.ndarray,
     Cout: np.ndarray,
     rho: float,
+    basis: ChainBasis,
     objective: str = "min_cond",
     margin: float = DEFAULT_MARGIN,
-    basis: np.ndarray | None = None,
 ) -> LMISolution:
-    """Solve the LMI of the module docstring for (P, Y) and return the gain P^-1 Y.
+    """Solve the LMI of the module docstring in a chain basis and return the gain P^-1 Y.
 
     Parameters
     ----------
@@ -97,12 +190,12 @@ def solve_gain_lmi(
         p x N output matrix.
     rho : float
         Decay parameter.
+    basis : ChainBasis
+        Working coordinates, with the structure of the module docstring for H0, G, Cout.
     objective : str
         One of :data:`OBJECTIVES`.
     margin : float
         Margin on the strict inequalities, a rate in 1/s.
-    basis : numpy.ndarray, optional
-        Invertible N x N matrix T; the LMI is solved for T^-1 H0 T, T^-1 G T, Cout T.
 
     Returns
     -------
@@ -114,43 +207,67 @@ def solve_gain_lmi(
     LMIError
         If Clarabel reports no optimal solution.
     ValueError
-        For an unknown objective.
+        For an unknown objective, or a basis without the chain structure.
     """
     if objective not in OBJECTIVES:
         raise ValueError(f"objective {objective!r} is not one of {OBJECTIVES}")
-    T = np.eye(H0.shape[0]) if basis is None else basis
+    T, sizes = basis.T, basis.sizes
+    heads = np.cumsum((0,) + sizes[:-1])
+    H_t, G_t = np.linalg.solve(T, H0 @ T), np.linalg.solve(T, G @ T)
+    C_t, X = Cout @ T, H_t[:, heads]
+    H_t[:, heads] = 0.0
+    blocks = {
+        s: (H_t[h:h + s, h:h + s], G_t[h:h + s, h:h + s]) for s, h in zip(sizes, heads, strict=True)
+    }
+    Hs = scipy.linalg.block_diag(*(blocks[s][0] for s in sizes))
+    Gs = scipy.linalg.block_diag(*(blocks[s][1] for s in sizes))
+    C_s = np.zeros_like(C_t)
+    C_s[:, heads] = C_t[:, heads]
+    for M, M_s in ((H_t, Hs), (G_t, Gs), (C_t, C_s)):
+        if np.linalg.norm(M - M_s) > STRUCTURE_RTOL * max(np.linalg.norm(M), 1.0):
+            raise ValueError("the basis does not have the chain structure of H0, G and Cout")
+    p, y, solve_time = _solve_chains(blocks, rho, objective, margin)
+    P_t = scipy.linalg.block_diag(*(p[s] for s in sizes))
+    gain_t = scipy.linalg.block_diag(*(np.linalg.solve(p[s], y[s]) for s in sizes)) - X
+    gain = T @ np.linalg.solve(C_t[:, heads].T, gain_t.T).T
     T_inv = np.linalg.inv(T)
-    H0_t, G_t, C_t = T_inv @ H0 @ T, T_inv @ G @ T, Cout @ T
-    P, Y, kappa, constraints = _lmi_problem(H0_t, G_t, C_t, rho, margin)
-    solve_time = _solve(cp.Problem(cp.Minimize(kappa), constraints), rho, "min_cond")
-    if objective == "min_gain":
-        p, N = C_t.shape
-        mu = cp.Variable()
-        constraints = constraints[:-1] + [
-            P << GAIN_STAGE_KAPPA * kappa.value * np.eye(N),
-            cp.bmat([[mu * np.eye(p), Y.T], [Y, np.eye(N)]]) >> 0,
-        ]
-        solve_time += _solve(cp.Problem(cp.Minimize(mu), constraints), rho, objective)
-    P_t = 0.5 * (P.value + P.value.T)
-    P_val = T_inv.T @ P_t @ T_inv
-    gain = T @ np.linalg.solve(P_t, Y.value)
-    return LMISolution(0.5 * (P_val + P_val.T), P_val @ gain, gain, "optimal", solve_time)
+    P = T_inv.T @ P_t @ T_inv
+    P = 0.5 * (P + P.T)
+    return LMISolution(P, P @ gain, gain, "optimal", solve_time)
 
 
-def _lmi_problem(H0, G, Cout, rho, margin):
-    """Variables and constraints of the LMI (kappa bound last)."""
-    N, p = H0.shape[0], Cout.shape[0]
-    eye = np.eye(N)
-    P = cp.Variable((N, N), symmetric=True)
-    Y = cp.Variable((N, p))
+def _solve_chains(
+    blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float, objective: str, margin: float
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float]:
+    """The reduced LMI: one block p_s, y_s per chain size s; returns p, y and the solve time."""
     kappa = cp.Variable()
-    constraints = [
-        _sym(P @ H0 + Y @ Cout + rho * P @ G) << -margin * P,
-        _sym(P @ G) >> margin * P,
-        P >> eye,
-        P << kappa * eye,
-    ]
-    return P, Y, kappa, constraints
+    p = {s: cp.Variable((s, s), symmetric=True) for s in blocks}
+    y = {s: cp.Variable((s, 1)) for s in blocks}
+    constraints = []
+    for s, (h, g) in blocks.items():
+        e1 = np.eye(1, s)
+        constraints += [
+            _sym(p[s] @ (h + rho * g) + y[s] @ e1) << -margin * p[s],
+            _sym(p[s] @ g) >> margin * p[s],
+            p[s] >> np.eye(s),
+        ]
+    bounds = [p[s] << kappa * np.eye(s) for s in blocks]
+    solve_time = _solve(cp.Problem(cp.Minimize(kappa), constraints + bounds), rho, "min_cond")
+    if objective == "min_gain":
+        limit = GAIN_STAGE_KAPPA * kappa.value
+        t = cp.Variable()
+        constraints += [p[s] << limit * np.eye(s) for s in blocks]
+        constraints += [cp.norm(y[s]) <= t for s in blocks]
+        solve_time += _solve(cp.Problem(cp.Minimize(t), constraints), rho, objective)
+    return (
+        {s: 0.5 * (v.value + v.value.T) for s, v in p.items()},
+        {s: v.value for s, v in y.items()},
+        solve_time,
+    )
+
+
+def _sym(M: cp.Expression) -> cp.Expression:
+    return 0.5 * (M + M.T)
 
 
 def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
@@ -160,7 +277,7 @@ def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
     status, decides whether it is used.
     """
     try:
-        problem.solve(solver=cp.CLARABEL)
+        problem.solve(solver=cp.CLARABEL, **SOLVER_OPTIONS)
     except cp.SolverError as exc:
         raise LMIError(f"Clarabel failed (rho = {rho}, objective {objective}): {exc}") from exc
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
@@ -199,6 +316,13 @@ def certify_gain_lmi(
     LMIError
         If no such P exists.
     """
-    P, Y, kappa, constraints = _lmi_problem(H, G, np.zeros((1, H.shape[0])), rho, margin)
+    N = H.shape[0]
+    P, kappa = cp.Variable((N, N), symmetric=True), cp.Variable()
+    constraints = [
+        _sym(P @ (H + rho * G)) << -margin * P,
+        _sym(P @ G) >> margin * P,
+        P >> np.eye(N),
+        P << kappa * np.eye(N),
+    ]
     _solve(cp.Problem(cp.Minimize(kappa), constraints), rho, "certificate of a given gain")
     return 0.5 * (P.value + P.value.T)
