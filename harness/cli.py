@@ -3,10 +3,11 @@
 - ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
   bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
   the plots into DIR. ``--seeds N`` runs N seeds and averages the figures.
-- ``paper --out DIR``: the main job. Builds the pendulum FMUs (build_fmu.py's machinery; the
-  paper's published gains, or ``--design spec`` for our design of the spec) into
-  ``DIR/fmus``, runs the three paper scenarios (the noisy one over 5 seeds) into
-  ``DIR/<scenario>/`` and prints a table of the summary figures.
+- ``paper --out DIR``: the main job. For each design (``--design both``, the default: our design
+  of examples/pendulum.toml, label ``ours``, and the paper's published gains, label ``paper``)
+  builds the pendulum FMUs (build_fmu.py's machinery) into ``DIR/<label>/fmus``, runs the three
+  paper scenarios (the noisy one over 5 seeds) into ``DIR/<label>/<scenario>/`` and prints one
+  table of the summary figures.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 """
 
@@ -91,9 +92,9 @@ def _parser() -> argparse.ArgumentParser:
     paper.add_argument("--out", type=Path, default=Path("results"), help="results folder")
     paper.add_argument(
         "--design",
-        choices=("paper", "spec"),
-        default="paper",
-        help="paper: the published gains; spec: our design of --spec",
+        choices=("both", "spec", "paper"),
+        default="both",
+        help="spec: our design of --spec (label ours); paper: the published gains; both",
     )
     paper.add_argument(
         "--spec", type=Path, default=PENDULUM_SPEC, help="plant spec (--design spec)"
@@ -221,18 +222,26 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     return out
 
 
+DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
+
+
 def _cmd_paper(args: argparse.Namespace) -> int:
-    fmu_dir = build_paper_fmus(args.out / "fmus", args.design, args.spec)
-    table = {}
-    for name in PAPER_SCENARIOS:
-        spec = load_scenario(name, fmu_dir, args.block_cache)
-        n = PAPER_SEEDS.get(name)
-        seeds = list(range(n)) if n else None
-        print(f"running {name}" + (f" ({n} seeds)" if n else ""), flush=True)
-        table[name] = run_scenario(spec, args.out / name, args.stop_time, seeds, args.jobs)
+    designs = ("spec", "paper") if args.design == "both" else (args.design,)
+    table, folders = {}, {}
+    for design in designs:
+        label = DESIGN_LABELS[design]
+        fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec)
+        for name in PAPER_SCENARIOS:
+            spec = load_scenario(name, fmu_dir, args.block_cache)
+            n = PAPER_SEEDS.get(name)
+            seeds = list(range(n)) if n else None
+            print(f"running {label} {name}" + (f" ({n} seeds)" if n else ""), flush=True)
+            key = f"{label} {name}"
+            folders[key] = args.out / label / name
+            table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs)
     print(format_table(table))
-    for name, data in table.items():
-        print(f"{name}: {args.out / name} (plots: {', '.join(data.get('plots', []))})")
+    for key, data in table.items():
+        print(f"{key}: {folders[key]} (plots: {', '.join(data.get('plots', []))})")
     return 0
 
 
