@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import fmu_fixtures
 import numpy as np
-import pytest
 from fhobs.plant import LTIPlant
 from fhobs.runtime import SCHEMES, FilteringObserver
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
@@ -133,7 +132,6 @@ def test_fmpy_coupled_loop_equals_in_process(open_fmu, tuned_gains):
 
 
 def test_libcosim_coupled_loop_equals_in_process(pendulum_fmus, tuned_gains, tmp_path):
-    pytest.importorskip("libcosimpy")
     x_ref, z_ref = in_process_loop(tuned_gains)
     x_cosim, z_cosim = libcosim_loop(pendulum_fmus, tmp_path / "blocks", tuned_gains)
     np.testing.assert_allclose(x_cosim, x_ref, rtol=0, atol=1e-9)
@@ -175,7 +173,6 @@ def ecos_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_ecos_coupled_loop_equals_in_process(pendulum_fmus, tuned_gains, tmp_path):
-    pytest.importorskip("ecospy", exc_type=ImportError)
     x_ref, z_ref = in_process_loop(tuned_gains)
     x_ecos, z_ecos = ecos_loop(pendulum_fmus, tmp_path / "blocks", tuned_gains)
     np.testing.assert_allclose(x_ecos, x_ref, rtol=0, atol=1e-9)
