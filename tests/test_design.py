@@ -164,7 +164,7 @@ def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
 
     monkeypatch.setattr(fhobs.design, "solve_gain_lmi", corrupted)
     with pytest.raises(CertificateError, match="lmi_filtering"):
-        design_observer(pendulum_spec)
+        design_observer(dataclasses.replace(pendulum_spec, filter_scale=1.0))
 
 
 def test_build_fmu_design_only_writes_design_json(tmp_path):
@@ -195,3 +195,12 @@ def test_build_fmu_bad_spec_exit_code_and_message(tmp_path):
     assert proc.returncode == 2
     assert "not observable" in proc.stderr and "rank 1" in proc.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_filter_scale_multiplies_l_tilde_and_certifies_at_a_lower_rho(pendulum_spec):
+    base = design_observer(dataclasses.replace(pendulum_spec, filter_scale=1.0))
+    scaled = design_observer(dataclasses.replace(pendulum_spec, filter_scale=2.0))
+    assert np.allclose(scaled.L_tilde, 2.0 * base.L_tilde)
+    assert np.array_equal(scaled.L, base.L)
+    assert pendulum_spec.gamma / 2 < scaled.rho < base.rho == pendulum_spec.rho
+    certify(scaled)

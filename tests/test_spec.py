@@ -43,6 +43,7 @@ def test_defaults_are_documented_values():
     assert spec.n_tilde == 2
     assert spec.nu == pytest.approx(-1 / 3)
     assert (spec.rho, spec.gamma, spec.objective) == (1.5, 2.75, "min_cond")
+    assert spec.filter_scale == 1.0
 
 
 BAD_CASES = [
@@ -68,6 +69,8 @@ BAD_CASES = [
     (("observer", "gamma"), -1.0, r"observer.gamma = -1.0 must be > 0"),
     (("observer", "rho"), 1.0, r"observer.rho = 1.0 must be > gamma/2 = 1.0"),
     (("observer", "objective"), "fastest", r"observer.objective = 'fastest' is not one of"),
+    (("observer", "filter_scale"), 0.5, r"observer.filter_scale = 0.5 must be >= 1"),
+    (("observer", "filter_scale"), "x", r"observer.filter_scale = 'x' is not a number"),
     (("observer", "mu"), 1.0, r"unknown key observer.mu"),
     (("D",), [[0.0]], r"unknown key D"),
     (("L_lin",), [[1.0, 2.0], [3.0, 4.0]], r"L_lin has 2 columns, but C has 1 rows"),

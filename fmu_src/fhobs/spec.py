@@ -13,6 +13,7 @@ Format::
     rho = 1.5                 # LMI decay parameter; default 1.5 (the paper's)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default 2.75 (the paper's)
     objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
+    filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
 
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
@@ -34,7 +35,7 @@ DEFAULT_RHO = 1.5
 DEFAULT_GAMMA = 2.75
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
-OBSERVER_KEYS = ("nu", "rho", "gamma", "objective")
+OBSERVER_KEYS = ("nu", "rho", "gamma", "objective", "filter_scale")
 
 
 class SpecError(ValueError):
@@ -61,6 +62,9 @@ class PlantSpec:
         LMI objective (a key of :data:`fhobs.lmi.OBJECTIVES`).
     source : str
         Where the spec came from (file name), for messages.
+    filter_scale : float
+        Factor (>= 1) applied to the LMI's L_tilde (fast output filter); see
+        :func:`fhobs.design.design_observer`.
     """
 
     A: np.ndarray
@@ -74,6 +78,7 @@ class PlantSpec:
     n_tilde: int
     objective: str
     source: str = "<dict>"
+    filter_scale: float = 1.0
 
 
 def load_spec(path: str | Path) -> PlantSpec:
@@ -149,7 +154,10 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
         raise SpecError(
             f"{source}: observer.objective = {objective!r} is not one of {sorted(OBJECTIVES)}"
         )
-    return PlantSpec(A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source)
+    filter_scale = _scalar(obs, "filter_scale", 1.0, source)
+    if filter_scale < 1.0:
+        raise SpecError(f"{source}: observer.filter_scale = {filter_scale!r} must be >= 1")
+    return PlantSpec(A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale)
 
 
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):
