@@ -9,6 +9,8 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # Pade(13) coefficients and the 1-norm bound theta_13 of Higham, SIAM J. Matrix Anal. Appl. 2005.
@@ -131,6 +133,21 @@ class ExpmFamily:
             self._V = V
             self._Vinv = np.linalg.inv(V)
             self._min_abs_lam = float(np.min(np.abs(lam)))
+            self._last: tuple[float, np.ndarray, np.ndarray] = (math.nan, lam, lam)
+
+    def _spectral_factors(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(exp(tau lam), phi1(tau lam))``; the last tau's are kept (a capped gain level and
+        the level search evaluate one tau repeatedly)."""
+        last_tau, exp_mu, phi_mu = self._last
+        if tau != last_tau:
+            mu = tau * self._lam
+            exp_mu = np.exp(mu)
+            if tau * self._min_abs_lam > _PHI1_SERIES:
+                phi_mu = np.expm1(mu) / mu
+            else:
+                phi_mu = _phi1_scalar(mu)
+            self._last = (tau, exp_mu, phi_mu)
+        return exp_mu, phi_mu
 
     def apply(self, tau: float, r: np.ndarray,
               rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -138,12 +155,7 @@ class ExpmFamily:
         entries only."""
         if self.use_eig:
             c = self._Vinv @ r
-            mu = tau * self._lam
-            exp_mu = np.exp(mu)
-            if tau * self._min_abs_lam > _PHI1_SERIES:
-                phi_mu = np.expm1(mu) / mu
-            else:
-                phi_mu = _phi1_scalar(mu)
+            exp_mu, phi_mu = self._spectral_factors(tau)
             V = self._V[:rows]
             return (V @ (exp_mu * c)).real, (V @ (phi_mu * c)).real
         size = self.R.shape[0]

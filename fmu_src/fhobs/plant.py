@@ -8,6 +8,8 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fhobs.linalg import zoh_blocks
@@ -27,15 +29,21 @@ def as_finite_vector(value: np.ndarray | float, size: int, name: str) -> np.ndar
     vec = np.asarray(value, dtype=float).reshape(-1)
     if vec.size != size:
         raise ValueError(f"{name} must have {size} entries, got {vec.size}")
-    if not np.isfinite(vec).all():
+    if not all_finite(vec):
         raise ValueError(f"{name} must be finite, got {vec}")
     return vec
+
+
+def all_finite(vec: np.ndarray) -> bool:
+    """Whether every entry of a (small) 1-D float array is finite; faster than
+    ``np.isfinite(vec).all()`` for the few entries of a runtime state."""
+    return all(map(math.isfinite, vec.tolist()))
 
 
 def check_step_size(dt: float) -> float:
     """Return dt as a float if it is finite and positive, else raise ValueError."""
     dt = float(dt)
-    if not (np.isfinite(dt) and dt > 0.0):
+    if not (dt > 0.0 and math.isfinite(dt)):
         raise ValueError(f"the step size must be finite and positive, got {dt}")
     return dt
 
@@ -132,7 +140,7 @@ class LTIPlant:
     def y(self) -> np.ndarray:
         """Measured output ``C x_k + eta_k`` at the current step index k."""
         eta = uniform_noise(self.seed, self._k, self.noise_amplitude, self.C.shape[0])
-        return self.C @ self._x + eta
+        return self.C.dot(self._x) + eta
 
     def step(self, u: np.ndarray, q: np.ndarray | None, dt: float) -> None:
         """Advance by dt with u and q held; ``q`` may be None when the plant has no E."""
@@ -144,19 +152,20 @@ class LTIPlant:
             x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
         else:
             Phi, Gamma_B, Gamma_E = self._blocks(dt)
-            x_new = Phi @ self._x + Gamma_B @ u + Gamma_E @ q
-        if not np.isfinite(x_new).all():
+            x_new = Phi.dot(self._x) + Gamma_B.dot(u) + Gamma_E.dot(q)
+        if not all_finite(x_new):
             raise ValueError("the plant state overflowed; state left unchanged")
         self._x = x_new
         self._k += 1
 
     def _blocks(self, dt: float) -> list[np.ndarray]:
-        """ZOH matrices for the step dt (cached per dt)."""
-        if dt not in self._zoh:
+        """ZOH matrices ``[expm(dt A), Gamma_B, Gamma_E]`` for the step dt (cached per dt)."""
+        blocks = self._zoh.get(dt)
+        if blocks is None:
             if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
                 self._zoh.clear()
-            self._zoh[dt] = zoh_blocks(self.A, [self.B, self.E], dt)
-        return self._zoh[dt]
+            blocks = self._zoh[dt] = zoh_blocks(self.A, [self.B, self.E], dt)
+        return blocks
 
     def get_state(self) -> np.ndarray:
         """Full state ``[x, k]`` (a copy; k is exact as a float below 2**53)."""

@@ -57,7 +57,7 @@ import numpy as np
 from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
 from fhobs.linalg import ExpmFamily, zoh_blocks
-from fhobs.plant import ZOH_CACHE_SIZE, as_finite_vector, check_step_size
+from fhobs.plant import ZOH_CACHE_SIZE, all_finite, as_finite_vector, check_step_size
 
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
@@ -110,6 +110,7 @@ class _Observer:
         self.gains = gains
         self.h = check_step_size(h)
         self.scheme = scheme
+        self._k, self._m, self._nu = gains.k, gains.m, gains.nu
         self._z = np.zeros(gains.n) if z0 is None else as_finite_vector(z0, gains.n, "z0")
         self._L_inj = L_inj
         self._zoh: dict[float, list[np.ndarray]] = {}
@@ -129,16 +130,16 @@ class _Observer:
             On invalid y, u or dt, or if the step would make the state non-finite (the state is
             then left unchanged).
         """
-        g = self.gains
         dt = check_step_size(dt)
-        y = as_finite_vector(y, g.k, "y")
-        u = as_finite_vector(u, g.m, "u")
-        n_sub = max(1, int(np.ceil(dt / self.h * (1.0 - 1e-12))))
+        y = as_finite_vector(y, self._k, "y")
+        u = as_finite_vector(u, self._m, "u")
+        n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler
         with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
-            z, aux = run(self._z.copy(), self._aux.copy(), y, u, hs, n_sub)
-        if not (np.isfinite(z).all() and np.isfinite(aux).all()):
+            # the schemes never write into their arguments: the state stays as it was
+            z, aux = run(self._z, self._aux, y, u, hs, n_sub)
+        if not (all_finite(z) and all_finite(aux)):
             raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
                              "state left unchanged")
         self._z, self._aux = z, aux
@@ -160,26 +161,27 @@ class _Observer:
     # -- schemes ----------------------------------------------------------------------------
     def _prediction(self, hs: float) -> list[np.ndarray]:
         """``[expm(hs A), Gamma_B, Gamma_inj]`` (cached per substep size)."""
-        if hs not in self._zoh:
+        blocks = self._zoh.get(hs)
+        if blocks is None:
             if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
                 self._zoh.clear()
             g = self.gains
-            self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
-        return self._zoh[hs]
+            blocks = self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
+        return blocks
 
     def _run_split(self, z, aux, y, u, hs, n_sub, level=None):
         """The split scheme over n_sub substeps (see the module docstring); the gain level is
         the observer's own (capped for the communication step hs * n_sub) unless given."""
         C = self.gains.C
         Phi, _, Gamma_inj = self._prediction(hs)
-        innovation0 = C @ z - y
+        innovation0 = C.dot(z) - y
         v = innovation0
         drift = 0.0  # z - m, m the observer's open-loop model prediction from the step's start
         for i in range(n_sub):
             z, aux, dz, v = self._split_substep(z, aux, v, u, hs, hs * n_sub, level)
             if i + 1 < n_sub:
-                drift = Phi @ (drift + dz) + Gamma_inj @ v
-                v = C @ drift + innovation0
+                drift = Phi.dot(drift + dz) + Gamma_inj.dot(v)
+                v = C.dot(drift) + innovation0
         return z, aux
 
     def _split_substep(self, z, aux, v, u, hs, dt, level=None):
@@ -193,8 +195,8 @@ class _Observer:
             aux, dz = self._correct_own_level(aux, v, hs, dt)
         else:
             aux, dz = self._correct(aux, v, hs, level)
-        v = v + self.gains.C @ dz
-        return Phi @ (z + dz) + Gamma_B @ u + Gamma_inj @ v, aux, dz, v
+        v = v + self.gains.C.dot(dz)
+        return Phi.dot(z + dz) + Gamma_B.dot(u) + Gamma_inj.dot(v), aux, dz, v
 
     def _run_euler(self, z, aux, y, u, hs, n_sub):
         """The paper's explicit Euler over n_sub substeps, y held."""
@@ -295,11 +297,16 @@ class FilteringObserver(_Observer):
         return {"z": self.z, "psi": psi.copy(), "xi": xi, "sigma": self._sigma(self._aux),
                 "sigma_min": self._floor(self.h)}
 
+    @property
+    def sigma(self) -> float:
+        """Current ``sigma = sqrt(max(xi, |psi|^2 / 2))``."""
+        return self._sigma(self._aux)
+
     @staticmethod
     def _sigma(aux: np.ndarray) -> float:
         """``sigma = sqrt(max(xi, |psi|^2 / 2))``."""
-        psi, xi = aux[:-1], aux[-1]
-        return math.sqrt(max(float(xi), 0.5 * float(psi @ psi), 0.0))
+        psi = aux[:-1]
+        return math.sqrt(max(float(aux[-1]), 0.5 * float(psi.dot(psi)), 0.0))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
         """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / dt)^(1/nu)``."""
@@ -333,21 +340,23 @@ class FilteringObserver(_Observer):
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
-        g = self.gains
-        k = g.k
-        psi, xi = aux[:-1], float(aux[-1])
+        k, nu = self._k, self._nu
+        psi, xi = aux[:k], float(aux[k])
         log_s = math.log(level)
-        tau = hs * math.exp(g.nu * log_s)
-        r_hat = np.concatenate([psi / level, v * math.exp(-(1.0 + g.nu) * log_s)])
+        tau = hs * math.exp(nu * log_s)
+        r_hat = np.concatenate((psi / level, v * math.exp(-(1.0 + nu) * log_s)))
         exp_r, phi_r = self._R.apply(tau, r_hat, rows=k)
-        psi_new = level * exp_r
+        aux_new = np.empty(k + 1)
+        psi_new = np.multiply(level, exp_r, out=aux_new[:k])
         dz = tau * self._dilation.apply(log_s, phi_r)
-        return np.append(psi_new, self._xi_update(psi, psi_new, xi, hs)), dz
+        aux_new[k] = self._xi_update(psi, psi_new, xi, hs)
+        return aux_new, dz
 
     def _xi_update(self, psi: np.ndarray, psi_new: np.ndarray, xi: float, hs: float) -> float:
         """xi: ``|psi^T dpsi/dt|`` integrated as ``|Delta |psi|^2/2|``, then the exact decay of
         ``w = xi - |psi|^2/2`` under ``-gamma floor(w)^(nu/2+1)``."""
-        half_old, half_new = 0.5 * psi @ psi, 0.5 * psi_new @ psi_new
+        # 0.5 * (p . p) is bit for bit (0.5 p) . p: scaling by 2^-1 is exact
+        half_old, half_new = 0.5 * float(psi.dot(psi)), 0.5 * float(psi_new.dot(psi_new))
         w = xi + abs(half_new - half_old) - half_new
         return signed_power_decay(w, self.gains.gamma, self._p, hs) + half_new
 

@@ -37,5 +37,5 @@ class FhobsLuenberger(ObserverSlave):
             z0=self.array("z0"),
         )
 
-    def _model_outputs(self) -> dict[str, object]:
-        return {"x_hat": self.model.z}
+    def _model_outputs(self) -> np.ndarray:
+        return self.model.z

@@ -50,11 +50,8 @@ class FhobsObserver(ObserverSlave):
             xi0=float(self.array("xi0")),
         )
 
-    def _model_outputs(self) -> dict[str, object]:
-        diagnostics = self.model.diagnostics()
-        return {
-            "x_hat": self.model.z,
-            "psi": diagnostics["psi"],
-            "xi": diagnostics["xi"],
-            "sigma": diagnostics["sigma"],
-        }
+    def _model_outputs(self) -> np.ndarray:
+        """``[psi, xi, sigma, x_hat]`` (declaration order); the model state is ``[z, psi, xi]``."""
+        state = self.model.get_state()
+        n = self.design.n
+        return np.concatenate((state[n:], (self.model.sigma,), state[:n]))

@@ -69,5 +69,6 @@ class FhobsPlant(FhobsSlave):
     def _advance(self, step_size: float) -> None:
         self.model.step(self.array("u"), self._perturbation(), step_size)
 
-    def _model_outputs(self) -> dict[str, object]:
-        return {"y": self.model.y, "x": self.model.x}
+    def _model_outputs(self) -> np.ndarray:
+        """``[y, x]`` (declaration order)."""
+        return np.concatenate((self.model.y, self.model.x))

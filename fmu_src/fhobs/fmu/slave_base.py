@@ -7,6 +7,11 @@ re-checks the parameters at ``exitInitializationMode``, validates the inputs of 
 captures the complete state (parameters, inputs, the numpy model's internal state) for
 ``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``.
 
+Speed. All Real variables live in one flat float buffer (each array variable is a view of its
+slice), so ``fmi2GetReal`` / ``fmi2SetReal`` are one fancy-indexing operation on it (the index
+array of a list of value references is cached), and ``doStep`` checks the inputs and the outputs
+as whole vectors; element labels are only formatted to describe a rejected call.
+
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
 ``fmi2Discard``. The slave therefore records the status of its last call in the Integer
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 from abc import abstractmethod
 from collections.abc import Iterator
@@ -51,6 +57,15 @@ _KINDS: dict[str, dict[str, Any]] = {
         "initial": Fmi2Initial.exact,
     },
 }
+
+
+INDEX_CACHE_SIZE = 64
+"""Cached index arrays of lists of value references (cleared when it holds this many)."""
+
+
+def _concat_index(ranges: list[np.ndarray]) -> np.ndarray:
+    """Concatenated buffer positions (an empty int array for no ranges)."""
+    return np.concatenate(ranges) if ranges else np.zeros(0, dtype=np.intp)
 
 
 class SlaveModel(Protocol):
@@ -101,6 +116,7 @@ class FhobsSlave(Fmi2Slave):
         self.config: dict[str, Any] = json.loads((resources / CONFIG_FILE).read_text())
         self._status_via_wrapper = bool(self.config["status_wrapper"]) and sys.platform == "linux"
         self._arrays: dict[str, np.ndarray] = {}
+        self._first_vr: dict[str, int] = {}
         self._integers: dict[str, int] = {}
         self._kinds: dict[str, list[str]] = {kind: [] for kind in _KINDS}
         self.status = STATUS_OK
@@ -118,6 +134,7 @@ class FhobsSlave(Fmi2Slave):
             "input_bound", float(self.config["input_bound"]), "parameter",
             "inputs of larger magnitude are rejected as absurd",
         )
+        self._pack_arrays()
         self._ready = False
         self.model: SlaveModel = self._make_model()
         self._publish()
@@ -137,6 +154,7 @@ class FhobsSlave(Fmi2Slave):
         """
         array = np.array(value, dtype=float)
         self._arrays[name] = array
+        self._first_vr[name] = len(self.vars)
         self._kinds[kind].append(name)
         labels = element_names(name, array.shape)
         for index, label in zip(np.ndindex(*array.shape), labels, strict=True):
@@ -149,6 +167,54 @@ class FhobsSlave(Fmi2Slave):
                     **_KINDS[kind],
                 )
             )
+
+    def _pack_arrays(self) -> None:
+        """Move every array variable into one flat buffer (each array becomes a view of it) and
+        precompute the value-reference -> buffer-position map and the input/output positions."""
+        self._values = np.zeros(sum(a.size for a in self._arrays.values()))
+        self._position: dict[int, int] = {}
+        ranges: dict[str, np.ndarray] = {}
+        start = 0
+        for name, array in self._arrays.items():
+            view = self._values[start:start + array.size].reshape(array.shape)
+            view[...] = array
+            self._arrays[name] = view
+            ranges[name] = np.arange(start, start + array.size)
+            first = self._first_vr[name]
+            self._position.update({first + i: start + i for i in range(array.size)})
+            start += array.size
+        self._input_index = _concat_index([ranges[n] for n in self._kinds["input"]])
+        self._output_index = _concat_index([ranges[n] for n in self._kinds["output"]])
+        self._bound = self._arrays["input_bound"]
+        self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
+
+    def _index(self, vrs: list[int]) -> np.ndarray:
+        """Buffer positions of the Real variables ``vrs`` (cached per list of references).
+
+        Raises
+        ------
+        TypeError
+            If a value reference is not that of a Real variable (as pythonfmu does).
+        """
+        key = tuple(vrs)
+        index = self._index_cache.get(key)
+        if index is None:
+            missing = [vr for vr in key if vr not in self._position]
+            if missing:
+                raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!")
+            if len(self._index_cache) >= INDEX_CACHE_SIZE:
+                self._index_cache.clear()
+            index = self._index_cache[key] = np.array([self._position[vr] for vr in key],
+                                                      dtype=np.intp)
+        return index
+
+    def get_real(self, vrs: list[int]) -> list[float]:
+        """Values of the Real variables ``vrs`` (one read of the flat buffer)."""
+        return self._values[self._index(vrs)].tolist()
+
+    def set_real(self, vrs: list[int], values: list[float]) -> None:
+        """Set the Real variables ``vrs`` (one write into the flat buffer)."""
+        self._values[self._index(vrs)] = values
 
     def add_integer(self, name: str, value: int, description: str) -> None:
         """Register an Integer parameter."""
@@ -207,8 +273,8 @@ class FhobsSlave(Fmi2Slave):
         self.status = STATUS_OK
         if not self._ready:
             return self._fail("doStep called without a successful initialisation")
-        problem = self._input_problem(step_size)
-        if problem:
+        if not self._inputs_valid(step_size):
+            problem = self._input_problem(step_size)
             return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
         saved = self.model.get_state()
         try:
@@ -217,7 +283,7 @@ class FhobsSlave(Fmi2Slave):
         except ValueError as err:
             self.model.set_state(saved)
             return self._fail(f"doStep at t = {current_time!r} rejected: {err}")
-        self._store_outputs(outputs)
+        self._values[self._output_index] = outputs
         return True
 
     def _check_finite_parameters(self) -> None:
@@ -233,6 +299,13 @@ class FhobsSlave(Fmi2Slave):
         self.log(message, Fmi2Status.error)
         return False
 
+    def _inputs_valid(self, step_size: float) -> bool:
+        """Fast check of the step size and of all inputs at once (see :meth:`_input_problem`)."""
+        values = self._values[self._input_index].tolist()
+        return (step_size > 0.0 and math.isfinite(step_size)
+                and all(map(math.isfinite, values))
+                and max(map(abs, values), default=0.0) <= float(self._bound))
+
     def _input_problem(self, step_size: float) -> str:
         """Describe what is wrong with the step size or the inputs ('' when nothing is)."""
         if not (np.isfinite(step_size) and step_size > 0.0):
@@ -246,21 +319,20 @@ class FhobsSlave(Fmi2Slave):
                     return f"input {label} = {value!r} exceeds input_bound = {bound!r}"
         return ""
 
-    def _finite_outputs(self) -> dict[str, np.ndarray]:
-        """The model's outputs as arrays; ValueError if one is not finite."""
-        outputs = {name: np.asarray(v, dtype=float) for name, v in self._model_outputs().items()}
-        for name, value in outputs.items():
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f"the model produced a non-finite output {name} = {value}")
+    def _finite_outputs(self) -> np.ndarray:
+        """The model's outputs (flat, in declaration order); ValueError if one is not finite."""
+        outputs = self._model_outputs()
+        if not all(map(math.isfinite, outputs.tolist())):
+            labels = [label for name in self._kinds["output"]
+                      for label in element_names(name, self._arrays[name].shape)]
+            bad = {label: value for label, value in zip(labels, outputs.tolist(), strict=True)
+                   if not math.isfinite(value)}
+            raise ValueError(f"the model produced non-finite outputs {bad}")
         return outputs
-
-    def _store_outputs(self, outputs: dict[str, np.ndarray]) -> None:
-        for name, value in outputs.items():
-            self._arrays[name][...] = value
 
     def _publish(self) -> None:
         """Copy the model's outputs to the output variables."""
-        self._store_outputs(self._finite_outputs())
+        self._values[self._output_index] = self._finite_outputs()
 
     # -- FMU state -----------------------------------------------------------------------
     def _get_fmu_state(self) -> dict[str, Any]:
@@ -275,7 +347,7 @@ class FhobsSlave(Fmi2Slave):
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`_get_fmu_state` (possibly of another instance)."""
         for name, value in state["arrays"].items():
-            self._arrays[name] = np.array(value, dtype=float)
+            self._arrays[name][...] = value
         self._integers.update(state["integers"])
         self.model = self._make_model()
         self.model.set_state(np.array(state["model"], dtype=float))
@@ -300,8 +372,8 @@ class FhobsSlave(Fmi2Slave):
         """Step the model by ``step_size`` with the current inputs."""
 
     @abstractmethod
-    def _model_outputs(self) -> dict[str, Any]:
-        """Map each output array name to the model's current value."""
+    def _model_outputs(self) -> np.ndarray:
+        """The model's current outputs, flat, in the order the output arrays were declared."""
 
 
 class ObserverSlave(FhobsSlave):
