@@ -108,7 +108,9 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior)
 {
-    return recorded(c, ((fmi2DoStepTYPE *)impl("fmi2DoStep"))(c, t, h, noSetPrior));
+    /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
+    fmi2Status returned = ((fmi2DoStepTYPE *)impl("fmi2DoStep"))(c, t, h, noSetPrior);
+    return returned == fmi2OK ? returned : recorded(c, returned);
 }
 
 FORWARD(fmi2SetDebugLogging, (fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cat[]),
