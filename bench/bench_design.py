@@ -14,7 +14,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from fhobs.design import design_observer
 from fhobs.homogenisation import homogenise
 from fhobs.spec import PlantSpec, load_spec, spec_from_dict
