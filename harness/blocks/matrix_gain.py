@@ -25,9 +25,11 @@ class MatrixGain(Fmi2Slave):
         self.inputs = [0.0] * n_inputs
         for i in range(n_outputs):
             for j in range(n_inputs):
-                self._register_entry(i, j)
+                self._register_element(f"K[{i + 1},{j + 1}]", self.gain[i], j,
+                                       Fmi2Causality.parameter, Fmi2Variability.tunable)
         for j in range(n_inputs):
-            self._register_input(j)
+            self._register_element(f"u[{j + 1}]", self.inputs, j,
+                                   Fmi2Causality.input, Fmi2Variability.continuous)
         for i in range(n_outputs):
             self.register_variable(
                 Real(
@@ -39,34 +41,20 @@ class MatrixGain(Fmi2Slave):
                 )
             )
 
-    def _register_entry(self, i: int, j: int) -> None:
-        row = self.gain[i]
+    def _register_element(
+        self, name: str, store: list[float], index: int, causality, variability
+    ) -> None:
+        """Register ``store[index]`` as the Real variable ``name``."""
 
         def setter(v: float) -> None:
-            row[j] = float(v)
+            store[index] = float(v)
 
         self.register_variable(
             Real(
-                f"K[{i + 1},{j + 1}]",
-                causality=Fmi2Causality.parameter,
-                variability=Fmi2Variability.tunable,
-                getter=lambda: row[j],
-                setter=setter,
-            )
-        )
-
-    def _register_input(self, j: int) -> None:
-        inputs = self.inputs
-
-        def setter(v: float) -> None:
-            inputs[j] = float(v)
-
-        self.register_variable(
-            Real(
-                f"u[{j + 1}]",
-                causality=Fmi2Causality.input,
-                variability=Fmi2Variability.continuous,
-                getter=lambda: inputs[j],
+                name,
+                causality=causality,
+                variability=variability,
+                getter=lambda: store[index],
                 setter=setter,
             )
         )
