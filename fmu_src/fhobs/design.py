@@ -45,7 +45,7 @@ from .lmi import (
 )
 from .spec import PlantSpec, spec_from_dict
 
-RHO_BISECTION_TOL = 1e-3
+RHO_BISECTION_TOL = 2e-2
 """Relative tolerance of the certified rho found for a design with filter_scale != 1."""
 PAPER_REFERENCE = Path(__file__).resolve().parents[2] / "examples" / "pendulum-paper.json"
 

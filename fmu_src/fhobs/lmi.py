@@ -61,6 +61,7 @@ coordinates; the objectives are the same functions of P_t and Y~, measured in T 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -273,11 +274,13 @@ def _sym(M: cp.Expression) -> cp.Expression:
 def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
     """Solve with Clarabel; return the solve time or raise LMIError.
 
-    An ``optimal_inaccurate`` result is kept: the numpy certificate, not the solver's
-    status, decides whether it is used.
+    An ``optimal_inaccurate`` result is kept (cvxpy's warning about it is silenced): the numpy
+    certificate, not the solver's status, decides whether it is used.
     """
     try:
-        problem.solve(solver=cp.CLARABEL, **SOLVER_OPTIONS)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+            problem.solve(solver=cp.CLARABEL, **SOLVER_OPTIONS)
     except cp.SolverError as exc:
         raise LMIError(f"Clarabel failed (rho = {rho}, objective {objective}): {exc}") from exc
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
