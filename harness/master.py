@@ -81,11 +81,35 @@ class _Slave:
     out_vr: ctypes.Array
     out_buf: ctypes.Array
 
+    @property
+    def comp(self) -> ctypes.c_void_p:
+        """The component pointer as a ctypes object."""
+        return ctypes.c_void_p(self.fmu.component)
+
+    @property
+    def in_n(self) -> ctypes.c_size_t:
+        return ctypes.c_size_t(len(self.in_vr))
+
+    @property
+    def out_n(self) -> ctypes.c_size_t:
+        return ctypes.c_size_t(len(self.out_vr))
+
 
 def _status(status: int, slave: str, call: str, t: float) -> None:
     if status > FMI2_WARNING:
         label = STATUS_LABELS[status] if 0 <= status < len(STATUS_LABELS) else "illegal"
         raise MasterError(f"{slave}: {call} at t = {t!r} returned {status} ({label})")
+
+
+def _raw(slave: _Slave, function: str) -> ctypes._CFuncPtr:
+    """``function`` of the slave's library as a bare entry point: argtypes unset (the caller
+    passes ctypes objects only, so nothing is converted), ``int`` status, and the GIL kept
+    during the call (``PyDLL``), which spares a Python-based FMU's own ``PyGILState_Ensure``
+    from re-acquiring it. An exception left set by the FMU is raised after the call."""
+    dll = slave.fmu.dll
+    entry = ctypes.PyDLL(dll._name, handle=dll._handle)[function]
+    entry.restype = ctypes.c_int
+    return entry
 
 
 def _vrs(values: list[int]) -> ctypes.Array:
@@ -192,27 +216,36 @@ class Master:
         inputs: np.ndarray,
         matrix: np.ndarray,
     ) -> None:
-        """Steps ``k_from .. k_to - 1`` with inputs ``matrix @ outputs``: the hot loop."""
-        matmul = np.matmul
+        """Steps ``k_from .. k_to - 1`` with inputs ``matrix @ outputs``: the hot loop.
+
+        The C functions are called through :func:`_raw` entry points (GIL kept, no argtypes)
+        with every argument already a ctypes object; only the time changes from step to step,
+        written into one ``c_double``.
+        """
+        gather = matrix.dot  # for a small matrix much cheaper than np.matmul, and bit-identical
+        t_c = ctypes.c_double(0.0)
+        h_c = ctypes.c_double(h)
+        no_set_prior = ctypes.c_int(1)
         setters = [
-            (s.fmu.dll.fmi2SetReal, s.fmu.component, s.in_vr, len(s.in_vr), s.in_buf, s.name)
+            (_raw(s, "fmi2SetReal"), s.comp, s.in_vr, s.in_n, s.in_buf, s.name)
             for s in slaves
             if len(s.in_vr)
         ]
-        steppers = [(s.fmu.dll.fmi2DoStep, s.fmu.component, s.name) for s in slaves]
+        steppers = [(_raw(s, "fmi2DoStep"), s.comp, s.name) for s in slaves]
         getters = [
-            (s.fmu.dll.fmi2GetReal, s.fmu.component, s.out_vr, len(s.out_vr), s.out_buf, s.name)
+            (_raw(s, "fmi2GetReal"), s.comp, s.out_vr, s.out_n, s.out_buf, s.name)
             for s in slaves
             if len(s.out_vr)
         ]
         for k in range(k_from, k_to):
             t = t0 + k * h
-            matmul(matrix, outputs, out=inputs)
+            t_c.value = t
+            gather(outputs, out=inputs)
             for set_real, comp, vr, n, buf, name in setters:
                 if status := set_real(comp, vr, n, buf):
                     _status(status, name, "fmi2SetReal", t)
             for do_step, comp, name in steppers:
-                if status := do_step(comp, t, h, 1):
+                if status := do_step(comp, t_c, h_c, no_set_prior):
                     _status(status, name, "fmi2DoStep", t)
             for get_real, comp, vr, n, buf, name in getters:
                 if status := get_real(comp, vr, n, buf):

@@ -33,6 +33,14 @@ static void *impl(const char *name)
     return f;
 }
 
+/* The entry point ``name`` of pythonfmu's library, looked up once (a benign race: every thread
+ * that looks it up stores the same pointer). */
+#define IMPL(name) \
+    static name##TYPE *name##_impl = NULL; \
+    if (name##_impl == NULL) { \
+        name##_impl = (name##TYPE *)impl(#name); \
+    }
+
 __attribute__((constructor)) static void load_impl(void)
 {
     Dl_info info;
@@ -69,14 +77,15 @@ static fmi2Status recorded(fmi2Component c, fmi2Status returned)
     }
     const fmi2ValueReference vr = FHOBS_STATUS_VR;
     fmi2Integer status = fmi2OK;
-    if (((fmi2GetIntegerTYPE *)impl("fmi2GetInteger"))(c, &vr, 1, &status) != fmi2OK) {
+    IMPL(fmi2GetInteger)
+    if (fmi2GetInteger_impl(c, &vr, 1, &status) != fmi2OK) {
         return returned;
     }
     return status > (fmi2Integer)returned ? (fmi2Status)status : returned;
 }
 
 #define FORWARD(name, params, args) \
-    fmi2Status name params { return ((name##TYPE *)impl(#name)) args; }
+    fmi2Status name params { IMPL(name) return name##_impl args; }
 
 const char *fmi2GetTypesPlatform(void)
 {
@@ -103,13 +112,15 @@ void fmi2FreeInstance(fmi2Component c)
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
-    return recorded(c, ((fmi2ExitInitializationModeTYPE *)impl("fmi2ExitInitializationMode"))(c));
+    IMPL(fmi2ExitInitializationMode)
+    return recorded(c, fmi2ExitInitializationMode_impl(c));
 }
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior)
 {
     /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
-    fmi2Status returned = ((fmi2DoStepTYPE *)impl("fmi2DoStep"))(c, t, h, noSetPrior);
+    IMPL(fmi2DoStep)
+    fmi2Status returned = fmi2DoStep_impl(c, t, h, noSetPrior);
     return returned == fmi2OK ? returned : recorded(c, returned);
 }
 
