@@ -41,9 +41,6 @@ class FhobsPlant(FhobsSlave):
         self.add_array("y", np.zeros(design.k), "output", "measured output C x + noise")
         self.add_array("x", np.zeros(design.n), "output", "true state")
 
-    def _perturbation(self) -> np.ndarray:
-        return self.array("q") if "q" in self._arrays else np.zeros(0)
-
     def _scheme_name(self) -> str:
         index = self.integer("scheme")
         if not 0 <= index < len(PLANT_SCHEMES):
@@ -67,7 +64,9 @@ class FhobsPlant(FhobsSlave):
         )
 
     def _advance(self, step_size: float) -> None:
-        self.model.step(self.array("u"), self._perturbation(), step_size)
+        inputs = self._input_views
+        q = inputs["q"].copy() if "q" in inputs else np.zeros(0)
+        self.model.step(inputs["u"].copy(), q, step_size)
 
     def _model_outputs(self) -> np.ndarray:
         """``[y, x]`` (declaration order)."""

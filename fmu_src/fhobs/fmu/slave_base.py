@@ -63,9 +63,13 @@ INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
 
 
-def _concat_index(ranges: list[np.ndarray]) -> np.ndarray:
-    """Concatenated buffer positions (an empty int array for no ranges)."""
-    return np.concatenate(ranges) if ranges else np.zeros(0, dtype=np.intp)
+def _concat_index(ranges: list[np.ndarray]) -> np.ndarray | slice:
+    """Concatenated buffer positions: a slice when they are consecutive (indexing with it is
+    a view, cheaper than fancy indexing), else an int array."""
+    index = np.concatenate(ranges) if ranges else np.zeros(0, dtype=np.intp)
+    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
+        return slice(int(index[0]), int(index[0]) + index.size)
+    return index
 
 
 class SlaveModel(Protocol):
@@ -186,6 +190,7 @@ class FhobsSlave(Fmi2Slave):
         self._input_index = _concat_index([ranges[n] for n in self._kinds["input"]])
         self._output_index = _concat_index([ranges[n] for n in self._kinds["output"]])
         self._bound = self._arrays["input_bound"]
+        self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
         self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
 
     def _index(self, vrs: list[int]) -> np.ndarray:
@@ -269,19 +274,35 @@ class FhobsSlave(Fmi2Slave):
         self._publish()
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        """Advance by ``step_size`` with the inputs held; reject invalid calls, state kept."""
+        """Advance by ``step_size`` with the inputs held; reject invalid calls, state kept.
+
+        The path of a valid step is kept short (it runs once per FMU and communication step):
+        the inputs are checked as one list, and the state before the step is kept as a shallow
+        copy of the model's attributes rather than through ``get_state``: a runtime step never
+        writes into its state arrays, it replaces them (and leaves them as they were when it
+        raises), so those references are the complete state before the step. They are put
+        back if the new outputs are not finite.
+        """
         self.status = STATUS_OK
         if not self._ready:
             return self._fail("doStep called without a successful initialisation")
-        if not self._inputs_valid(step_size):
+        inputs = self._values[self._input_index].tolist()
+        if not (step_size > 0.0 and math.isfinite(step_size)
+                and all(map(math.isfinite, inputs))
+                and max(map(abs, inputs), default=0.0) <= self._bound.item()):
             problem = self._input_problem(step_size)
             return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
-        saved = self.model.get_state()
+        attributes = self.model.__dict__
+        saved = attributes.copy()
         try:
             self._advance(step_size)
-            outputs = self._finite_outputs()
+            outputs = self._model_outputs()
+            if not all(map(math.isfinite, outputs.tolist())):
+                self._finite_outputs()  # raises, naming them
+                raise ValueError("the model produced non-finite outputs")
         except ValueError as err:
-            self.model.set_state(saved)
+            attributes.clear()
+            attributes.update(saved)
             return self._fail(f"doStep at t = {current_time!r} rejected: {err}")
         self._values[self._output_index] = outputs
         return True
@@ -298,13 +319,6 @@ class FhobsSlave(Fmi2Slave):
         self.status = STATUS_ERROR
         self.log(message, Fmi2Status.error)
         return False
-
-    def _inputs_valid(self, step_size: float) -> bool:
-        """Fast check of the step size and of all inputs at once (see :meth:`_input_problem`)."""
-        values = self._values[self._input_index].tolist()
-        return (step_size > 0.0 and math.isfinite(step_size)
-                and all(map(math.isfinite, values))
-                and max(map(abs, values), default=0.0) <= float(self._bound))
 
     def _input_problem(self, step_size: float) -> str:
         """Describe what is wrong with the step size or the inputs ('' when nothing is)."""
@@ -414,7 +428,8 @@ class ObserverSlave(FhobsSlave):
         self._check_gains()
 
     def _advance(self, step_size: float) -> None:
-        self.model.step(self.array("y"), self.array("u"), step_size)
+        inputs = self._input_views
+        self.model.step(inputs["y"].copy(), inputs["u"].copy(), step_size)
 
     @abstractmethod
     def _declare_gains(self) -> None:
