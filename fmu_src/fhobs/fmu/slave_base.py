@@ -73,14 +73,19 @@ def _concat_index(ranges: list[np.ndarray]) -> np.ndarray | slice:
 
 
 class SlaveModel(Protocol):
-    """What the base class needs from a runtime object (observer or plant)."""
+    """What the base class needs from a runtime object (observer or plant).
+
+    Its ``step`` must replace the arrays that hold the state, never write into them, and leave
+    them as they were when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
+    :meth:`FhobsSlave.do_step` keeps the state before a step as the references in the model's
+    ``__dict__``.
+    """
 
     def get_state(self) -> np.ndarray:
         """Return the complete internal state as a flat float array (a copy)."""
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state returned by :meth:`get_state`."""
-
 
 def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
     """FMI names of the elements of an array, row-major, 1-based (``A[1,1]``, ``A[1,2]``...).
@@ -193,8 +198,9 @@ class FhobsSlave(Fmi2Slave):
         self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
         self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
 
-    def _index(self, vrs: list[int]) -> np.ndarray:
-        """Buffer positions of the Real variables ``vrs`` (cached per list of references).
+    def _index(self, vrs: list[int]) -> np.ndarray | slice:
+        """Buffer positions of the Real variables ``vrs`` (cached per list of references; a
+        slice when they are consecutive, as a master's inputs and outputs usually are).
 
         Raises
         ------
@@ -209,8 +215,8 @@ class FhobsSlave(Fmi2Slave):
                 raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!")
             if len(self._index_cache) >= INDEX_CACHE_SIZE:
                 self._index_cache.clear()
-            index = self._index_cache[key] = np.array([self._position[vr] for vr in key],
-                                                      dtype=np.intp)
+            positions = np.array([self._position[vr] for vr in key], dtype=np.intp)
+            index = self._index_cache[key] = _concat_index([positions])
         return index
 
     def get_real(self, vrs: list[int]) -> list[float]:
