@@ -407,3 +407,36 @@ def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_gains, tmp_path):
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "11"
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+def test_overflowing_step_is_rolled_back(open_fmu, tuned_gains):
+    """A step whose new outputs are not finite (y = C x overflows) is an fmi2Error; outputs and
+    the serialized FMU state stay exactly as before the call (the slaves' rollback)."""
+    C = tuned_gains.C.copy()
+    C[0, 0] = 1.7e308
+    driver = open_fmu("plant")
+    driver.start({"C": C, "x0": np.ones(tuned_gains.n)})
+    outputs = [*names("y", (tuned_gains.k,)), *names("x", (tuned_gains.n,))]
+    refs = [driver.vr[name] for name in outputs]
+    for k in range(100):
+        before, state = driver.fmu.getReal(refs), serialized_state(driver)
+        try:
+            driver.fmu.doStep(k * 1e-2, 1e-2)
+        except FMICallException as err:
+            assert err.status == FMI_ERROR
+            break
+    else:
+        pytest.fail("the plant output never overflowed")
+    assert k > 0  # some steps succeeded before the overflow
+    assert driver.messages[-1][0] == FMI_ERROR
+    assert driver.fmu.getReal(refs) == before
+    assert serialized_state(driver) == state
+
+
+def serialized_state(driver) -> bytes:
+    """The instance's serialized FMU state (the state object freed again)."""
+    state = driver.fmu.getFMUstate()
+    data = bytes(driver.fmu.serializeFMUstate(state))
+    driver.fmu.freeFMUstate(state)
+    return data
