@@ -2,9 +2,8 @@
 accuracy targets of the runtime (issue 3) on the paper's three scenarios.
 
 The targets are asserted for the default configuration of the pendulum example (our tuned
-gains, default scheme). The noisy target (RMS <= 1.5e-2, >= 25x below linear) is not reached
-by any certified design we found (best: 2.74e-2, 15.9x; see the README); the noisy tests assert
-what is reached, and that it beats the paper's gains in the same runs."""
+gains with the disturbance model of order 1, default scheme); the paper's gains are run beside
+them in the same runs."""
 
 import numpy as np
 import pytest
@@ -92,14 +91,25 @@ def test_perturbation_is_rejected_after_convergence(paper_runs):  # the paper's 
     assert np.max(r.error[mask]) < 1e-3 < 1e-1 < np.max(r.error_lin[mask])
 
 
-def test_noisy_reached_level_and_beats_paper(tuned_runs, paper_runs):
-    """Mean over 5 seeds of the RMS of norm(x - z) over [1, 3]. Issue target: <= 1.5e-2 and
-    >= 25x below linear, NOT reached (measured 2.74e-2, 15.9x); asserted: the reached level,
-    and a lower RMS than the paper's gains in the same runs (measured 3.6e-2, 12x)."""
+def test_noisy_target_and_beats_paper(tuned_runs, paper_runs):
+    """Target: mean over 5 seeds of the RMS of norm(x - z) over [1, 3] <= 1.5e-2 and >= 25x
+    below the linear observer in the same runs (measured 1.13e-2, 38.6x); the paper's gains
+    reach 3.6e-2 (12x)."""
     ours = accuracy_metrics(tuned_runs["perturbed_noisy"], "perturbed_noisy")
     paper = accuracy_metrics(paper_runs["perturbed_noisy"], "perturbed_noisy")
-    assert ours["rms_1_3"] <= 3.0e-2 and ours["ratio"] >= 15.0
-    assert ours["rms_1_3"] < 0.8 * paper["rms_1_3"] and paper["ratio"] > 10.0
+    assert ours["rms_1_3"] <= 1.5e-2 and ours["ratio"] >= 25.0
+    assert ours["rms_1_3"] < 0.5 * paper["rms_1_3"] and paper["ratio"] > 10.0
+
+
+def test_disturbance_estimate_tracks_the_perturbation(tuned_runs):
+    """The model's q state estimates q = 0.1 sin(5 t): max error < 1e-3 over [1, 3] without
+    noise (measured 8.8e-5), rms error < 20 % of the amplitude with noise (measured 12 %)."""
+    r = tuned_runs["perturbed"][0]
+    mask = r.window(1.0, 3.0)
+    q = 0.1 * np.sin(5.0 * r.t[mask])
+    assert np.max(np.abs(r.q_hat[mask, 0] - q)) < 1e-3
+    noisy = tuned_runs["perturbed_noisy"][0]
+    assert np.sqrt(np.mean((noisy.q_hat[mask, 0] - q) ** 2)) < 0.02
 
 
 def test_long_noisy_run_stays_finite_and_bounded(paper_design):

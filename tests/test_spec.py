@@ -71,6 +71,10 @@ BAD_CASES = [
     (("observer", "objective"), "fastest", r"observer.objective = 'fastest' is not one of"),
     (("observer", "filter_scale"), 0.5, r"observer.filter_scale = 0.5 must be >= 1"),
     (("observer", "filter_scale"), "x", r"observer.filter_scale = 'x' is not a number"),
+    (("observer", "disturbance_order"), 1, r"observer.disturbance_order = 1 needs E"),
+    (("observer", "disturbance_order"), 1.0, r"observer.disturbance_order = 1.0 is not an int"),
+    (("observer", "disturbance_order"), True, r"observer.disturbance_order = True is not an int"),
+    (("observer", "disturbance_order"), 4, r"observer.disturbance_order = 4 is outside 0..3"),
     (("observer", "mu"), 1.0, r"unknown key observer.mu"),
     (("D",), [[0.0]], r"unknown key D"),
     (("L_lin",), [[1.0, 2.0], [3.0, 4.0]], r"L_lin has 2 columns, but C has 1 rows"),
@@ -81,6 +85,19 @@ BAD_CASES = [
 def test_bad_spec_names_field(path, value, message):
     with pytest.raises(SpecError, match=message):
         spec_from_dict(with_change(path, value), source="bad.toml")
+
+
+def test_disturbance_model_sets_the_model_index_and_needs_observability():
+    data = with_change(("E",), [[0.0], [1.0]])
+    data["observer"] = {"disturbance_order": 2}
+    spec = spec_from_dict(data)
+    assert (spec.disturbance_order, spec.n_tilde) == (2, 4)  # chain y, dy, q, dq
+    # E = (1, -3): C A^-1 E = 0, a constant q is invisible in y
+    data = with_change(("E",), [[1.0], [-3.0]])
+    data["observer"] = {"disturbance_order": 1}
+    with pytest.raises(SpecError, match=r"disturbance model of order 1 \(A, E, C\) is not "
+                                        r"observable: the observability matrix has rank 2, n = 3"):
+        spec_from_dict(data, source="bad.toml")
 
 
 def test_unobservable_mimo_reports_rank():

@@ -20,6 +20,8 @@ check                         value                                             
 ``hurwitz_luenberger``        max Re eig(A + L_lin C)                                      < 0
 ============================  ===========================================================  =======
 
+The homogeneous observers' figures are of the observer's model (``gains.model``: the plant, or
+its extended-state model of :mod:`fhobs.disturbance`); ``hurwitz_luenberger`` is of the plant.
 sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
 eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
 LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
@@ -53,14 +55,15 @@ def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np
     Returns
     -------
     bar_A0 : numpy.ndarray
-        [[0, C], [0, A0]], (k+n) x (k+n).
+        [[0, C], [0, A0]], (k+n) x (k+n), of the observer's model (``gains.model``).
     bar_G : numpy.ndarray
         diag(I_k, G_d).
     bar_C : numpy.ndarray
         [I_k, 0], k x (k+n).
     """
-    n, k = gains.n, gains.k
-    bar_A0 = np.block([[np.zeros((k, k)), gains.C], [np.zeros((n, k)), gains.A0]])
+    n, k = gains.n_model, gains.k
+    C_model = gains.model[2]
+    bar_A0 = np.block([[np.zeros((k, k)), C_model], [np.zeros((n, k)), gains.A0]])
     bar_G = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), gains.G_d]])
     bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
     return bar_A0, bar_G, bar_C
@@ -73,8 +76,8 @@ def sym(M: np.ndarray) -> np.ndarray:
 
 def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
     """The four homogeneity figures of the table in the module docstring."""
-    A0, G_d, C, nu = gains.A0, gains.G_d, gains.C, gains.nu
-    eye = np.eye(gains.n)
+    A0, G_d, C, nu = gains.A0, gains.G_d, gains.model[2], gains.nu
+    eye = np.eye(gains.n_model)
     a0_norm = max(np.linalg.norm(A0), 1e-300)
     return {
         "homogenisation_residual": float(
@@ -144,8 +147,8 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     bar_A0, bar_G, bar_C = augmented_matrices(gains)
     bar_L = np.vstack([gains.L_tilde, gains.L])
     values |= lmi_values(gains.P_bar, bar_A0 + bar_L @ bar_C, bar_G, gains.rho, "filtering")
-    G_pt = gains.G_d - gains.nu * np.eye(gains.n)
-    values |= lmi_values(gains.P_pt, gains.A0 + gains.L_pt @ gains.C, G_pt, gains.rho, "pt")
+    G_pt = gains.G_d - gains.nu * np.eye(gains.n_model)
+    values |= lmi_values(gains.P_pt, gains.A0 + gains.L_pt @ gains.model[2], G_pt, gains.rho, "pt")
     values["hurwitz_luenberger"] = float(
         np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real)
     )

@@ -33,11 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from .certificate import augmented_matrices, certify
+from .disturbance import extended_model, model_perturbation_matrix
 from .gains import ObserverGains
-from .homogenisation import dilation_basis, homogenise
+from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .lmi import (
     DEFAULT_MARGIN,
-    ChainBasis,
     LMIError,
     certify_gain_lmi,
     chain_basis,
@@ -70,12 +70,23 @@ def matched_perturbation_residual(G_d: np.ndarray, E: np.ndarray, n_tilde: int) 
     return float(np.linalg.norm((n_tilde + 1) * G_d @ E - E) / max(np.linalg.norm(E), 1e-300))
 
 
-def _luenberger_gain(
-    spec: PlantSpec, decay: float, basis: ChainBasis, objective: str, margin: float
-) -> np.ndarray:
+def _chain_levels(
+    A: np.ndarray, C: np.ndarray, nu: float, hom: Homogenisation
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A0 = A + L0 C and the eigenspaces of G_d by weight (the input of :func:`chain_basis`)."""
+    V = dilation_basis(hom.G_d, nu, hom.n_tilde)
+    weights = np.linalg.solve(V, hom.G_d @ V).diagonal()
+    levels = [V[:, np.abs(weights - 1 - (j + 1) * nu) < 1e-6] for j in range(hom.n_tilde)]
+    return A + hom.L0 @ C, levels
+
+
+def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: float) -> np.ndarray:
+    """The spec's L_lin, or the plant's Luenberger LMI (in the plant's chain basis) at ``decay``."""
     if spec.L_lin is not None:
         return spec.L_lin
     n = spec.A.shape[0]
+    A0, levels = _chain_levels(spec.A, spec.C, spec.nu, homogenise(spec.A, spec.C, spec.nu))
+    basis = chain_basis(A0, levels)
     return solve_gain_lmi(spec.A, np.eye(n), spec.C, decay, basis, objective, margin).gain
 
 
@@ -111,25 +122,23 @@ def design_observer(
         If the solver's result does not pass the numpy certificate.
     """
     objective = objective or spec.objective
-    hom = homogenise(spec.A, spec.C, spec.nu)
-    n, k = spec.A.shape[0], spec.C.shape[0]
+    A_model, _, C_model = extended_model(spec.A, spec.B, spec.C, spec.E, spec.disturbance_order)
+    hom = homogenise(A_model, C_model, spec.nu)
+    n, k = A_model.shape[0], spec.C.shape[0]
     base = dict(
         A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=spec.rho, gamma=spec.gamma,
         n_tilde=hom.n_tilde, G0=hom.G0, L0=hom.L0, G_d=hom.G_d,
         L_tilde=np.zeros((k, k)), L=np.zeros((n, k)), P_bar=np.eye(n + k),
-        L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros((n, k)),
+        L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros(spec.C.T.shape),
+        disturbance_order=spec.disturbance_order,
     )
-    V = dilation_basis(hom.G_d, spec.nu, hom.n_tilde)
-    weights = np.linalg.solve(V, hom.G_d @ V).diagonal()
-    levels = [V[:, np.abs(weights - 1 - (j + 1) * spec.nu) < 1e-6] for j in range(hom.n_tilde)]
-    A0 = spec.A + hom.L0 @ spec.C
-    chains = chain_basis(A0, levels)
+    A0, levels = _chain_levels(A_model, C_model, spec.nu, hom)
     bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
     filtering = solve_gain_lmi(
-        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, spec.C), objective, margin
+        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C_model), objective, margin
     )
     G_pt = hom.G_d - spec.nu * np.eye(n)
-    pt = solve_gain_lmi(A0, G_pt, spec.C, spec.rho, chains, objective, margin)
+    pt = solve_gain_lmi(A0, G_pt, C_model, spec.rho, chain_basis(A0, levels), objective, margin)
     bar_L, P_bar = filtering.gain, filtering.P
     scale = getattr(spec, "filter_scale", 1.0) if filter_scale is None else filter_scale
     if scale != 1.0:
@@ -138,7 +147,7 @@ def design_observer(
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
     base |= dict(
         L_tilde=bar_L[:k], L=bar_L[k:], P_bar=P_bar,
-        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, chains, objective, margin),
+        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, objective, margin),
     )
     return _certified(base, objective, margin)
 
@@ -170,13 +179,15 @@ def _max_certified_rho(
 def _certified(base: dict, objective: str, margin: float) -> ObserverGains:
     """Run the numpy certificate on a candidate and attach its figures."""
     values = certify(ObserverGains(**base))
+    E, order = base["E"], base["disturbance_order"]
+    if E is not None and order:  # the model's unknown input is q^(order)
+        E = model_perturbation_matrix(E.shape[0], E.shape[1], order)
     report = {
         "checks": values,
         "objective": objective,
         "lmi_margin": margin,
         "matched_perturbation_residual": (
-            None if base["E"] is None
-            else matched_perturbation_residual(base["G_d"], base["E"], base["n_tilde"])
+            None if E is None else matched_perturbation_residual(base["G_d"], E, base["n_tilde"])
         ),
     }
     return ObserverGains(**base, certificate=report)

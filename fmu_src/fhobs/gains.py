@@ -19,6 +19,10 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
   G_d - nu I, for which C G = C).
 - ``L_lin``: gain of the Luenberger baseline dz/dt = A z + B u + L_lin (C z - y).
 - ``xi``, ``sigma``: the observer's scalar gain state and sigma = sqrt(max(xi, |psi|^2 / 2)).
+- ``disturbance_order``: r >= 0; with r >= 1 the homogeneous observers work on the extended
+  model of :mod:`fhobs.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
+  the plant's first): G0, L0, G_d, L, P_bar, L_pt, P_pt and n_tilde are of that model, while
+  A, B, C, E and L_lin (the Luenberger baseline) stay the plant's.
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .disturbance import extended_model
 
 MATRIX_FIELDS = (
     "A", "B", "C", "E", "G0", "L0", "G_d", "L_tilde", "L", "P_bar", "L_pt", "P_pt", "L_lin",
@@ -57,6 +63,7 @@ class ObserverGains:
     L_pt: np.ndarray
     P_pt: np.ndarray
     L_lin: np.ndarray
+    disturbance_order: int = 0
     certificate: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -75,9 +82,21 @@ class ObserverGains:
         return self.C.shape[0]
 
     @property
+    def model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A_model, B_model, C_model)`` of the homogeneous observers (the plant's if
+        ``disturbance_order`` is 0)."""
+        return extended_model(self.A, self.B, self.C, self.E, self.disturbance_order)
+
+    @property
+    def n_model(self) -> int:
+        """Number of states of the homogeneous observers' model (n if no disturbance model)."""
+        return self.G_d.shape[0]
+
+    @property
     def A0(self) -> np.ndarray:
-        """The nilpotent matrix A0 = A + L0 C."""
-        return self.A + self.L0 @ self.C
+        """The nilpotent matrix A0 = A_model + L0 C_model."""
+        A_model, _, C_model = self.model
+        return A_model + self.L0 @ C_model
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-ready dict (matrices as lists of rows, ``E`` may be None)."""
@@ -93,7 +112,7 @@ class ObserverGains:
         kwargs: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in data:
-                if f.name in ("E", "certificate"):
+                if f.name in ("E", "disturbance_order", "certificate"):
                     continue
                 raise KeyError(f"design record lacks the field {f.name!r}")
             value = data[f.name]
@@ -101,7 +120,7 @@ class ObserverGains:
                 value = np.array(value, dtype=float, ndmin=2)
             elif f.name in SCALAR_FIELDS:
                 value = float(value)
-            elif f.name == "n_tilde":
+            elif f.name in ("n_tilde", "disturbance_order"):
                 value = int(value)
             kwargs[f.name] = value
         return cls(**kwargs)

@@ -46,6 +46,9 @@ class SimulationResult:
     ----------
     t, x, z, z_lin, psi, xi, sigma : np.ndarray
         Time, plant state, filtering estimate, Luenberger estimate, filter state, xi, sigma.
+    q_hat : np.ndarray
+        The filtering observer's disturbance-model states (no columns without a disturbance
+        model): estimates of q, dq/dt, ...; None when not recorded (co-simulation plots).
     """
 
     t: np.ndarray
@@ -55,6 +58,7 @@ class SimulationResult:
     psi: np.ndarray
     xi: np.ndarray
     sigma: np.ndarray
+    q_hat: np.ndarray | None = None
 
     @property
     def error(self) -> np.ndarray:
@@ -118,9 +122,9 @@ def simulate(
     obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max)
     lin = LuenbergerObserver(gains, h=h, scheme=scheme)
     n_steps = int(round(t_end / dt))
-    n, k = gains.n, gains.k
+    n, n_model, k = gains.n, gains.n_model, gains.k
     x = np.empty((n_steps + 1, n))
-    obs_state = np.empty((n_steps + 1, n + k + 1))  # [z, psi, xi] of the filtering observer
+    obs_state = np.empty((n_steps + 1, n_model + k + 1))  # [z, psi, xi] of the filtering observer
     z_lin = np.empty((n_steps + 1, n))
     for step in range(n_steps + 1):
         x[step], obs_state[step], z_lin[step] = plant.x, obs.get_state(), lin.z
@@ -128,15 +132,15 @@ def simulate(
             break
         t_k = step * dt
         y = plant.y
-        u = K_PAPER @ obs.z
+        u = K_PAPER @ obs.x_hat
         q = np.full(E.shape[1], spec.q_amplitude * np.sin(Q_FREQUENCY * t_k))
         plant.step(u, q, dt)
         obs.step(y, u, dt)
         lin.step(y, u, dt)
-    psi, xi = obs_state[:, n:n + k], obs_state[:, -1]
+    psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
     sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
     return SimulationResult(t=np.arange(n_steps + 1) * dt, x=x, z=obs_state[:, :n], z_lin=z_lin,
-                            psi=psi, xi=xi, sigma=sigma)
+                            psi=psi, xi=xi, sigma=sigma, q_hat=obs_state[:, n:n_model])
 
 
 def accuracy_metrics(results: list[SimulationResult], scenario: str) -> dict[str, float]:

@@ -96,7 +96,9 @@ class _Observer:
     """Common machinery: input checks, substepping, ZOH model, transactional state.
 
     Subclasses set ``_aux`` (their extra states), ``_L_inj`` (the gain of the held innovation in
-    the prediction) and implement ``_correct``, ``_euler_rates`` and ``_level``.
+    the prediction) and implement ``_correct``, ``_euler_rates`` and ``_level``. ``model`` is the
+    ``(A, B, C)`` the observer runs on: the plant's for the Luenberger observer,
+    ``gains.model`` (possibly with a disturbance model) for the homogeneous ones.
     """
 
     _aux: np.ndarray
@@ -104,22 +106,30 @@ class _Observer:
     """Number of leading aux entries that belong to the estimation error (psi)."""
 
     def __init__(self, gains: ObserverGains, h: float, scheme: str, z0: np.ndarray | None,
-                 L_inj: np.ndarray) -> None:
+                 L_inj: np.ndarray, model: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         if scheme not in SCHEMES:
             raise ValueError(f"unknown scheme {scheme!r}; choose one of {SCHEMES}")
         self.gains = gains
         self.h = check_step_size(h)
         self.scheme = scheme
         self._k, self._m, self._nu = gains.k, gains.m, gains.nu
-        self._z = np.zeros(gains.n) if z0 is None else as_finite_vector(z0, gains.n, "z0")
+        self._A, self._B, self._C = model
+        n = self._A.shape[0]
+        self._z = np.zeros(n) if z0 is None else as_finite_vector(z0, n, "z0")
         self._L_inj = L_inj
         self._zoh: dict[float, list[np.ndarray]] = {}
 
     # -- public interface -------------------------------------------------------------------
     @property
     def z(self) -> np.ndarray:
-        """State estimate (copy)."""
+        """The observer's model state (copy): the plant's state estimate, then, with a
+        disturbance model, the estimates of q and its derivatives."""
         return self._z.copy()
+
+    @property
+    def x_hat(self) -> np.ndarray:
+        """Estimate of the plant's state (copy of the first n entries of z)."""
+        return self._z[:self.gains.n].copy()
 
     def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """Advance by dt with y and u held, in substeps of size <= h.
@@ -150,7 +160,7 @@ class _Observer:
 
     def set_state(self, arr: np.ndarray) -> None:
         """Restore a state from :meth:`get_state` exactly."""
-        n = self.gains.n
+        n = self._z.size
         arr = as_finite_vector(arr, n + self._aux.size, "observer state")
         self._z, self._aux = arr[:n].copy(), arr[n:].copy()
 
@@ -165,14 +175,13 @@ class _Observer:
         if blocks is None:
             if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
                 self._zoh.clear()
-            g = self.gains
-            blocks = self._zoh[hs] = zoh_blocks(g.A, [g.B, self._L_inj], hs)
+            blocks = self._zoh[hs] = zoh_blocks(self._A, [self._B, self._L_inj], hs)
         return blocks
 
     def _run_split(self, z, aux, y, u, hs, n_sub, level=None):
         """The split scheme over n_sub substeps (see the module docstring); the gain level is
         the observer's own (capped for the communication step hs * n_sub) unless given."""
-        C = self.gains.C
+        C = self._C
         Phi, _, Gamma_inj = self._prediction(hs)
         innovation0 = C.dot(z) - y
         v = innovation0
@@ -195,16 +204,15 @@ class _Observer:
             aux, dz = self._correct_own_level(aux, v, hs, dt)
         else:
             aux, dz = self._correct(aux, v, hs, level)
-        v = v + self.gains.C.dot(dz)
+        v = v + self._C.dot(dz)
         return Phi.dot(z + dz) + Gamma_B.dot(u) + Gamma_inj.dot(v), aux, dz, v
 
     def _run_euler(self, z, aux, y, u, hs, n_sub):
         """The paper's explicit Euler over n_sub substeps, y held."""
-        g = self.gains
         for _ in range(n_sub):
-            v = g.C @ z - y
+            v = self._C @ z - y
             daux, dz_gain = self._euler_rates(aux, v, hs * n_sub)
-            z = z + hs * (g.A @ z + g.B @ u + self._L_inj @ v + dz_gain)
+            z = z + hs * (self._A @ z + self._B @ u + self._L_inj @ v + dz_gain)
             aux = aux + hs * daux
         return z, aux
 
@@ -225,13 +233,13 @@ class _Observer:
     def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
                  level: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact correction flow over hs: return (new aux, increment of z)."""
-        return aux, np.zeros(self.gains.n)
+        return aux, np.zeros(self._z.size)
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz);
         dt is the communication step (for a gain cap)."""
-        return np.zeros_like(aux), np.zeros(self.gains.n)
+        return np.zeros_like(aux), np.zeros(self._z.size)
 
     def error_map(self, level: float, n_sub: int = 1) -> np.ndarray:
         """Matrix of one split communication step of n_sub substeps of size h acting on the
@@ -241,7 +249,7 @@ class _Observer:
         g = self.gains
         n_lin = self._n_error_aux
         columns = []
-        for e in np.eye(n_lin + g.n):
+        for e in np.eye(n_lin + self._z.size):
             aux = np.zeros_like(self._aux)
             aux[:n_lin] = e[:n_lin]
             z, aux = self._run_split(e[n_lin:], aux, np.zeros(g.k), np.zeros(g.m), self.h,
@@ -268,7 +276,8 @@ class FilteringObserver(_Observer):
     scheme : str
         One of ``SCHEMES``.
     z0, psi0 : array_like or None
-        Initial estimate and filter state (zeros if None).
+        Initial model state (``gains.n_model`` entries: x, then the disturbance model's) and
+        filter state (zeros if None).
     xi0 : float
         Initial xi.
     tau_max : float or None
@@ -279,14 +288,14 @@ class FilteringObserver(_Observer):
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
                  xi0: float = 0.0, tau_max: float | None = None) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L0)
+        super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
         k = gains.k
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
         self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
         self._n_error_aux = k
         self._dilation = Dilation(gains.G_d, right=gains.L)
         self._R = ExpmFamily(np.block([[gains.L_tilde, np.eye(k)],
-                                       [gains.C @ gains.L, np.zeros((k, k))]]))
+                                       [self._C @ gains.L, np.zeros((k, k))]]))
         self._p = gains.nu / 2.0 + 1.0
         self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
@@ -369,7 +378,7 @@ class FilteringObserver(_Observer):
             dz_gain = math.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, psi)
             dpsi = v + math.exp(g.nu * log_s) * (g.L_tilde @ psi)
         else:  # sigma = 0 forces psi = 0: the homogeneous terms vanish
-            dz_gain, dpsi = np.zeros(g.n), v
+            dz_gain, dpsi = np.zeros(self._z.size), v
         dxi = abs(psi @ dpsi) - g.gamma * signed_power(xi - 0.5 * psi @ psi, self._p)
         return np.append(dpsi, dxi), dz_gain
 
@@ -395,10 +404,10 @@ class PrescribedTimeObserver(_Observer):
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, xi0: float = 1.0,
                  tau_max: float | None = None) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L0)
+        super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
         self._aux = as_finite_vector(xi0, 1, "xi0")
         self._dilation = Dilation(gains.G_d, right=gains.L_pt)
-        self._Q = ExpmFamily(gains.C @ gains.L_pt)
+        self._Q = ExpmFamily(self._C @ gains.L_pt)
         self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
 
@@ -450,5 +459,5 @@ class LuenbergerObserver(_Observer):
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L_lin)
+        super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
         self._aux = np.zeros(0)

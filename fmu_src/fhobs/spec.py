@@ -14,6 +14,8 @@ Format::
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default 2.75 (the paper's)
     objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
     filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
+    disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
+                              # fhobs.disturbance; default 0 (no disturbance model)
 
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
@@ -28,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .disturbance import extended_model
 from .homogenisation import observability_index
 from .lmi import OBJECTIVES
 
@@ -35,7 +38,8 @@ DEFAULT_RHO = 1.5
 DEFAULT_GAMMA = 2.75
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
-OBSERVER_KEYS = ("nu", "rho", "gamma", "objective", "filter_scale")
+OBSERVER_KEYS = ("nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order")
+MAX_DISTURBANCE_ORDER = 3
 
 
 class SpecError(ValueError):
@@ -57,7 +61,7 @@ class PlantSpec:
     nu, rho, gamma : float
         Homogeneity degree, LMI decay parameter, xi-equation gain.
     n_tilde : int
-        Observability index of (A, C).
+        Observability index of the observer's model (``(A, C)`` without a disturbance model).
     objective : str
         LMI objective (a key of :data:`fhobs.lmi.OBJECTIVES`).
     source : str
@@ -65,6 +69,8 @@ class PlantSpec:
     filter_scale : float
         Factor (>= 1) applied to the LMI's L_tilde (fast output filter); see
         :func:`fhobs.design.design_observer`.
+    disturbance_order : int
+        Order of the disturbance model (0: none), see :mod:`fhobs.disturbance`.
     """
 
     A: np.ndarray
@@ -79,6 +85,7 @@ class PlantSpec:
     objective: str
     source: str = "<dict>"
     filter_scale: float = 1.0
+    disturbance_order: int = 0
 
 
 def load_spec(path: str | Path) -> PlantSpec:
@@ -135,16 +142,19 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
         raise SpecError(
             f"{source}: L_lin has {L_lin.shape[1]} columns, but C has {C.shape[0]} rows (k)"
         )
-    n_tilde, rank = observability_index(A, C)
-    if n_tilde is None:
-        raise SpecError(
-            f"{source}: (A, C) is not observable: the observability matrix has rank {rank}, "
-            f"n = {n}"
-        )
     obs = data.get("observer", {})
     if not isinstance(obs, dict):
         raise SpecError(f"{source}: observer must be a table, got {type(obs).__name__}")
     _reject_unknown(obs, OBSERVER_KEYS, source, "observer.")
+    order = _disturbance_order(obs, E, source)
+    A_model, _, C_model = extended_model(A, B, C, E, order)
+    n_tilde, rank = observability_index(A_model, C_model)
+    if n_tilde is None:
+        what = "(A, C)" if order == 0 else f"the disturbance model of order {order} (A, E, C)"
+        raise SpecError(
+            f"{source}: {what} is not observable: the observability matrix has rank {rank}, "
+            f"n = {A_model.shape[0]}"
+        )
     nu = _scalar(obs, "nu", -1.0 / (n_tilde + 1), source)
     rho = _scalar(obs, "rho", DEFAULT_RHO, source)
     gamma = _scalar(obs, "gamma", DEFAULT_GAMMA, source)
@@ -157,7 +167,25 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     filter_scale = _scalar(obs, "filter_scale", 1.0, source)
     if filter_scale < 1.0:
         raise SpecError(f"{source}: observer.filter_scale = {filter_scale!r} must be >= 1")
-    return PlantSpec(A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale)
+    return PlantSpec(
+        A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order
+    )
+
+
+def _disturbance_order(obs: dict[str, Any], E: np.ndarray | None, source: str) -> int:
+    """``observer.disturbance_order``: an integer in 0..MAX_DISTURBANCE_ORDER, > 0 only with E."""
+    order = obs.get("disturbance_order", 0)
+    if isinstance(order, bool) or not isinstance(order, int):
+        raise SpecError(f"{source}: observer.disturbance_order = {order!r} is not an integer")
+    if not 0 <= order <= MAX_DISTURBANCE_ORDER:
+        raise SpecError(
+            f"{source}: observer.disturbance_order = {order} is outside 0..{MAX_DISTURBANCE_ORDER}"
+        )
+    if order and E is None:
+        raise SpecError(
+            f"{source}: observer.disturbance_order = {order} needs E (where q enters the plant)"
+        )
+    return order
 
 
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):

@@ -1,0 +1,64 @@
+"""Extended-state model: the observer also estimates the perturbation q.
+
+With ``disturbance_order = r >= 1`` the observer does not treat ``E q`` as an unknown input but
+models q as a polynomial in time of degree r - 1 (``q^(r) = 0``, an extended-state observer):
+its internal model has the state ``(x, q, dq/dt, ..., q^(r-1))`` and the matrices
+
+    A_model = [[A, E, 0, ...], [0, 0, I, ...], ..., [0, ..., 0]],  B_model = [B; 0],
+    C_model = [C, 0].
+
+Everything of the paper (homogenisation, LMIs, the observer itself) is applied to this model
+unchanged; the estimate of x is the first n entries of the observer's state, the rest estimate
+q and its derivatives. A slowly varying q is then estimated instead of being fought by high gain,
+which is what lets the observer filter measurement noise harder at equal perturbed accuracy.
+The unknown input of the model is ``q^(r)``, entering through ``E_model = [0; ...; 0; I]``.
+
+This module is numpy-only: it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def extended_model(
+    A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray | None, order: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The observer's model ``(A_model, B_model, C_model)`` (the module docstring).
+
+    Parameters
+    ----------
+    A, B, C : numpy.ndarray
+        Plant matrices (n x n, n x m, k x n).
+    E : numpy.ndarray or None
+        Perturbation input matrix (n x r_q); required when ``order >= 1``.
+    order : int
+        Disturbance order r >= 0 (0: the plant itself).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``A_model`` ((n + r r_q) square), ``B_model``, ``C_model``.
+    """
+    if order == 0:
+        return A, B, C
+    if E is None:
+        raise ValueError("a disturbance model (disturbance_order >= 1) needs E")
+    n, p = E.shape
+    size = n + order * p
+    A_model = np.zeros((size, size))
+    A_model[:n, :n] = A
+    A_model[:n, n:n + p] = E
+    for j in range(order - 1):
+        rows = slice(n + j * p, n + (j + 1) * p)
+        A_model[rows, n + (j + 1) * p:n + (j + 2) * p] = np.eye(p)
+    B_model = np.vstack([B, np.zeros((order * p, B.shape[1]))])
+    C_model = np.hstack([C, np.zeros((C.shape[0], order * p))])
+    return A_model, B_model, C_model
+
+
+def model_perturbation_matrix(n: int, p: int, order: int) -> np.ndarray:
+    """``E_model``: where the model's unknown input ``q^(order)`` enters (order >= 1)."""
+    E_model = np.zeros((n + order * p, p))
+    E_model[-p:] = np.eye(p)
+    return E_model
