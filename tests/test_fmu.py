@@ -41,14 +41,17 @@ def observer_inputs(gains, seed: int = 1, steps: int = STEPS) -> tuple[np.ndarra
 
 
 def run_filtering_fmu(driver, gains, ys, us, first_step: int = 0) -> np.ndarray:
-    """Step an initialised observer FMU; rows = [x_hat, psi, xi, sigma] after each step."""
+    """Step an initialised observer FMU; rows = [x_hat, q_hat, psi, xi, sigma] after each step
+    (q_hat: the disturbance model's states, none without one)."""
     rows = []
+    n_q = gains.n_model - gains.n
     for k, (y, u) in enumerate(zip(ys, us, strict=True), start=first_step):
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(k * DT, DT)
+        q_hat = driver.get("q_hat", (n_q,)) if n_q else np.zeros(0)
         rows.append(np.concatenate([
-            driver.get("x_hat", (gains.n,)), driver.get("psi", (gains.k,)),
+            driver.get("x_hat", (gains.n,)), q_hat, driver.get("psi", (gains.k,)),
             driver.get("xi", ()).ravel(), driver.get("sigma", ()).ravel(),
         ]))
     return np.array(rows)
@@ -169,7 +172,7 @@ def test_luenberger_equals_runtime(open_fmu, tuned_gains):
         driver.set("u", u)
         driver.fmu.doStep(k * DT, DT)
         obs.step(y, u, DT)
-        np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.z, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.x_hat, rtol=0, atol=1e-12)
 
 
 def test_plant_equals_runtime_with_noise(open_fmu, tuned_gains):
@@ -198,11 +201,12 @@ def test_edited_initial_state_is_used(open_fmu, tuned_gains):
     driver.start({"z0": z0, "psi0": psi0, "xi0": 2.0})
     np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), z0)
     ys, us = observer_inputs(g, steps=3)
-    obs = FilteringObserver(g, h=H, scheme=SCHEMES[0], z0=z0, psi0=psi0, xi0=2.0)
+    z0_model = np.concatenate([z0, np.zeros(g.n_model - g.n)])  # the q states start at zero
+    obs = FilteringObserver(g, h=H, scheme=SCHEMES[0], z0=z0_model, psi0=psi0, xi0=2.0)
     for k, (y, u) in enumerate(zip(ys, us, strict=True)):
         run_filtering_fmu(driver, g, [y], [u], first_step=k)
         obs.step(y, u, DT)
-    np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.z, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.x_hat, rtol=0, atol=1e-12)
 
 
 # -- FMU state ---------------------------------------------------------------------------------

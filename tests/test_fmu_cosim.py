@@ -32,16 +32,16 @@ def in_process_loop(gains) -> tuple[np.ndarray, np.ndarray]:
     plant = LTIPlant(gains.A, gains.B, gains.C, gains.E, x0=PENDULUM_X0,
                      noise_amplitude=NOISE_AMPLITUDE, seed=NOISE_SEED)
     obs = FilteringObserver(gains, h=H, scheme=SCHEMES[0])
-    z_delayed = obs.z
+    z_delayed = obs.x_hat
     xs, zs = [], []
     for k in range(STEPS):
         y, u = plant.y, K @ z_delayed
         q = np.array([Q_AMPLITUDE * np.sin(Q_OMEGA * k * DT)])
-        z_delayed = obs.z
+        z_delayed = obs.x_hat
         plant.step(u, q, DT)
         obs.step(y, u, DT)
         xs.append(plant.x)
-        zs.append(obs.z)
+        zs.append(obs.x_hat)
     return np.array(xs), np.array(zs)
 
 

@@ -20,12 +20,13 @@ class FhobsObserver(ObserverSlave):
 
     def _declare_gains(self) -> None:
         design, config = self.design, self.config
+        # N: states of the observer's model (n, or n + r q-states with a disturbance model)
         for name, text in (
-            ("L0", "homogenisation gain, A0 = A + L0 C nilpotent (n x k)"),
-            ("G_d", "dilation generator of Theorem 2 (n x n)"),
+            ("L0", "homogenisation gain, A0 = A_model + L0 C_model nilpotent (N x k)"),
+            ("G_d", "dilation generator of Theorem 2 (N x N)"),
             ("L_tilde", "gain of the output filter psi (k x k)"),
-            ("L", "gain of the estimate z (n x k)"),
-            ("P_bar", "Lyapunov matrix of the Theorem 2 LMI ((k+n) x (k+n))"),
+            ("L", "gain of the estimate z (N x k)"),
+            ("P_bar", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))"),
         ):
             self.add_array(name, getattr(design, name), "parameter", text)
         self.add_array("nu", design.nu, "parameter", "homogeneity degree")
@@ -36,6 +37,9 @@ class FhobsObserver(ObserverSlave):
         self.add_array("psi", np.zeros(design.k), "output", "output-filter state psi")
         self.add_array("xi", 0.0, "output", "scalar gain state xi")
         self.add_array("sigma", 0.0, "output", "sigma = sqrt(max(xi, |psi|^2 / 2))")
+        if design.disturbance_order:
+            self.add_array("q_hat", np.zeros(design.n_model - design.n), "output",
+                           "disturbance-model estimates: q, then its derivatives")
 
     def _check_gains(self) -> None:
         certify(self.edited_design())
@@ -45,13 +49,14 @@ class FhobsObserver(ObserverSlave):
             self.edited_design(),
             h=float(self.array("h")),
             scheme=self.scheme_name(),
-            z0=self.array("z0"),
+            z0=np.concatenate((self.array("z0"), np.zeros(self.design.n_model - self.design.n))),
             psi0=self.array("psi0"),
             xi0=float(self.array("xi0")),
         )
 
     def _model_outputs(self) -> np.ndarray:
-        """``[psi, xi, sigma, x_hat]`` (declaration order); the model state is ``[z, psi, xi]``."""
+        """``[psi, xi, sigma, q_hat, x_hat]`` (declaration order; no q_hat without a disturbance
+        model); the model state is ``[z, psi, xi]``, z = (x_hat, q_hat)."""
         state = self.model.get_state()
-        n = self.design.n
-        return np.concatenate((state[n:], (self.model.sigma,), state[:n]))
+        n, n_model = self.design.n, self.design.n_model
+        return np.concatenate((state[n_model:], (self.model.sigma,), state[n:n_model], state[:n]))
