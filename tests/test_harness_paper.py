@@ -78,18 +78,23 @@ def test_nominal_accuracy_at_1_5(fmu_dir, block_cache):
     assert figures["homogeneous"]["error_at_1_5"] <= 1e-9
 
 
-def test_noisy_full_length_through_fmus_equals_reference(fmu_dir, block_cache, gains):
-    """A full 3 s noisy run (seed 0) through the FMUs equals the reference to 1e-9, so the
-    reference's 5-seed figures (tests/test_reference.py) hold through the FMUs; its own RMS is
-    at the level reached there (2.74e-2 mean; target 1.5e-2 not reached)."""
-    spec = _scenario("pendulum_noisy", fmu_dir, block_cache).with_seed(0)
-    result = run_system(resolve_system(spec), progress=False)
-    ref = simulate(gains, "perturbed_noisy", t_end=3.0, seed=0)
-    assert _deviation(result, ref) <= 1e-9
-    figures = error_figures(result, spec.evaluation)
-    print(f"noisy seed 0: {figures}")
-    assert figures["homogeneous"]["rms_error_1_3"] <= 3.0e-2
-    assert figures["linear"]["rms_error_1_3"] >= 15 * figures["homogeneous"]["rms_error_1_3"]
+def test_noisy_target_through_fmus_five_seeds(fmu_dir, block_cache, gains):
+    """The noisy target through the FMUs: mean over seeds 0-4 of the RMS of norm(x - x_hat)
+    over [1, 3] <= 1.5e-2 and >= 25x below the linear observer in the same runs; the seed-0
+    run also equals the reference to 1e-9 over the full 3 s."""
+    rms, rms_lin = [], []
+    for seed in range(5):
+        spec = _scenario("pendulum_noisy", fmu_dir, block_cache).with_seed(seed)
+        result = run_system(resolve_system(spec), progress=False)
+        if seed == 0:
+            ref = simulate(gains, "perturbed_noisy", t_end=3.0, seed=0)
+            assert _deviation(result, ref) <= 1e-9
+        figures = error_figures(result, spec.evaluation)
+        rms.append(figures["homogeneous"]["rms_error_1_3"])
+        rms_lin.append(figures["linear"]["rms_error_1_3"])
+    print(f"noisy, 5 seeds: {np.mean(rms):.3e} vs linear {np.mean(rms_lin):.3e}")
+    assert np.mean(rms) <= 1.5e-2
+    assert np.mean(rms_lin) >= 25 * np.mean(rms)
 
 
 VENDOR_LOOP = """
