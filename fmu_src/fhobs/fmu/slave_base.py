@@ -26,9 +26,12 @@ Only numpy, the standard library, pythonfmu and numpy-only fhobs modules are imp
 
 from __future__ import annotations
 
+import _ctypes
+import ctypes
 import dataclasses
 import json
 import math
+import os
 import sys
 from abc import abstractmethod
 from collections.abc import Iterator
@@ -144,6 +147,7 @@ class FhobsSlave(Fmi2Slave):
             "inputs of larger magnitude are rejected as absurd",
         )
         self._pack_arrays()
+        self.direct_reals = self._register_reals()
         self._ready = False
         self.model: SlaveModel = self._make_model()
         self._publish()
@@ -197,6 +201,41 @@ class FhobsSlave(Fmi2Slave):
         self._bound = self._arrays["input_bound"]
         self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
         self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
+
+    def _register_reals(self) -> bool:
+        """Let the status wrapper serve ``fmi2GetReal`` / ``fmi2SetReal`` from the flat buffer
+        without entering Python (see ``status_wrapper.c``); True if it took the buffer.
+
+        Called from the constructor, which runs inside the wrapper's ``fmi2Instantiate`` (or
+        ``fmi2Reset``): the wrapper library, already loaded by the importer, is looked up
+        without loading it (``RTLD_NOLOAD``), given the buffer's address and the buffer position
+        of every Real value reference, and released. Without the wrapper, or when the slave is
+        not being created through it, nothing happens and every call goes through Python.
+        ``self._values`` is never rebound or resized after this (the wrapper keeps its address).
+        """
+        if not (self._status_via_wrapper and hasattr(os, "RTLD_NOLOAD")):
+            return False
+        binary = Path(self.resources).parent / "binaries" / "linux64" / f"{type(self).__name__}.so"
+        try:
+            library = ctypes.CDLL(str(binary), mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
+        except OSError:
+            return False
+        try:
+            register = library.fhobs_register_reals
+        except AttributeError:
+            register = None
+        positions = np.full(max(self._position, default=-1) + 1, -1, dtype=np.longlong)
+        positions[list(self._position)] = list(self._position.values())
+        try:
+            if register is None:
+                return False
+            register.restype = ctypes.c_int
+            register.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                                 ctypes.c_size_t]
+            return bool(register(self._values.ctypes.data, self._values.size,
+                                 positions.ctypes.data, positions.size))
+        finally:
+            _ctypes.dlclose(library._handle)  # balance the RTLD_NOLOAD reference
 
     def _index(self, vrs: list[int]) -> np.ndarray | slice:
         """Buffer positions of the Real variables ``vrs`` (cached per list of references; a
