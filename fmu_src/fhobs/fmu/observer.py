@@ -52,6 +52,11 @@ class FhobsObserver(ObserverSlave):
 
     def _model_outputs(self) -> np.ndarray:
         """``[psi, xi, sigma, x_hat]`` (declaration order); the model state is ``[z, psi, xi]``."""
-        state = self.model.get_state()
-        n = self.design.n
-        return np.concatenate((state[n:], (self.model.sigma,), state[:n]))
+        model = self.model
+        state = model.get_state()
+        split = state.size - self.design.n  # [psi, xi] then z
+        outputs = np.empty(state.size + 1)
+        outputs[:split] = state[-split:]
+        outputs[split] = model.sigma
+        outputs[split + 1:] = state[:-split]
+        return outputs

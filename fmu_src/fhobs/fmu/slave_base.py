@@ -62,6 +62,8 @@ _KINDS: dict[str, dict[str, Any]] = {
 }
 
 
+_INF = math.inf
+
 INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
 
@@ -332,9 +334,14 @@ class FhobsSlave(Fmi2Slave):
         if not self._ready:
             return self._fail("doStep called without a successful initialisation")
         inputs = self._values[self._input_index].tolist()
-        if not (step_size > 0.0 and math.isfinite(step_size)
-                and all(map(math.isfinite, inputs))
-                and max(map(abs, inputs), default=0.0) <= self._bound.item()):
+        # One comparison accepts a valid call: the sum of |inputs| bounds each of them (a float
+        # sum of non-negative terms never falls below a term) and is NaN or inf when one is
+        # not finite; NaN and inf fail the comparisons. Anything else gets the exact checks.
+        if not (0.0 < step_size < _INF and sum(map(abs, inputs)) <= self._bound.item()) and not (
+            step_size > 0.0 and math.isfinite(step_size)
+            and all(map(math.isfinite, inputs))
+            and max(map(abs, inputs), default=0.0) <= self._bound.item()
+        ):
             problem = self._input_problem(step_size)
             return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
         attributes = self.model.__dict__
@@ -342,9 +349,9 @@ class FhobsSlave(Fmi2Slave):
         try:
             self._advance(step_size)
             outputs = self._model_outputs()
-            if not all(map(math.isfinite, outputs.tolist())):
-                self._finite_outputs()  # raises, naming them
-                raise ValueError("the model produced non-finite outputs")
+            total = sum(outputs.tolist())  # NaN or inf if an output is; inf also on overflow
+            if total - total != 0.0:
+                self._finite_outputs(outputs)  # raises, naming them (unless the sum overflowed)
         except ValueError as err:
             attributes.clear()
             attributes.update(saved)
@@ -378,9 +385,11 @@ class FhobsSlave(Fmi2Slave):
                     return f"input {label} = {value!r} exceeds input_bound = {bound!r}"
         return ""
 
-    def _finite_outputs(self) -> np.ndarray:
-        """The model's outputs (flat, in declaration order); ValueError if one is not finite."""
-        outputs = self._model_outputs()
+    def _finite_outputs(self, outputs: np.ndarray | None = None) -> np.ndarray:
+        """The model's outputs (flat, in declaration order; ``outputs`` if given, else computed);
+        ValueError if one is not finite."""
+        if outputs is None:
+            outputs = self._model_outputs()
         if not all(map(math.isfinite, outputs.tolist())):
             labels = [label for name in self._kinds["output"]
                       for label in element_names(name, self._arrays[name].shape)]
