@@ -64,6 +64,10 @@ _KINDS: dict[str, dict[str, Any]] = {
 
 _INF = math.inf
 
+WRAPPER_STEP_OK, WRAPPER_STEP_OK_LOGGED, WRAPPER_STEP_REJECTED, WRAPPER_STEP_RAISED = 1, 2, 3, 4
+"""Answers of :meth:`FhobsSlave._step_for_wrapper` (``FHOBS_STEP_*`` in status_wrapper.c)."""
+_WRAPPER_STEP_TYPE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_double)
+
 INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
 
@@ -149,7 +153,7 @@ class FhobsSlave(Fmi2Slave):
             "inputs of larger magnitude are rejected as absurd",
         )
         self._pack_arrays()
-        self.direct_reals = self._register_reals()
+        self.via_wrapper = self._register_with_wrapper()
         self._ready = False
         self.model: SlaveModel = self._make_model()
         self._publish()
@@ -204,16 +208,18 @@ class FhobsSlave(Fmi2Slave):
         self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
         self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
 
-    def _register_reals(self) -> bool:
+    def _register_with_wrapper(self) -> bool:
         """Let the status wrapper serve ``fmi2GetReal`` / ``fmi2SetReal`` from the flat buffer
-        without entering Python (see ``status_wrapper.c``); True if it took the buffer.
+        without entering Python and call :meth:`do_step` through a ctypes callback rather than
+        pythonfmu's C++ layer (see ``status_wrapper.c``); True if it took them.
 
         Called from the constructor, which runs inside the wrapper's ``fmi2Instantiate`` (or
         ``fmi2Reset``): the wrapper library, already loaded by the importer, is looked up
-        without loading it (``RTLD_NOLOAD``), given the buffer's address and the buffer position
-        of every Real value reference, and released. Without the wrapper, or when the slave is
-        not being created through it, nothing happens and every call goes through Python.
-        ``self._values`` is never rebound or resized after this (the wrapper keeps its address).
+        without loading it (``RTLD_NOLOAD``), given the buffer's address, the buffer position
+        of every Real value reference and the callback, and released. Without the wrapper, or
+        when the slave is not being created through it, nothing happens and every call goes
+        through pythonfmu. ``self._values`` is never rebound or resized after this (the
+        wrapper keeps its address).
         """
         if not (self._status_via_wrapper and hasattr(os, "RTLD_NOLOAD")):
             return False
@@ -223,21 +229,40 @@ class FhobsSlave(Fmi2Slave):
         except OSError:
             return False
         try:
-            register = library.fhobs_register_reals
-        except AttributeError:
-            register = None
-        positions = np.full(max(self._position, default=-1) + 1, -1, dtype=np.longlong)
-        positions[list(self._position)] = list(self._position.values())
-        try:
+            register = getattr(library, "fhobs_register", None)
             if register is None:
                 return False
+            positions = np.full(max(self._position, default=-1) + 1, -1, dtype=np.longlong)
+            positions[list(self._position)] = list(self._position.values())
+            # kept alive with the instance (the wrapper calls it until fmi2FreeInstance/Reset)
+            self._wrapper_step = _WRAPPER_STEP_TYPE(self._step_for_wrapper)
             register.restype = ctypes.c_int
             register.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
-                                 ctypes.c_size_t]
+                                 ctypes.c_size_t, _WRAPPER_STEP_TYPE]
             return bool(register(self._values.ctypes.data, self._values.size,
-                                 positions.ctypes.data, positions.size))
+                                 positions.ctypes.data, positions.size, self._wrapper_step))
         finally:
             _ctypes.dlclose(library._handle)  # balance the RTLD_NOLOAD reference
+
+    def _step_for_wrapper(self, current_time: float, step_size: float) -> int:
+        """:meth:`do_step` for the wrapper's ``fmi2DoStep`` (a ctypes callback must not raise):
+        its answer as one of the ``WRAPPER_STEP_*`` codes. An exception is kept and raised
+        again by the ``do_step`` that the wrapper then calls through pythonfmu, which answers
+        it with ``fmi2Fatal`` and logs it as for any exception."""
+        try:
+            ok = self.do_step(current_time, step_size)
+        except BaseException as err:  # handed over to pythonfmu
+            pending = err
+
+            def raise_again(current_time: float, step_size: float) -> bool:
+                del self.do_step  # back to the method
+                raise pending
+
+            self.do_step = raise_again
+            return WRAPPER_STEP_RAISED
+        if not ok:
+            return WRAPPER_STEP_REJECTED
+        return WRAPPER_STEP_OK_LOGGED if self.log_queue else WRAPPER_STEP_OK
 
     def _index(self, vrs: list[int]) -> np.ndarray | slice:
         """Buffer positions of the Real variables ``vrs`` (cached per list of references; a

@@ -8,14 +8,24 @@
  * file next to it whose name ends in IMPL_SUFFIX) and, after fmi2DoStep and
  * fmi2ExitInitializationMode, returns that recorded status when it is worse.
  *
- * Real variables without entering Python. The component handed to the importer is this
- * library's own Instance, which holds pythonfmu's component. While pythonfmu's
- * fmi2Instantiate (or fmi2Reset) runs, the slave's constructor calls fhobs_register_reals
- * with the address of its flat float buffer of Real variables (which it never reallocates)
- * and the buffer position of each value reference; from then on fmi2GetReal and fmi2SetReal
- * whose value references are all Real variables read and write that buffer directly, which
- * is exactly what the slave's get_real / set_real do. Any other call (an unknown or non-Real
- * value reference, no registration) goes to pythonfmu as before.
+ * Calls that do not go through pythonfmu's C++ layer. The component handed to the importer
+ * is this library's own Instance, which holds pythonfmu's component. While pythonfmu's
+ * fmi2Instantiate (or fmi2Reset) runs, the slave's constructor calls fhobs_register (through
+ * ctypes) with the address of its flat float buffer of Real variables (which it never
+ * reallocates), the buffer position of each value reference and a C callback of its doStep.
+ * From then on:
+ * - fmi2GetReal / fmi2SetReal whose value references are all Real variables read and write
+ *   that buffer directly (exactly what the slave's get_real / set_real do); any other value
+ *   reference goes to pythonfmu as before;
+ * - fmi2DoStep calls the callback, which runs the slave's do_step and answers FHOBS_STEP_OK,
+ *   FHOBS_STEP_OK_LOGGED (messages are waiting in the slave's log queue), FHOBS_STEP_REJECTED
+ *   (do_step returned False: pythonfmu's fmi2Discard, made fmi2Error by the recorded status)
+ *   or FHOBS_STEP_RAISED (do_step raised: the slave re-raises the exception in pythonfmu's
+ *   fmi2DoStep, called next, which answers fmi2Fatal and logs it as it always did). Waiting
+ *   messages are handed to the importer's logger by any pythonfmu call: the status read.
+ *   The last successful time that pythonfmu's fmi2GetRealStatus reports is kept here for
+ *   those steps (t + h after a step, t after a rejected one, as pythonfmu sets it).
+ * Without a registration every call goes to pythonfmu.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -32,16 +42,27 @@
 
 static void *impl_handle = NULL;
 
+/* Answers of the slave's doStep callback (0: the callback itself failed). */
+#define FHOBS_STEP_OK 1
+#define FHOBS_STEP_OK_LOGGED 2
+#define FHOBS_STEP_REJECTED 3
+#define FHOBS_STEP_RAISED 4
+
+typedef int fhobs_step_fn(double t, double h);
+
 /* The component returned to the importer. */
 typedef struct {
     fmi2Component impl;      /* pythonfmu's component */
-    double *values;          /* the slave's flat Real buffer; NULL: no direct access */
+    double *values;          /* the slave's flat Real buffer; NULL: nothing registered */
     long long *position;     /* position[vr]: buffer index of Real variable vr, or -1 */
     size_t n_position;
+    fhobs_step_fn *step;     /* the slave's doStep */
+    int own_time;            /* whether the last doStep went through step */
+    double last_time;        /* then: the last successful time */
 } Instance;
 
 /* The instance whose Python slave is being constructed by this thread (fmi2Instantiate,
- * fmi2Reset), for fhobs_register_reals. */
+ * fmi2Reset), for fhobs_register. */
 static __thread Instance *registering = NULL;
 
 #define INNER(c) ((c) == NULL ? NULL : ((Instance *)(c))->impl)
@@ -94,14 +115,15 @@ __attribute__((destructor)) static void unload_impl(void)
 
 /* Called by the slave's constructor (through ctypes) while its instance is created: give
  * fmi2GetReal / fmi2SetReal direct access to ``values`` (``n_values`` doubles, kept alive and
- * never moved by the slave), ``position[vr]`` being the index of Real variable vr or -1.
- * Returns 1 if registered, 0 if no instance is being created by this thread or the table is
- * inconsistent (then every call goes through Python). */
-int fhobs_register_reals(double *values, size_t n_values, const long long *position,
-    size_t n_position)
+ * never moved by the slave), ``position[vr]`` being the index of Real variable vr or -1, and
+ * fmi2DoStep the slave's ``step`` (kept alive by the slave). Returns 1 if registered, 0 if no
+ * instance is being created by this thread or the arguments are inconsistent (then every call
+ * goes through pythonfmu). */
+int fhobs_register(double *values, size_t n_values, const long long *position,
+    size_t n_position, fhobs_step_fn *step)
 {
     Instance *w = registering;
-    if (w == NULL || values == NULL || position == NULL || n_position == 0) {
+    if (w == NULL || values == NULL || position == NULL || n_position == 0 || step == NULL) {
         return 0;
     }
     for (size_t i = 0; i < n_position; i++) {
@@ -118,12 +140,14 @@ int fhobs_register_reals(double *values, size_t n_values, const long long *posit
     w->position = copy;
     w->n_position = n_position;
     w->values = values;
+    w->step = step;
     return 1;
 }
 
-static void unregister_reals(Instance *w)
+static void unregister(Instance *w)
 {
     w->values = NULL;
+    w->step = NULL;
     free(w->position);
     w->position = NULL;
     w->n_position = 0;
@@ -186,7 +210,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         instanceName, fmuType, guid, resources, functions, visible, loggingOn);
     registering = outer;
     if (w->impl == NULL) {
-        unregister_reals(w);
+        unregister(w);
         free(w);
         return NULL;
     }
@@ -197,7 +221,7 @@ void fmi2FreeInstance(fmi2Component w)
 {
     ((fmi2FreeInstanceTYPE *)impl("fmi2FreeInstance"))(INNER(w));
     if (w != NULL) {
-        unregister_reals((Instance *)w);
+        unregister((Instance *)w);
         free(w);
     }
 }
@@ -210,7 +234,7 @@ fmi2Status fmi2Reset(fmi2Component w)
         return fmi2Reset_impl(NULL);
     }
     Instance *self = w, *outer = registering;
-    unregister_reals(self);
+    unregister(self);
     registering = self;
     fmi2Status status = fmi2Reset_impl(self->impl);
     registering = outer;
@@ -225,10 +249,46 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component w)
 
 fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior)
 {
-    /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
+    Instance *self = w;
     IMPL(fmi2DoStep)
+    if (self != NULL && self->step != NULL) {
+        switch (self->step(t, h)) {
+        case FHOBS_STEP_OK:
+            self->own_time = 1;
+            self->last_time = t + h;
+            return fmi2OK;
+        case FHOBS_STEP_OK_LOGGED:
+            self->own_time = 1;
+            self->last_time = t + h;
+            recorded(self->impl, fmi2OK); /* a pythonfmu call: hands the messages over */
+            return fmi2OK;
+        case FHOBS_STEP_REJECTED:
+            self->own_time = 1;
+            self->last_time = t;
+            return recorded(self->impl, fmi2Discard);
+        case FHOBS_STEP_RAISED:
+            return fmi2DoStep_impl(self->impl, t, h, noSetPrior); /* re-raised there: fatal */
+        default:
+            return fmi2Fatal;
+        }
+    }
+    /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
     fmi2Status returned = fmi2DoStep_impl(INNER(w), t, h, noSetPrior);
+    if (self != NULL) {
+        self->own_time = 0;
+    }
     return returned == fmi2OK ? returned : recorded(INNER(w), returned);
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component w, const fmi2StatusKind k, fmi2Real *v)
+{
+    const Instance *self = w;
+    if (self != NULL && self->own_time && k == fmi2LastSuccessfulTime && v != NULL) {
+        *v = self->last_time;
+        return fmi2OK;
+    }
+    IMPL(fmi2GetRealStatus)
+    return fmi2GetRealStatus_impl(INNER(w), k, v);
 }
 
 fmi2Status fmi2GetReal(fmi2Component w, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
@@ -294,7 +354,6 @@ FORWARD(fmi2GetRealOutputDerivatives, (fmi2Component w, const fmi2ValueReference
     const fmi2Integer order[], fmi2Real v[]), (c, vr, n, order, v))
 FORWARD(fmi2CancelStep, (fmi2Component w), (c))
 FORWARD(fmi2GetStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Status *v), (c, k, v))
-FORWARD(fmi2GetRealStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Real *v), (c, k, v))
 FORWARD(fmi2GetIntegerStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Integer *v),
     (c, k, v))
 FORWARD(fmi2GetBooleanStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Boolean *v),
