@@ -156,6 +156,8 @@ class FhobsSlave(Fmi2Slave):
         self.via_wrapper = self._register_with_wrapper()
         self._ready = False
         self.model: SlaveModel = self._make_model()
+        # the start model and the parameters it was built from, until initialisation uses it
+        self._start_model: tuple[SlaveModel, tuple] | None = (self.model, self._parameters())
         self._publish()
 
     # -- declaration helpers -------------------------------------------------------------
@@ -329,14 +331,27 @@ class FhobsSlave(Fmi2Slave):
         return dataclasses.replace(self.design, **changes)
 
     # -- FMI lifecycle -------------------------------------------------------------------
+    def _parameters(self) -> tuple:
+        """The exact current values of every parameter (what :meth:`_make_model` reads)."""
+        arrays = tuple(self._arrays[name].tobytes() for name in self._kinds["parameter"])
+        return arrays, tuple(self._integers.items())
+
     def exit_initialization_mode(self) -> None:
-        """Re-check the (possibly edited) parameters and build the model from them."""
+        """Re-check the (possibly edited) parameters and build the model from them.
+
+        The model built by the constructor is used if it is still the slave's model (no FMU
+        state was set since) and every parameter still has the value it was built from: it
+        is then the model :meth:`_make_model` would build (whose construction can cost tens of
+        milliseconds). It is used at most once.
+        """
         self.status = STATUS_OK
         self._ready = False
+        start, self._start_model = self._start_model, None
         try:
             self._check_finite_parameters()
             self._check_parameters()
-            self.model = self._make_model()
+            if start is None or start[0] is not self.model or start[1] != self._parameters():
+                self.model = self._make_model()
         except ValueError as err:
             self._fail(f"initialisation rejected the parameters: {err}")
             if not self._status_via_wrapper:
