@@ -10,7 +10,11 @@ captures the complete state (parameters, inputs, the numpy model's internal stat
 Speed. All Real variables live in one flat float buffer (each array variable is a view of its
 slice), so ``fmi2GetReal`` / ``fmi2SetReal`` are one fancy-indexing operation on it (the index
 array of a list of value references is cached), and ``doStep`` checks the inputs and the outputs
-as whole vectors; element labels are only formatted to describe a rejected call.
+as whole vectors; element labels are only formatted to describe a rejected call. With the status
+wrapper (linux64), the slave hands the wrapper the buffer's address, the buffer position of each
+value reference and a ctypes callback of ``do_step`` when it is created: ``fmi2GetReal`` /
+``fmi2SetReal`` of Real variables then never enter Python, and ``fmi2DoStep`` skips pythonfmu's
+C++ layer (see ``status_wrapper.c`` and :meth:`FhobsSlave._register_with_wrapper`).
 
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
