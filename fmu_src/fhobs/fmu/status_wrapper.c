@@ -274,8 +274,8 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     }
     /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
     fmi2Status returned = fmi2DoStep_impl(INNER(w), t, h, noSetPrior);
-    if (self != NULL) {
-        self->own_time = 0;
+    if (self != NULL && (returned == fmi2OK || returned == fmi2Discard)) {
+        self->own_time = 0; /* pythonfmu set its last successful time (not after an exception) */
     }
     return returned == fmi2OK ? returned : recorded(INNER(w), returned);
 }
