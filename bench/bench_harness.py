@@ -61,16 +61,25 @@ def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> d
     slave.setupExperiment(startTime=0.0)
     slave.enterInitializationMode()
     slave.exitInitializationMode()
-    dll, comp = slave.dll, slave.component
+    # bare entry points with preconverted arguments and the GIL kept, as harness.master makes
+    # the calls (fmpy's own wrappers convert arguments and release the GIL around each call)
+    raw = ctypes.PyDLL(slave.dll._name, handle=slave.dll._handle)
+    set_real, do_step, get_real = raw.fmi2SetReal, raw.fmi2DoStep, raw.fmi2GetReal
+    for entry in (set_real, do_step, get_real):
+        entry.restype = ctypes.c_int
+    comp = ctypes.c_void_p(slave.component)
     in_vr = (ctypes.c_uint * len(inputs))(*[vrs[n] for n in inputs])
     in_buf = (ctypes.c_double * len(inputs))(*inputs.values())
+    in_n = ctypes.c_size_t(len(inputs))
     out_vr = (ctypes.c_uint * len(outputs))(*[vrs[n] for n in outputs])
     out_buf = (ctypes.c_double * len(outputs))()
+    out_n = ctypes.c_size_t(len(outputs))
+    t, h, no_set_prior = ctypes.c_double(0.0), ctypes.c_double(H_PAPER), ctypes.c_int(1)
     costs = {}
     for name, call in [
-        ("fmi2SetReal", lambda: dll.fmi2SetReal(comp, in_vr, len(inputs), in_buf)),
-        ("fmi2DoStep", lambda: dll.fmi2DoStep(comp, 0.0, H_PAPER, 1)),
-        ("fmi2GetReal", lambda: dll.fmi2GetReal(comp, out_vr, len(outputs), out_buf)),
+        ("fmi2SetReal", lambda: set_real(comp, in_vr, in_n, in_buf)),
+        ("fmi2DoStep", lambda: do_step(comp, t, h, no_set_prior)),
+        ("fmi2GetReal", lambda: get_real(comp, out_vr, out_n, out_buf)),
     ]:
         start = time.perf_counter()
         for _ in range(CALLS):

@@ -16,8 +16,9 @@ algorithm for stepping)::
 Variables are looked up once (:func:`harness.system.resolve_system`); the step loop calls the
 FMUs' C functions directly through ctypes on preallocated buffers that alias one numpy vector
 of outputs and one of inputs, so a step costs three C calls per FMU plus one matmul and one row
-copy. Every FMI status is checked: warnings pass, anything worse raises :class:`MasterError`
-naming the FMU, the call and the time.
+copy; with a C compiler at hand the calls of a step are made by one ctypes call of a small C
+function (:mod:`harness.native`), else from Python. Every FMI status is checked: warnings pass,
+anything worse raises :class:`MasterError` naming the FMU, the call and the time.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ import numpy as np
 from fmpy import extract
 from fmpy.fmi2 import FMU2Slave
 
+from harness.native import CALLS as NATIVE_CALLS
+from harness.native import StepFmu, step_library
 from harness.system import ResolvedFmu, ResolvedSystem, vector_names
 
 FMI2_WARNING = 1
@@ -220,9 +223,14 @@ class Master:
 
         The C functions are called through :func:`_raw` entry points (GIL kept, no argtypes)
         with every argument already a ctypes object; only the time changes from step to step,
-        written into one ``c_double``.
+        written into one ``c_double``. When :func:`harness.native.step_library` is available,
+        the nine calls of a step are made by one call of its ``harness_step`` instead.
         """
         gather = matrix.dot  # for a small matrix much cheaper than np.matmul, and bit-identical
+        native = step_library()
+        if native is not None:
+            self._native_steps(native, slaves, k_from, k_to, t0, h, values, outputs, inputs, gather)
+            return
         t_c = ctypes.c_double(0.0)
         h_c = ctypes.c_double(h)
         no_set_prior = ctypes.c_int(1)
@@ -250,6 +258,44 @@ class Master:
             for get_real, comp, vr, n, buf, name in getters:
                 if status := get_real(comp, vr, n, buf):
                     _status(status, name, "fmi2GetReal", t + h)
+            values[k + 1] = outputs
+
+    @staticmethod
+    def _native_steps(
+        native: ctypes.CDLL,
+        slaves: list[_Slave],
+        k_from: int,
+        k_to: int,
+        t0: float,
+        h: float,
+        values: np.ndarray,
+        outputs: np.ndarray,
+        inputs: np.ndarray,
+        gather,
+    ) -> None:
+        """:meth:`_steps` with the nine FMI calls of a step made by ``harness_step``
+        (``step_loop.c``): the same calls, in the same order, on the same buffers."""
+        fmus = (StepFmu * len(slaves))()
+        for f, s in zip(fmus, slaves, strict=True):
+            f.component = s.fmu.component
+            f.set_real, f.do_step, f.get_real = (
+                ctypes.cast(_raw(s, call), ctypes.c_void_p).value for call in NATIVE_CALLS
+            )
+            f.in_vr, f.in_n = ctypes.addressof(s.in_vr), len(s.in_vr)
+            f.out_vr, f.out_n = ctypes.addressof(s.out_vr), len(s.out_vr)
+            f.in_buf, f.out_buf = ctypes.addressof(s.in_buf), ctypes.addressof(s.out_buf)
+        step = native.harness_step
+        n = ctypes.c_int(len(slaves))
+        t_c = ctypes.c_double(0.0)
+        h_c = ctypes.c_double(h)
+        failed = (ctypes.c_int * 2)()
+        for k in range(k_from, k_to):
+            t = t0 + k * h
+            t_c.value = t
+            gather(outputs, out=inputs)
+            if status := step(fmus, n, t_c, h_c, failed):
+                call = NATIVE_CALLS[failed[1]]
+                _status(status, slaves[failed[0]].name, call, t + h if failed[1] == 2 else t)
             values[k + 1] = outputs
 
     @staticmethod

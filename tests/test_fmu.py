@@ -444,3 +444,48 @@ def serialized_state(driver) -> bytes:
     data = bytes(driver.fmu.serializeFMUstate(state))
     driver.fmu.freeFMUstate(state)
     return data
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the status wrapper is linux64 only")
+def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_gains):
+    """With the status wrapper, fmi2GetReal / fmi2SetReal of Real variables use the slave's
+    buffer without entering Python: the values are those the slave itself holds, in any order,
+    and fmi2Reset hands the wrapper the new slave's buffer. fmi2DoStep calls the slave through
+    a callback; the last successful time is reported as pythonfmu reports it (t + h after a
+    step, t after a rejected one). (A reference that is not a Real variable, or an exception in
+    do_step, still goes to pythonfmu, whose answer is fmi2Fatal: not exercised here, since
+    nothing may be called on an instance after fmi2Fatal.)"""
+    import gc
+
+    g = tuned_gains
+    driver = open_fmu("observer", "direct")
+
+    def slaves() -> list:
+        return [o for o in gc.get_objects()
+                if type(o).__name__.startswith("FhobsObserver") and o.instance_name == "direct"]
+
+    (slave,) = slaves()
+    assert slave.via_wrapper
+    driver.set("y", [0.25, -0.5])
+    np.testing.assert_array_equal(slave.array("y"), [0.25, -0.5])
+    driver.start({"xi0": 0.3})
+    run_filtering_fmu(driver, g, *observer_inputs(g, steps=5))
+    reals = [v.valueReference for v in driver.description.modelVariables if v.type == "Real"]
+    for refs in (reals, reals[::-1], reals[3::7] + reals[:2]):
+        assert driver.fmu.getReal(refs) == slave.get_real(refs)
+    assert driver.fmu.getReal([]) == []
+    last_successful_time = 2  # fmi2LastSuccessfulTime
+    driver.fmu.doStep(0.25, 0.125)
+    assert driver.fmu.getRealStatus(last_successful_time) == 0.375
+    driver.set("u", [np.nan])
+    with pytest.raises(FMICallException):
+        driver.fmu.doStep(0.375, 0.125)
+    assert driver.fmu.getRealStatus(last_successful_time) == 0.375
+    assert "u[1]" in driver.messages[-1][1]
+    driver.fmu.reset()
+    (new,) = [s for s in slaves() if s is not slave]
+    assert new.via_wrapper
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), np.zeros(g.n))
+    assert driver.get("xi0", ()) == 0.0
+    driver.set("xi0", 0.6)
+    assert new.array("xi0") == 0.6 and slave.array("xi0") == 0.3

@@ -13,6 +13,7 @@ from fhobs.gains import ObserverGains
 from fhobs.reference import simulate
 from test_harness_plantfmu import build_vendor_plant
 
+from harness import master
 from harness.cli import build_paper_fmus, load_scenario, main
 from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import MasterError, run_system
@@ -217,8 +218,25 @@ def test_paper_scenario_ssp_in_fmpy_and_libcosim(tmp_path, fmu_dir, block_cache)
     assert np.max(np.abs(fmpy_rows - harness_zero)) <= 1e-9
 
 
-def test_fmu_error_status_stops_the_run(fmu_dir, block_cache):
-    """The plant FMU rejects an input beyond its input_bound with fmi2Error: MasterError."""
+@pytest.mark.parametrize("loop", ["native", "python"])
+def test_fmu_error_status_stops_the_run(fmu_dir, block_cache, loop, monkeypatch):
+    """The plant FMU rejects an input beyond its input_bound with fmi2Error: MasterError, from
+    the master's C step (harness.native) as from its Python loop."""
+    if loop == "python":
+        monkeypatch.setattr(master, "step_library", lambda: None)
+    elif master.step_library() is None:
+        pytest.skip("no C compiler: the master steps from Python")
     spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start({"plant.q[1]": 1e9})
     with pytest.raises(MasterError, match=r"plant: fmi2DoStep at t = 0\.0 returned 3 \(error\)"):
         run_system(resolve_system(spec), stop_time=0.01, progress=False)
+
+
+def test_native_and_python_step_loops_are_identical(fmu_dir, block_cache, monkeypatch):
+    """The master's C step makes the very calls of its Python loop: bit-identical results."""
+    if master.step_library() is None:
+        pytest.skip("no C compiler: the master steps from Python")
+    system = resolve_system(_scenario("pendulum_perturbed", fmu_dir, block_cache).with_seed(2))
+    native = run_system(system, stop_time=0.05, progress=False)
+    monkeypatch.setattr(master, "step_library", lambda: None)
+    python = run_system(system, stop_time=0.05, progress=False)
+    assert native.values.tobytes() == python.values.tobytes()

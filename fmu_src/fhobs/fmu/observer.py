@@ -57,6 +57,13 @@ class FhobsObserver(ObserverSlave):
     def _model_outputs(self) -> np.ndarray:
         """``[psi, xi, sigma, q_hat, x_hat]`` (declaration order; no q_hat without a disturbance
         model); the model state is ``[z, psi, xi]``, z = (x_hat, q_hat)."""
-        state = self.model.get_state()
+        model = self.model
+        state = model.get_state()
         n, n_model = self.design.n, self.design.n_model
-        return np.concatenate((state[n_model:], (self.model.sigma,), state[n:n_model], state[:n]))
+        aux = state.size - n_model  # psi and xi
+        outputs = np.empty(state.size + 1)
+        outputs[:aux] = state[n_model:]
+        outputs[aux] = model.sigma
+        outputs[aux + 1:aux + 1 + n_model - n] = state[n:n_model]
+        outputs[aux + 1 + n_model - n:] = state[:n]
+        return outputs

@@ -10,7 +10,11 @@ captures the complete state (parameters, inputs, the numpy model's internal stat
 Speed. All Real variables live in one flat float buffer (each array variable is a view of its
 slice), so ``fmi2GetReal`` / ``fmi2SetReal`` are one fancy-indexing operation on it (the index
 array of a list of value references is cached), and ``doStep`` checks the inputs and the outputs
-as whole vectors; element labels are only formatted to describe a rejected call.
+as whole vectors; element labels are only formatted to describe a rejected call. With the status
+wrapper (linux64), the slave hands the wrapper the buffer's address, the buffer position of each
+value reference and a ctypes callback of ``do_step`` when it is created: ``fmi2GetReal`` /
+``fmi2SetReal`` of Real variables then never enter Python, and ``fmi2DoStep`` skips pythonfmu's
+C++ layer (see ``status_wrapper.c`` and :meth:`FhobsSlave._register_with_wrapper`).
 
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
@@ -26,9 +30,12 @@ Only numpy, the standard library, pythonfmu and numpy-only fhobs modules are imp
 
 from __future__ import annotations
 
+import _ctypes
+import ctypes
 import dataclasses
 import json
 import math
+import os
 import sys
 from abc import abstractmethod
 from collections.abc import Iterator
@@ -58,6 +65,12 @@ _KINDS: dict[str, dict[str, Any]] = {
     },
 }
 
+
+_INF = math.inf
+
+WRAPPER_STEP_OK, WRAPPER_STEP_OK_LOGGED, WRAPPER_STEP_REJECTED, WRAPPER_STEP_RAISED = 1, 2, 3, 4
+"""Answers of :meth:`FhobsSlave._step_for_wrapper` (``FHOBS_STEP_*`` in status_wrapper.c)."""
+_WRAPPER_STEP_TYPE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_double)
 
 INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
@@ -144,8 +157,11 @@ class FhobsSlave(Fmi2Slave):
             "inputs of larger magnitude are rejected as absurd",
         )
         self._pack_arrays()
+        self.via_wrapper = self._register_with_wrapper()
         self._ready = False
         self.model: SlaveModel = self._make_model()
+        # the start model and the parameters it was built from, until initialisation uses it
+        self._start_model: tuple[SlaveModel, tuple] | None = (self.model, self._parameters())
         self._publish()
 
     # -- declaration helpers -------------------------------------------------------------
@@ -197,6 +213,62 @@ class FhobsSlave(Fmi2Slave):
         self._bound = self._arrays["input_bound"]
         self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
         self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
+
+    def _register_with_wrapper(self) -> bool:
+        """Let the status wrapper serve ``fmi2GetReal`` / ``fmi2SetReal`` from the flat buffer
+        without entering Python and call :meth:`do_step` through a ctypes callback rather than
+        pythonfmu's C++ layer (see ``status_wrapper.c``); True if it took them.
+
+        Called from the constructor, which runs inside the wrapper's ``fmi2Instantiate`` (or
+        ``fmi2Reset``): the wrapper library, already loaded by the importer, is looked up
+        without loading it (``RTLD_NOLOAD``), given the buffer's address, the buffer position
+        of every Real value reference and the callback, and released. Without the wrapper, or
+        when the slave is not being created through it, nothing happens and every call goes
+        through pythonfmu. ``self._values`` is never rebound or resized after this (the
+        wrapper keeps its address).
+        """
+        if not (self._status_via_wrapper and hasattr(os, "RTLD_NOLOAD")):
+            return False
+        binary = Path(self.resources).parent / "binaries" / "linux64" / f"{type(self).__name__}.so"
+        try:
+            library = ctypes.CDLL(str(binary), mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
+        except OSError:
+            return False
+        try:
+            register = getattr(library, "fhobs_register", None)
+            if register is None:
+                return False
+            positions = np.full(max(self._position, default=-1) + 1, -1, dtype=np.longlong)
+            positions[list(self._position)] = list(self._position.values())
+            # kept alive with the instance (the wrapper calls it until fmi2FreeInstance/Reset)
+            self._wrapper_step = _WRAPPER_STEP_TYPE(self._step_for_wrapper)
+            register.restype = ctypes.c_int
+            register.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                                 ctypes.c_size_t, _WRAPPER_STEP_TYPE]
+            return bool(register(self._values.ctypes.data, self._values.size,
+                                 positions.ctypes.data, positions.size, self._wrapper_step))
+        finally:
+            _ctypes.dlclose(library._handle)  # balance the RTLD_NOLOAD reference
+
+    def _step_for_wrapper(self, current_time: float, step_size: float) -> int:
+        """:meth:`do_step` for the wrapper's ``fmi2DoStep`` (a ctypes callback must not raise):
+        its answer as one of the ``WRAPPER_STEP_*`` codes. An exception is kept and raised
+        again by the ``do_step`` that the wrapper then calls through pythonfmu, which answers
+        it with ``fmi2Fatal`` and logs it as for any exception."""
+        try:
+            ok = self.do_step(current_time, step_size)
+        except BaseException as err:  # handed over to pythonfmu
+            pending = err
+
+            def raise_again(current_time: float, step_size: float) -> bool:
+                del self.do_step  # back to the method
+                raise pending
+
+            self.do_step = raise_again
+            return WRAPPER_STEP_RAISED
+        if not ok:
+            return WRAPPER_STEP_REJECTED
+        return WRAPPER_STEP_OK_LOGGED if self.log_queue else WRAPPER_STEP_OK
 
     def _index(self, vrs: list[int]) -> np.ndarray | slice:
         """Buffer positions of the Real variables ``vrs`` (cached per list of references; a
@@ -263,14 +335,27 @@ class FhobsSlave(Fmi2Slave):
         return dataclasses.replace(self.design, **changes)
 
     # -- FMI lifecycle -------------------------------------------------------------------
+    def _parameters(self) -> tuple:
+        """The exact current values of every parameter (what :meth:`_make_model` reads)."""
+        arrays = tuple(self._arrays[name].tobytes() for name in self._kinds["parameter"])
+        return arrays, tuple(self._integers.items())
+
     def exit_initialization_mode(self) -> None:
-        """Re-check the (possibly edited) parameters and build the model from them."""
+        """Re-check the (possibly edited) parameters and build the model from them.
+
+        The model built by the constructor is used if it is still the slave's model (no FMU
+        state was set since) and every parameter still has the value it was built from: it
+        is then the model :meth:`_make_model` would build (whose construction can cost tens of
+        milliseconds). It is used at most once.
+        """
         self.status = STATUS_OK
         self._ready = False
+        start, self._start_model = self._start_model, None
         try:
             self._check_finite_parameters()
             self._check_parameters()
-            self.model = self._make_model()
+            if start is None or start[0] is not self.model or start[1] != self._parameters():
+                self.model = self._make_model()
         except ValueError as err:
             self._fail(f"initialisation rejected the parameters: {err}")
             if not self._status_via_wrapper:
@@ -293,9 +378,14 @@ class FhobsSlave(Fmi2Slave):
         if not self._ready:
             return self._fail("doStep called without a successful initialisation")
         inputs = self._values[self._input_index].tolist()
-        if not (step_size > 0.0 and math.isfinite(step_size)
-                and all(map(math.isfinite, inputs))
-                and max(map(abs, inputs), default=0.0) <= self._bound.item()):
+        # One comparison accepts a valid call: the sum of |inputs| bounds each of them (a float
+        # sum of non-negative terms never falls below a term) and is NaN or inf when one is
+        # not finite; NaN and inf fail the comparisons. Anything else gets the exact checks.
+        if not (0.0 < step_size < _INF and sum(map(abs, inputs)) <= self._bound.item()) and not (
+            step_size > 0.0 and math.isfinite(step_size)
+            and all(map(math.isfinite, inputs))
+            and max(map(abs, inputs), default=0.0) <= self._bound.item()
+        ):
             problem = self._input_problem(step_size)
             return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
         attributes = self.model.__dict__
@@ -303,9 +393,9 @@ class FhobsSlave(Fmi2Slave):
         try:
             self._advance(step_size)
             outputs = self._model_outputs()
-            if not all(map(math.isfinite, outputs.tolist())):
-                self._finite_outputs()  # raises, naming them
-                raise ValueError("the model produced non-finite outputs")
+            total = sum(outputs.tolist())  # NaN or inf if an output is; inf also on overflow
+            if total - total != 0.0:
+                self._finite_outputs(outputs)  # raises, naming them (unless the sum overflowed)
         except ValueError as err:
             attributes.clear()
             attributes.update(saved)
@@ -339,9 +429,11 @@ class FhobsSlave(Fmi2Slave):
                     return f"input {label} = {value!r} exceeds input_bound = {bound!r}"
         return ""
 
-    def _finite_outputs(self) -> np.ndarray:
-        """The model's outputs (flat, in declaration order); ValueError if one is not finite."""
-        outputs = self._model_outputs()
+    def _finite_outputs(self, outputs: np.ndarray | None = None) -> np.ndarray:
+        """The model's outputs (flat, in declaration order; ``outputs`` if given, else computed);
+        ValueError if one is not finite."""
+        if outputs is None:
+            outputs = self._model_outputs()
         if not all(map(math.isfinite, outputs.tolist())):
             labels = [label for name in self._kinds["output"]
                       for label in element_names(name, self._arrays[name].shape)]
