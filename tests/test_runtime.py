@@ -87,13 +87,17 @@ def test_gain_cap_makes_the_limit_map_contractive(paper_design, tuned_gains):
 
 
 def continuous_rhs(g, t, state):
-    """Plant (u = 0) + filtering observer with the continuous output y = C x (scipy expm)."""
-    n, k = g.n, g.k
-    x, z, psi, xi = state[:n], state[n:2 * n], state[2 * n:2 * n + k], state[-1]
+    """Plant (u = 0, q = 0) + filtering observer on its model (the plant's, or the extended one
+    of a disturbance model) with the continuous output y = C x (scipy expm)."""
+    n, n_model, k = g.n, g.n_model, g.k
+    A_model, _, C_model = g.model
+    x, z, psi, xi = state[:n], state[n:n + n_model], state[n + n_model:-1], state[-1]
+    assert psi.size == k
     sigma = np.sqrt(max(xi, psi @ psi / 2))
-    v = g.C @ (z - x)
+    v = C_model @ z - g.C @ x
     dpsi = v + sigma**g.nu * g.L_tilde @ psi
-    dz = g.A @ z + g.L0 @ v + sigma ** (g.nu - 1) * d_scipy(g.G_d, np.log(sigma)) @ g.L @ psi
+    dz = (A_model @ z + g.L0 @ v
+          + sigma ** (g.nu - 1) * d_scipy(g.G_d, np.log(sigma)) @ g.L @ psi)
     w = xi - psi @ psi / 2
     dxi = abs(psi @ dpsi) - g.gamma * np.sign(w) * abs(w) ** (g.nu / 2 + 1)
     return np.concatenate([g.A @ x, dz, dpsi, [dxi]])
@@ -109,12 +113,15 @@ def discrete_run(g, scheme, h, t_end, z0, psi0, xi0):
     return np.concatenate([obs.z, obs.diagnostics()["psi"]]), plant.x
 
 
+@pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
 @pytest.mark.parametrize("scheme", SCHEMES)
-def test_scheme_converges_to_fine_step_reference(paper_design, scheme):
+def test_scheme_converges_to_fine_step_reference(request, design, scheme):
     """Short horizon, sigma away from 0: both schemes approach the solve_ivp solution of the
-    continuous plant + observer at first order in h."""
-    g = paper_design
-    z0, psi0, xi0, t_end = np.array([1.0, 1.5, 0.0, 0.0]), np.array([0.5, -0.3]), 0.5, 0.05
+    continuous plant + observer at first order in h (the paper's design and ours, whose
+    observer runs on the extended model of its disturbance model)."""
+    g = request.getfixturevalue(design)
+    z0 = np.concatenate([[1.0, 1.5], np.zeros(g.n_model - 2)])
+    psi0, xi0, t_end = np.array([0.5, -0.3]), 0.5, 0.05
     state0 = np.concatenate([X0_PAPER, z0, psi0, [xi0]])
     sol = solve_ivp(lambda t, s: continuous_rhs(g, t, s), (0.0, t_end), state0,
                     method="DOP853", rtol=1e-11, atol=1e-12)
@@ -168,10 +175,11 @@ def test_luenberger_euler_is_explicit_euler(paper_design):
                        rtol=1e-9, atol=1e-12)
 
 
-def test_xi_invariant_after_t_delta(paper_design):
+@pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
+def test_xi_invariant_after_t_delta(request, design):
     """xi >= |psi|^2/2 once w = xi - |psi|^2/2 has reached 0 (T_delta = |w0|^(1-p)/((1-p) gamma)
     for w0 < 0, p = nu/2 + 1), and it is then kept exactly by the split scheme."""
-    g, h = paper_design, 5e-5
+    g, h = request.getfixturevalue(design), 5e-5
     p = g.nu / 2 + 1
     xi0 = -1e-4
     t_delta = abs(xi0) ** (1 - p) / ((1 - p) * g.gamma)
@@ -179,7 +187,7 @@ def test_xi_invariant_after_t_delta(paper_design):
     obs = FilteringObserver(g, h=h, xi0=xi0)
     gaps = []
     for k in range(int(round(0.8 / h))):
-        y, u = plant.y, K_PAPER @ obs.z
+        y, u = plant.y, K_PAPER @ obs.x_hat
         plant.step(u, None, h)
         obs.step(y, u, h)
         d = obs.diagnostics()
@@ -187,12 +195,13 @@ def test_xi_invariant_after_t_delta(paper_design):
     assert 0.3 < t_delta < 0.6 and not any(gaps)
 
 
-def test_edges_stay_finite(paper_design):
-    g = paper_design
+@pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
+def test_edges_stay_finite(request, design):
+    g = request.getfixturevalue(design)
     for scheme in SCHEMES:
         obs = FilteringObserver(g, scheme=scheme)
         obs.step(np.zeros(2), [0.0], 5e-5)  # sigma = 0 and zero innovation
-        assert np.array_equal(obs.get_state(), np.zeros(7))
+        assert np.array_equal(obs.get_state(), np.zeros(g.n_model + g.k + 1))
         for y in ([1e6, -1e6], [1e-14, 0.0], [0.0, 0.0], [3.0, 2.0]):
             for _ in range(50):
                 obs.step(np.array(y), [0.0], 5e-5)
