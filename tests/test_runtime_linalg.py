@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 from fhobs.dilation import Dilation
+from fhobs.injection import InjectionFlow
 from fhobs.linalg import ExpmFamily, expm, phi1, zoh_blocks
 
 
@@ -73,3 +74,30 @@ def test_dilation_matches_scipy(paper_design, force_fallback):
         atol = 1e-13 * np.abs(ref).max()
         assert np.allclose(dilation.apply(s, x), ref @ x, rtol=1e-10, atol=atol * np.abs(x).max())
         assert np.allclose(dilation.matrix(s), ref, rtol=1e-10, atol=atol)
+
+
+@pytest.mark.parametrize("force_fallback", [False, True])
+@pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
+def test_injection_flow_matches_scipy(request, design, force_fallback):
+    """The frozen-level flow of (psi, z) against scipy's expm of the unscaled linear system
+    (psi, v, z-increment) with ``d psi = s^nu L_tilde psi + v``, ``dz = s^(nu-1) d(ln s) L psi``,
+    ``dv = C dz``: this also checks the scaling by ``C G_d = (1 + nu) C`` the flow relies on."""
+    g = request.getfixturevalue(design)
+    _, _, C = g.model
+    k, N, nu = g.k, g.n_model, g.nu
+    flow = InjectionFlow(g.L_tilde, C, Dilation(g.G_d, right=g.L), nu,
+                         force_fallback=force_fallback)
+    assert flow.eigen is not force_fallback
+    rng = np.random.default_rng(5)
+    hs = 5e-5
+    for s in (1e-3, 0.7, 40.0, 3e4):
+        psi, v = rng.standard_normal(k), rng.standard_normal(k)
+        gain = s ** (nu - 1.0) * sl.expm(np.log(s) * g.G_d) @ g.L
+        system = np.zeros((2 * k + N, 2 * k + N))
+        system[:k, :k], system[:k, k:2 * k] = s**nu * g.L_tilde, np.eye(k)
+        system[k:2 * k, :k], system[2 * k:, :k] = C @ gain, gain
+        ref = sl.expm(hs * system) @ np.concatenate((psi, v, np.zeros(N)))
+        psi_new, dz = flow.apply(psi, v, np.log(s), hs * s**nu)
+        scale = np.abs(ref).max()
+        assert np.allclose(psi_new, ref[:k], rtol=1e-9, atol=1e-12 * scale)
+        assert np.allclose(dz, ref[2 * k:], rtol=1e-9, atol=1e-12 * scale)

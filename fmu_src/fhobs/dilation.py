@@ -25,6 +25,11 @@ class Dilation:
         Fixed right factor M (identity if None), e.g. a gain ``L``.
     force_fallback : bool
         Use the expm path even if G is well diagonalisable (for tests).
+
+    Attributes
+    ----------
+    eigenvalues, eigenvectors, inverse_right : np.ndarray
+        ``g``, ``V`` and ``V^-1 M`` (real if every eigenvalue is), set only when ``use_eig``.
     """
 
     def __init__(self, G: np.ndarray, right: np.ndarray | None = None,
@@ -35,16 +40,16 @@ class Dilation:
         self.use_eig = (not force_fallback) and np.linalg.cond(V) < COND_LIMIT
         if self.use_eig:
             real = bool(np.all(g.imag == 0.0))
-            self._g = g.real if real else g
-            self._V = V.real if real else V
-            self._Vinv_right = np.linalg.solve(self._V, self.right)
+            self.eigenvalues = g.real if real else g
+            self.eigenvectors = V.real if real else V
+            self.inverse_right = np.linalg.solve(self.eigenvectors, self.right)
 
     def apply(self, s: float, x: np.ndarray) -> np.ndarray:
         """Return ``d(s) M x`` (x a vector or a matrix)."""
         if self.use_eig:
-            scale = np.exp(s * self._g)
+            scale = np.exp(s * self.eigenvalues)
             scale = scale if x.ndim == 1 else scale[:, None]
-            out = self._V @ (scale * (self._Vinv_right @ x))
+            out = self.eigenvectors.dot(scale * self.inverse_right.dot(x))
             return out if out.dtype.kind == "f" else out.real
         return expm(s * self.G) @ (self.right @ x)
 

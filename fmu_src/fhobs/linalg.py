@@ -98,13 +98,13 @@ def phi1(X: np.ndarray) -> np.ndarray:
     return expm(aug)[:n, n:]
 
 
-_PHI1_SERIES = 1e-8
+PHI1_SERIES = 1e-8
 """Below this |mu|, phi1(mu) = 1 + mu/2 (to double precision)."""
 
 
-def _phi1_scalar(mu: np.ndarray) -> np.ndarray:
+def phi1_elementwise(mu: np.ndarray) -> np.ndarray:
     """Elementwise ``(exp(mu) - 1) / mu`` for complex mu, with the limit 1 at mu = 0."""
-    small = np.abs(mu) < _PHI1_SERIES
+    small = np.abs(mu) < PHI1_SERIES
     safe = np.where(small, 1.0, mu)
     return np.where(small, 1.0 + 0.5 * mu, np.expm1(safe) / safe)
 
@@ -122,6 +122,11 @@ class ExpmFamily:
         Square real matrix.
     force_fallback : bool
         Use the :func:`expm` path even if R is well diagonalisable (for tests).
+
+    Attributes
+    ----------
+    eigenvalues, eigenvectors, eigenvectors_inverse : np.ndarray
+        ``lam``, ``V`` and ``V^-1`` (complex), set only when ``use_eig``.
     """
 
     def __init__(self, R: np.ndarray, force_fallback: bool = False) -> None:
@@ -129,9 +134,9 @@ class ExpmFamily:
         lam, V = np.linalg.eig(self.R)
         self.use_eig = (not force_fallback) and np.linalg.cond(V) < COND_LIMIT
         if self.use_eig:
-            self._lam = lam
-            self._V = V
-            self._Vinv = np.linalg.inv(V)
+            self.eigenvalues = lam
+            self.eigenvectors = V
+            self.eigenvectors_inverse = np.linalg.inv(V)
             self._min_abs_lam = float(np.min(np.abs(lam)))
             self._last: tuple[float, np.ndarray, np.ndarray] = (math.nan, lam, lam)
 
@@ -140,12 +145,12 @@ class ExpmFamily:
         the level search evaluate one tau repeatedly)."""
         last_tau, exp_mu, phi_mu = self._last
         if tau != last_tau:
-            mu = tau * self._lam
+            mu = tau * self.eigenvalues
             exp_mu = np.exp(mu)
-            if tau * self._min_abs_lam > _PHI1_SERIES:
+            if tau * self._min_abs_lam > PHI1_SERIES:
                 phi_mu = np.expm1(mu) / mu
             else:
-                phi_mu = _phi1_scalar(mu)
+                phi_mu = phi1_elementwise(mu)
             self._last = (tau, exp_mu, phi_mu)
         return exp_mu, phi_mu
 
@@ -154,10 +159,10 @@ class ExpmFamily:
         """Return ``(expm(tau R) r, phi1(tau R) r)`` for tau >= 0, or their first ``rows``
         entries only."""
         if self.use_eig:
-            c = self._Vinv @ r
+            c = self.eigenvectors_inverse.dot(r)
             exp_mu, phi_mu = self._spectral_factors(tau)
-            V = self._V[:rows]
-            return (V @ (exp_mu * c)).real, (V @ (phi_mu * c)).real
+            V = self.eigenvectors[:rows]
+            return V.dot(exp_mu * c).real, V.dot(phi_mu * c).real
         size = self.R.shape[0]
         aug = np.zeros((size + 1, size + 1))
         aug[:size, :size] = tau * self.R

@@ -18,7 +18,7 @@ substeps of size ``<= h``, with one of two schemes:
        the step's start. Because ``C G_d = (1 + nu) C``, the innovation pair ``(psi, v)`` obeys
        ``d/dt (psi/s, v/s^(1+nu)) = s^nu R (psi/s, v/s^(1+nu))`` with the constant
        ``R = [[L_tilde, I], [C L, 0]]``, so one eigen-decomposition of R (done once) gives the
-       exact flow for every sigma;
+       exact flow for every sigma (:class:`fhobs.injection.InjectionFlow`);
     2. *prediction*: ``z <- expm(h A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of the
        model, the innovation held), the very map that the plant applies to x.
 
@@ -51,13 +51,27 @@ This module is numpy-only: it runs inside the FMUs.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
+from fhobs.injection import InjectionFlow
 from fhobs.linalg import ExpmFamily, zoh_blocks
 from fhobs.plant import ZOH_CACHE_SIZE, all_finite, as_finite_vector, check_step_size
+
+
+class Prediction(NamedTuple):
+    """Exact zero-order hold of the observer's model over a substep, the innovation v held:
+    ``z+ = Phi z + Gamma_B u + Gamma_inj v = M (z, u, v)``; ``F = Phi + Gamma_inj C`` carries a
+    correction dz of z (which also moves v by C dz) into z+."""
+
+    Phi: np.ndarray
+    Gamma_inj: np.ndarray
+    M: np.ndarray
+    F: np.ndarray
+
 
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
@@ -117,7 +131,7 @@ class _Observer:
         n = self._A.shape[0]
         self._z = np.zeros(n) if z0 is None else as_finite_vector(z0, n, "z0")
         self._L_inj = L_inj
-        self._zoh: dict[float, list[np.ndarray]] = {}
+        self._zoh: dict[float, Prediction] = {}
 
     # -- public interface -------------------------------------------------------------------
     @property
@@ -169,43 +183,51 @@ class _Observer:
         return {"z": self.z}
 
     # -- schemes ----------------------------------------------------------------------------
-    def _prediction(self, hs: float) -> list[np.ndarray]:
-        """``[expm(hs A), Gamma_B, Gamma_inj]`` (cached per substep size)."""
-        blocks = self._zoh.get(hs)
-        if blocks is None:
+    def _prediction(self, hs: float) -> Prediction:
+        """The exact ZOH prediction over a substep hs (cached per substep size)."""
+        prediction = self._zoh.get(hs)
+        if prediction is None:
             if len(self._zoh) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
                 self._zoh.clear()
-            blocks = self._zoh[hs] = zoh_blocks(self._A, [self._B, self._L_inj], hs)
-        return blocks
+            Phi, Gamma_B, Gamma_inj = zoh_blocks(self._A, [self._B, self._L_inj], hs)
+            prediction = self._zoh[hs] = Prediction(
+                Phi, Gamma_inj, np.hstack((Phi, Gamma_B, Gamma_inj)), Phi + Gamma_inj @ self._C)
+        return prediction
 
     def _run_split(self, z, aux, y, u, hs, n_sub, level=None):
         """The split scheme over n_sub substeps (see the module docstring); the gain level is
         the observer's own (capped for the communication step hs * n_sub) unless given."""
         C = self._C
-        Phi, _, Gamma_inj = self._prediction(hs)
+        prediction = self._prediction(hs)
         innovation0 = C.dot(z) - y
         v = innovation0
-        drift = 0.0  # z - m, m the observer's open-loop model prediction from the step's start
+        drift = np.zeros(z.size)  # z - m, m the observer's open-loop model prediction from t_k
         for i in range(n_sub):
-            z, aux, dz, v = self._split_substep(z, aux, v, u, hs, hs * n_sub, level)
+            z, aux, F_dz = self._split_substep(z, aux, v, u, hs, hs * n_sub, level)
             if i + 1 < n_sub:
-                drift = Phi.dot(drift + dz) + Gamma_inj.dot(v)
+                drift = prediction.Phi.dot(drift) + prediction.Gamma_inj.dot(v)
+                if F_dz is not None:
+                    drift = drift + F_dz
                 v = C.dot(drift) + innovation0
         return z, aux
 
     def _split_substep(self, z, aux, v, u, hs, dt, level=None):
         """Correction (exact, gain frozen at ``level``, by default the observer's own level
-        capped for the communication step dt) then ZOH prediction with v held.
+        capped for the communication step dt) then ZOH prediction with v held:
+        ``z+ = Phi (z + dz) + Gamma_B u + Gamma_inj (v + C dz) = M (z, u, v) + F dz``.
 
-        Returns the new z and aux, the correction's increment of z and the corrected v.
+        Returns the new z and aux and ``F dz`` (None if the observer has no correction).
         """
-        Phi, Gamma_B, Gamma_inj = self._prediction(hs)
+        prediction = self._prediction(hs)
         if level is None:
             aux, dz = self._correct_own_level(aux, v, hs, dt)
         else:
             aux, dz = self._correct(aux, v, hs, level)
-        v = v + self._C.dot(dz)
-        return Phi.dot(z + dz) + Gamma_B.dot(u) + Gamma_inj.dot(v), aux, dz, v
+        z_new = prediction.M.dot(np.concatenate((z, u, v)))
+        if dz is None:
+            return z_new, aux, None
+        F_dz = prediction.F.dot(dz)
+        return z_new + F_dz, aux, F_dz
 
     def _run_euler(self, z, aux, y, u, hs, n_sub):
         """The paper's explicit Euler over n_sub substeps, y held."""
@@ -231,9 +253,10 @@ class _Observer:
         return self._correct(aux, v, hs, self._level(aux, dt))
 
     def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
-                 level: float) -> tuple[np.ndarray, np.ndarray]:
-        """Exact correction flow over hs: return (new aux, increment of z)."""
-        return aux, np.zeros(self._z.size)
+                 level: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """Exact correction flow over hs: return (new aux, increment of z), the increment
+        None for an observer without one."""
+        return aux, None
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -294,8 +317,7 @@ class FilteringObserver(_Observer):
         self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
         self._n_error_aux = k
         self._dilation = Dilation(gains.G_d, right=gains.L)
-        self._R = ExpmFamily(np.block([[gains.L_tilde, np.eye(k)],
-                                       [self._C @ gains.L, np.zeros((k, k))]]))
+        self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
         self._p = gains.nu / 2.0 + 1.0
         self.tau_max = (self._auto_tau_max()
                         if tau_max is None else float(tau_max))
@@ -314,8 +336,8 @@ class FilteringObserver(_Observer):
     @staticmethod
     def _sigma(aux: np.ndarray) -> float:
         """``sigma = sqrt(max(xi, |psi|^2 / 2))``."""
-        psi = aux[:-1]
-        return math.sqrt(max(float(aux[-1]), 0.5 * float(psi.dot(psi)), 0.0))
+        *psi, xi = aux.tolist()
+        return math.sqrt(max(xi, 0.5 * sum(p * p for p in psi), 0.0))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
         """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / dt)^(1/nu)``."""
@@ -349,16 +371,13 @@ class FilteringObserver(_Observer):
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
-        k, nu = self._k, self._nu
-        psi, xi = aux[:k], float(aux[k])
+        k = self._k
+        psi = aux[:k]
         log_s = math.log(level)
-        tau = hs * math.exp(nu * log_s)
-        r_hat = np.concatenate((psi / level, v * math.exp(-(1.0 + nu) * log_s)))
-        exp_r, phi_r = self._R.apply(tau, r_hat, rows=k)
+        psi_new, dz = self._flow.apply(psi, v, log_s, hs * math.exp(self._nu * log_s))
         aux_new = np.empty(k + 1)
-        psi_new = np.multiply(level, exp_r, out=aux_new[:k])
-        dz = tau * self._dilation.apply(log_s, phi_r)
-        aux_new[k] = self._xi_update(psi, psi_new, xi, hs)
+        aux_new[:k] = psi_new
+        aux_new[k] = self._xi_update(psi, aux_new[:k], float(aux[k]), hs)
         return aux_new, dz
 
     def _xi_update(self, psi: np.ndarray, psi_new: np.ndarray, xi: float, hs: float) -> float:
