@@ -37,5 +37,6 @@ class FhobsLuenberger(ObserverSlave):
             z0=self.array("z0"),
         )
 
-    def _model_outputs(self) -> np.ndarray:
-        return self.model.z
+    def _model_outputs(self) -> list[float]:
+        """``x_hat`` (the model state z)."""
+        return self.model.z.tolist()

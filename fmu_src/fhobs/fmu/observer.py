@@ -54,16 +54,15 @@ class FhobsObserver(ObserverSlave):
             xi0=float(self.array("xi0")),
         )
 
-    def _model_outputs(self) -> np.ndarray:
-        """``[psi, xi, sigma, q_hat, x_hat]`` (declaration order; no q_hat without a disturbance
-        model); the model state is ``[z, psi, xi]``, z = (x_hat, q_hat)."""
+    def _output_layout(self) -> list[str]:
+        """The model state ``[z, psi, xi]``, z = (x_hat, q_hat), then sigma (no q_hat without a
+        disturbance model)."""
+        z = ["x_hat", "q_hat"] if self.design.disturbance_order else ["x_hat"]
+        return [*z, "psi", "xi", "sigma"]
+
+    def _model_outputs(self) -> list[float]:
+        """``[x_hat, q_hat, psi, xi, sigma]``: the model state, then sigma."""
         model = self.model
-        state = model.get_state()
-        n, n_model = self.design.n, self.design.n_model
-        aux = state.size - n_model  # psi and xi
-        outputs = np.empty(state.size + 1)
-        outputs[:aux] = state[n_model:]
-        outputs[aux] = model.sigma
-        outputs[aux + 1:aux + 1 + n_model - n] = state[n:n_model]
-        outputs[aux + 1 + n_model - n:] = state[:n]
-        return outputs
+        values = model.get_state().tolist()
+        values.append(model.sigma)
+        return values

@@ -63,11 +63,11 @@ class FhobsPlant(FhobsSlave):
             scheme=self._scheme_name(),
         )
 
-    def _advance(self, step_size: float) -> None:
-        inputs = self._input_views
-        q = inputs["q"].copy() if "q" in inputs else np.zeros(0)
-        self.model.step(inputs["u"].copy(), q, step_size)
+    def _model_step_arguments(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(u, q)``; q is None without a perturbation input (``LTIPlant.step`` takes it so)."""
+        return self._arrays["u"], self._arrays.get("q")
 
-    def _model_outputs(self) -> np.ndarray:
+    def _model_outputs(self) -> list[float]:
         """``[y, x]`` (declaration order)."""
-        return np.concatenate((self.model.y, self.model.x))
+        model = self.model
+        return model.y.tolist() + model.x.tolist()

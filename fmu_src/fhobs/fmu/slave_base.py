@@ -8,13 +8,19 @@ captures the complete state (parameters, inputs, the numpy model's internal stat
 ``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``.
 
 Speed. All Real variables live in one flat float buffer (each array variable is a view of its
-slice), so ``fmi2GetReal`` / ``fmi2SetReal`` are one fancy-indexing operation on it (the index
-array of a list of value references is cached), and ``doStep`` checks the inputs and the outputs
-as whole vectors; element labels are only formatted to describe a rejected call. With the status
-wrapper (linux64), the slave hands the wrapper the buffer's address, the buffer position of each
-value reference and a ctypes callback of ``do_step`` when it is created: ``fmi2GetReal`` /
-``fmi2SetReal`` of Real variables then never enter Python, and ``fmi2DoStep`` skips pythonfmu's
-C++ layer (see ``status_wrapper.c`` and :meth:`FhobsSlave._register_with_wrapper`).
+slice; the inputs first, then the outputs, then the parameters), so ``fmi2GetReal`` /
+``fmi2SetReal`` are one fancy-indexing operation on it (the index array of a list of value
+references is cached). With the status wrapper (linux64), the slave hands the wrapper the
+buffer's address, the buffer position of each value reference and a ctypes callback of
+``do_step`` when it is created: ``fmi2GetReal`` / ``fmi2SetReal`` of Real variables then never
+enter Python, and ``fmi2DoStep`` skips pythonfmu's C++ layer (see ``status_wrapper.c`` and
+:meth:`FhobsSlave._register_with_wrapper`). A valid ``doStep`` costs little more than the
+model's own step: one comparison accepts the inputs (their ``math.hypot`` against
+``input_bound``), the model steps on views of the input variables (no copies), the state before
+the step is kept as a shallow copy of the model's attributes, and the outputs are read as one
+list of floats (in the order the model gives them, which is the order of the output arrays in
+the buffer: no reordering), accepted by one sum and written into the buffer in one assignment.
+Element labels are only formatted, and the exact checks only made, to describe a rejected call.
 
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
@@ -38,7 +44,7 @@ import math
 import os
 import sys
 from abc import abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -67,6 +73,7 @@ _KINDS: dict[str, dict[str, Any]] = {
 
 
 _INF = math.inf
+_hypot = math.hypot
 
 WRAPPER_STEP_OK, WRAPPER_STEP_OK_LOGGED, WRAPPER_STEP_REJECTED, WRAPPER_STEP_RAISED = 1, 2, 3, 4
 """Answers of :meth:`FhobsSlave._step_for_wrapper` (``FHOBS_STEP_*`` in status_wrapper.c)."""
@@ -76,10 +83,9 @@ INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
 
 
-def _concat_index(ranges: list[np.ndarray]) -> np.ndarray | slice:
-    """Concatenated buffer positions: a slice when they are consecutive (indexing with it is
-    a view, cheaper than fancy indexing), else an int array."""
-    index = np.concatenate(ranges) if ranges else np.zeros(0, dtype=np.intp)
+def _as_slice(index: np.ndarray) -> np.ndarray | slice:
+    """Buffer positions ``index`` as a slice when they are consecutive (indexing with it is a
+    view, cheaper than fancy indexing), else unchanged."""
     if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
         return slice(int(index[0]), int(index[0]) + index.size)
     return index
@@ -91,8 +97,13 @@ class SlaveModel(Protocol):
     Its ``step`` must replace the arrays that hold the state, never write into them, and leave
     them as they were when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
     :meth:`FhobsSlave.do_step` keeps the state before a step as the references in the model's
-    ``__dict__``.
+    ``__dict__``. Its array arguments are views of the slave's input variables: ``step`` may
+    read them during the call only, never write into them or keep references to them (the
+    runtime's ``step(y, u, dt)`` and the plant's ``step(u, q, dt)`` do not).
     """
+
+    def step(self, *arguments: np.ndarray | float | None) -> None:
+        """Advance by the last argument (the step size) with the array arguments held."""
 
     def get_state(self) -> np.ndarray:
         """Return the complete internal state as a flat float array (a copy)."""
@@ -122,10 +133,12 @@ def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
 class FhobsSlave(Fmi2Slave):
     """Common base of the fhobs slaves (abstract: subclasses define the model).
 
-    Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`,
-    :meth:`_advance` and :meth:`_model_outputs`. The design record and the build options are
-    read from the instance's own ``resources`` folder, never from module globals, so that
-    two FMUs sharing Python modules in one process stay independent.
+    Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`
+    and :meth:`_model_outputs`, and override :meth:`_model_step_arguments` if the model's
+    ``step`` does not take the input arrays in declaration order and :meth:`_output_layout` if
+    the model's outputs do not come in declaration order. The design record and the
+    build options are read from the instance's own ``resources`` folder, never from module
+    globals, so that two FMUs sharing Python modules in one process stay independent.
     """
 
     author = "fhobs"
@@ -194,25 +207,32 @@ class FhobsSlave(Fmi2Slave):
             )
 
     def _pack_arrays(self) -> None:
-        """Move every array variable into one flat buffer (each array becomes a view of it) and
-        precompute the value-reference -> buffer-position map and the input/output positions."""
+        """Move every array variable into one flat buffer (each array becomes a view of it):
+        the inputs in declaration order, the outputs in the order of :meth:`_output_layout`,
+        then the parameters. Precompute the value-reference -> buffer-position map, the views
+        of all inputs and of all outputs, and the model step's arguments."""
+        self._output_names = self._output_layout()
+        if sorted(self._output_names) != sorted(self._kinds["output"]):
+            raise ValueError(f"output layout {self._output_names} is not a permutation of the "
+                             f"outputs {self._kinds['output']}")
         self._values = np.zeros(sum(a.size for a in self._arrays.values()))
         self._position: dict[int, int] = {}
-        ranges: dict[str, np.ndarray] = {}
         start = 0
-        for name, array in self._arrays.items():
+        for name in (*self._kinds["input"], *self._output_names, *self._kinds["parameter"]):
+            array = self._arrays[name]
             view = self._values[start:start + array.size].reshape(array.shape)
             view[...] = array
             self._arrays[name] = view
-            ranges[name] = np.arange(start, start + array.size)
             first = self._first_vr[name]
             self._position.update({first + i: start + i for i in range(array.size)})
             start += array.size
-        self._input_index = _concat_index([ranges[n] for n in self._kinds["input"]])
-        self._output_index = _concat_index([ranges[n] for n in self._kinds["output"]])
+        n_inputs = sum(self._arrays[name].size for name in self._kinds["input"])
+        n_outputs = sum(self._arrays[name].size for name in self._kinds["output"])
+        self._inputs = self._values[:n_inputs]
+        self._outputs = self._values[n_inputs:n_inputs + n_outputs]
         self._bound = self._arrays["input_bound"]
-        self._input_views = {name: self._arrays[name] for name in self._kinds["input"]}
-        self._index_cache: dict[tuple[int, ...], np.ndarray] = {}
+        self._step_arguments = self._model_step_arguments()
+        self._index_cache: dict[tuple[int, ...], np.ndarray | slice] = {}
 
     def _register_with_wrapper(self) -> bool:
         """Let the status wrapper serve ``fmi2GetReal`` / ``fmi2SetReal`` from the flat buffer
@@ -288,7 +308,7 @@ class FhobsSlave(Fmi2Slave):
             if len(self._index_cache) >= INDEX_CACHE_SIZE:
                 self._index_cache.clear()
             positions = np.array([self._position[vr] for vr in key], dtype=np.intp)
-            index = self._index_cache[key] = _concat_index([positions])
+            index = self._index_cache[key] = _as_slice(positions)
         return index
 
     def get_real(self, vrs: list[int]) -> list[float]:
@@ -368,39 +388,39 @@ class FhobsSlave(Fmi2Slave):
         """Advance by ``step_size`` with the inputs held; reject invalid calls, state kept.
 
         The path of a valid step is kept short (it runs once per FMU and communication step):
-        the inputs are checked as one list, and the state before the step is kept as a shallow
-        copy of the model's attributes rather than through ``get_state``: a runtime step never
-        writes into its state arrays, it replaces them (and leaves them as they were when it
-        raises), so those references are the complete state before the step. They are put
-        back if the new outputs are not finite.
+        the inputs are checked as one list; the model steps on views of the input variables
+        (:class:`SlaveModel`: it neither keeps nor writes them); the state before the step is
+        kept as a shallow copy of the model's attributes rather than through ``get_state``: a
+        runtime step never writes into its state arrays, it replaces them (and leaves them as
+        they were when it raises), so those references are the complete state before the step.
+        They are put back if the new outputs are not finite; the output variables are only
+        written once the outputs are accepted.
         """
         self.status = STATUS_OK
         if not self._ready:
             return self._fail("doStep called without a successful initialisation")
-        inputs = self._values[self._input_index].tolist()
-        # One comparison accepts a valid call: the sum of |inputs| bounds each of them (a float
-        # sum of non-negative terms never falls below a term) and is NaN or inf when one is
-        # not finite; NaN and inf fail the comparisons. Anything else gets the exact checks.
-        if not (0.0 < step_size < _INF and sum(map(abs, inputs)) <= self._bound.item()) and not (
-            step_size > 0.0 and math.isfinite(step_size)
-            and all(map(math.isfinite, inputs))
-            and max(map(abs, inputs), default=0.0) <= self._bound.item()
-        ):
+        # One comparison accepts a valid call: math.hypot of the inputs is within 1 ulp of
+        # their Euclidean norm (Python >= 3.10), which bounds each |input|, so a hypot strictly
+        # below the bound bounds them all; it is NaN or inf when an input is not finite, which
+        # fails the comparison. Anything else (also |input| = bound) gets the exact checks.
+        if not (0.0 < step_size < _INF and _hypot(*self._inputs.tolist()) < self._bound.item()):
             problem = self._input_problem(step_size)
-            return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
-        attributes = self.model.__dict__
+            if problem:
+                return self._fail(f"doStep at t = {current_time!r} rejected: {problem}")
+        model = self.model
+        attributes = model.__dict__
         saved = attributes.copy()
         try:
-            self._advance(step_size)
+            model.step(*self._step_arguments, step_size)
             outputs = self._model_outputs()
-            total = sum(outputs.tolist())  # NaN or inf if an output is; inf also on overflow
+            total = sum(outputs)  # NaN or inf if an output is; inf also on overflow
             if total - total != 0.0:
                 self._finite_outputs(outputs)  # raises, naming them (unless the sum overflowed)
         except ValueError as err:
             attributes.clear()
             attributes.update(saved)
             return self._fail(f"doStep at t = {current_time!r} rejected: {err}")
-        self._values[self._output_index] = outputs
+        self._outputs[...] = outputs
         return True
 
     def _check_finite_parameters(self) -> None:
@@ -429,22 +449,22 @@ class FhobsSlave(Fmi2Slave):
                     return f"input {label} = {value!r} exceeds input_bound = {bound!r}"
         return ""
 
-    def _finite_outputs(self, outputs: np.ndarray | None = None) -> np.ndarray:
-        """The model's outputs (flat, in declaration order; ``outputs`` if given, else computed);
-        ValueError if one is not finite."""
+    def _finite_outputs(self, outputs: Sequence[float] | None = None) -> Sequence[float]:
+        """The model's outputs (flat, in the order of :meth:`_output_layout`; ``outputs`` if
+        given, else computed); ValueError if one is not finite."""
         if outputs is None:
             outputs = self._model_outputs()
-        if not all(map(math.isfinite, outputs.tolist())):
-            labels = [label for name in self._kinds["output"]
+        if not all(map(math.isfinite, outputs)):
+            labels = [label for name in self._output_names
                       for label in element_names(name, self._arrays[name].shape)]
-            bad = {label: value for label, value in zip(labels, outputs.tolist(), strict=True)
+            bad = {label: value for label, value in zip(labels, outputs, strict=True)
                    if not math.isfinite(value)}
             raise ValueError(f"the model produced non-finite outputs {bad}")
         return outputs
 
     def _publish(self) -> None:
         """Copy the model's outputs to the output variables."""
-        self._values[self._output_index] = self._finite_outputs()
+        self._outputs[...] = self._finite_outputs()
 
     # -- FMU state -----------------------------------------------------------------------
     def _get_fmu_state(self) -> dict[str, Any]:
@@ -479,13 +499,20 @@ class FhobsSlave(Fmi2Slave):
     def _make_model(self) -> SlaveModel:
         """Build the runtime object from the current parameter values."""
 
-    @abstractmethod
-    def _advance(self, step_size: float) -> None:
-        """Step the model by ``step_size`` with the current inputs."""
+    def _model_step_arguments(self) -> tuple[np.ndarray | None, ...]:
+        """The arguments of the model's ``step`` before the step size: by default the input
+        variables (views of the buffer, read during the step) in declaration order."""
+        return tuple(self._arrays[name] for name in self._kinds["input"])
+
+    def _output_layout(self) -> list[str]:
+        """Names of the output arrays in the order in which :meth:`_model_outputs` gives their
+        elements (and the buffer holds them); by default the declaration order."""
+        return list(self._kinds["output"])
 
     @abstractmethod
-    def _model_outputs(self) -> np.ndarray:
-        """The model's current outputs, flat, in the order the output arrays were declared."""
+    def _model_outputs(self) -> Sequence[float]:
+        """The model's current outputs as floats, flat, in the order of :meth:`_output_layout`
+        (called after every step: kept cheap)."""
 
 
 class ObserverSlave(FhobsSlave):
@@ -524,10 +551,6 @@ class ObserverSlave(FhobsSlave):
             raise ValueError(f"internal step h = {h!r} is not a positive finite number")
         self.scheme_name()
         self._check_gains()
-
-    def _advance(self, step_size: float) -> None:
-        inputs = self._input_views
-        self.model.step(inputs["y"].copy(), inputs["u"].copy(), step_size)
 
     @abstractmethod
     def _declare_gains(self) -> None:
