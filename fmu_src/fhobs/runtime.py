@@ -152,7 +152,10 @@ class _Observer:
         ------
         ValueError
             On invalid y, u or dt, or if the step would make the state non-finite (the state is
-            then left unchanged).
+            then left unchanged). Numpy's floating-point error handling is the caller's (a
+            diverging step may warn of the overflow first; under ``np.errstate(all="raise")``
+            the FloatingPointError becomes this ValueError): a context of our own would cost
+            about 2 us per step.
         """
         dt = check_step_size(dt)
         y = as_finite_vector(y, self._k, "y")
@@ -160,13 +163,18 @@ class _Observer:
         n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler
-        with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
-            # the schemes never write into their arguments: the state stays as it was
+        try:  # the schemes never write into their arguments: the state stays as it was
             z, aux = run(self._z, self._aux, y, u, hs, n_sub)
+        except FloatingPointError as err:
+            raise self._diverged() from err
         if not (all_finite(z) and all_finite(aux)):
-            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
-                             "state left unchanged")
+            raise self._diverged()
         self._z, self._aux = z, aux
+
+    def _diverged(self) -> ValueError:
+        """The error of a step whose result is not finite."""
+        return ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                          "state left unchanged")
 
     def get_state(self) -> np.ndarray:
         """Full internal state ``[z, aux]`` (a copy)."""
