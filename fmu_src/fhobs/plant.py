@@ -130,6 +130,7 @@ class LTIPlant:
         self._x = np.zeros(n) if x0 is None else as_finite_vector(x0, n, "x0")
         self._k = 0
         self._zoh: dict[float, list[np.ndarray]] = {}
+        self._no_q = np.zeros(self.E.shape[1])
 
     @property
     def x(self) -> np.ndarray:
@@ -143,11 +144,22 @@ class LTIPlant:
         return self.C.dot(self._x) + eta
 
     def step(self, u: np.ndarray, q: np.ndarray | None, dt: float) -> None:
-        """Advance by dt with u and q held; ``q`` may be None when the plant has no E."""
-        dt = check_step_size(dt)
-        u = as_finite_vector(u, self.B.shape[1], "u")
+        """Advance by dt with u and q held; ``q`` may be None when the plant has no E.
+
+        Raises
+        ------
+        ValueError
+            On invalid u, q or dt, or if the state would overflow (it is then left unchanged).
+        """
         r = self.E.shape[1]
-        q = np.zeros(r) if q is None else as_finite_vector(q, r, "q")
+        self.advance(as_finite_vector(u, self.B.shape[1], "u"),
+                     None if q is None else as_finite_vector(q, r, "q"), check_step_size(dt))
+
+    def advance(self, u: np.ndarray, q: np.ndarray | None, dt: float) -> None:
+        """:meth:`step` without checking its arguments, for a caller that has: u (and q, if
+        not None) finite float vectors of the right sizes, dt positive and finite."""
+        if q is None:
+            q = self._no_q
         if self.scheme == "euler":
             x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
         else:

@@ -157,9 +157,13 @@ class _Observer:
             the FloatingPointError becomes this ValueError): a context of our own would cost
             about 2 us per step.
         """
-        dt = check_step_size(dt)
-        y = as_finite_vector(y, self._k, "y")
-        u = as_finite_vector(u, self._m, "u")
+        self.advance(as_finite_vector(y, self._k, "y"), as_finite_vector(u, self._m, "u"),
+                     check_step_size(dt))
+
+    def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """:meth:`step` without checking its arguments, for a caller that has: y and u finite
+        float vectors of k and m entries, dt positive and finite (the FMU slaves check their
+        inputs once). A non-finite result still raises ValueError, the state unchanged."""
         n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler

@@ -16,7 +16,8 @@ buffer's address, the buffer position of each value reference and a ctypes callb
 enter Python, and ``fmi2DoStep`` skips pythonfmu's C++ layer (see ``status_wrapper.c`` and
 :meth:`FhobsSlave._register_with_wrapper`). A valid ``doStep`` costs little more than the
 model's own step: one comparison accepts the inputs (their ``math.hypot`` against
-``input_bound``), the model steps on views of the input variables (no copies), the state before
+``input_bound``), the model steps on views of the input variables (no copies) through its
+``advance``, which does not check them again, the state before
 the step is kept as a shallow copy of the model's attributes, and the outputs are read as one
 list of floats (in the order the model gives them, which is the order of the output arrays in
 the buffer: no reordering), accepted by one sum and written into the buffer in one assignment.
@@ -94,16 +95,18 @@ def _as_slice(index: np.ndarray) -> np.ndarray | slice:
 class SlaveModel(Protocol):
     """What the base class needs from a runtime object (observer or plant).
 
-    Its ``step`` must replace the arrays that hold the state, never write into them, and leave
-    them as they were when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
+    Its ``advance`` (its ``step`` without the argument checks, which the slave has made) must
+    replace the arrays that hold the state, never write into them, and leave them as they were
+    when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
     :meth:`FhobsSlave.do_step` keeps the state before a step as the references in the model's
-    ``__dict__``. Its array arguments are views of the slave's input variables: ``step`` may
+    ``__dict__``. Its array arguments are views of the slave's input variables: ``advance`` may
     read them during the call only, never write into them or keep references to them (the
-    runtime's ``step(y, u, dt)`` and the plant's ``step(u, q, dt)`` do not).
+    runtime's ``advance(y, u, dt)`` and the plant's ``advance(u, q, dt)`` do not).
     """
 
-    def step(self, *arguments: np.ndarray | float | None) -> None:
-        """Advance by the last argument (the step size) with the array arguments held."""
+    def advance(self, *arguments: np.ndarray | float | None) -> None:
+        """Advance by the last argument (the step size) with the array arguments held; the
+        arguments are finite and of the right sizes, the step size positive."""
 
     def get_state(self) -> np.ndarray:
         """Return the complete internal state as a flat float array (a copy)."""
@@ -135,7 +138,7 @@ class FhobsSlave(Fmi2Slave):
 
     Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`
     and :meth:`_model_outputs`, and override :meth:`_model_step_arguments` if the model's
-    ``step`` does not take the input arrays in declaration order and :meth:`_output_layout` if
+    ``advance`` does not take the input arrays in declaration order and :meth:`_output_layout` if
     the model's outputs do not come in declaration order. The design record and the
     build options are read from the instance's own ``resources`` folder, never from module
     globals, so that two FMUs sharing Python modules in one process stay independent.
@@ -411,7 +414,7 @@ class FhobsSlave(Fmi2Slave):
         attributes = model.__dict__
         saved = attributes.copy()
         try:
-            model.step(*self._step_arguments, step_size)
+            model.advance(*self._step_arguments, step_size)
             outputs = self._model_outputs()
             total = sum(outputs)  # NaN or inf if an output is; inf also on overflow
             if total - total != 0.0:
@@ -500,7 +503,7 @@ class FhobsSlave(Fmi2Slave):
         """Build the runtime object from the current parameter values."""
 
     def _model_step_arguments(self) -> tuple[np.ndarray | None, ...]:
-        """The arguments of the model's ``step`` before the step size: by default the input
+        """The arguments of the model's ``advance`` before the step size: by default the input
         variables (views of the buffer, read during the step) in declaration order."""
         return tuple(self._arrays[name] for name in self._kinds["input"])
 
