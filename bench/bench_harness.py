@@ -4,10 +4,11 @@ through the harness, beside the in-process reference loop (fhobs.reference), as 
 Targets (issue 5): harness <= 1.0 s and <= 1.5 x the in-process loop.
 
 It also splits the cost: per FMU, the three calls the master makes per step (fmi2SetReal,
-fmi2DoStep, fmi2GetReal, straight through ctypes) are timed in isolation at fixed inputs, and
-the same arithmetic without FMI (the runtime objects' ``step``) is timed inside the in-process
-run; their sum over the three models is the cost of the arithmetic alone, which no master
-over these FMUs can go below.
+fmi2DoStep, fmi2GetReal, straight through ctypes) are timed in isolation at fixed inputs; the
+same arithmetic without FMI (the runtime objects' ``advance``) is timed replaying the nominal
+run's inputs in a tight loop, its sum over the three models being the cost of the arithmetic
+alone, which no master over these FMUs can go below; and the harness is run once more with
+every model's ``advance`` a no-op, the cost of the FMI calls, the slaves and the master alone.
 
 Usage: ``python bench/bench_harness.py [--fmu-dir DIR] [--repeat N] [--json FILE]``
 (builds the FMUs into a temporary folder unless --fmu-dir is given).

@@ -52,3 +52,15 @@ def test_invalid_inputs_raise_and_leave_state(plant, u, q, dt):
     with pytest.raises(ValueError):
         plant.step(u, q, dt)
     assert np.array_equal(plant.get_state(), saved)
+
+
+@pytest.mark.parametrize("numpy_errors", ["ignore", "warn", "raise"])
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # numpy's own, under "warn"
+def test_overflow_raises_value_error_and_leaves_state(numpy_errors):
+    """Whatever numpy's floating-point error handling of the caller, an overflowing step
+    raises ValueError and keeps the last finite state."""
+    plant = LTIPlant(np.eye(2), np.ones((2, 1)), np.eye(2), x0=[1e307, 1e307])
+    saved = plant.get_state()
+    with np.errstate(all=numpy_errors), pytest.raises(ValueError, match="plant"):
+        plant.step([0.0], None, 10.0)
+    assert np.array_equal(plant.get_state(), saved)

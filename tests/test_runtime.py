@@ -268,11 +268,34 @@ def test_divergence_raises_instead_of_inf(paper_design, numpy_errors):
     ValueError and leaves the last finite state."""
     obs = LuenbergerObserver(paper_design, h=1.0, scheme="euler")
     saved = obs.get_state()
-    with np.errstate(all=numpy_errors), pytest.raises(ValueError, match="diverged"):
+    with np.errstate(all=numpy_errors), pytest.raises(ValueError,
+                                                      match="diverged|floating-point error"):
         for _ in range(100):
             obs.step([1e300, 1e300], [0.0], 1.0)
             saved = obs.get_state()
     assert np.array_equal(obs.get_state(), saved) and np.all(np.isfinite(saved))
+
+
+def test_overflowing_step_size_raises_value_error(paper_design):
+    """A finite but absurd step size overflows Python's float power of the gain cap: the
+    OverflowError comes out as the step's ValueError, the state untouched."""
+    obs = FilteringObserver(paper_design, psi0=[0.1, 0.2], xi0=0.3)
+    saved = obs.get_state()
+    with pytest.raises(ValueError, match="floating-point error"):
+        obs.step([0.0, 0.0], [0.0], 1e300)
+    assert np.array_equal(obs.get_state(), saved)
+
+
+@pytest.mark.parametrize("cls", [FilteringObserver, PrescribedTimeObserver, LuenbergerObserver])
+def test_advance_is_step_without_checks(tuned_gains, cls):
+    """advance (the FMU slaves' call) gives bit for bit what step gives for valid arguments."""
+    checked, unchecked = cls(tuned_gains), cls(tuned_gains)
+    rng = np.random.default_rng(3)
+    for y, u in zip(rng.standard_normal((50, tuned_gains.k)),
+                    rng.standard_normal((50, tuned_gains.m)), strict=True):
+        checked.step(list(y), list(u), 1e-4)
+        unchecked.advance(y, u, 1e-4)
+    assert np.array_equal(checked.get_state(), unchecked.get_state())
 
 
 def test_unknown_scheme_is_rejected(paper_design):

@@ -43,14 +43,14 @@ def test_expm_family_exp_and_phi1(force_fallback, tau):
     r = np.array([0.3, -1.0, 2.0, 0.5])
     family = ExpmFamily(R, force_fallback=force_fallback)
     assert family.use_eig is not force_fallback
-    exp_r, phi_r = family.apply(tau, r)
+    exp_r, integral_r = family.apply(tau, r)
     aug = np.zeros((5, 5))
-    aug[:4, :4], aug[:4, 4] = tau * R, r
+    aug[:4, :4], aug[:4, 4] = tau * R, tau * r  # expm(aug)[:4, 4] = tau phi1(tau R) r
     ref = sl.expm(aug)
     assert np.allclose(exp_r, ref[:4, :4] @ r, rtol=1e-10, atol=1e-14)
-    assert np.allclose(phi_r, ref[:4, 4], rtol=1e-10, atol=1e-14)
-    exp_top, phi_top = family.apply(tau, r, rows=2)
-    assert np.array_equal(exp_top, exp_r[:2]) and np.array_equal(phi_top, phi_r[:2])
+    assert np.allclose(integral_r, ref[:4, 4], rtol=1e-10, atol=1e-14 * max(tau, 1e-9))
+    exp_top, integral_top = family.apply(tau, r, rows=2)
+    assert np.array_equal(exp_top, exp_r[:2]) and np.array_equal(integral_top, integral_r[:2])
 
 
 def test_expm_family_falls_back_on_defective_matrix():
@@ -76,28 +76,62 @@ def test_dilation_matches_scipy(paper_design, force_fallback):
         assert np.allclose(dilation.matrix(s), ref, rtol=1e-10, atol=atol)
 
 
+def flow_reference(L_tilde, L, C, G_d, nu, s, hs, psi, v):
+    """``(psi(hs), dz)`` from scipy's expm of the unscaled linear system (psi, v, z-increment)
+    with ``d psi = s^nu L_tilde psi + v``, ``dz = s^(nu-1) d(ln s) L psi``, ``dv = C dz``."""
+    k, N = L_tilde.shape[0], G_d.shape[0]
+    gain = (s ** (nu - 1.0) * sl.expm(np.log(s) * G_d) @ L).real
+    system = np.zeros((2 * k + N, 2 * k + N))
+    system[:k, :k], system[:k, k:2 * k] = s**nu * L_tilde, np.eye(k)
+    system[k:2 * k, :k], system[2 * k:, :k] = C @ gain, gain
+    ref = sl.expm(hs * system) @ np.concatenate((psi, v, np.zeros(N)))
+    return ref[:k], ref[2 * k:]
+
+
+def assert_flow_matches(flow, L_tilde, L, C, G_d, nu, levels, steps, seed=5):
+    rng = np.random.default_rng(seed)
+    for s in levels:
+        for hs in steps:
+            psi, v = rng.standard_normal(L_tilde.shape[0]), rng.standard_normal(C.shape[0])
+            ref_psi, ref_dz = flow_reference(L_tilde, L, C, G_d, nu, s, hs, psi, v)
+            psi_new, dz = flow.apply(psi, v, np.log(s), hs * s**nu)
+            scale = max(np.abs(ref_psi).max(), np.abs(ref_dz).max())
+            assert np.allclose(psi_new, ref_psi, rtol=1e-9, atol=1e-12 * scale)
+            assert np.allclose(dz, ref_dz, rtol=1e-9, atol=1e-12 * scale)
+
+
 @pytest.mark.parametrize("force_fallback", [False, True])
 @pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
 def test_injection_flow_matches_scipy(request, design, force_fallback):
-    """The frozen-level flow of (psi, z) against scipy's expm of the unscaled linear system
-    (psi, v, z-increment) with ``d psi = s^nu L_tilde psi + v``, ``dz = s^(nu-1) d(ln s) L psi``,
-    ``dv = C dz``: this also checks the scaling by ``C G_d = (1 + nu) C`` the flow relies on."""
+    """The frozen-level flow of (psi, z) against scipy's expm of the unscaled linear system:
+    this also checks the scaling by ``C G_d = (1 + nu) C`` the flow relies on. The smallest
+    tau reaches the series branch of phi1."""
     g = request.getfixturevalue(design)
     _, _, C = g.model
-    k, N, nu = g.k, g.n_model, g.nu
-    flow = InjectionFlow(g.L_tilde, C, Dilation(g.G_d, right=g.L), nu,
+    flow = InjectionFlow(g.L_tilde, C, Dilation(g.G_d, right=g.L), g.nu,
                          force_fallback=force_fallback)
     assert flow.eigen is not force_fallback
-    rng = np.random.default_rng(5)
-    hs = 5e-5
-    for s in (1e-3, 0.7, 40.0, 3e4):
-        psi, v = rng.standard_normal(k), rng.standard_normal(k)
-        gain = s ** (nu - 1.0) * sl.expm(np.log(s) * g.G_d) @ g.L
-        system = np.zeros((2 * k + N, 2 * k + N))
-        system[:k, :k], system[:k, k:2 * k] = s**nu * g.L_tilde, np.eye(k)
-        system[k:2 * k, :k], system[2 * k:, :k] = C @ gain, gain
-        ref = sl.expm(hs * system) @ np.concatenate((psi, v, np.zeros(N)))
-        psi_new, dz = flow.apply(psi, v, np.log(s), hs * s**nu)
-        scale = np.abs(ref).max()
-        assert np.allclose(psi_new, ref[:k], rtol=1e-9, atol=1e-12 * scale)
-        assert np.allclose(dz, ref[2 * k:], rtol=1e-9, atol=1e-12 * scale)
+    assert_flow_matches(flow, g.L_tilde, g.L, C, g.G_d, g.nu,
+                        levels=(1e-3, 0.7, 40.0, 3e4), steps=(5e-5, 1e-13))
+
+
+@pytest.mark.parametrize("force_fallback", [False, True])
+@pytest.mark.parametrize("case", ["complex_G_d", "singular_R", "complex_R"])
+def test_injection_flow_synthetic_spectra(case, force_fallback):
+    """Spectra the pendulum does not have: complex eigenvalues of G_d, a singular R (C L = 0:
+    phi1's series at every tau) and complex eigenvalues of R. G_d is built with
+    ``C G_d = (1 + nu) C`` (C's rows span a left eigenspace of eigenvalue 1 + nu)."""
+    nu = -0.25
+    C = np.array([[1.0, 0.0, 0.0]])
+    rotation = np.array([[0.5, 0.3], [-0.3, 0.5]]) if case == "complex_G_d" else np.diag([0.5, 0.7])
+    G_d = np.zeros((3, 3))
+    G_d[0, 0], G_d[1:, 1:], G_d[1:, 0] = 1.0 + nu, rotation, [0.2, -0.1]
+    assert np.allclose(C @ G_d, (1.0 + nu) * C)
+    L = {"complex_G_d": np.array([[-3.0], [-2.0], [-1.0]]),
+         "singular_R": np.array([[0.0], [-2.0], [-1.0]]),
+         "complex_R": np.array([[-900.0], [-2.0], [-1.0]])}[case]
+    L_tilde = np.array([[-4.0]])
+    flow = InjectionFlow(L_tilde, C, Dilation(G_d, right=L), nu, force_fallback=force_fallback)
+    assert flow.eigen is not force_fallback
+    assert_flow_matches(flow, L_tilde, L, C, G_d, nu, levels=(1e-2, 1.0, 50.0),
+                        steps=(5e-5, 1e-3, 1e-13))

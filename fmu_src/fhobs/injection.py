@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from fhobs.dilation import Dilation
-from fhobs.linalg import PHI1_SERIES, ExpmFamily, phi1_elementwise
+from fhobs.linalg import ExpmFamily
 
 
 class InjectionFlow:
@@ -68,14 +68,14 @@ class InjectionFlow:
         """Precompute the stacked matrices of the eigen path.
 
         ``c2 = [V^-1; V^-1] r`` repeats the coefficients of r, the factors
-        ``[exp(tau lam); tau phi1(tau lam)]`` scale them, and ``W = blkdiag(V[:k], K)`` with
-        ``K = V_g^-1 L V[:k]`` maps them to ``(expm(tau R) r)[:k]`` and
+        ``[exp(tau lam); tau phi1(tau lam)]`` (:meth:`ExpmFamily.spectral_factors`) scale them,
+        and ``W = blkdiag(V[:k], V_g^-1 L V[:k])`` maps them to ``(expm(tau R) r)[:k]`` and
         ``V_g^-1 L (tau phi1(tau R) r)[:k]`` (up to round-off imaginary parts: the real part of
         the latter is taken after ``V_g`` instead of before).
         """
         k = self._k
         R, dilation = self._R, self._dilation
-        lam, V, V_inv = R.eigenvalues, R.eigenvectors, R.eigenvectors_inverse
+        V, V_inv = R.eigenvectors, R.eigenvectors_inverse
         g, V_g, V_g_inv_L = dilation.eigenvalues, dilation.eigenvectors, dilation.inverse_right
         n = V_g.shape[0]
         self._V_inv2 = np.vstack((V_inv, V_inv))
@@ -86,25 +86,6 @@ class InjectionFlow:
         # s-exponents of r = (psi / s, v / s^(1+nu)), then of psi(hs) = s (...) and d(ln s)
         self._exponents = np.concatenate((np.full(k, -1.0), np.full(k, -(1.0 + self._nu)),
                                           np.ones(k), g)).astype(g.dtype)
-        self._lam2 = np.concatenate((lam, lam))
-        self._divisor = np.concatenate((np.ones(2 * k), lam))
-        self._offset = np.concatenate((np.ones(2 * k), np.zeros(2 * k)))
-        self._tiny = PHI1_SERIES / max(float(np.min(np.abs(lam))), 1e-300)
-        self._last: tuple[float, np.ndarray] = (math.nan, self._offset)
-
-    def _factors(self, tau: float) -> np.ndarray:
-        """``[exp(tau lam); tau phi1(tau lam)]``, the last tau's kept (a capped level repeats
-        it): ``expm1(tau lam) + 1`` and ``expm1(tau lam) / lam``, or the series of phi1 where
-        ``|tau lam|`` is tiny."""
-        last_tau, factors = self._last
-        if tau != last_tau:
-            if tau > self._tiny:
-                factors = np.expm1(tau * self._lam2) / self._divisor + self._offset
-            else:
-                mu = tau * self._R.eigenvalues
-                factors = np.concatenate((np.exp(mu), tau * phi1_elementwise(mu)))
-            self._last = (tau, factors)
-        return factors
 
     def apply(self, psi: np.ndarray, v: np.ndarray, log_s: float,
               tau: float) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +105,7 @@ class InjectionFlow:
         k = self._k
         scale = np.exp(log_s * self._exponents)
         c2 = self._V_inv2.dot(np.concatenate((psi, v)) * scale[:2 * k])
-        out = self._W.dot(self._factors(tau) * c2) * scale[2 * k:]
+        out = self._W.dot(self._R.spectral_factors(tau) * c2) * scale[2 * k:]
         return out[:k].real, self._V_g.dot(out[k:]).real
 
     def _apply_expm(self, psi: np.ndarray, v: np.ndarray, log_s: float,
@@ -134,5 +115,5 @@ class InjectionFlow:
         k = self._k
         level = math.exp(log_s)
         r = np.concatenate((psi / level, v * math.exp(-(1.0 + self._nu) * log_s)))
-        exp_r, phi_r = self._R.apply(tau, r, rows=k)
-        return level * exp_r, tau * self._dilation.apply(log_s, phi_r)
+        exp_r, phi_r = self._R.apply(tau, r, rows=k)  # phi_r: tau phi1(tau R) r
+        return level * exp_r, self._dilation.apply(log_s, phi_r)

@@ -110,11 +110,12 @@ def phi1_elementwise(mu: np.ndarray) -> np.ndarray:
 
 
 class ExpmFamily:
-    """Cheap repeated evaluation of ``expm(tau R) r`` and ``phi1(tau R) r`` for a fixed R.
+    """Cheap repeated evaluation of ``expm(tau R) r`` and ``tau phi1(tau R) r`` for a fixed R.
 
     ``R = V diag(lam) V^-1`` is computed once; each evaluation then costs two small
     matrix-vector products. If the eigenvectors are ill-conditioned (cond(V) > ``COND_LIMIT``,
     e.g. a defective R), every evaluation uses :func:`expm` of an augmented matrix instead.
+    ``tau phi1(tau R) r = int_0^tau expm(t R) r dt`` is the flow's integral.
 
     Parameters
     ----------
@@ -126,7 +127,8 @@ class ExpmFamily:
     Attributes
     ----------
     eigenvalues, eigenvectors, eigenvectors_inverse : np.ndarray
-        ``lam``, ``V`` and ``V^-1`` (complex), set only when ``use_eig``.
+        ``lam``, ``V`` and ``V^-1`` (complex unless every eigenvalue is real), set only when
+        ``use_eig``.
     """
 
     def __init__(self, R: np.ndarray, force_fallback: bool = False) -> None:
@@ -134,38 +136,43 @@ class ExpmFamily:
         lam, V = np.linalg.eig(self.R)
         self.use_eig = (not force_fallback) and np.linalg.cond(V) < COND_LIMIT
         if self.use_eig:
+            size = lam.size
             self.eigenvalues = lam
             self.eigenvectors = V
             self.eigenvectors_inverse = np.linalg.inv(V)
-            self._min_abs_lam = float(np.min(np.abs(lam)))
-            self._last: tuple[float, np.ndarray, np.ndarray] = (math.nan, lam, lam)
+            self._lam2 = np.concatenate((lam, lam))
+            self._divisor = np.concatenate((np.ones(size), lam))
+            self._offset = np.concatenate((np.ones(size), np.zeros(size)))
+            self._tiny = PHI1_SERIES / max(float(np.min(np.abs(lam))), 1e-300)
+            self._last: tuple[float, np.ndarray] = (math.nan, self._offset)
 
-    def _spectral_factors(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(exp(tau lam), phi1(tau lam))``; the last tau's are kept (a capped gain level and
-        the level search evaluate one tau repeatedly)."""
-        last_tau, exp_mu, phi_mu = self._last
+    def spectral_factors(self, tau: float) -> np.ndarray:
+        """``[exp(tau lam); tau phi1(tau lam)]`` (eigen path only), as ``expm1(tau lam) + 1``
+        and ``expm1(tau lam) / lam``, or with the series of phi1 where ``|tau lam|`` may be
+        tiny. The last tau's are kept (a capped gain level and the level search evaluate one
+        tau repeatedly)."""
+        last_tau, factors = self._last
         if tau != last_tau:
-            mu = tau * self.eigenvalues
-            exp_mu = np.exp(mu)
-            if tau * self._min_abs_lam > PHI1_SERIES:
-                phi_mu = np.expm1(mu) / mu
+            if tau > self._tiny:
+                factors = np.expm1(tau * self._lam2) / self._divisor + self._offset
             else:
-                phi_mu = phi1_elementwise(mu)
-            self._last = (tau, exp_mu, phi_mu)
-        return exp_mu, phi_mu
+                mu = tau * self.eigenvalues
+                factors = np.concatenate((np.exp(mu), tau * phi1_elementwise(mu)))
+            self._last = (tau, factors)
+        return factors
 
     def apply(self, tau: float, r: np.ndarray,
               rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(expm(tau R) r, phi1(tau R) r)`` for tau >= 0, or their first ``rows``
+        """Return ``(expm(tau R) r, tau phi1(tau R) r)`` for tau >= 0, or their first ``rows``
         entries only."""
+        size = self.R.shape[0]
         if self.use_eig:
             c = self.eigenvectors_inverse.dot(r)
-            exp_mu, phi_mu = self._spectral_factors(tau)
+            factors = self.spectral_factors(tau)
             V = self.eigenvectors[:rows]
-            return V.dot(exp_mu * c).real, V.dot(phi_mu * c).real
-        size = self.R.shape[0]
+            return V.dot(factors[:size] * c).real, V.dot(factors[size:] * c).real
         aug = np.zeros((size + 1, size + 1))
         aug[:size, :size] = tau * self.R
-        aug[:size, size] = r
+        aug[:size, size] = tau * r
         E = expm(aug)
         return (E[:size, :size] @ r)[:rows], E[:size, size][:rows]

@@ -149,7 +149,8 @@ class LTIPlant:
         Raises
         ------
         ValueError
-            On invalid u, q or dt, or if the state would overflow (it is then left unchanged).
+            On invalid u, q or dt, or if the state would overflow or the step raises a
+            floating-point error (the state is then left unchanged).
         """
         r = self.E.shape[1]
         self.advance(as_finite_vector(u, self.B.shape[1], "u"),
@@ -160,11 +161,15 @@ class LTIPlant:
         not None) finite float vectors of the right sizes, dt positive and finite."""
         if q is None:
             q = self._no_q
-        if self.scheme == "euler":
-            x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
-        else:
-            Phi, Gamma_B, Gamma_E = self._blocks(dt)
-            x_new = Phi.dot(self._x) + Gamma_B.dot(u) + Gamma_E.dot(q)
+        try:
+            if self.scheme == "euler":
+                x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
+            else:
+                Phi, Gamma_B, Gamma_E = self._blocks(dt)
+                x_new = Phi.dot(self._x) + Gamma_B.dot(u) + Gamma_E.dot(q)
+        except ArithmeticError as err:  # numpy under the caller's np.errstate(all="raise")
+            raise ValueError(f"the plant step failed with a floating-point error ({err}); "
+                             "state left unchanged") from err
         if not all_finite(x_new):
             raise ValueError("the plant state overflowed; state left unchanged")
         self._x = x_new

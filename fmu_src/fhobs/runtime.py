@@ -151,11 +151,11 @@ class _Observer:
         Raises
         ------
         ValueError
-            On invalid y, u or dt, or if the step would make the state non-finite (the state is
-            then left unchanged). Numpy's floating-point error handling is the caller's (a
-            diverging step may warn of the overflow first; under ``np.errstate(all="raise")``
-            the FloatingPointError becomes this ValueError): a context of our own would cost
-            about 2 us per step.
+            On invalid y, u or dt, or if the step would make the state non-finite or raises a
+            floating-point error (the state is then left unchanged). Numpy's floating-point
+            error handling is the caller's (a diverging step may warn of the overflow first;
+            under ``np.errstate(all="raise")`` any overflow or underflow raises, and becomes
+            this ValueError): a context of our own would cost about 2 us per step.
         """
         self.advance(as_finite_vector(y, self._k, "y"), as_finite_vector(u, self._m, "u"),
                      check_step_size(dt))
@@ -169,16 +169,13 @@ class _Observer:
         run = self._run_split if self.scheme == "split" else self._run_euler
         try:  # the schemes never write into their arguments: the state stays as it was
             z, aux = run(self._z, self._aux, y, u, hs, n_sub)
-        except FloatingPointError as err:
-            raise self._diverged() from err
+        except ArithmeticError as err:  # numpy under np.errstate(all="raise"), or math
+            raise ValueError(f"the {self.scheme} step failed with a floating-point error "
+                             f"({err}); state left unchanged") from err
         if not (all_finite(z) and all_finite(aux)):
-            raise self._diverged()
+            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                             "state left unchanged")
         self._z, self._aux = z, aux
-
-    def _diverged(self) -> ValueError:
-        """The error of a step whose result is not finite."""
-        return ValueError(f"the {self.scheme} step diverged (non-finite state); "
-                          "state left unchanged")
 
     def get_state(self) -> np.ndarray:
         """Full internal state ``[z, aux]`` (a copy)."""
@@ -260,7 +257,7 @@ class _Observer:
         return (self.tau_max / dt) ** (1.0 / self.gains.nu)
 
     def _correct_own_level(self, aux: np.ndarray, v: np.ndarray, hs: float,
-                           dt: float) -> tuple[np.ndarray, np.ndarray]:
+                           dt: float) -> tuple[np.ndarray, np.ndarray | None]:
         """:meth:`_correct` at the observer's own gain level."""
         return self._correct(aux, v, hs, self._level(aux, dt))
 
@@ -469,8 +466,8 @@ class PrescribedTimeObserver(_Observer):
         g = self.gains
         log_x = math.log(level)
         tau = hs * math.exp(g.nu * log_x)
-        _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + g.nu) * log_x))
-        dz = tau * self._dilation.apply(log_x, phi_v)
+        _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + g.nu) * log_x))  # tau phi1(tau Q) v
+        dz = self._dilation.apply(log_x, phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
     def _euler_rates(self, aux, v, dt):

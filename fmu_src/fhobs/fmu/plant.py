@@ -64,7 +64,7 @@ class FhobsPlant(FhobsSlave):
         )
 
     def _model_step_arguments(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """``(u, q)``; q is None without a perturbation input (``LTIPlant.step`` takes it so)."""
+        """``(u, q)``; q is None without a perturbation input (``LTIPlant.advance`` takes it so)."""
         return self._arrays["u"], self._arrays.get("q")
 
     def _model_outputs(self) -> list[float]:

@@ -17,11 +17,11 @@ enter Python, and ``fmi2DoStep`` skips pythonfmu's C++ layer (see ``status_wrapp
 :meth:`FhobsSlave._register_with_wrapper`). A valid ``doStep`` costs little more than the
 model's own step: one comparison accepts the inputs (their ``math.hypot`` against
 ``input_bound``), the model steps on views of the input variables (no copies) through its
-``advance``, which does not check them again, the state before
-the step is kept as a shallow copy of the model's attributes, and the outputs are read as one
-list of floats (in the order the model gives them, which is the order of the output arrays in
-the buffer: no reordering), accepted by one sum and written into the buffer in one assignment.
-Element labels are only formatted, and the exact checks only made, to describe a rejected call.
+``advance``, which does not check them again, the state before the step is kept as a shallow
+copy of the model's attributes, and the outputs are read as one list of floats (in the order
+the model gives them, which is the order of the output arrays in the buffer: no reordering),
+accepted by one sum and written into the buffer in one assignment. Element labels are only
+formatted, and the exact checks only made, to describe a rejected call.
 
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
@@ -113,6 +113,7 @@ class SlaveModel(Protocol):
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state returned by :meth:`get_state`."""
+
 
 def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
     """FMI names of the elements of an array, row-major, 1-based (``A[1,1]``, ``A[1,2]``...).
