@@ -295,6 +295,18 @@ def test_bad_step_size_is_an_error(open_fmu):
     driver.fmu.doStep(0.0, 1e-3)
 
 
+def test_absurd_step_size_is_an_error_not_a_hang(open_fmu):
+    """A communication step of a day (1.7e9 internal steps) is refused at once with fmi2Error;
+    the instance stays usable."""
+    driver = open_fmu("observer")
+    driver.start()
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.doStep(0.0, 86400.0)
+    assert err.value.status == FMI_ERROR
+    assert "internal steps" in driver.messages[-1][1]
+    driver.fmu.doStep(0.0, 1e-3)
+
+
 @pytest.mark.parametrize(
     ("edit", "check"),
     [

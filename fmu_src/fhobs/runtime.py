@@ -79,6 +79,10 @@ SCHEMES = ("split", "euler")
 TAU_GRID = np.geomspace(0.05, 3.0, 40)
 """Candidate values of tau_max scanned at construction (spectral radius of the capped map)."""
 
+MAX_SUBSTEPS = 1_000_000
+"""A communication step needing more internal steps than this is rejected (ValueError) rather
+than run for minutes: a step size of hours with h = 5e-5 is a mistake, not a request."""
+
 LEVEL_MISMATCH = 2.0
 """Split scheme: the frozen level is made self-consistent when sigma would exceed it by this."""
 BISECTION_STEPS = 40
@@ -163,8 +167,12 @@ class _Observer:
     def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """:meth:`step` without checking its arguments, for a caller that has: y and u finite
         float vectors of k and m entries, dt positive and finite (the FMU slaves check their
-        inputs once). A non-finite result still raises ValueError, the state unchanged."""
+        inputs once). A non-finite result, or a step needing more than ``MAX_SUBSTEPS``
+        internal steps, still raises ValueError, the state unchanged."""
         n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
+        if n_sub > MAX_SUBSTEPS:
+            raise ValueError(f"the step size {dt!r} needs {n_sub} internal steps of h = "
+                             f"{self.h!r}, more than {MAX_SUBSTEPS}; state left unchanged")
         hs = dt / n_sub
         run = self._run_split if self.scheme == "split" else self._run_euler
         try:  # the schemes never write into their arguments: the state stays as it was
