@@ -285,6 +285,21 @@ def test_bad_input_is_an_error_state_kept_instance_usable(open_fmu, tuned_gains,
     np.testing.assert_array_equal(rest, run_filtering_runtime(g, ys, us)[10:])
 
 
+def test_inputs_at_the_bound_are_accepted_beyond_it_rejected(open_fmu):
+    """The bound is inclusive: the fast acceptance (a hypot below the bound) hands inputs at
+    the bound, or several near it, to the exact checks, which accept them; one ulp above is
+    rejected."""
+    driver = open_fmu("plant")
+    driver.start({"input_bound": 2.0})
+    driver.set("u", np.array([2.0]))
+    driver.set("q", np.array([-2.0]))  # hypot 2.83 > bound, each |input| = bound
+    driver.fmu.doStep(0.0, 1e-3)
+    driver.set("u", np.array([np.nextafter(2.0, 3.0)]))
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.doStep(1e-3, 1e-3)
+    assert err.value.status == FMI_ERROR and "exceeds input_bound" in driver.messages[-1][1]
+
+
 def test_bad_step_size_is_an_error(open_fmu):
     driver = open_fmu("plant")
     driver.start()
