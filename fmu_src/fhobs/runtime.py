@@ -220,7 +220,7 @@ class _Observer:
         v = innovation0
         drift = np.zeros(z.size)  # z - m, m the observer's open-loop model prediction from t_k
         for i in range(n_sub):
-            z, aux, F_dz = self._split_substep(z, aux, v, u, hs, hs * n_sub, level)
+            z, aux, F_dz = self._split_substep(prediction, z, aux, v, u, hs, hs * n_sub, level)
             if i + 1 < n_sub:
                 drift = prediction.Phi.dot(drift) + prediction.Gamma_inj.dot(v)
                 if F_dz is not None:
@@ -228,14 +228,13 @@ class _Observer:
                 v = C.dot(drift) + innovation0
         return z, aux
 
-    def _split_substep(self, z, aux, v, u, hs, dt, level=None):
+    def _split_substep(self, prediction, z, aux, v, u, hs, dt, level=None):
         """Correction (exact, gain frozen at ``level``, by default the observer's own level
-        capped for the communication step dt) then ZOH prediction with v held:
+        capped for the communication step dt) then the ZOH ``prediction`` over hs with v held:
         ``z+ = Phi (z + dz) + Gamma_B u + Gamma_inj (v + C dz) = M (z, u, v) + F dz``.
 
         Returns the new z and aux and ``F dz`` (None if the observer has no correction).
         """
-        prediction = self._prediction(hs)
         if level is None:
             aux, dz = self._correct_own_level(aux, v, hs, dt)
         else:
