@@ -40,6 +40,13 @@ def all_finite(vec: np.ndarray) -> bool:
     return all(map(math.isfinite, vec.tolist()))
 
 
+def floating_point_failure(step: str, err: ArithmeticError) -> ValueError:
+    """The ValueError of a ``step`` (its name, e.g. ``"plant"``) that raised an arithmetic
+    error: numpy's under the caller's ``np.errstate(all="raise")``, or Python's math."""
+    return ValueError(f"the {step} step failed with a floating-point error ({err}); "
+                      "state left unchanged")
+
+
 def check_step_size(dt: float) -> float:
     """Return dt as a float if it is finite and positive, else raise ValueError."""
     dt = float(dt)
@@ -167,9 +174,8 @@ class LTIPlant:
             else:
                 Phi, Gamma_B, Gamma_E = self._blocks(dt)
                 x_new = Phi.dot(self._x) + Gamma_B.dot(u) + Gamma_E.dot(q)
-        except ArithmeticError as err:  # numpy under the caller's np.errstate(all="raise")
-            raise ValueError(f"the plant step failed with a floating-point error ({err}); "
-                             "state left unchanged") from err
+        except ArithmeticError as err:
+            raise floating_point_failure("plant", err) from err
         if not all_finite(x_new):
             raise ValueError("the plant state overflowed; state left unchanged")
         self._x = x_new

@@ -59,7 +59,13 @@ from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
 from fhobs.injection import InjectionFlow
 from fhobs.linalg import ExpmFamily, zoh_blocks
-from fhobs.plant import ZOH_CACHE_SIZE, all_finite, as_finite_vector, check_step_size
+from fhobs.plant import (
+    ZOH_CACHE_SIZE,
+    all_finite,
+    as_finite_vector,
+    check_step_size,
+    floating_point_failure,
+)
 
 
 class Prediction(NamedTuple):
@@ -177,9 +183,8 @@ class _Observer:
         run = self._run_split if self.scheme == "split" else self._run_euler
         try:  # the schemes never write into their arguments: the state stays as it was
             z, aux = run(self._z, self._aux, y, u, hs, n_sub)
-        except ArithmeticError as err:  # numpy under np.errstate(all="raise"), or math
-            raise ValueError(f"the {self.scheme} step failed with a floating-point error "
-                             f"({err}); state left unchanged") from err
+        except ArithmeticError as err:
+            raise floating_point_failure(self.scheme, err) from err
         if not (all_finite(z) and all_finite(aux)):
             raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
                              "state left unchanged")
