@@ -52,38 +52,48 @@ def test_frozen_gain_identity_of_the_notes(paper_design, s):
 
 
 def scipy_error_map(g, level, h):
-    """Split substep on (psi, z - x), built from scipy: ZOH prediction after the exact flow of
+    """Split step on (psi, z - x), built from scipy: ZOH prediction after the exact flow of
     the injection (dpsi = C e + s^nu L_tilde psi, de = s^(nu-1) d(ln s) L psi)."""
-    k, n = g.k, g.n
+    k, n = g.k, g.n_model
+    A, _, C = g.model
     D = d_scipy(g.G_d, np.log(level))
-    injection = np.block([[level**g.nu * g.L_tilde, g.C],
+    injection = np.block([[level**g.nu * g.L_tilde, C],
                           [level ** (g.nu - 1.0) * D @ g.L, np.zeros((n, n))]])
     aug = np.zeros((n + k, n + k))
-    aug[:n, :n], aug[:n, n:] = g.A, g.L0
+    aug[:n, :n], aug[:n, n:] = A, g.L0
     E = sl.expm(h * aug)
-    prediction = sl.block_diag(np.eye(k), E[:n, :n] + E[:n, n:] @ g.C)
+    prediction = sl.block_diag(np.eye(k), E[:n, :n] + E[:n, n:] @ C)
     return prediction @ sl.expm(h * injection)
+
+
+def dilated(g, level, M):
+    """``S^-1 M S`` with ``S = diag(level I_k, d(ln level))``, the dilation of (psi, z - x)."""
+    S = sl.block_diag(level * np.eye(g.k), d_scipy(g.G_d, np.log(level)))
+    return np.linalg.solve(S, M @ S)
 
 
 @pytest.mark.parametrize("tau", [1e-4, 1e-2, 0.3])
 def test_split_error_map_matches_scipy(paper_design, tau):
-    obs = FilteringObserver(paper_design, h=5e-5)
-    level = (tau / obs.h) ** (1.0 / paper_design.nu)
-    ref = scipy_error_map(paper_design, level, obs.h)
-    assert np.allclose(obs.error_map(level), ref, rtol=1e-7, atol=1e-9 * np.abs(ref).max())
+    """The runtime's dilated error map of one split step equals the scipy construction."""
+    dt = 5e-5
+    obs = FilteringObserver(paper_design, h=dt)
+    level = (tau / dt) ** (1.0 / paper_design.nu)
+    ref = dilated(paper_design, level, scipy_error_map(paper_design, level, dt))
+    assert np.allclose(obs.error_map(level, dt), ref, rtol=1e-7, atol=1e-9 * np.abs(ref).max())
 
 
-def test_gain_cap_makes_the_limit_map_contractive(paper_design, tuned_gains):
-    """At the cap sigma_min = (tau_max/dt)^(1/nu) the communication step's error map contracts,
-    also with substeps (dt = n_sub h); far below the cap the frozen map is unstable."""
-    h = 5e-5
+@pytest.mark.parametrize("dt", [5e-5, 1e-3])
+def test_gain_cap_makes_every_level_above_the_floor_contractive(paper_design, tuned_gains, dt):
+    """For the communication step dt, the dilated error map (scipy construction) contracts at
+    the floor and at every level above it; far below the floor it does not."""
     for g in (paper_design, tuned_gains):
-        obs = FilteringObserver(g, h=h)
-        assert spectral_radius(obs.error_map(obs.diagnostics()["sigma_min"])) < 0.9
-        for n_sub in (2, 20):
-            sigma_min = (obs.tau_max / (n_sub * h)) ** (1.0 / g.nu)
-            assert spectral_radius(obs.error_map(sigma_min, n_sub)) < 0.9
-        assert spectral_radius(obs.error_map(1e-6 * obs.diagnostics()["sigma_min"])) > 1.0
+        floor = FilteringObserver(g, h=dt)._floor(dt)
+        for factor in (1.0, 10.0, 1e3, 1e6):
+            level = factor * floor
+            radius = spectral_radius(dilated(g, level, scipy_error_map(g, level, dt)))
+            assert radius < 1.0, (factor, radius)
+        low = 1e-9 * floor
+        assert spectral_radius(dilated(g, low, scipy_error_map(g, low, dt))) > 1.0
 
 
 def continuous_rhs(g, t, state):
@@ -278,8 +288,8 @@ def test_divergence_raises_instead_of_inf(paper_design, numpy_errors):
 
 @pytest.mark.parametrize("dt", [1e4, 1e300])
 def test_absurd_step_size_raises_value_error(paper_design, dt):
-    """A finite but absurd step size (more than MAX_SUBSTEPS internal steps of h = 5e-5,
-    which would run for minutes) is a ValueError, the state untouched."""
+    """A finite but absurd step size (more than MAX_SUBSTEPS internal steps of h = 5e-5) is a
+    ValueError, the state untouched."""
     obs = FilteringObserver(paper_design, psi0=[0.1, 0.2], xi0=0.3)
     saved = obs.get_state()
     with pytest.raises(ValueError, match="internal steps"):

@@ -42,7 +42,19 @@ EPS = float(np.finfo(float).eps)
 
 
 class CertificateError(ValueError):
-    """A design fails a check; the message names the check, the value and the bound."""
+    """A design fails a check; the message names the check, the value and the bound.
+
+    Attributes
+    ----------
+    lmi_margin_needed : float
+        The largest margin (1/s) that a failed LMI check required (its margin plus its
+        rounding allowance), 0 if no LMI check failed: a design may be solved again with a
+        larger margin than that.
+    """
+
+    def __init__(self, message: str, lmi_margin_needed: float = 0.0) -> None:
+        super().__init__(message)
+        self.lmi_margin_needed = lmi_margin_needed
 
 
 def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -219,5 +231,7 @@ def certify(
     bad = _violations(values, tolerance, margin)
     if bad:
         detail = "; ".join(f"{name} = {value:.3e} (required {need})" for name, value, need in bad)
-        raise CertificateError(f"design fails {len(bad)} check(s): {detail}")
+        needed = max((margin + values.get(_rounding_key(name), 0.0)
+                      for name, _, _ in bad if name.startswith("lmi_")), default=0.0)
+        raise CertificateError(f"design fails {len(bad)} check(s): {detail}", needed)
     return values

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .certificate import augmented_matrices, certify
+from .certificate import CertificateError, augmented_matrices, certify
 from .disturbance import extended_model, model_perturbation_matrix
 from .gains import ObserverGains
 from .homogenisation import Homogenisation, dilation_basis, homogenise
@@ -45,6 +45,10 @@ from .lmi import (
 )
 from .spec import PlantSpec, spec_from_dict
 
+MARGIN_ATTEMPTS = 4
+MARGIN_GROWTH = 2.0
+"""A design failing an LMI check by its rounding allowance is solved again with the margin the
+check needed times this factor, up to MARGIN_ATTEMPTS solves."""
 RHO_BISECTION_TOL = 2e-2
 """Relative tolerance of the certified rho found for a design with filter_scale != 1."""
 PAPER_REFERENCE = Path(__file__).resolve().parents[2] / "examples" / "pendulum-paper.json"
@@ -119,9 +123,27 @@ def design_observer(
     fhobs.lmi.LMIError
         If an LMI solve fails.
     fhobs.certificate.CertificateError
-        If the solver's result does not pass the numpy certificate.
+        If the solver's result does not pass the numpy certificate, also after solving the
+        LMIs again with the margin the failed checks asked for (``MARGIN_ATTEMPTS`` solves in
+        all: the certificate allows for the rounding error of its own figures, which grows
+        with cond(P) and the gains, so a margin that is too thin for a plant with large
+        entries is widened rather than reported as a failure).
     """
     objective = objective or spec.objective
+    for attempt in range(MARGIN_ATTEMPTS):
+        try:
+            return _design_at_margin(spec, objective, margin, filter_scale)
+        except CertificateError as err:
+            if not err.lmi_margin_needed or attempt + 1 == MARGIN_ATTEMPTS:
+                raise
+            margin = max(MARGIN_GROWTH * err.lmi_margin_needed, MARGIN_GROWTH * margin)
+    raise AssertionError("unreachable")
+
+
+def _design_at_margin(
+    spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
+) -> ObserverGains:
+    """One design: homogenisation, the three LMIs at ``margin``, the certificate."""
     A_model, _, C_model = extended_model(spec.A, spec.B, spec.C, spec.E, spec.disturbance_order)
     hom = homogenise(A_model, C_model, spec.nu)
     n, k = A_model.shape[0], spec.C.shape[0]

@@ -10,7 +10,9 @@ substeps of size ``<= h``, with one of two schemes:
 
 ``split`` (default)
     A sampled-data scheme whose estimation error obeys an autonomous linear recursion whatever
-    the plant's motion between samples, so the nominal error converges to round-off:
+    the plant's motion between samples, so the nominal error converges to round-off. One step
+    covers the whole communication step dt (the observer receives one sample per dt; the
+    internal step h only bounds the ``euler`` scheme's steps):
 
     1. *correction*: the observer's output-injection part (everything driven by ``psi`` and the
        innovation ``v = C z - y``: ``dpsi = v + sigma^nu L_tilde psi``,
@@ -19,21 +21,33 @@ substeps of size ``<= h``, with one of two schemes:
        ``d/dt (psi/s, v/s^(1+nu)) = s^nu R (psi/s, v/s^(1+nu))`` with the constant
        ``R = [[L_tilde, I], [C L, 0]]``, so one eigen-decomposition of R (done once) gives the
        exact flow for every sigma (:class:`fhobs.injection.InjectionFlow`);
-    2. *prediction*: ``z <- expm(h A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of the
-       model, the innovation held), the very map that the plant applies to x.
+    2. *prediction*: ``z <- expm(dt A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of
+       the model, the innovation held), the very map that the plant applies to x.
 
-    Within a communication step with several substeps the innovation is propagated with the
-    observer's own model (``v = C (z - m) + (C z_k - y_k)``, m the open-loop prediction from
-    ``z_k``), so that it stays a linear function of the error at ``t_k``.
+    **Gain cap.** With the gain frozen at a level s the step maps the error ``(psi, z - x)``
+    linearly; in the dilated coordinates ``(psi / s, d(-ln s)(z - x))`` that map depends on
+    ``tau = dt s^nu`` only (for a given dt), and it contracts for small tau (it tends to the
+    continuous flow) but not for tau of order one or more, where the sampled measurement, not
+    the gain, limits what can be known. The gain level is therefore floored at
+    ``sigma_min = (tau_max / dt)^(1/nu)``: below it the scheme is a fixed linear discrete-time
+    observer with contraction ``rho(tau_max)`` per step. By default ``tau_max`` is chosen for
+    each communication step size at its first use (:meth:`_Observer.cap`): the tau of
+    ``TAU_GRID`` with the smallest spectral radius of the dilated map among the grid's leading
+    run of contractive values, so that every level above the floor contracts too. A step size
+    for which no tau of the grid contracts is refused with a ValueError. On a plant with fast
+    modes and a long step the smallest taus may not contract either (the sampled homogenisation
+    gain L0, held over dt, is then not quite nilpotent any more): the level is then also
+    ceiled at ``(tau_min / dt)^(1/nu)``, tau_min the start of the contractive run of the grid
+    that holds tau_max, so that large errors meet a contractive fixed gain instead of diverging.
 
-    **Gain cap.** The frozen-gain map is contractive only while ``tau = dt sigma^nu`` stays
-    moderate, dt the communication step (for large tau the sampled measurement, not the gain,
-    limits what can be known; one sample per dt is all the observer gets): the gain level is
-    therefore floored at ``sigma_min = (tau_max / dt)^(1/nu)``. Below that level the scheme is a
-    fixed linear discrete-time observer (the discrete limit of the homogeneous one) with
-    contraction ``rho(tau_max)`` per communication step. ``tau_max`` defaults to the value
-    minimising that spectral radius for dt = h (computed at construction); with substeps the
-    per-step map stays contractive (checked in the tests).
+    **Round-off floor.** At a level s the gain amplifies an error of the measured output by
+    about ``||C|| ||d(ln s)|| / s^(1+nu)`` into the estimate (the dilated coordinates see the
+    output scaled by ``s^-(1+nu)``, and ``d(ln s)`` maps them back): for deep observability
+    chains (n_tilde large) this reaches 1e10 long before the contraction floor, and the
+    round-off of y (1e-16 relative) alone then keeps the deep states' error at 1e-6..1e-3 (the
+    Levant limit ``eps^(1/n_tilde)`` of exact differentiators). The level is therefore also
+    floored at the s where that amplification equals ``AMPLIFICATION_LIMIT``, so the capped
+    observer's bandwidth stays where double precision can follow it.
 
 Edges: ``sigma = 0`` (all-zero start) and ``xi = 0`` (prescribed time reached) use the capped
 level, so no 0 * inf appears; a step that would produce a non-finite state raises ValueError
@@ -82,12 +96,20 @@ class Prediction(NamedTuple):
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
 
-TAU_GRID = np.geomspace(0.05, 3.0, 40)
-"""Candidate values of tau_max scanned at construction (spectral radius of the capped map)."""
+TAU_GRID = np.geomspace(1e-3, 3.0, 48)
+"""Candidate values of tau_max, in increasing order, scanned for each communication step size."""
+CONTRACTION_LIMIT = 1.0 - 1e-9
+"""A dilated error map counts as contractive below this spectral radius."""
+AMPLIFICATION_LIMIT = 1e6
+"""Largest output-to-estimate amplification ``||C|| ||d(ln s)|| / s^(1+nu)`` of a gain level
+(module docstring): y's round-off of 1e-16 then moves the estimate by about 1e-10 at most."""
+CAP_CACHE_SIZE = 16
+"""Gain caps are cached per communication step size; the cache is cleared at this many."""
 
 MAX_SUBSTEPS = 1_000_000
-"""A communication step needing more internal steps than this is rejected (ValueError) rather
-than run for minutes: a step size of hours with h = 5e-5 is a mistake, not a request."""
+"""A communication step longer than this many internal steps h is rejected (ValueError) rather
+than run for minutes (euler) or through an overflowing exponential (split): a step size of hours
+with h = 5e-5 is a mistake, not a request."""
 
 LEVEL_MISMATCH = 2.0
 """Split scheme: the frozen level is made self-consistent when sigma would exceed it by this."""
@@ -142,6 +164,9 @@ class _Observer:
         self._z = np.zeros(n) if z0 is None else as_finite_vector(z0, n, "z0")
         self._L_inj = L_inj
         self._zoh: dict[float, Prediction] = {}
+        self.tau_max: float | None = None
+        self._caps: dict[float, float] = {}
+        self._roundoff_level: float | None = None
 
     # -- public interface -------------------------------------------------------------------
     @property
@@ -173,16 +198,18 @@ class _Observer:
     def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """:meth:`step` without checking its arguments, for a caller that has: y and u finite
         float vectors of k and m entries, dt positive and finite (the FMU slaves check their
-        inputs once). A non-finite result, or a step needing more than ``MAX_SUBSTEPS``
-        internal steps, still raises ValueError, the state unchanged."""
+        inputs once). A non-finite result, a step needing more than ``MAX_SUBSTEPS`` internal
+        euler steps, or a step size without a contractive gain cap still raises ValueError,
+        the state unchanged."""
         n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
         if n_sub > MAX_SUBSTEPS:
-            raise ValueError(f"the step size {dt!r} needs {n_sub} internal steps of h = "
-                             f"{self.h!r}, more than {MAX_SUBSTEPS}; state left unchanged")
-        hs = dt / n_sub
-        run = self._run_split if self.scheme == "split" else self._run_euler
+            raise ValueError(f"the step size {dt!r} is more than {MAX_SUBSTEPS} internal steps "
+                             f"of h = {self.h!r}; state left unchanged")
         try:  # the schemes never write into their arguments: the state stays as it was
-            z, aux = run(self._z, self._aux, y, u, hs, n_sub)
+            if self.scheme == "split":
+                z, aux = self._run_split(self._z, self._aux, y, u, dt)
+            else:
+                z, aux = self._run_euler(self._z, self._aux, y, u, dt / n_sub, n_sub)
         except ArithmeticError as err:
             raise floating_point_failure(self.scheme, err) from err
         if not (all_finite(z) and all_finite(aux)):
@@ -216,39 +243,18 @@ class _Observer:
                 Phi, Gamma_inj, np.hstack((Phi, Gamma_B, Gamma_inj)), Phi + Gamma_inj @ self._C)
         return prediction
 
-    def _run_split(self, z, aux, y, u, hs, n_sub, level=None):
-        """The split scheme over n_sub substeps (see the module docstring); the gain level is
-        the observer's own (capped for the communication step hs * n_sub) unless given."""
-        C = self._C
-        prediction = self._prediction(hs)
-        innovation0 = C.dot(z) - y
-        v = innovation0
-        drift = np.zeros(z.size)  # z - m, m the observer's open-loop model prediction from t_k
-        for i in range(n_sub):
-            z, aux, F_dz = self._split_substep(prediction, z, aux, v, u, hs, hs * n_sub, level)
-            if i + 1 < n_sub:
-                drift = prediction.Phi.dot(drift) + prediction.Gamma_inj.dot(v)
-                if F_dz is not None:
-                    drift = drift + F_dz
-                v = C.dot(drift) + innovation0
-        return z, aux
-
-    def _split_substep(self, prediction, z, aux, v, u, hs, dt, level=None):
-        """Correction (exact, gain frozen at ``level``, by default the observer's own level
-        capped for the communication step dt) then the ZOH ``prediction`` over hs with v held:
-        ``z+ = Phi (z + dz) + Gamma_B u + Gamma_inj (v + C dz) = M (z, u, v) + F dz``.
-
-        Returns the new z and aux and ``F dz`` (None if the observer has no correction).
-        """
+    def _run_split(self, z, aux, y, u, dt, level=None):
+        """One split step over dt: correction (exact, gain frozen at ``level``, by default the
+        observer's own level capped for dt) then the ZOH ``prediction`` with v held:
+        ``z+ = Phi (z + dz) + Gamma_B u + Gamma_inj (v + C dz) = M (z, u, v) + F dz``."""
+        prediction = self._prediction(dt)
+        v = self._C.dot(z) - y
         if level is None:
-            aux, dz = self._correct_own_level(aux, v, hs, dt)
+            aux, dz = self._correct_own_level(aux, v, dt)
         else:
-            aux, dz = self._correct(aux, v, hs, level)
+            aux, dz = self._correct(aux, v, dt, level)
         z_new = prediction.M.dot(np.concatenate((z, u, v)))
-        if dz is None:
-            return z_new, aux, None
-        F_dz = prediction.F.dot(dz)
-        return z_new + F_dz, aux, F_dz
+        return (z_new, aux) if dz is None else (z_new + prediction.F.dot(dz), aux)
 
     def _run_euler(self, z, aux, y, u, hs, n_sub):
         """The paper's explicit Euler over n_sub substeps, y held."""
@@ -261,21 +267,70 @@ class _Observer:
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
         """Gain level (sigma or |xi|, capped for the communication step dt) at which the split
-        substep freezes the gain."""
+        step freezes the gain."""
         return 1.0
 
     def _floor(self, dt: float) -> float:
-        """Gain-level cap ``(tau_max / dt)^(1/nu)`` for the communication step dt."""
-        return (self.tau_max / dt) ** (1.0 / self.gains.nu)
+        """Gain-level floor for the communication step dt: ``(tau_max / dt)^(1/nu)``, and at
+        least the round-off floor (module docstring)."""
+        if self._roundoff_level is None:
+            self._roundoff_level = self._amplification_level()
+        return max((self.cap(dt) / dt) ** (1.0 / self.gains.nu), self._roundoff_level)
 
-    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray, hs: float,
+    def _ceiling(self, dt: float) -> float:
+        """Gain-level ceiling for the communication step dt: ``(tau_min / dt)^(1/nu)`` when the
+        dilated map does not contract for the smallest taus (module docstring), else inf."""
+        tau_min = self._tau_range(dt)[0]
+        return math.inf if tau_min is None else (tau_min / dt) ** (1.0 / self.gains.nu)
+
+    def cap(self, dt: float) -> float:
+        """``tau_max`` for the communication step dt: the fixed one given at construction, or
+        the automatic choice of the module docstring (computed once per step size).
+
+        Raises
+        ------
+        ValueError
+            If no tau of ``TAU_GRID`` gives a contractive error map for this dt.
+        """
+        return self._tau_range(dt)[1]
+
+    def _tau_range(self, dt: float) -> tuple[float | None, float]:
+        """``(tau_min, tau_max)`` for dt (tau_min None: no ceiling), cached per step size."""
+        if self.tau_max is not None:
+            return None, self.tau_max
+        taus = self._caps.get(dt)
+        if taus is None:
+            if len(self._caps) >= CAP_CACHE_SIZE:
+                self._caps.clear()
+            taus = self._caps[dt] = self._auto_taus(dt)
+        return taus
+
+    def _amplification_level(self) -> float:
+        """The level s at which ``||C|| ||d(ln s)|| / s^(1+nu)`` equals ``AMPLIFICATION_LIMIT``
+        (bisection in ln s; 0 if no level below 1 reaches it)."""
+        g = self.gains
+        dilation, c_norm = Dilation(g.G_d), np.linalg.norm(self._C, 2)
+
+        def amplification(log_s: float) -> float:
+            return c_norm * np.linalg.norm(dilation.matrix(log_s), 2) / math.exp(
+                (1.0 + g.nu) * log_s)
+
+        lo, hi = -700.0, 0.0
+        if amplification(lo) <= AMPLIFICATION_LIMIT:
+            return 0.0
+        while hi - lo > 1e-3:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if amplification(mid) <= AMPLIFICATION_LIMIT else (mid, hi)
+        return math.exp(hi)
+
+    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
                            dt: float) -> tuple[np.ndarray, np.ndarray | None]:
         """:meth:`_correct` at the observer's own gain level."""
-        return self._correct(aux, v, hs, self._level(aux, dt))
+        return self._correct(aux, v, dt, self._level(aux, dt))
 
-    def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
+    def _correct(self, aux: np.ndarray, v: np.ndarray, dt: float,
                  level: float) -> tuple[np.ndarray, np.ndarray | None]:
-        """Exact correction flow over hs: return (new aux, increment of z), the increment
+        """Exact correction flow over dt: return (new aux, increment of z), the increment
         None for an observer without one."""
         return aux, None
 
@@ -285,27 +340,45 @@ class _Observer:
         dt is the communication step (for a gain cap)."""
         return np.zeros_like(aux), np.zeros(self._z.size)
 
-    def error_map(self, level: float, n_sub: int = 1) -> np.ndarray:
-        """Matrix of one split communication step of n_sub substeps of size h acting on the
-        estimation error at a frozen gain level (sigma or |xi|): the error is ``(psi, z - x)``
-        for the filtering observer and ``z - x`` otherwise. It is the observer's step with
-        x = 0, y = 0 and u = 0, which is linear in the error; for analysis and tests."""
+    def _error_scaling(self, level: float) -> np.ndarray:
+        """The dilation ``S`` with error = S (dilated error) at a gain level (identity for an
+        observer without levels)."""
+        return np.eye(self._n_error_aux + self._z.size)
+
+    def error_map(self, level: float, dt: float) -> np.ndarray:
+        """Matrix of one split step of size dt acting on the *dilated* estimation error
+        ``S^-1 (psi, z - x)`` (:meth:`_error_scaling`; ``z - x`` alone for the observers
+        without a filter) at a frozen gain level (sigma or |xi|). It is the observer's step
+        with x = 0, y = 0 and u = 0, which is linear in the error; for the gain cap, analysis
+        and tests. In these coordinates its entries are of moderate size at every level, so
+        its eigenvalues are computed accurately (those of the unscaled map are not)."""
         g = self.gains
         n_lin = self._n_error_aux
+        S = self._error_scaling(level)
         columns = []
-        for e in np.eye(n_lin + self._z.size):
+        for e in S.T:
             aux = np.zeros_like(self._aux)
             aux[:n_lin] = e[:n_lin]
-            z, aux = self._run_split(e[n_lin:], aux, np.zeros(g.k), np.zeros(g.m), self.h,
-                                     n_sub, level)
+            z, aux = self._run_split(e[n_lin:], aux, np.zeros(g.k), np.zeros(g.m), dt, level)
             columns.append(np.concatenate([aux[:n_lin], z]))
-        return np.column_stack(columns)
+        return np.linalg.solve(S, np.column_stack(columns))
 
-    def _auto_tau_max(self) -> float:
-        """tau in TAU_GRID minimising the spectral radius of the capped error map (size h)."""
+    def _auto_taus(self, dt: float) -> tuple[float | None, float]:
+        """``(tau_min, tau_max)`` on ``TAU_GRID``: tau_max minimises the spectral radius of the
+        dilated error map, tau_min is the smallest tau of the contractive run that holds
+        tau_max, None when that run starts at the grid's first tau (module docstring)."""
         nu = self.gains.nu
-        radii = [spectral_radius(self.error_map((t / self.h) ** (1.0 / nu))) for t in TAU_GRID]
-        return float(TAU_GRID[int(np.argmin(radii))])
+        radii = [spectral_radius(self.error_map((tau / dt) ** (1.0 / nu), dt))
+                 for tau in TAU_GRID]
+        best = int(np.argmin(radii))
+        if not radii[best] < CONTRACTION_LIMIT:
+            raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
+                             f"(smallest spectral radius {radii[best]:.6g}); use a smaller "
+                             "communication step")
+        first = best
+        while first > 0 and radii[first - 1] < CONTRACTION_LIMIT:
+            first -= 1
+        return (None if first == 0 else float(TAU_GRID[first])), float(TAU_GRID[best])
 
 
 class FilteringObserver(_Observer):
@@ -340,14 +413,12 @@ class FilteringObserver(_Observer):
         self._dilation = Dilation(gains.G_d, right=gains.L)
         self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
         self._p = gains.nu / 2.0 + 1.0
-        self.tau_max = (self._auto_tau_max()
-                        if tau_max is None else float(tau_max))
+        self.tau_max = None if tau_max is None else float(tau_max)
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
-        """``z``, ``psi``, ``xi``, ``sigma`` and the capped gain level of the split scheme."""
+        """``z``, ``psi``, ``xi`` and ``sigma``."""
         psi, xi = self._aux[:-1], float(self._aux[-1])
-        return {"z": self.z, "psi": psi.copy(), "xi": xi, "sigma": self._sigma(self._aux),
-                "sigma_min": self._floor(self.h)}
+        return {"z": self.z, "psi": psi.copy(), "xi": xi, "sigma": self._sigma(self._aux)}
 
     @property
     def sigma(self) -> float:
@@ -361,29 +432,40 @@ class FilteringObserver(_Observer):
         return math.sqrt(max(xi, 0.5 * sum(p * p for p in psi), 0.0))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
-        """``max(sigma, sigma_min)`` with ``sigma_min = (tau_max / dt)^(1/nu)``."""
-        return max(self._sigma(aux), self._floor(dt))
+        """sigma between the floor and the ceiling of dt (module docstring)."""
+        return min(max(self._sigma(aux), self._floor(dt)), self._ceiling(dt))
 
-    def _correct_own_level(self, aux, v, hs, dt):
-        """Correction at ``max(sigma, sigma_min)``, redone at a self-consistent level when it
+    def _error_scaling(self, level: float) -> np.ndarray:
+        """``diag(level I_k, d(ln level))``: the dilation of ``(psi, z - x)``."""
+        k, n = self._k, self._z.size
+        S = np.zeros((k + n, k + n))
+        S[:k, :k] = level * np.eye(k)
+        S[k:, k:] = Dilation(self.gains.G_d).matrix(math.log(level))
+        return S
+
+    def _correct_own_level(self, aux, v, dt):
+        """Correction at the level of :meth:`_level`, redone at a self-consistent level when it
         leaves sigma above ``LEVEL_MISMATCH`` times the frozen level (e.g. at an all-zero start,
         where sigma = 0 but psi grows at once): that level s solves ``sigma_after(s) = s``
         (bisection in ln s; sigma_after(s) / s decreases in s), so the frozen gain matches the
-        psi it produces."""
-        level = self._level(aux, dt)
-        result = self._correct(aux, v, hs, level)
+        psi it produces; it is at most the ceiling."""
+        level, ceiling = self._level(aux, dt), self._ceiling(dt)
+        result = self._correct(aux, v, dt, level)
         after = self._sigma(result[0])
         if after <= LEVEL_MISMATCH * level:
             return result
-        lo, hi = math.log(level), math.log(after)
+        log_ceiling = math.log(ceiling)
+        lo, hi = math.log(level), min(math.log(after), log_ceiling)
         for _ in range(BISECTION_STEPS):
-            result = self._correct(aux, v, hs, math.exp(hi))
+            result = self._correct(aux, v, dt, math.exp(hi))
             if self._sigma(result[0]) <= math.exp(hi):
                 break
-            lo, hi = hi, hi + 2.0
+            if hi >= log_ceiling:
+                return result
+            lo, hi = hi, min(hi + 2.0, log_ceiling)
         while hi - lo > BISECTION_TOL:
             mid = 0.5 * (lo + hi)
-            trial = self._correct(aux, v, hs, math.exp(mid))
+            trial = self._correct(aux, v, dt, math.exp(mid))
             if self._sigma(trial[0]) <= math.exp(mid):
                 hi, result = mid, trial
             else:
@@ -448,8 +530,7 @@ class PrescribedTimeObserver(_Observer):
         self._aux = as_finite_vector(xi0, 1, "xi0")
         self._dilation = Dilation(gains.G_d, right=gains.L_pt)
         self._Q = ExpmFamily(self._C @ gains.L_pt)
-        self.tau_max = (self._auto_tau_max()
-                        if tau_max is None else float(tau_max))
+        self.tau_max = None if tau_max is None else float(tau_max)
 
     @property
     def T0(self) -> float:
@@ -461,9 +542,13 @@ class PrescribedTimeObserver(_Observer):
         """``z``, ``xi`` and the gain level actually used."""
         return {"z": self.z, "xi": float(self._aux[0]), "level": self._level(self._aux, self.h)}
 
+    def _error_scaling(self, level: float) -> np.ndarray:
+        """``d_pt(ln level) = level^-nu d(ln level)``: the dilation of ``z - x``."""
+        return level ** -self.gains.nu * Dilation(self.gains.G_d).matrix(math.log(level))
+
     def _level(self, aux: np.ndarray, dt: float) -> float:
-        """``max(|xi|, xi_min)`` with ``xi_min = (tau_max / dt)^(1/nu)``."""
-        return max(abs(float(aux[0])), self._floor(dt))
+        """|xi| between the floor and the ceiling of dt (module docstring)."""
+        return min(max(abs(float(aux[0])), self._floor(dt)), self._ceiling(dt))
 
     def _xi_exact(self, xi: float, hs: float) -> float:
         """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
