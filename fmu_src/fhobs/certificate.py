@@ -20,7 +20,11 @@ check                         value                                             
 ``hurwitz_luenberger``        max Re eig(A + L_lin C)                                      < 0
 ============================  ===========================================================  =======
 
-The homogeneous observers' figures are of the observer's model (``gains.model``: the plant, or
+The figures are computed in balanced coordinates ``x = diag(d) x_b`` (d powers of two from
+:func:`fhobs.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
+P), so every value is that of the original coordinates, with a rounding error that stays small
+for plants whose entries span many decades. The homogeneous observers' figures are of the
+observer's model (``gains.model``: the plant, or
 its extended-state model of :mod:`fhobs.disturbance`); ``hurwitz_luenberger`` is of the plant.
 sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
 eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
@@ -35,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from .gains import ObserverGains
+from .linalg import balancing_scale
 
 DEFAULT_TOLERANCE = 1e-7
 DEFAULT_MARGIN = 1e-6
@@ -87,8 +92,10 @@ def sym(M: np.ndarray) -> np.ndarray:
 
 
 def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
-    """The four homogeneity figures of the table in the module docstring."""
-    A0, G_d, C, nu = gains.A0, gains.G_d, gains.model[2], gains.nu
+    """The four homogeneity figures of the table in the module docstring (in the balanced
+    coordinates of :func:`_balancing`)."""
+    d = _balancing(gains)
+    A0, G_d, C, nu = _similar(gains.A0, d), _similar(gains.G_d, d), gains.model[2] * d, gains.nu
     eye = np.eye(gains.n_model)
     a0_norm = max(np.linalg.norm(A0), 1e-300)
     return {
@@ -103,6 +110,18 @@ def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
         ),
         "dilation_anti_hurwitz": float(np.min(np.linalg.eigvals(G_d).real)),
     }
+
+
+def _balancing(gains: ObserverGains) -> np.ndarray:
+    """Powers of two d balancing the observer's model matrix (:func:`balancing_scale`): the
+    figures are computed for ``x = diag(d) x_b``, an exact similarity that leaves every check's
+    value unchanged in exact arithmetic and keeps its rounding small for badly scaled plants."""
+    return balancing_scale(gains.model[0])
+
+
+def _similar(M: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``diag(d)^-1 M diag(d)``."""
+    return M / d[:, None] * d[None, :]
 
 
 def lmi_values(
@@ -156,11 +175,17 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     """Every figure of the module docstring's table, without judging them."""
     values = homogeneity_values(gains)
     values["gamma_rho"] = gains.rho - gains.gamma / 2
+    d = _balancing(gains)
+    d_bar = np.concatenate([np.ones(gains.k), d])
     bar_A0, bar_G, bar_C = augmented_matrices(gains)
     bar_L = np.vstack([gains.L_tilde, gains.L])
-    values |= lmi_values(gains.P_bar, bar_A0 + bar_L @ bar_C, bar_G, gains.rho, "filtering")
+    values |= lmi_values(gains.P_bar * d_bar[:, None] * d_bar[None, :],
+                         _similar(bar_A0 + bar_L @ bar_C, d_bar), _similar(bar_G, d_bar),
+                         gains.rho, "filtering")
     G_pt = gains.G_d - gains.nu * np.eye(gains.n_model)
-    values |= lmi_values(gains.P_pt, gains.A0 + gains.L_pt @ gains.model[2], G_pt, gains.rho, "pt")
+    values |= lmi_values(gains.P_pt * d[:, None] * d[None, :],
+                         _similar(gains.A0 + gains.L_pt @ gains.model[2], d), _similar(G_pt, d),
+                         gains.rho, "pt")
     values["hurwitz_luenberger"] = float(
         np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real)
     )

@@ -28,9 +28,11 @@ infeasible: the z block of the LMI then has no injection.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 
 from .certificate import CertificateError, augmented_matrices, certify
 from .disturbance import extended_model, model_perturbation_matrix
@@ -43,8 +45,11 @@ from .lmi import (
     chain_basis,
     solve_gain_lmi,
 )
+from .settling import ErrorResponse, error_response
 from .spec import PlantSpec, spec_from_dict
 
+RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0)
+"""Values of rho tried, in this order, when the spec leaves rho to the design."""
 MARGIN_ATTEMPTS = 4
 MARGIN_GROWTH = 2.0
 """A design failing an LMI check by its rounding allowance is solved again with the margin the
@@ -85,13 +90,21 @@ def _chain_levels(
 
 
 def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: float) -> np.ndarray:
-    """The spec's L_lin, or the plant's Luenberger LMI (in the plant's chain basis) at ``decay``."""
+    """The spec's L_lin, or the plant's Luenberger LMI at ``decay`` (in the chain basis of the
+    plant's balanced coordinates, mapped back)."""
     if spec.L_lin is not None:
         return spec.L_lin
     n = spec.A.shape[0]
-    A0, levels = _chain_levels(spec.A, spec.C, spec.nu, homogenise(spec.A, spec.C, spec.nu))
+    d = _balancing(spec.A)
+    A_b, C_b = spec.A / d[:, None] * d[None, :], spec.C * d[None, :]
+    A0, levels = _chain_levels(A_b, C_b, spec.nu, homogenise(A_b, C_b, spec.nu))
     basis = chain_basis(A0, levels)
-    return solve_gain_lmi(spec.A, np.eye(n), spec.C, decay, basis, objective, margin).gain
+    return solve_gain_lmi(A_b, np.eye(n), C_b, decay, basis, objective, margin).gain * d[:, None]
+
+
+def _balancing(A: np.ndarray) -> np.ndarray:
+    """Powers of two d balancing A (``scipy.linalg.matrix_balance`` without permutations)."""
+    return scipy.linalg.matrix_balance(A, permute=False, separate=True)[1][0]
 
 
 def design_observer(
@@ -130,6 +143,10 @@ def design_observer(
         entries is widened rather than reported as a failure).
     """
     objective = objective or spec.objective
+    if spec.rho is None:
+        return _design_for_settling_time(spec, objective, margin, filter_scale)
+    if spec.gamma is None:
+        spec = replace(spec, gamma=spec.rho)
     for attempt in range(MARGIN_ATTEMPTS):
         try:
             return _design_at_margin(spec, objective, margin, filter_scale)
@@ -140,36 +157,86 @@ def design_observer(
     raise AssertionError("unreachable")
 
 
+def _design_for_settling_time(
+    spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
+) -> ObserverGains:
+    """The design at the smallest rho of ``RHO_LADDER`` whose predicted settling time
+    (:func:`fhobs.settling.error_response` from errors of the size of ``spec.state_scale``)
+    meets ``spec.settling_time``; gamma is the spec's, or rho. If no rung meets it (the LMI
+    becomes infeasible at large rho for long observability chains), the rung with the
+    shortest predicted time; ``certificate["tuning"]`` says which and whether it met the
+    request."""
+    best: tuple[float, ObserverGains, ErrorResponse] | None = None
+    last_error: Exception | None = None
+    for rho in RHO_LADDER:
+        gamma = rho if spec.gamma is None else spec.gamma
+        if rho <= gamma / 2:
+            continue
+        try:
+            gains = design_observer(replace(spec, rho=rho, gamma=gamma), objective, margin,
+                                    filter_scale)
+        except (LMIError, CertificateError) as exc:
+            last_error = exc
+            if best is not None:
+                break
+            continue
+        scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
+        response = error_response(gains, scale, spec.settling_time)
+        if best is None or response.settling_time < best[0]:
+            best = (response.settling_time, gains, response)
+        if response.settling_time <= spec.settling_time:
+            break
+    if best is None:
+        raise LMIError(f"no rho of {RHO_LADDER} gives a certified design: {last_error}")
+    _, gains, response = best
+    tuning = {
+        "settling_time_requested": spec.settling_time,
+        "settling_time_predicted": response.settling_time,
+        "peaking": response.peaking,
+        "met": bool(response.settling_time <= spec.settling_time),
+    }
+    return replace(gains, certificate=gains.certificate | {"tuning": tuning})
+
+
 def _design_at_margin(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
 ) -> ObserverGains:
-    """One design: homogenisation, the three LMIs at ``margin``, the certificate."""
+    """One design: homogenisation, the three LMIs at ``margin``, the certificate.
+
+    The homogeneous observers are designed in balanced coordinates ``x = D x_b`` (D diagonal,
+    powers of two, from ``scipy.linalg.matrix_balance`` of the observer's model: exact in
+    floating point) and mapped back; for a plant whose entries span many decades this keeps
+    the eigenvectors of G_d and the LMI well conditioned.
+    """
     A_model, _, C_model = extended_model(spec.A, spec.B, spec.C, spec.E, spec.disturbance_order)
-    hom = homogenise(A_model, C_model, spec.nu)
+    d = _balancing(A_model)
+    A_b, C_b = A_model / d[:, None] * d[None, :], C_model * d[None, :]
+    hom = homogenise(A_b, C_b, spec.nu)
     n, k = A_model.shape[0], spec.C.shape[0]
-    base = dict(
-        A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=spec.rho, gamma=spec.gamma,
-        n_tilde=hom.n_tilde, G0=hom.G0, L0=hom.L0, G_d=hom.G_d,
-        L_tilde=np.zeros((k, k)), L=np.zeros((n, k)), P_bar=np.eye(n + k),
-        L_pt=np.zeros((n, k)), P_pt=np.eye(n), L_lin=np.zeros(spec.C.T.shape),
-        disturbance_order=spec.disturbance_order,
-    )
-    A0, levels = _chain_levels(A_model, C_model, spec.nu, hom)
-    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
+    A0, levels = _chain_levels(A_b, C_b, spec.nu, hom)
+    bar_A0 = np.block([[np.zeros((k, k)), C_b], [np.zeros((n, k)), A0]])
+    bar_G = scipy.linalg.block_diag(np.eye(k), hom.G_d)
+    bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
     filtering = solve_gain_lmi(
-        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C_model), objective, margin
+        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C_b), objective, margin
     )
     G_pt = hom.G_d - spec.nu * np.eye(n)
-    pt = solve_gain_lmi(A0, G_pt, C_model, spec.rho, chain_basis(A0, levels), objective, margin)
-    bar_L, P_bar = filtering.gain, filtering.P
+    pt = solve_gain_lmi(A0, G_pt, C_b, spec.rho, chain_basis(A0, levels), objective, margin)
+    bar_L, P_bar, rho = filtering.gain, filtering.P, spec.rho
     scale = getattr(spec, "filter_scale", 1.0) if filter_scale is None else filter_scale
     if scale != 1.0:
         bar_L = np.vstack([scale * bar_L[:k], bar_L[k:]])
-        base["rho"], P_bar = _max_certified_rho(bar_A0 + bar_L @ bar_C, bar_G, spec, margin)
+        rho, P_bar = _max_certified_rho(bar_A0 + bar_L @ bar_C, bar_G, spec, margin)
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
-    base |= dict(
-        L_tilde=bar_L[:k], L=bar_L[k:], P_bar=P_bar,
-        L_pt=pt.gain, P_pt=pt.P, L_lin=_luenberger_gain(spec, decay, objective, margin),
+    d_bar = np.concatenate([np.ones(k), d])
+    base = dict(
+        A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=rho, gamma=spec.gamma,
+        n_tilde=hom.n_tilde, G0=hom.G0 * d[:, None] / d[None, :], L0=hom.L0 * d[:, None],
+        G_d=hom.G_d * d[:, None] / d[None, :], L_tilde=bar_L[:k], L=bar_L[k:] * d[:, None],
+        P_bar=P_bar / d_bar[:, None] / d_bar[None, :], L_pt=pt.gain * d[:, None],
+        P_pt=pt.P / d[:, None] / d[None, :],
+        L_lin=_luenberger_gain(spec, decay, objective, margin),
+        disturbance_order=spec.disturbance_order,
     )
     return _certified(base, objective, margin)
 

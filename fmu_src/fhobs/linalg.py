@@ -176,3 +176,52 @@ class ExpmFamily:
         aug[:size, size] = tau * r
         E = expm(aug)
         return (E[:size, :size] @ r)[:rows], E[:size, size][:rows]
+
+
+BALANCE_SWEEPS = 100
+"""Most sweeps of :func:`balancing_scale` (it usually converges in a few)."""
+
+
+def balancing_scale(M: np.ndarray) -> np.ndarray:
+    """Powers of two d with ``diag(d)^-1 M diag(d)`` balanced (off-diagonal row and column
+    1-norms within a factor of two of each other), the scaling of LAPACK's ``gebal`` without
+    permutations. Scaling by powers of two is exact in floating point.
+
+    Parameters
+    ----------
+    M : np.ndarray
+        Square real matrix.
+
+    Returns
+    -------
+    np.ndarray
+        The vector d (all ones for a balanced M).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> balancing_scale(np.array([[1.0, 1024.0], [1.0, 1.0]])).tolist()
+    [32.0, 1.0]
+    """
+    B = np.abs(np.array(M, dtype=float))
+    np.fill_diagonal(B, 0.0)
+    d = np.ones(B.shape[0])
+    for _ in range(BALANCE_SWEEPS):
+        converged = True
+        for i in range(B.shape[0]):
+            col, row = B[:, i].sum(), B[i, :].sum()
+            if col == 0.0 or row == 0.0:
+                continue
+            f, c, r = 1.0, col, row
+            while c < r / 2.0:
+                f, c, r = 2.0 * f, 2.0 * c, r / 2.0
+            while c >= 2.0 * r:
+                f, c, r = f / 2.0, c / 2.0, 2.0 * r
+            if c + r < 0.95 * (col + row):
+                converged = False
+                d[i] *= f
+                B[:, i] *= f
+                B[i, :] /= f
+        if converged:
+            break
+    return d

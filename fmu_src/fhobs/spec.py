@@ -10,8 +10,12 @@ Format::
 
     [observer]                # optional table, every key optional
     nu = -0.25                # homogeneity degree in [-1/(n_tilde+1), 0); default -1/(n_tilde+1)
-    rho = 1.5                 # LMI decay parameter; default 1.5 (the paper's)
-    gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default 2.75 (the paper's)
+    settling_time = 2.0       # seconds for an initial error of the size of state_scale to fall
+                              # to 1e-3 of itself; default 2 (used when rho is not given)
+    state_scale = [1, 1]      # typical size of each state (or one number for all); default 1
+    rho = 1.5                 # LMI decay parameter; default: the smallest rho of RHO_LADDER
+                              # that meets settling_time (fhobs.design)
+    gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default: rho
     objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
     filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
@@ -34,11 +38,13 @@ from .disturbance import extended_model
 from .homogenisation import observability_index
 from .lmi import OBJECTIVES
 
-DEFAULT_RHO = 1.5
-DEFAULT_GAMMA = 2.75
+DEFAULT_SETTLING_TIME = 2.0
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
-OBSERVER_KEYS = ("nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order")
+OBSERVER_KEYS = (
+    "nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order", "settling_time",
+    "state_scale",
+)
 MAX_DISTURBANCE_ORDER = 3
 
 
@@ -58,8 +64,11 @@ class PlantSpec:
         Perturbation input matrix (n x r), if given.
     L_lin : numpy.ndarray or None
         A given Luenberger baseline gain (n x k); designed by LMI when None.
-    nu, rho, gamma : float
-        Homogeneity degree, LMI decay parameter, xi-equation gain.
+    nu : float
+        Homogeneity degree.
+    rho, gamma : float or None
+        LMI decay parameter and xi-equation gain; None: chosen by the design to meet
+        ``settling_time`` (gamma = rho).
     n_tilde : int
         Observability index of the observer's model (``(A, C)`` without a disturbance model).
     objective : str
@@ -71,6 +80,11 @@ class PlantSpec:
         :func:`fhobs.design.design_observer`.
     disturbance_order : int
         Order of the disturbance model (0: none), see :mod:`fhobs.disturbance`.
+    settling_time : float
+        Requested time (s) for an initial error of the size of ``state_scale`` to fall to 1e-3
+        of itself.
+    state_scale : numpy.ndarray
+        Typical size of each plant state (n entries).
     """
 
     A: np.ndarray
@@ -79,13 +93,15 @@ class PlantSpec:
     E: np.ndarray | None
     L_lin: np.ndarray | None
     nu: float
-    rho: float
-    gamma: float
+    rho: float | None
+    gamma: float | None
     n_tilde: int
     objective: str
     source: str = "<dict>"
     filter_scale: float = 1.0
     disturbance_order: int = 0
+    settling_time: float = DEFAULT_SETTLING_TIME
+    state_scale: np.ndarray | None = None
 
 
 def load_spec(path: str | Path) -> PlantSpec:
@@ -156,9 +172,13 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
             f"n = {A_model.shape[0]}"
         )
     nu = _scalar(obs, "nu", -1.0 / (n_tilde + 1), source)
-    rho = _scalar(obs, "rho", DEFAULT_RHO, source)
-    gamma = _scalar(obs, "gamma", DEFAULT_GAMMA, source)
+    rho = _scalar(obs, "rho", None, source)
+    gamma = _scalar(obs, "gamma", None, source)
     _check_tuning(nu, rho, gamma, n_tilde, source)
+    settling_time = _scalar(obs, "settling_time", DEFAULT_SETTLING_TIME, source)
+    if not settling_time > 0.0:
+        raise SpecError(f"{source}: observer.settling_time = {settling_time!r} must be > 0 (s)")
+    state_scale = _state_scale(obs, n, source)
     objective = obs.get("objective", DEFAULT_OBJECTIVE)
     if objective not in OBJECTIVES:
         raise SpecError(
@@ -168,8 +188,25 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     if filter_scale < 1.0:
         raise SpecError(f"{source}: observer.filter_scale = {filter_scale!r} must be >= 1")
     return PlantSpec(
-        A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order
+        A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order,
+        settling_time, state_scale,
     )
+
+
+def _state_scale(obs: dict[str, Any], n: int, source: str) -> np.ndarray:
+    """``observer.state_scale``: one positive number, or n of them (default all ones)."""
+    value = obs.get("state_scale", 1.0)
+    entries = value if isinstance(value, list) else [value]
+    for i, entry in enumerate(entries, start=1):
+        _check_entry(entry, f"observer.state_scale[{i}]", source)
+        if not entry > 0:
+            raise SpecError(f"{source}: observer.state_scale[{i}] = {entry!r} must be > 0")
+    if len(entries) not in (1, n):
+        raise SpecError(
+            f"{source}: observer.state_scale has {len(entries)} entries, expected 1 or {n} "
+            "(the number of states)"
+        )
+    return np.broadcast_to(np.array(entries, dtype=float), (n,)).copy()
 
 
 def _disturbance_order(obs: dict[str, Any], E: np.ndarray | None, source: str) -> int:
@@ -241,24 +278,31 @@ def _check_square(A: np.ndarray, source: str) -> int:
     return n
 
 
-def _scalar(table: dict[str, Any], name: str, default: float, source: str) -> float:
+def _scalar(
+    table: dict[str, Any], name: str, default: float | None, source: str
+) -> float | None:
     if name not in table:
         return default
     _check_entry(table[name], f"observer.{name}", source)
     return float(table[name])
 
 
-def _check_tuning(nu: float, rho: float, gamma: float, n_tilde: int, source: str) -> None:
-    """Enforce Theorem 2's ranges: nu in [-1/(n_tilde+1), 0), gamma > 0, rho > gamma/2."""
+def _check_tuning(
+    nu: float, rho: float | None, gamma: float | None, n_tilde: int, source: str
+) -> None:
+    """Enforce Theorem 2's ranges: nu in [-1/(n_tilde+1), 0), gamma > 0, rho > gamma/2 (for
+    the ones given)."""
     nu_min = -1.0 / (n_tilde + 1)
     if not (nu_min - 1e-12 <= nu < 0.0):
         raise SpecError(
             f"{source}: observer.nu = {nu!r} is outside [-1/(n_tilde+1), 0) = [{nu_min:.6g}, 0) "
             f"(n_tilde = {n_tilde})"
         )
-    if gamma <= 0.0:
+    if gamma is not None and gamma <= 0.0:
         raise SpecError(f"{source}: observer.gamma = {gamma!r} must be > 0")
-    if rho <= gamma / 2:
+    if rho is not None and rho <= 0.0:
+        raise SpecError(f"{source}: observer.rho = {rho!r} must be > 0")
+    if rho is not None and gamma is not None and rho <= gamma / 2:
         raise SpecError(
             f"{source}: observer.rho = {rho!r} must be > gamma/2 = {gamma / 2!r} (Theorem 2)"
         )

@@ -1,0 +1,97 @@
+"""Predicted settling time and peaking of a designed filtering observer.
+
+The estimation error of the observer does not depend on the plant's motion (the plant's
+inputs are known to the observer and the model is exact), so it can be simulated alone: a plant
+at rest (x = 0, u = 0, y = 0) and an observer started at ``z0 = -e0``, whose state z is then
+the error. :func:`error_response` runs that with the runtime's split scheme, which is the
+observer that the FMU runs, at a communication step fine enough for the settling time.
+
+This module is numpy-only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fhobs.gains import ObserverGains
+from fhobs.runtime import FilteringObserver
+
+SETTLED = 1e-3
+"""An error has settled when it stays below this fraction of its initial size."""
+STEPS_PER_SETTLING_TIME = 400
+"""Communication steps of the prediction per requested settling time."""
+HORIZON = 3.0
+"""The prediction runs for this many requested settling times."""
+
+
+@dataclass(frozen=True)
+class ErrorResponse:
+    """Worst case over the initial errors of :func:`error_response`.
+
+    Attributes
+    ----------
+    settling_time : float
+        Time (s) after which every error stays below ``SETTLED`` times its initial size
+        (inf if some error does not within the horizon).
+    peaking : float
+        Largest ``|e(t)| / |e(0)|``.
+    """
+
+    settling_time: float
+    peaking: float
+
+
+def initial_errors(state_scale: np.ndarray) -> list[np.ndarray]:
+    """The initial errors of the prediction: ``state_scale`` times all ones, and times
+    alternating signs (an error whose components do not all point one way).
+
+    Examples
+    --------
+    >>> [e.tolist() for e in initial_errors(np.array([1.0, 2.0]))]
+    [[1.0, 2.0], [1.0, -2.0]]
+    """
+    signs = np.where(np.arange(state_scale.size) % 2 == 0, 1.0, -1.0)
+    return [state_scale.copy(), state_scale * signs]
+
+
+def error_response(gains: ObserverGains, state_scale: np.ndarray,
+                   settling_time: float) -> ErrorResponse:
+    """Simulate the error from each of :func:`initial_errors` for ``HORIZON`` settling times.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design.
+    state_scale : numpy.ndarray
+        Typical size of each plant state (n entries).
+    settling_time : float
+        The requested settling time (s): sets the step ``settling_time /
+        STEPS_PER_SETTLING_TIME`` and the horizon.
+
+    Returns
+    -------
+    ErrorResponse
+    """
+    dt = settling_time / STEPS_PER_SETTLING_TIME
+    steps = int(round(HORIZON * STEPS_PER_SETTLING_TIME))
+    y, u = np.zeros(gains.k), np.zeros(gains.m)
+    worst_time, worst_peak = 0.0, 1.0
+    for e0 in initial_errors(state_scale):
+        z0 = np.zeros(gains.n_model)
+        z0[:gains.n] = -e0
+        observer = FilteringObserver(gains, h=dt, z0=z0)
+        size = float(np.linalg.norm(e0))
+        last_above = 0
+        for step in range(1, steps + 1):
+            try:
+                observer.advance(y, u, dt)
+            except ValueError:
+                return ErrorResponse(np.inf, np.inf)
+            error = float(np.linalg.norm(observer.x_hat)) / size
+            worst_peak = max(worst_peak, error)
+            if error > SETTLED:
+                last_above = step
+        worst_time = max(worst_time, np.inf if last_above == steps else last_above * dt)
+    return ErrorResponse(worst_time, worst_peak)
