@@ -11,6 +11,7 @@ This module is numpy-only.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,10 @@ from fhobs.runtime import FilteringObserver
 
 SETTLED = 1e-3
 """An error has settled when it stays below this fraction of its initial size."""
-STEPS_PER_SETTLING_TIME = 400
+CONVERGED = 1e-12
+"""A simulated error below this fraction of its initial size ends its run early (the
+observer's error then stays at round-off)."""
+STEPS_PER_SETTLING_TIME = 2000
 """Communication steps of the prediction per requested settling time."""
 HORIZON = 3.0
 """The prediction runs for this many requested settling times."""
@@ -93,5 +97,7 @@ def error_response(gains: ObserverGains, state_scale: np.ndarray,
             worst_peak = max(worst_peak, error)
             if error > SETTLED:
                 last_above = step
-        worst_time = max(worst_time, np.inf if last_above == steps else last_above * dt)
+            elif error < CONVERGED:
+                break
+        worst_time = max(worst_time, math.inf if last_above == steps else last_above * dt)
     return ErrorResponse(worst_time, worst_peak)
