@@ -58,7 +58,9 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
 
     The subspaces K_j = span(C^T, A^T C^T, ..., (A^T)^(j-1) C^T) are grown with an orthonormal
     basis (K_(j+1) = C^T + A^T K_j), which stays well conditioned where the plain stacked matrix
-    [C; CA; ...] would not.
+    [C; CA; ...] would not. A is first shifted by the mean of its diagonal (the subspaces of
+    A - s I are those of A), so a large common diagonal does not swamp the couplings that make
+    the pair observable (A = [[1e150, 1], [0, 1e150]], C = [1, 0] is observable).
 
     Parameters
     ----------
@@ -75,6 +77,7 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
         Rank of the observability matrix (dimension of the observable subspace).
     """
     n = A.shape[0]
+    A = A - np.trace(A / n) * np.eye(n)
     scale = max(np.linalg.norm(A, 2), 1.0)
     basis = _orth(C.T / max(np.linalg.norm(C, 2), 1e-300))
     for j in range(1, n + 1):
