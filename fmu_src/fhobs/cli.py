@@ -35,7 +35,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def check_output_folder(path: Path) -> None:
-    """Raise SpecError if ``path`` cannot become the output folder; create nothing.
+    """Raise OSError saying why ``path`` cannot become the output folder; create nothing.
 
     Parameters
     ----------
@@ -44,24 +44,27 @@ def check_output_folder(path: Path) -> None:
 
     Raises
     ------
-    SpecError
-        If ``path`` names a file, lies under a file, or its nearest existing folder is not
-        writable.
+    NotADirectoryError
+        If ``path`` names a file or lies under a file.
+    PermissionError
+        If the nearest existing folder of ``path`` is not writable.
 
     Examples
     --------
     >>> check_output_folder(Path("/dev/null"))
     Traceback (most recent call last):
     ...
-    fhobs.spec.SpecError: --out /dev/null: exists and is not a folder
+    NotADirectoryError: --out /dev/null: exists and is not a folder
     """
     if path.exists() and not path.is_dir():
-        raise SpecError(f"--out {path}: exists and is not a folder")
+        raise NotADirectoryError(f"--out {path}: exists and is not a folder")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())
     if not existing.is_dir():
-        raise SpecError(f"--out {path}: cannot be created under {existing}, which is a file")
+        raise NotADirectoryError(
+            f"--out {path}: cannot be created under {existing}, which is a file"
+        )
     if not os.access(existing, os.W_OK | os.X_OK):
-        raise SpecError(f"--out {path}: the folder {existing} is not writable")
+        raise PermissionError(f"--out {path}: the folder {existing} is not writable")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         spec = load_spec(args.spec)
         check_design_limits(spec)
         check_output_folder(args.out)
-    except SpecError as exc:
+    except (SpecError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     start = time.perf_counter()
