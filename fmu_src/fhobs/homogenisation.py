@@ -59,9 +59,10 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
     The subspaces K_j = span(C^T, A^T C^T, ..., (A^T)^(j-1) C^T) are grown with an orthonormal
     basis, which stays well conditioned where the plain stacked matrix [C; CA; ...] would not:
     K_(j+1) = K_j + A^T N_j, N_j the directions K_j added to K_(j-1), so each stage
-    orthogonalises only A^T N_j against the basis (O(n^2 k) per stage, O(n^3) in all). A is first shifted by the mean of its diagonal (the subspaces of
-    A - s I are those of A), so a large common diagonal does not swamp the couplings that make
-    the pair observable (A = [[1e150, 1], [0, 1e150]], C = [1, 0] is observable).
+    orthogonalises only A^T N_j against the basis (O(n^2 k) per stage, O(n^3) in all). A is
+    first shifted by the mean of its diagonal (the subspaces of A - s I are those of A), so a
+    large common diagonal does not swamp the couplings that make the pair observable
+    (A = [[1e150, 1], [0, 1e150]], C = [1, 0] is observable).
 
     Parameters
     ----------
