@@ -257,6 +257,7 @@ DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
 def _cmd_paper(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
     table, folders = {}, {}
     for design in designs:

@@ -29,6 +29,7 @@ import ctypes
 import shutil
 import sys
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -217,7 +218,7 @@ class Master:
         steps = check_timing(h, t0, t_end, f"system {spec.name!r}")
         values = np.empty((steps + 1, len(self.names)))
         started = time.perf_counter()
-        self._logs: dict[str, list[str]] = {}
+        self._logs: dict[str, deque[str]] = {}
         try:
             with self._slaves(t0, t_end) as slaves:
                 outputs = np.zeros(len(self.names))
@@ -242,7 +243,7 @@ class Master:
         self, err: MasterError, values: np.ndarray, t0: float, h: float, wall: float
     ) -> MasterError:
         """``err`` with the FMU's last log messages and the rows recorded before it."""
-        logged = self._logs.get(err.slave or "", [])[-LOG_LINES:]
+        logged = list(self._logs.get(err.slave or "", ()))
         message = str(err) + (
             "; the FMU says: " + " | ".join(logged) if logged else "; the FMU logged nothing"
         )
@@ -430,7 +431,7 @@ class Master:
 
     def _callbacks(self, name: str) -> fmi2CallbackFunctions:
         """FMI callbacks whose logger keeps the FMU's messages in ``self._logs[name]``."""
-        log = self._logs.setdefault(name, [])
+        log = self._logs.setdefault(name, deque(maxlen=LOG_LINES))
 
         def logger(env, instance, status, category, message) -> None:  # noqa: ANN001
             log.append(message.decode("utf-8", "replace") if message else "")
