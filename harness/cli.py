@@ -22,10 +22,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fhobs.cli import check_output_folder
 
-from harness.master import CoSimResult, run_system
+from harness.master import CoSimResult, MasterError, run_system
 from harness.results import summary, write_csv, write_summary
-from harness.system import DescriptionError, SystemSpec, load_system, resolve_system
+from harness.system import (
+    DescriptionError,
+    SystemSpec,
+    check_timing,
+    load_system,
+    resolve_system,
+)
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 REPO = Path(__file__).resolve().parents[1]
@@ -157,13 +164,23 @@ def run_scenario(
     jobs: int = 2,
     plots: bool = True,
 ) -> dict[str, Any]:
-    """Run, write results.csv (first seed), summary.json and plots into ``out``."""
+    """Run, write results.csv (first seed), summary.json and plots into ``out``.
+
+    A run that fails part-way still writes results.csv with the rows recorded up to the
+    failure and a summary.json marked ``"incomplete": true`` with the error, then raises the
+    :class:`~harness.master.MasterError`.
+    """
     out.mkdir(parents=True, exist_ok=True)
-    results = (
-        run_seeds(spec, seeds, stop_time, jobs)
-        if seeds is not None
-        else [_run_one(spec, stop_time)]
-    )
+    try:
+        results = (
+            run_seeds(spec, seeds, stop_time, jobs)
+            if seeds is not None
+            else [_run_one(spec, stop_time)]
+        )
+    except MasterError as err:
+        if err.partial is not None:
+            write_incomplete(err, spec, out)
+        raise
     write_csv(results[0], out / "results.csv")
     data = mean_summary(results, spec, seeds)
     if plots:
@@ -174,10 +191,24 @@ def run_scenario(
     return data
 
 
+def write_incomplete(err: MasterError, spec: SystemSpec, out: Path) -> None:
+    """results.csv of the rows recorded before a failure and a summary.json marked incomplete."""
+    write_csv(err.partial, out / "results.csv")
+    data = summary(err.partial, spec.evaluation, scenario=spec.name, step=spec.step)
+    data |= {"incomplete": True, "error": str(err), "stop_time": float(err.partial.time[-1])}
+    write_summary(data, out / "summary.json")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    for option in ("seeds", "jobs"):
+        if getattr(args, option) is not None and getattr(args, option) < 1:
+            raise DescriptionError(f"--{option} = {getattr(args, option)} must be >= 1")
+    check_output_folder(args.out)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
     if args.step is not None:
         spec = replace(spec, step=args.step)
+    stop_time = spec.stop_time if args.stop_time is None else args.stop_time
+    check_timing(spec.step, spec.start_time, stop_time, "--step/--stop-time (or the file's [run])")
     spec = spec.with_start(dict(args.overrides))
     seeds = None
     if args.seed is not None:
@@ -226,6 +257,7 @@ DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
 def _cmd_paper(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
     table, folders = {}, {}
     for design in designs:
@@ -248,6 +280,9 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 def _cmd_export(args: argparse.Namespace) -> int:
     from harness.ssp import export_ssp
 
+    if args.out.is_dir():
+        raise IsADirectoryError(f"--out {args.out}: is a folder, expected the .ssp file to write")
+    check_output_folder(args.out.parent)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
     print(export_ssp(spec, args.out, args.block_cache))
     return 0
@@ -273,11 +308,23 @@ def format_table(summaries: dict[str, dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (2 for an invalid system description)."""
+    """Entry point; returns the exit code: 0, or 2 with a one-paragraph message on stderr.
+
+    Exit 2 for an invalid system description or option, an unusable ``--out``, an FMU that
+    refuses its start values or fails during the run (its own log messages quoted; what was
+    recorded before a failure is written, marked incomplete), and as a last resort for any
+    other failure: never a traceback.
+    """
     args = _parser().parse_args(argv)
     commands = {"run": _cmd_run, "paper": _cmd_paper, "export-ssp": _cmd_export}
     try:
         return commands[args.command](args)
-    except DescriptionError as err:
+    except (DescriptionError, MasterError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
+        if isinstance(err, MasterError) and err.partial is not None:
+            print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "
+                  f"{args.out} (summary.json marked incomplete)", file=sys.stderr)
+        return 2
+    except Exception as err:  # noqa: BLE001 - last resort: a message, never a traceback
+        print(f"error: {args.command} failed: {type(err).__name__}: {err}", file=sys.stderr)
         return 2

@@ -18,7 +18,9 @@ FMUs' C functions directly through ctypes on preallocated buffers that alias one
 of outputs and one of inputs, so a step costs three C calls per FMU plus one matmul and one row
 copy; with a C compiler at hand the calls of a step are made by one ctypes call of a small C
 function (:mod:`harness.native`), else from Python. Every FMI status is checked: warnings pass,
-anything worse raises :class:`MasterError` naming the FMU, the call and the time.
+anything worse raises :class:`MasterError` naming the FMU, the call, the time and the FMU's own
+log messages (every FMU is instantiated with logging on). A failure during the run keeps what
+was recorded up to it: the error carries the partial :class:`CoSimResult` (``partial``).
 """
 
 from __future__ import annotations
@@ -27,25 +29,59 @@ import ctypes
 import shutil
 import sys
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 from fmpy import extract
-from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
+from fmpy.fmi2 import calloc as _calloc
+from fmpy.fmi2 import free as _free
 
 from harness.native import CALLS as NATIVE_CALLS
 from harness.native import StepFmu, step_library
-from harness.system import ResolvedFmu, ResolvedSystem, vector_names
+from harness.system import ResolvedFmu, ResolvedSystem, check_timing, vector_names
 
 FMI2_WARNING = 1
 STATUS_LABELS = ("ok", "warning", "discard", "error", "fatal", "pending")
 PROGRESS_CHUNK = 500
+LOG_LINES = 3
+"""How many of the FMU's last log messages a MasterError quotes."""
 
 
 class MasterError(RuntimeError):
-    """An FMU answered a call with a status worse than warning."""
+    """An FMU answered a call with a status worse than warning (or raised in fmpy's wrapper).
+
+    Attributes
+    ----------
+    slave : str or None
+        The FMU's instance name.
+    step : int or None
+        Index k of the failed step (the one from t_k), None before the first step.
+    partial : CoSimResult or None
+        The rows recorded before the failure (t_0 .. t_k), when it happened during the run.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        slave: str | None = None,
+        step: int | None = None,
+        partial: CoSimResult | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.slave, self.step, self.partial = slave, step, partial
+
+    def __reduce__(self):  # noqa: ANN204 - keeps the attributes across process pools
+        return (type(self), (str(self), self.slave, self.step, self.partial))
 
 
 @dataclass(frozen=True)
@@ -83,6 +119,7 @@ class _Slave:
     in_buf: ctypes.Array
     out_vr: ctypes.Array
     out_buf: ctypes.Array
+    callbacks: fmi2CallbackFunctions
 
     @property
     def comp(self) -> ctypes.c_void_p:
@@ -98,10 +135,12 @@ class _Slave:
         return ctypes.c_size_t(len(self.out_vr))
 
 
-def _status(status: int, slave: str, call: str, t: float) -> None:
+def _status(status: int, slave: str, call: str, t: float, step: int | None = None) -> None:
     if status > FMI2_WARNING:
         label = STATUS_LABELS[status] if 0 <= status < len(STATUS_LABELS) else "illegal"
-        raise MasterError(f"{slave}: {call} at t = {t!r} returned {status} ({label})")
+        raise MasterError(
+            f"{slave}: {call} at t = {t!r} returned {status} ({label})", slave, step
+        )
 
 
 def _raw(slave: _Slave, function: str) -> ctypes._CFuncPtr:
@@ -176,27 +215,44 @@ class Master:
         spec = self.system.spec
         t0, h = spec.start_time, spec.step
         t_end = spec.stop_time if stop_time is None else stop_time
-        steps = int(round((t_end - t0) / h))
-        if steps < 1 or abs(t0 + steps * h - t_end) > 1e-9 * max(1.0, abs(t_end)):
-            raise ValueError(f"stop time {t_end} is not t0 + k h for a k >= 1 (h = {h})")
+        steps = check_timing(h, t0, t_end, f"system {spec.name!r}")
         values = np.empty((steps + 1, len(self.names)))
         started = time.perf_counter()
-        with self._slaves(t0, t_end) as slaves:
-            outputs = np.zeros(len(self.names))
-            inputs = np.zeros(len(self.inputs))
-            self._bind(slaves, outputs, inputs)
-            self._read_outputs(slaves, t0)
-            values[0] = outputs
-            show = sys.stderr.isatty() if progress is None else progress
-            buffers = (values, outputs, inputs)
-            for k0 in self._chunks(steps, show):
-                k1 = min(k0 + PROGRESS_CHUNK, steps)
-                if k0 == 0 and self.first_inputs == "zero":
-                    self._steps(slaves, 0, 1, t0, h, *buffers, np.zeros_like(self.matrix))
-                    k0 = 1
-                self._steps(slaves, k0, k1, t0, h, *buffers, self.matrix)
+        self._logs: dict[str, deque[str]] = {}
+        try:
+            with self._slaves(t0, t_end) as slaves:
+                outputs = np.zeros(len(self.names))
+                inputs = np.zeros(len(self.inputs))
+                self._bind(slaves, outputs, inputs)
+                self._read_outputs(slaves, t0)
+                values[0] = outputs
+                show = sys.stderr.isatty() if progress is None else progress
+                buffers = (values, outputs, inputs)
+                for k0 in self._chunks(steps, show):
+                    k1 = min(k0 + PROGRESS_CHUNK, steps)
+                    if k0 == 0 and self.first_inputs == "zero":
+                        self._steps(slaves, 0, 1, t0, h, *buffers, np.zeros_like(self.matrix))
+                        k0 = 1
+                    self._steps(slaves, k0, k1, t0, h, *buffers, self.matrix)
+        except MasterError as err:
+            raise self._explained(err, values, t0, h, time.perf_counter() - started) from None
         wall = time.perf_counter() - started
         return CoSimResult(t0 + h * np.arange(steps + 1), self.names, values, steps, wall)
+
+    def _explained(
+        self, err: MasterError, values: np.ndarray, t0: float, h: float, wall: float
+    ) -> MasterError:
+        """``err`` with the FMU's last log messages and the rows recorded before it."""
+        logged = list(self._logs.get(err.slave or "", ()))
+        message = str(err) + (
+            "; the FMU says: " + " | ".join(logged) if logged else "; the FMU logged nothing"
+        )
+        partial = None
+        if err.step is not None:
+            k = err.step
+            partial = CoSimResult(t0 + h * np.arange(k + 1), self.names, values[: k + 1].copy(),
+                                  k, wall)
+        return MasterError(message, err.slave, err.step, partial)
 
     @staticmethod
     def _chunks(steps: int, show: bool) -> Iterator[int]:
@@ -251,13 +307,13 @@ class Master:
             gather(outputs, out=inputs)
             for set_real, comp, vr, n, buf, name in setters:
                 if status := set_real(comp, vr, n, buf):
-                    _status(status, name, "fmi2SetReal", t)
+                    _status(status, name, "fmi2SetReal", t, k)
             for do_step, comp, name in steppers:
                 if status := do_step(comp, t_c, h_c, no_set_prior):
-                    _status(status, name, "fmi2DoStep", t)
+                    _status(status, name, "fmi2DoStep", t, k)
             for get_real, comp, vr, n, buf, name in getters:
                 if status := get_real(comp, vr, n, buf):
-                    _status(status, name, "fmi2GetReal", t + h)
+                    _status(status, name, "fmi2GetReal", t + h, k)
             values[k + 1] = outputs
 
     @staticmethod
@@ -295,7 +351,8 @@ class Master:
             gather(outputs, out=inputs)
             if status := step(fmus, n, t_c, h_c, failed):
                 call = NATIVE_CALLS[failed[1]]
-                _status(status, slaves[failed[0]].name, call, t + h if failed[1] == 2 else t)
+                t_call = t + h if failed[1] == 2 else t
+                _status(status, slaves[failed[0]].name, call, t_call, k)
             values[k + 1] = outputs
 
     @staticmethod
@@ -327,9 +384,9 @@ class Master:
             for name, rf in self.system.fmus.items():
                 slaves.append(self._instantiate(name, rf, t0, t_end))
             for s in slaves:
-                s.fmu.enterInitializationMode()
+                _checked(s.name, "fmi2EnterInitializationMode", t0, s.fmu.enterInitializationMode)
             for s in slaves:
-                s.fmu.exitInitializationMode()
+                _checked(s.name, "fmi2ExitInitializationMode", t0, s.fmu.exitInitializationMode)
             yield slaves
             for s in slaves:
                 s.fmu.terminate()
@@ -347,10 +404,13 @@ class Master:
             instanceName=name,
             modelIdentifier=md.coSimulation.modelIdentifier,
         )
+        callbacks = self._callbacks(name)
         try:
-            fmu.instantiate()
-            fmu.setupExperiment(startTime=t0, stopTime=t_end)
-            _set_start_values(fmu, rf)
+            _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
+                     loggingOn=True)
+            _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
+                     stopTime=t_end)
+            _checked(name, "setting the start values", t0, _set_start_values, fmu, rf)
         except Exception:
             if getattr(fmu, "component", None):
                 fmu.freeInstance()
@@ -367,7 +427,36 @@ class Master:
             if n.partition(".")[0] == name
         ]
         empty = (ctypes.c_double * 0)()
-        return _Slave(name, fmu, unzip_dir, _vrs(in_vr), empty, _vrs(out_vr), empty)
+        return _Slave(name, fmu, unzip_dir, _vrs(in_vr), empty, _vrs(out_vr), empty, callbacks)
+
+    def _callbacks(self, name: str) -> fmi2CallbackFunctions:
+        """FMI callbacks whose logger keeps the FMU's messages in ``self._logs[name]``."""
+        log = self._logs.setdefault(name, deque(maxlen=LOG_LINES))
+
+        def logger(env, instance, status, category, message) -> None:  # noqa: ANN001
+            log.append(message.decode("utf-8", "replace") if message else "")
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(_calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(_free)
+        return callbacks
+
+
+def _checked(slave: str, call: str, t: float, function, *args, **kwargs) -> None:  # noqa: ANN001
+    """Call one of fmpy's checked wrappers; its exception becomes a MasterError."""
+    try:
+        function(*args, **kwargs)
+    except MasterError:
+        raise
+    except Exception as err:  # noqa: BLE001 - fmpy raises plain Exception and FMICallException
+        status = getattr(err, "status", None)
+        if isinstance(status, int):
+            label = STATUS_LABELS[status] if 0 <= status < len(STATUS_LABELS) else "illegal"
+            what = f"returned {status} ({label})"
+        else:
+            what = f"failed ({err})"
+        raise MasterError(f"{slave}: {call} at t = {t!r} {what}", slave) from err
 
 
 def _set_start_values(fmu: FMU2Slave, rf: ResolvedFmu) -> None:

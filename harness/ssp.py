@@ -13,8 +13,11 @@ What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6)
   :mod:`harness.engines` hands them over as its ``parameter_set``).
 - signal sources: carried as :mod:`harness.blocks` sine FMUs (the systems already use them).
 
-The default experiment (start, stop) is written; the step size goes into the OSP annotation
-``osp:FixedStepAlgorithm baseStepSize`` that libcosim reads.
+The default experiment (start, stop) is written; the step size goes into two vendor
+annotations, which other engines ignore: OSP's ``osp:FixedStepAlgorithm baseStepSize`` on the
+default experiment (libcosim) and OpenModelica's ``oms:FixedStepMaster stepSize`` in the
+``oms:SimulationInformation`` of the top-level system, without which OMSimulator does not load
+the file.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ NS = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
 FMU_MIME = "application/x-fmu-sharedlibrary"
 
@@ -145,6 +149,7 @@ def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.E
                 endElement=tf,
                 endConnector=tv.name,
             )
+    _oms_annotation(sys_el, spec.step)
     exp = ET.SubElement(
         root,
         _q("ssd", "DefaultExperiment"),
@@ -159,6 +164,19 @@ def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.E
     algo = ET.SubElement(notes, _q("osp", "Algorithm"))
     ET.SubElement(algo, _q("osp", "FixedStepAlgorithm"), baseStepSize=repr(spec.step))
     return root
+
+
+def _oms_annotation(system: ET.Element, step: float) -> None:
+    """OMSimulator's annotation of a system: a fixed-step master with the communication step."""
+    note = ET.SubElement(
+        ET.SubElement(system, _q("ssd", "Annotations")),
+        _q("ssc", "Annotation"),
+        type="org.openmodelica",
+    )
+    info = ET.SubElement(
+        ET.SubElement(note, _q("oms", "Annotations")), _q("oms", "SimulationInformation")
+    )
+    ET.SubElement(info, _q("oms", "FixedStepMaster"), description="oms-ma", stepSize=repr(step))
 
 
 def _connectors(system: ResolvedSystem) -> dict[str, list[tuple[str, str]]]:

@@ -63,6 +63,11 @@ from fmpy.model_description import ModelDescription, ScalarVariable
 from harness.blocks import BLOCK_KINDS, block_fmu
 
 StartValue = float | int | bool
+TOP_KEYS = ("name", "variables", "run", "fmus", "connections", "evaluation", "plots")
+RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
+CONNECTION_KEYS = ("from", "to", "gain")
+EVALUATION_KEYS = ("at", "windows", "errors")
+PLOTS_KEYS = ("figure", "signals")
 
 
 class DescriptionError(ValueError):
@@ -77,6 +82,7 @@ class FmuSpec:
     path: Path
     start: dict[str, StartValue] = field(default_factory=dict)
     block: tuple[str, tuple[int, ...]] | None = None
+    shapes: dict[str, tuple[int, ...]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -130,7 +136,10 @@ class SystemSpec:
                 raise DescriptionError(
                     f"start value {key!r}: unknown FMU {fmu!r} (have {sorted(fmus)})"
                 )
-            fmus[fmu] = replace(fmus[fmu], start={**fmus[fmu].start, **expand_start(var, value)})
+            spec = fmus[fmu]
+            start = {**spec.start, **expand_start(var, value)}
+            shapes = {**spec.shapes, **start_shape(var, value)}
+            fmus[fmu] = replace(spec, start=start, shapes=shapes)
         return replace(self, fmus=fmus)
 
     def with_seed(self, seed: int) -> SystemSpec:
@@ -150,10 +159,50 @@ def split_signal(signal: str) -> tuple[str, str]:
     return fmu, var
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def number(value: Any, where: str) -> float:
+    """``value`` as a float, or DescriptionError naming ``where`` if it is not a finite number."""
+    if not _is_number(value) or not np.isfinite(value):
+        raise DescriptionError(f"{where} = {value!r} is not a finite number")
+    return float(value)
+
+
+def number_matrix(value: Any, where: str) -> np.ndarray:
+    """A vector (list of numbers) or a matrix (list of equal-length rows) of finite numbers.
+
+    Raises
+    ------
+    DescriptionError
+        Naming ``where`` and the first entry that is not a finite number, or the ragged shape.
+    """
+    if isinstance(value, list) and value and all(isinstance(r, list) for r in value):
+        if any(not r or len(r) != len(value[0]) for r in value):
+            raise DescriptionError(f"{where} = {value!r}: rows are empty or of unequal length")
+        for i, row in enumerate(value, start=1):
+            for j, v in enumerate(row, start=1):
+                number(v, f"{where}[{i},{j}]")
+    elif isinstance(value, list) and value:
+        for i, v in enumerate(value, start=1):
+            number(v, f"{where}[{i}]")
+    else:
+        raise DescriptionError(
+            f"{where} = {value!r} is not a non-empty list of numbers or of equal-length rows"
+        )
+    return np.array(value, dtype=float)
+
+
+def start_shape(name: str, value: Any) -> dict[str, tuple[int, ...]]:
+    """``{name: shape}`` for a vector or matrix start value, ``{}`` for a scalar."""
+    return {name: np.shape(value)} if isinstance(value, list) else {}
+
+
 def expand_start(name: str, value: Any) -> dict[str, StartValue]:
     """Scalar start values from a scalar, a vector (``x[i]``) or a matrix (``K[i,j]``)."""
     if isinstance(value, list):
-        arr = np.asarray(value, dtype=float)
+        arr = number_matrix(value, f"start value {name}")
         if arr.ndim == 1:
             return {f"{name}[{i + 1}]": float(v) for i, v in enumerate(arr)}
         if arr.ndim == 2:
@@ -194,78 +243,201 @@ def load_system(
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as err:
         raise DescriptionError(f"{path}: invalid TOML: {err}") from None
-    subst = {**data.get("variables", {}), **(variables or {})}
-    run = data.get("run", {})
+    where = str(path)
+    _reject_unknown(data, TOP_KEYS, where)
+    subst = {**_strings(data, "variables", where), **(variables or {})}
+    run = _table(data, "run", where)
+    _reject_unknown(run, RUN_KEYS, f"{where}: [run]")
+    fmu_tables = _table(data, "fmus", where)
     fmus = {
-        name: _fmu_spec(name, entry, path.parent, subst, block_cache)
-        for name, entry in data.get("fmus", {}).items()
+        name: _fmu_spec(name, _table(fmu_tables, name, f"{where}: [fmus]"), path.parent, subst,
+                        block_cache)
+        for name in fmu_tables
     }
     if not fmus:
         raise DescriptionError(f"{path}: no [fmus.NAME] tables")
-    connections = tuple(_connection_spec(c) for c in data.get("connections", []))
-    ev = data.get("evaluation", {})
-    evaluation = Evaluation(
-        at=tuple(float(t) for t in ev.get("at", [])),
-        windows=tuple((float(a), float(b)) for a, b in ev.get("windows", [])),
-        errors={k: (v[0], v[1]) for k, v in ev.get("errors", {}).items()},
+    connections = data.get("connections", [])
+    if not isinstance(connections, list) or not all(isinstance(c, dict) for c in connections):
+        raise DescriptionError(f"{where}: connections must be [[connections]] tables")
+    step, start_time, stop_time = (
+        number(run.get(key, default), f"{where}: run.{key}")
+        for key, default in (("step", 1e-3), ("start_time", 0.0), ("stop_time", 1.0))
     )
+    check_timing(step, start_time, stop_time, f"{where}: [run]")
+    seed = run.get("seed")
+    if seed is not None and not isinstance(seed, str):
+        raise DescriptionError(f"{where}: run.seed = {seed!r} must name a variable ('fmu.var')")
     return SystemSpec(
-        name=data.get("name", path.stem),
+        name=_string(data.get("name", path.stem), f"{where}: name"),
         fmus=fmus,
-        connections=connections,
-        step=float(run.get("step", 1e-3)),
-        stop_time=float(run.get("stop_time", 1.0)),
-        start_time=float(run.get("start_time", 0.0)),
-        record=tuple(run.get("record", [])),
-        seed=run.get("seed"),
-        evaluation=evaluation,
-        figure=_figure_spec(data.get("plots", {})),
+        connections=tuple(_connection_spec(c, f"{where}: connection {i}")
+                          for i, c in enumerate(connections, start=1)),
+        step=step,
+        stop_time=stop_time,
+        start_time=start_time,
+        record=tuple(_string(r, f"{where}: run.record") for r in _list(run, "record", where)),
+        seed=seed,
+        evaluation=_evaluation(_table(data, "evaluation", where), f"{where}: [evaluation]"),
+        figure=_figure_spec(_table(data, "plots", where), f"{where}: [plots]"),
         source=path,
     )
 
 
-def _figure_spec(entry: dict[str, Any]) -> FigureSpec | None:
+def check_timing(step: float, start_time: float, stop_time: float, where: str) -> int:
+    """The number of steps of a run; DescriptionError unless it is a positive integer.
+
+    Parameters
+    ----------
+    step, start_time, stop_time
+        The communication step h, t0 and t_end.
+    where
+        Named in the message (the file, or the command-line options).
+
+    Returns
+    -------
+    int
+        ``N = (t_end - t0) / h`` (to 1e-9 relative).
+
+    Raises
+    ------
+    DescriptionError
+        If h <= 0, t_end <= t0 or t_end - t0 is not a whole number of steps.
+
+    Examples
+    --------
+    >>> check_timing(0.1, 0.0, 1.0, "run")
+    10
+    """
+    for name, value in (("step", step), ("start_time", start_time), ("stop_time", stop_time)):
+        if not np.isfinite(value):
+            raise DescriptionError(f"{where}: {name} = {value!r} is not finite")
+    if step <= 0.0:
+        raise DescriptionError(f"{where}: step = {step!r} must be > 0")
+    if stop_time <= start_time:
+        raise DescriptionError(
+            f"{where}: stop_time = {stop_time!r} must be after start_time = {start_time!r}"
+        )
+    steps = int(round((stop_time - start_time) / step))
+    if steps < 1 or abs(start_time + steps * step - stop_time) > 1e-9 * max(1.0, abs(stop_time)):
+        raise DescriptionError(
+            f"{where}: step = {step!r} does not divide stop_time - start_time = "
+            f"{stop_time - start_time!r} into a whole number of steps"
+        )
+    return steps
+
+
+def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise DescriptionError(
+            f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})"
+        )
+
+
+def _table(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise DescriptionError(f"{where}: {key} must be a table, got {value!r}")
+    return value
+
+
+def _list(data: dict[str, Any], key: str, where: str) -> list[Any]:
+    value = data.get(key, [])
+    if not isinstance(value, list):
+        raise DescriptionError(f"{where}: {key} must be a list, got {value!r}")
+    return value
+
+
+def _string(value: Any, where: str) -> str:
+    if not isinstance(value, str):
+        raise DescriptionError(f"{where} = {value!r} must be a string")
+    return value
+
+
+def _strings(data: dict[str, Any], key: str, where: str) -> dict[str, str]:
+    return {k: _string(v, f"{where}: {key}.{k}") for k, v in _table(data, key, where).items()}
+
+
+def _evaluation(ev: dict[str, Any], where: str) -> Evaluation:
+    _reject_unknown(ev, EVALUATION_KEYS, where)
+    at = tuple(number(t, f"{where} at") for t in _list(ev, "at", where))
+    windows = []
+    for w in _list(ev, "windows", where):
+        if not (isinstance(w, list) and len(w) == 2):
+            raise DescriptionError(f"{where}: window {w!r} is not a pair [start, end]")
+        a, b = (number(t, f"{where}: window {w!r}") for t in w)
+        if not a < b:
+            raise DescriptionError(f"{where}: window {w!r} must have start < end")
+        windows.append((a, b))
+    errors = {}
+    for name, pair in _table(ev, "errors", where).items():
+        pair_ok = isinstance(pair, list) and len(pair) == 2
+        if not (pair_ok and all(isinstance(x, str) for x in pair)):
+            raise DescriptionError(
+                f"{where}: errors.{name} = {pair!r} is not a pair of signals [reference, estimate]"
+            )
+        errors[name] = (pair[0], pair[1])
+    return Evaluation(at=at, windows=tuple(windows), errors=errors)
+
+
+def _figure_spec(entry: dict[str, Any], where: str) -> FigureSpec | None:
+    _reject_unknown(entry, PLOTS_KEYS, where)
     if "figure" not in entry:
         return None
     return FigureSpec(
-        str(entry["figure"]), {k: str(v) for k, v in entry.get("signals", {}).items()}
+        _string(entry["figure"], f"{where} figure"), _strings(entry, "signals", where)
     )
 
 
 def _fmu_spec(
     name: str, entry: dict[str, Any], base: Path, subst: dict[str, str], block_cache: Path | None
 ) -> FmuSpec:
+    where = f"FMU {name!r}"
     start: dict[str, StartValue] = {}
-    for var, value in entry.get("start", {}).items():
+    shapes: dict[str, tuple[int, ...]] = {}
+    for var, value in _table(entry, "start", where).items():
         start.update(expand_start(var, value))
+        shapes.update(start_shape(var, value))
     if "block" in entry:
         kind = entry["block"]
         if kind not in BLOCK_KINDS:
             raise DescriptionError(
                 f"FMU {name!r}: unknown block {kind!r} (have {sorted(BLOCK_KINDS)})"
             )
-        dims = tuple(int(entry[d.removeprefix("n_")]) for d in BLOCK_KINDS[kind].dimensions)
-        return FmuSpec(name, block_fmu(kind, dims, block_cache), start, (kind, dims))
+        keys = tuple(d.removeprefix("n_") for d in BLOCK_KINDS[kind].dimensions)
+        _reject_unknown(entry, ("block", "start", *keys), where)
+        dims = tuple(_dimension(entry, key, where) for key in keys)
+        return FmuSpec(name, block_fmu(kind, dims, block_cache), start, (kind, dims), shapes)
+    _reject_unknown(entry, ("path", "start"), where)
     if "path" not in entry:
         raise DescriptionError(f"FMU {name!r}: needs 'path' or 'block'")
     try:
-        raw = string.Template(entry["path"]).substitute(subst)
+        raw = string.Template(_string(entry["path"], f"{where}: path")).substitute(subst)
     except KeyError as err:
         raise DescriptionError(
             f"FMU {name!r}: path {entry['path']!r} uses undefined {err}"
         ) from None
-    return FmuSpec(name, (base / raw).resolve(), start)
+    return FmuSpec(name, (base / raw).resolve(), start, shapes=shapes)
 
 
-def _connection_spec(entry: dict[str, Any]) -> ConnectionSpec:
+def _dimension(entry: dict[str, Any], key: str, where: str) -> int:
+    value = entry.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise DescriptionError(f"{where}: {key} = {value!r} must be a positive integer")
+    return value
+
+
+def _connection_spec(entry: dict[str, Any], where: str) -> ConnectionSpec:
+    _reject_unknown(entry, CONNECTION_KEYS, where)
     try:
         source, target = entry["from"], entry["to"]
     except KeyError as err:
-        raise DescriptionError(f"connection {entry!r} lacks {err}") from None
+        raise DescriptionError(f"{where} {entry!r} lacks {err}") from None
+    source, target = _string(source, f"{where}: from"), _string(target, f"{where}: to")
     gain = entry.get("gain")
-    return ConnectionSpec(
-        source, target, None if gain is None else np.atleast_2d(np.asarray(gain, dtype=float))
-    )
+    if gain is not None:
+        gain = np.atleast_2d(number_matrix(gain, f"{where} ({source} -> {target}): gain"))
+    return ConnectionSpec(source, target, gain)
 
 
 # ---------------------------------------------------------------- resolution against the FMUs
@@ -352,6 +524,8 @@ def _resolve_fmu(fs: FmuSpec) -> ResolvedFmu:
     variables = {v.name: v for v in md.modelVariables}
     for var, value in fs.start.items():
         _check_start(fs.name, variables, var, value)
+    for var, shape in fs.shapes.items():
+        _check_start_shape(fs.name, variables, var, shape)
     return ResolvedFmu(fs, md, variables)
 
 
@@ -373,6 +547,21 @@ def _check_start(
         raise DescriptionError(f"{fmu}.{name}: {v.type} variable given non-integer {value!r}")
     if v.type not in ("Real", "Integer", "Enumeration", "Boolean"):
         raise DescriptionError(f"{fmu}.{name}: start values of type {v.type} are not supported")
+
+
+def _check_start_shape(
+    fmu: str, variables: dict[str, ScalarVariable], name: str, shape: tuple[int, ...]
+) -> None:
+    """A vector or matrix start value must cover the FMU's array variable exactly."""
+    elements = [v for v in vector_names(variables, name) if v != name]
+    indices = [tuple(int(i) for i in _INDEXED.match(v)["idx"].split(",")) for v in elements]
+    have = tuple(max(d) for d in zip(*indices, strict=True)) if indices else ()
+    if have != shape:
+        what = f"{'x'.join(map(str, have))} ({name}[...])" if have else "no array of that name"
+        raise DescriptionError(
+            f"{fmu}.{name}: start value of shape {'x'.join(map(str, shape))}, but the FMU has "
+            f"{what}"
+        )
 
 
 def _variable(fmu: str, variables: dict[str, ScalarVariable], name: str) -> ScalarVariable:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import zipfile
 from dataclasses import replace
+from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
@@ -22,6 +23,11 @@ from harness.ssp import export_ssp, lower_gains
 from harness.system import load_system, resolve_system
 
 STATE = [f"plant.state[{i}]" for i in range(1, 5)]
+NS = {
+    "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+    "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
+}
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +51,17 @@ def test_ssp_is_schema_valid_and_carries_everything(exported):
              components["gain_1"].parameterBindings[0].parameterValues[0].parameters}
     assert [bound[f"K[1,{j}]"] for j in range(1, 5)] == [2, -35, 1.5, -3]
     assert len(ssd.system.connections) == 4 + 1 + 1
+
+
+def test_ssp_carries_omsimulator_fixed_step_master(exported):
+    """OMSimulator loads an SSP only with its annotation of the top-level system."""
+    spec, ssp, _ = exported
+    root = ET.fromstring(zipfile.ZipFile(ssp).read("SystemStructure.ssd"))
+    system = root.find("ssd:System", NS)
+    notes = system.findall("ssd:Annotations/ssc:Annotation[@type='org.openmodelica']", NS)
+    assert len(notes) == 1
+    master = notes[0].find("oms:Annotations/oms:SimulationInformation/oms:FixedStepMaster", NS)
+    assert master is not None and float(master.get("stepSize")) == spec.step
 
 
 def _state(result, names=STATE):

@@ -126,6 +126,11 @@ def load_spec(path: str | Path) -> PlantSpec:
         text = path.read_text()
     except OSError as exc:
         raise SpecError(f"{path}: cannot read the spec file ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise SpecError(
+            f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
+            "TOML files are UTF-8"
+        ) from exc
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
