@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
 from pathlib import Path
 
-from .certificate import CertificateError
+import numpy as np
+
+from .certificate import CertificateError, augmented_matrices
 from .design import design_observer
+from .gains import ObserverGains
 from .limits import check_design_limits
 from .lmi import OBJECTIVES, LMIError
 from .spec import SpecError, load_spec
@@ -31,7 +35,66 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--objective", choices=OBJECTIVES, default=None,
         help="LMI objective (default: the spec's, else min_cond)",
     )
+    for name, what in OVERRIDES.items():
+        parser.add_argument(f"--{name.replace('_', '-')}", type=float, default=None,
+                            metavar="X", help=f"{what} (overrides the spec's [observer] {name})")
+    parser.add_argument(
+        "--h", type=float, default=DEFAULT_H, metavar="X",
+        help=f"the observer FMUs' internal step h, s (default {DEFAULT_H:g})",
+    )
     return parser.parse_args(argv)
+
+
+OVERRIDES = {
+    "settling_time": "requested settling time, s",
+    "rho": "LMI decay rho",
+    "gamma": "xi-equation gain gamma",
+    "nu": "homogeneity degree nu",
+}
+"""The spec's [observer] keys that the command line can set."""
+DEFAULT_H = 5e-5
+
+
+def design_summary(gains: ObserverGains) -> list[str]:
+    """The achieved figures of a design, one line each, and a warning line where a requested
+    figure is missed.
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> design_summary(paper_gains())[0].startswith("observer: nu = -0.333")
+    True
+    """
+    bar_L = np.vstack([gains.L_tilde, gains.L])
+    lines = [
+        f"observer: nu = {gains.nu:.4g}, rho = {gains.rho:.4g}, gamma = {gains.gamma:.4g}, "
+        f"n_tilde = {gains.n_tilde}, model states = {gains.n_model}",
+        f"gains: |[L_tilde; L]| = {np.linalg.norm(bar_L, 2):.3g}, |L0| = "
+        f"{np.linalg.norm(gains.L0, 2):.3g}; slowest linear mode "
+        f"{slowest_mode(gains):.3g} 1/s",
+    ]
+    tuning = gains.certificate.get("tuning")
+    if tuning:
+        lines.append(
+            f"predicted settling time (error to 1e-3 of its start, from errors of the size of "
+            f"state_scale): {tuning['settling_time_predicted']:.3g} s (requested "
+            f"{tuning['settling_time_requested']:.3g} s), peaking {tuning['peaking']:.3g}x"
+        )
+        if not tuning["met"]:
+            lines.append(
+                "warning: the requested settling time is not met: the largest rho that the "
+                "LMI certifies gives the time above; ask for a longer settling_time, or "
+                "accept it"
+            )
+    return lines
+
+
+def slowest_mode(gains: ObserverGains) -> float:
+    """max Re eig(bar_A0 + bar_L bar_C): the slowest mode of the observer's linear part at
+    sigma = 1 (its error decays like exp(that rate * sigma^nu t) at a frozen level sigma)."""
+    bar_A0, _, bar_C = augmented_matrices(gains)
+    bar_L = np.vstack([gains.L_tilde, gains.L])
+    return float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
 
 
 def check_output_folder(path: Path) -> None:
@@ -68,18 +131,22 @@ def check_output_folder(path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command; return the process exit code (0 ok, 2 bad spec, 1 design failure).
+    """Run the command; return the process exit code (0 ok, 2 any failure).
 
-    Every failure is one paragraph on stderr, never a traceback: a bad spec, a spec beyond the
-    design's limits (:mod:`fhobs.limits`) or an unusable ``--out`` exit with 2 before any
-    design work; a design that fails (solver, certificate, or any numerical failure inside it)
-    exits with 1.
+    Every failure is one paragraph on stderr, never a traceback: a bad spec or override, a spec
+    beyond the design's limits (:mod:`fhobs.limits`), an unusable ``--out`` or ``--h`` (before
+    any design work), and a design that fails (solver, certificate, or any numerical failure
+    inside it).
     """
     args = parse_args(argv)
     try:
-        spec = load_spec(args.spec)
+        overrides = {name: getattr(args, name) for name in OVERRIDES
+                     if getattr(args, name) is not None}
+        spec = load_spec(args.spec, overrides)
         check_design_limits(spec)
         check_output_folder(args.out)
+        if not (math.isfinite(args.h) and args.h > 0.0):
+            raise SpecError(f"--h = {args.h!r}: the internal step must be positive and finite")
     except (SpecError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -88,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         gains = design_observer(spec, objective=args.objective)
     except (LMIError, CertificateError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
-        return 1
+        return 2
     except Exception as exc:  # noqa: BLE001 - last resort: any failure inside the numerics
         print(
             f"error: design failed for {args.spec}: numerical failure inside the design "
@@ -96,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
             "the design not covered by fhobs.limits",
             file=sys.stderr,
         )
-        return 1
+        return 2
     elapsed = time.perf_counter() - start
     try:
         args.out.mkdir(parents=True, exist_ok=True)
@@ -104,10 +171,12 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"design: n={gains.n} k={gains.k} n_tilde={gains.n_tilde} in {elapsed:.2f} s -> {path}"
         )
+        for line in design_summary(gains):
+            print(line)
         if not args.design_only:
             from .build import build_fmus
 
-            for name, fmu in build_fmus(gains, args.out).items():
+            for name, fmu in build_fmus(gains, args.out, h=args.h).items():
                 print(f"{name}: {fmu}")
     except OSError as exc:
         print(f"error: --out {args.out}: cannot write ({exc})", file=sys.stderr)

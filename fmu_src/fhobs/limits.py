@@ -59,9 +59,9 @@ def check_design_limits(spec: PlantSpec) -> None:
         matrix = getattr(spec, name)
         if matrix is not None:
             _check_matrix(matrix, name, spec.source)
-    for name in ("rho", "gamma", "filter_scale"):
+    for name in ("rho", "gamma", "filter_scale", "settling_time"):
         value = getattr(spec, name)
-        if not abs(value) <= MAX_MAGNITUDE:
+        if value is not None and not abs(value) <= MAX_MAGNITUDE:
             raise SpecError(
                 f"{spec.source}: observer.{name} = {value!r} is beyond the design's range "
                 f"(|value| <= {MAX_MAGNITUDE:g}); rescale time so the rates are moderate"

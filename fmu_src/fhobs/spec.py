@@ -104,13 +104,16 @@ class PlantSpec:
     state_scale: np.ndarray | None = None
 
 
-def load_spec(path: str | Path) -> PlantSpec:
+def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> PlantSpec:
     """Read and validate a plant spec TOML file.
 
     Parameters
     ----------
     path : str or Path
         The TOML file.
+    overrides : dict, optional
+        ``[observer]`` keys set on top of the file's (e.g. from the command line), validated
+        like the file's.
 
     Returns
     -------
@@ -135,7 +138,13 @@ def load_spec(path: str | Path) -> PlantSpec:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML ({exc})") from exc
-    return spec_from_dict(data, source=str(path))
+    source = str(path)
+    if overrides:
+        observer = data.setdefault("observer", {})
+        if isinstance(observer, dict):
+            observer.update(overrides)
+        source += f" (with {', '.join(sorted(overrides))} from the command line)"
+    return spec_from_dict(data, source=source)
 
 
 def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
