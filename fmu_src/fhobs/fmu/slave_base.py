@@ -64,6 +64,7 @@ from abc import abstractmethod
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
+from xml.etree.ElementTree import Element
 
 import numpy as np
 from pythonfmu import (
@@ -275,7 +276,7 @@ class FhobsSlave(Fmi2Slave):
         self._start_model: tuple[SlaveModel, tuple] | None = (self.model, self._parameters())
         self._publish()
 
-    def to_xml(self, model_options: dict[str, str] | None = None) -> Any:
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
         """pythonfmu's model description with the outputs' dependencies declared: every output
         is the model's state (or a function of it) after the last step, so none depends
         directly on an input (``dependencies=""``: no algebraic loop through this FMU)."""
