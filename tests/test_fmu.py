@@ -479,9 +479,9 @@ def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_gains):
     buffer without entering Python: the values are those the slave itself holds, in any order,
     and fmi2Reset hands the wrapper the new slave's buffer. fmi2DoStep calls the slave through
     a callback; the last successful time is reported as pythonfmu reports it (t + h after a
-    step, t after a rejected one). (A reference that is not a Real variable, or an exception in
-    do_step, still goes to pythonfmu, whose answer is fmi2Fatal: not exercised here, since
-    nothing may be called on an instance after fmi2Fatal.)"""
+    step, t after a rejected one). (Other references are checked by the slave first, see
+    test_fault_injection.py; an exception in do_step still goes to pythonfmu, whose answer is
+    fmi2Fatal: not exercised here, since nothing may be called on an instance after it.)"""
     import gc
 
     g = tuned_gains

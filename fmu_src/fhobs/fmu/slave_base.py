@@ -127,11 +127,12 @@ MODES = (INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED)
 STATE_FORMAT = 2
 """Version of the FMU state layout of :meth:`FhobsSlave._get_fmu_state`."""
 STATE_KEYS = {"format", "fmu", "mode", "arrays", "integers", "model"}
+"""The entries of a state (:meth:`FhobsSlave._get_fmu_state`)."""
 
 ZOH_CONDITION_LIMIT = 1e9
 """Largest ``step ||A||_1`` for which the exact ZOH ``expm(step A)`` is computed: its condition
-number is at least ``step ||A||``, so beyond about 1e9 fewer than 7 of its digits are right
-(entries like 1e300 give finite numbers that mean nothing)."""
+number is at least ``step ||A||``, so at this limit its relative error can already reach
+eps * 1e9 = 2e-7 (entries like 1e300 give finite numbers that mean nothing)."""
 
 STEP_SIZE_MARGIN = 1e-9
 """Relative slack of the ``h <= communication step`` check (a master's ``t_k+1 - t_k``)."""
