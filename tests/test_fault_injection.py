@@ -323,6 +323,24 @@ def test_valid_state_of_another_instance_still_restores(open_fmu):
     assert run_steps(b) == run_steps(a)
 
 
+def test_serialize_into_a_buffer_of_the_wrong_size_is_an_error(open_fmu):
+    """fmi2SerializeFMUstate copies exactly the size fmi2SerializedFMUstateSize reported; any
+    other size is refused (pythonfmu read past its bytes or truncated them)."""
+    import ctypes
+
+    driver = open_fmu("observer")
+    driver.start()
+    state = driver.fmu.getFMUstate()
+    size = ctypes.c_size_t()
+    driver.fmu.fmi2SerializedFMUstateSize(driver.fmu.component, state, ctypes.byref(size))
+    for wrong in (size.value - 1, size.value + 64):
+        buffer = (ctypes.c_char * wrong)()
+        assert_error(driver, driver.fmu.fmi2SerializeFMUstate, driver.fmu.component, state,
+                     buffer, wrong, words=f"needs {size.value}")
+    assert json.loads(bytes(driver.fmu.serializeFMUstate(state)))["fmu"].startswith("FhobsObs")
+    driver.fmu.freeFMUstate(state)
+
+
 # -- checks that match the spec loader --------------------------------------------------------
 @pytest.mark.parametrize(
     ("edit", "words"),

@@ -597,20 +597,22 @@ fmi2Status fmi2FreeFMUstate(fmi2Component w, fmi2FMUstate *s)
     return status;
 }
 
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component w, fmi2FMUstate s, size_t *size)
+/* pythonfmu's serialized size of the state ``s`` (checked to be one of ours), for ``function``. */
+static fmi2Status state_size(Instance *self, fmi2FMUstate s, size_t *size, const char *function)
 {
     IMPL(fmi2SerializedFMUstateSize, fmi2Error)
-    Instance *self = w;
-    if (self == NULL) {
-        return fmi2Error;
-    }
     if (!issued(s)) {
-        return REFUSE(self, FOREIGN_STATE, "fmi2SerializedFMUstateSize", s);
+        return REFUSE(self, FOREIGN_STATE, function, s);
     }
     if (size == NULL) {
-        return REFUSE(self, "fmi2SerializedFMUstateSize: NULL pointer for the size");
+        return REFUSE(self, "%s: NULL pointer for the size", function);
     }
     return fmi2SerializedFMUstateSize_impl(self->impl, ((State *)s)->impl, size);
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component w, fmi2FMUstate s, size_t *size)
+{
+    return w == NULL ? fmi2Error : state_size(w, s, size, "fmi2SerializedFMUstateSize");
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component w, fmi2FMUstate s, fmi2Byte b[], size_t size)
@@ -621,7 +623,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component w, fmi2FMUstate s, fmi2Byte b[], 
         return fmi2Error;
     }
     size_t needed = 0;
-    fmi2Status status = fmi2SerializedFMUstateSize(w, s, &needed);
+    fmi2Status status = state_size(self, s, &needed, "fmi2SerializeFMUstate");
     if (status > fmi2Warning) {
         return status;
     }
