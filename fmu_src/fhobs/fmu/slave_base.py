@@ -28,9 +28,9 @@ an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
 ``fmi2Discard``. The slave therefore records the status of its last call in the Integer
 variable ``status`` (value reference 0, ``3`` = error) and logs the reason; the small C
 wrapper that :mod:`fhobs.build` places in front of pythonfmu's binary (linux64) reads it
-after ``fmi2DoStep`` and ``fmi2ExitInitializationMode`` and returns ``fmi2Error``. Without
-that wrapper (win64), a rejected step returns ``fmi2Discard`` and a rejected
-initialisation ``fmi2Fatal``.
+after ``fmi2DoStep``, ``fmi2Enter/ExitInitializationMode``, ``fmi2Terminate`` and
+``fmi2SetFMUstate`` and returns ``fmi2Error``. Without that wrapper (win64), a rejected step
+returns ``fmi2Discard`` and every other refusal ``fmi2Fatal``.
 
 Caller mistakes. pythonfmu 0.7.0 answers an exception with ``fmi2Fatal`` and releases the
 slave's Python objects, after which further calls can crash the host; so with the wrapper no
