@@ -43,8 +43,9 @@ Connections carry Real signals only. Algebraic loops: under the Jacobi exchange 
 through ``doStep``, and connection gains are applied in one exchange, so a loop can only arise
 through FMUs that *declare* direct feedthrough (``<Outputs><Unknown dependencies=...>`` naming an
 input). A cycle made only of declared feedthrough and connections is rejected, because its value
-would depend on the exchange scheme; undeclared dependencies are not assumed (pythonfmu writes
-none).
+would depend on the exchange scheme. The fhobs FMUs declare that their outputs depend on no
+input (``dependencies=""``) and the gain block that each output depends on every input; an
+FMU that declares nothing (pythonfmu writes no dependencies) is not assumed to feed through.
 """
 
 from __future__ import annotations

@@ -274,6 +274,7 @@ def _compile_wrapper(stage: Path, compiler: str) -> Path:
     command = [
         compiler, "-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
         f"-I{Path(fmpy.__file__).parent / 'c-code'}", "-o", str(library), str(source), "-ldl",
+        "-lpthread",
     ]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:

@@ -192,14 +192,45 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     return values
 
 
+def check_tuning(gains: ObserverGains) -> None:
+    """Raise CertificateError unless nu, gamma and rho are in Theorem 2's ranges:
+    -1/(n_tilde+1) <= nu < 0, gamma > 0, rho > gamma/2 (the spec loader's rules).
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from fhobs.design import paper_gains
+    >>> check_tuning(paper_gains())
+    >>> check_tuning(dataclasses.replace(paper_gains(), gamma=-5.0))
+    Traceback (most recent call last):
+    ...
+    fhobs.certificate.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
+    """
+    nu_min = -1.0 / (gains.n_tilde + 1)
+    if not nu_min - 1e-12 <= gains.nu < 0.0:
+        raise CertificateError(f"nu = {float(gains.nu)!r} is outside [-1/(n_tilde+1), 0) = "
+                               f"[{nu_min:.6g}, 0) (n_tilde = {gains.n_tilde})")
+    if not gains.gamma > 0.0:
+        raise CertificateError(f"gamma = {float(gains.gamma)!r} must be > 0 "
+                               "(the xi equation's gain)")
+    if not gains.rho > gains.gamma / 2:
+        raise CertificateError(f"rho = {float(gains.rho)!r} must be > gamma/2 = "
+                               f"{float(gains.gamma) / 2!r} (Theorem 2)")
+
+
 def _violations(
     values: dict[str, float], tolerance: float, margin: float
 ) -> list[tuple[str, float, str]]:
-    """List (check, value, requirement) for every figure out of its bound."""
+    """List (check, value, requirement) for every figure out of its bound; a figure that
+    could not be computed (its Lyapunov matrix is not positive definite) says so."""
     bad = []
     for name, value in values.items():
         rounding = values.get(_rounding_key(name), 0.0)
         if name.endswith("_rounding"):
+            continue
+        if np.isnan(value) and np.isnan(rounding):
+            matrix = _rounding_key(name).removesuffix("_rounding")
+            bad.append((name, value, f"not computable: {matrix} is not positive definite"))
             continue
         if name in ("homogenisation_residual", "output_homogeneity", "nilpotency"):
             ok, need = value <= tolerance, f"<= {tolerance:g}"
@@ -255,7 +286,11 @@ def certify(
     values = certificate_values(gains)
     bad = _violations(values, tolerance, margin)
     if bad:
-        detail = "; ".join(f"{name} = {value:.3e} (required {need})" for name, value, need in bad)
+        detail = "; ".join(
+            f"{name} {need}" if need.startswith("not computable")
+            else f"{name} = {value:.3e} (required {need})"
+            for name, value, need in bad
+        )
         needed = max((margin + values.get(_rounding_key(name), 0.0)
                       for name, _, _ in bad if name.startswith("lmi_")), default=0.0)
         raise CertificateError(f"design fails {len(bad)} check(s): {detail}", needed)

@@ -5,10 +5,14 @@ parameters ``K[i,j]`` (row-major). The outputs are evaluated from the current in
 they are read. A co-simulation master that only exchanges values at communication points
 therefore sees this block as one communication step of delay on the path through it; the
 harness applies connection gains itself (no delay) and uses this block only where an external
-engine needs the gain as an FMU (SSP export).
+engine needs the gain as an FMU (SSP export). The model description declares the direct
+feedthrough: each output depends on every input (``<Unknown dependencies>``; K is tunable, so
+no entry is assumed zero), which lets a master find algebraic loops through the block.
 """
 
 from __future__ import annotations
+
+from xml.etree.ElementTree import Element
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
 
@@ -58,6 +62,17 @@ class MatrixGain(Fmi2Slave):
                 setter=setter,
             )
         )
+
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
+        """pythonfmu's model description with each output's dependence on every input declared
+        (pythonfmu 0.7.0 writes no dependencies)."""
+        root = super().to_xml(model_options if model_options is not None else {})
+        variables = list(root.find("ModelVariables"))
+        inputs = " ".join(str(index) for index, v in enumerate(variables, start=1)
+                          if v.get("causality") == "input")
+        for unknown in root.iterfind("ModelStructure/Outputs/Unknown"):
+            unknown.set("dependencies", inputs)
+        return root
 
     def value(self, i: int) -> float:
         """Output ``i`` (0-based): row ``i`` of ``K`` times the current inputs."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fhobs.certificate import certify
+from fhobs.certificate import certify, check_tuning
 from fhobs.fmu.slave_base import ObserverSlave
 from fhobs.runtime import FilteringObserver
 
@@ -42,7 +42,9 @@ class FhobsObserver(ObserverSlave):
                            "disturbance-model estimates: q, then its derivatives")
 
     def _check_gains(self) -> None:
-        certify(self.edited_design())
+        design = self.edited_design()
+        check_tuning(design)
+        certify(design)
 
     def _make_model(self) -> FilteringObserver:
         return FilteringObserver(

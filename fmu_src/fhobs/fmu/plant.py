@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fhobs.fmu.slave_base import FhobsSlave
+from fhobs.fmu.slave_base import FhobsSlave, zoh_problem
 from fhobs.plant import PLANT_SCHEMES, LTIPlant
 
 
@@ -50,6 +50,10 @@ class FhobsPlant(FhobsSlave):
     def _check_parameters(self) -> None:
         """LTIPlant itself rejects a negative noise amplitude or seed (ValueError)."""
         self._scheme_name()
+
+    def _step_problem(self, step_size: float) -> str:
+        """The exact ZOH over the step must be computable to some digits."""
+        return zoh_problem(self._arrays["A"], step_size, "the plant")
 
     def _make_model(self) -> LTIPlant:
         return LTIPlant(
