@@ -132,10 +132,10 @@ def test_random_observable_plants(seed, n, k):
     assert np.allclose(np.unique(weights.round(8)), expected, atol=1e-7)
     bar_A0, bar_G, _ = augmented_matrices(gains)
     p_min, mono, lmi = independent_lmi_check(
-        gains.P_bar, closed_loop_error_matrix(gains), bar_G, spec.rho)
+        gains.P_bar, closed_loop_error_matrix(gains), bar_G, gains.rho)
     assert p_min > 0 and mono > 0 and lmi < 0
     p_min, mono, lmi = independent_lmi_check(
-        gains.P_pt, A0 + gains.L_pt @ C, gains.G_d - nu * eye, spec.rho)
+        gains.P_pt, A0 + gains.L_pt @ C, gains.G_d - nu * eye, gains.rho)
     assert p_min > 0 and mono > 0 and lmi < 0
     assert np.max(np.linalg.eigvals(A + gains.L_lin @ C).real) < 0
     assert observability_index(A, C)[0] == gains.n_tilde

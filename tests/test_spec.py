@@ -35,15 +35,34 @@ def test_examples_load(name):
     spec = load_spec(EXAMPLES / f"{name}.toml")
     assert spec.A.shape[0] == spec.C.shape[1]
     assert -1 / (spec.n_tilde + 1) - 1e-12 <= spec.nu < 0
-    assert spec.rho > spec.gamma / 2
+    assert spec.rho is None or spec.rho > spec.gamma / 2
 
 
 def test_defaults_are_documented_values():
     spec = spec_from_dict(with_change(("observer",), None))
     assert spec.n_tilde == 2
     assert spec.nu == pytest.approx(-1 / 3)
-    assert (spec.rho, spec.gamma, spec.objective) == (1.5, 2.75, "min_cond")
+    assert (spec.rho, spec.gamma, spec.objective) == (None, None, "min_cond")  # rho: the design's
+    assert spec.settling_time == 2.0
+    np.testing.assert_array_equal(spec.state_scale, np.ones(2))
     assert spec.filter_scale == 1.0
+
+
+@pytest.mark.parametrize(("scale", "expected"), [(0.5, [0.5] * 2), ([1, 2], [1, 2])])
+def test_state_scale_is_one_number_or_one_per_state(scale, expected):
+    spec = spec_from_dict(with_change(("observer", "state_scale"), scale))
+    np.testing.assert_array_equal(spec.state_scale, expected)
+
+
+@pytest.mark.parametrize(("key", "value", "pattern"), [
+    ("state_scale", [1, 2, 3], r"observer.state_scale has 3 entries, expected 1 or 2"),
+    ("state_scale", [1, -2], r"observer.state_scale\[2\] = -2 must be > 0"),
+    ("settling_time", 0, r"observer.settling_time = 0.0 must be > 0"),
+    ("rho", -1.0, r"observer.rho = -1.0 must be > 0"),
+])
+def test_bad_tuning_requests_name_the_field(key, value, pattern):
+    with pytest.raises(SpecError, match=pattern):
+        spec_from_dict(with_change(("observer", key), value))
 
 
 BAD_CASES = [

@@ -146,8 +146,20 @@ def lmi_values(
     -------
     dict
         ``P_<x>_positive``, ``P_<x>_monotone``, ``lmi_<x>``, ``hurwitz_<x>``.
+
+    Notes
+    -----
+    The figures are computed after the exact congruence ``P -> T P T``, ``H -> T^-1 H T``,
+    ``G -> T^-1 G T`` with T the powers of two nearest to ``diag(P)^-1/2`` (Jacobi scaling):
+    every generalised eigenvalue is unchanged, while the condition number of P, and with it
+    the rounding allowance, drops to within a factor n of the best diagonal scaling. Only
+    ``P_<x>_positive`` is of the scaled P.
     """
     name = "P_bar" if prefix == "filtering" else f"P_{prefix}"
+    diagonal = np.diagonal(P)
+    if np.all(diagonal > 0.0) and np.all(np.isfinite(diagonal)):
+        t = 2.0 ** np.round(-0.5 * np.log2(diagonal))
+        P, H, G = P * t[:, None] * t[None, :], _similar(H, t), _similar(G, t)
     P_sym = sym(P)
     M = H + rho * G
     p_eigs = np.linalg.eigvalsh(P_sym)

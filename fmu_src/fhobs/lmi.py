@@ -131,8 +131,12 @@ def chain_basis(
     Level j - 1 holds A0 times level j; the chains start on the orthogonal complement (within
     the level) of the images from deeper levels, orthonormal. With ``C``, every chain gets the
     head (C h; 0), h its level-0 vector: the (psi, z) coordinates of Theorem 2. Then the chains
-    of each length are mixed to be orthonormal in the sum over their levels, and each level
-    (position in the chains) is scaled to unit rms norm; neither changes the chain structure.
+    of each length are made orthogonal, in the sum over their levels, to the leading rows of
+    every longer chain (those rows are a chain of the same length: adding them keeps the
+    structure) and mixed to be orthonormal, and each level (position in the chains) is scaled
+    to unit rms norm; none of this changes the chain structure. Without the first step two
+    chains of different lengths can end in nearly parallel heads (two outputs that see the
+    disturbance almost alike), which makes T, hence P, nearly singular.
 
     Parameters
     ----------
@@ -159,9 +163,14 @@ def chain_basis(
     if C is not None:
         chains = [np.vstack([np.hstack([C @ ch[0], 0 * ch[0]]),
                              np.hstack([np.zeros((len(ch), C.shape[0])), ch])]) for ch in chains]
-    mixed = []
+    mixed: list[np.ndarray] = []
     for s in sorted({len(ch) for ch in chains}, reverse=True):
         W = np.array([ch for ch in chains if len(ch) == s])
+        if mixed:  # leading s rows of a longer chain form a chain of length s: project them out
+            longer = np.array([ch[:s].ravel() for ch in mixed]).T
+            Q = np.linalg.qr(longer)[0]
+            flat = W.reshape(len(W), -1)
+            W = (flat - (flat @ Q) @ Q.T).reshape(W.shape)
         w, U = np.linalg.eigh(np.einsum("ilx,jlx->ij", W, W))
         mixed += list(np.einsum("ij,jlx->ilx", (U / np.sqrt(w)) @ U.T, W))
     rms = [np.sqrt(np.mean([np.sum(ch[i] ** 2) for ch in mixed if len(ch) > i]))
@@ -227,7 +236,10 @@ def solve_gain_lmi(
     for M, M_s in ((H_t, Hs), (G_t, Gs), (C_t, C_s)):
         if np.linalg.norm(M - M_s) > STRUCTURE_RTOL * max(np.linalg.norm(M), 1.0):
             raise ValueError("the basis does not have the chain structure of H0, G and Cout")
-    p, y, solve_time = _solve_chains(blocks, rho, objective, margin)
+    try:
+        p, y, solve_time = _solve_chains(blocks, rho, objective, margin, margin)
+    except LMIError:
+        p, y, solve_time = _solve_normalised_chains(blocks, rho, objective, margin)
     P_t = scipy.linalg.block_diag(*(p[s] for s in sizes))
     gain_t = scipy.linalg.block_diag(*(np.linalg.solve(p[s], y[s]) for s in sizes)) - X
     gain = T @ np.linalg.solve(C_t[:, heads].T, gain_t.T).T
@@ -237,10 +249,38 @@ def solve_gain_lmi(
     return LMISolution(P, P @ gain, gain, "optimal", solve_time)
 
 
-def _solve_chains(
+def _solve_normalised_chains(
     blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float, objective: str, margin: float
 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float]:
-    """The reduced LMI: one block p_s, y_s per chain size s; returns p, y and the solve time."""
+    """The reduced LMI solved in the chains' normalised coordinates, for when the direct solve
+    fails (long chains, large rho, links of very different sizes).
+
+    With ``c_0 = 1``, ``c_(i+1) = c_i rho / h[i, i+1]`` and ``S = diag(c)``,
+    ``S^-1 (h + rho g) S = rho (J + g)`` (J: ones on the superdiagonal) and ``e1 S = e1``, so
+    ``p = S^-1 p' S^-1``, ``y = rho S^-1 y'`` solve the LMI if ``p', y'`` solve
+    ``sym(p' (J + g) + y' e1) <= -(margin / rho) p'``, ``sym(p' g) >= margin p'``: one
+    well-conditioned problem whatever rho and the link sizes (the spread they cause moves into
+    the exact diagonal map back). The objectives are measured on p' and y'.
+    """
+    scales, normalised = {}, {}
+    for s, (h, g) in blocks.items():
+        c = np.cumprod(np.concatenate(([1.0], rho / np.diagonal(h, 1))))
+        scales[s] = c
+        normalised[s] = (h * c[None, :] / c[:, None] / rho, g)
+    p, y, solve_time = _solve_chains(normalised, 1.0, objective, margin / rho, margin)
+    return (
+        {s: p[s] / scales[s][:, None] / scales[s][None, :] for s in blocks},
+        {s: rho * y[s] / scales[s][:, None] for s in blocks},
+        solve_time,
+    )
+
+
+def _solve_chains(
+    blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float, objective: str,
+    decay_margin: float, monotone_margin: float,
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float]:
+    """The reduced LMI: one block p_s, y_s per chain size s, with the margins of its decay and
+    monotonicity inequalities; returns p, y and the solve time."""
     kappa = cp.Variable()
     p = {s: cp.Variable((s, s), symmetric=True) for s in blocks}
     y = {s: cp.Variable((s, 1)) for s in blocks}
@@ -248,8 +288,8 @@ def _solve_chains(
     for s, (h, g) in blocks.items():
         e1 = np.eye(1, s)
         constraints += [
-            _sym(p[s] @ (h + rho * g) + y[s] @ e1) << -margin * p[s],
-            _sym(p[s] @ g) >> margin * p[s],
+            _sym(p[s] @ (h + rho * g) + y[s] @ e1) << -decay_margin * p[s],
+            _sym(p[s] @ g) >> monotone_margin * p[s],
             p[s] >> np.eye(s),
         ]
     bounds = [p[s] << kappa * np.eye(s) for s in blocks]
