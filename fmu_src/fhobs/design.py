@@ -48,7 +48,7 @@ from .lmi import (
 from .settling import ErrorResponse, error_response
 from .spec import PlantSpec, spec_from_dict
 
-RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0)
+RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0)
 """Values of rho tried, in this order, when the spec leaves rho to the design."""
 MARGIN_ATTEMPTS = 4
 MARGIN_GROWTH = 2.0
@@ -177,8 +177,6 @@ def _design_for_settling_time(
                                     filter_scale)
         except (LMIError, CertificateError) as exc:
             last_error = exc
-            if best is not None:
-                break
             continue
         scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
         response = error_response(gains, scale, spec.settling_time)
