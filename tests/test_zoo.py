@@ -16,6 +16,7 @@ from fhobs.scenarios_zoo import (
     closed_loop,
     convergence_figures,
     load_zoo_spec,
+    state_feedback,
     zoo_spec_paths,
 )
 from scipy.integrate import solve_ivp
@@ -50,6 +51,27 @@ def default_design(name: str) -> ObserverGains:
 def test_default_design_is_certified(name):
     gains = default_design(name)  # raises (LMIError, CertificateError, ...) if not certified
     assert gains.certificate["checks"]
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_state_feedback_stabilises(name):
+    spec = load_zoo_spec(ZOO[name])
+    K = state_feedback(spec.A, spec.B)
+    assert np.max(np.linalg.eigvals(spec.A + spec.B @ K).real) < 0
+
+
+def test_closed_loop_feeds_back_the_true_state():
+    """The plant of the zoo's loop follows the sampled LQR loop x_{k+1} = (Phi + Gamma K) x_k
+    (ZOH blocks from one expm of the augmented matrix), whatever the observers do."""
+    gains = default_design("quarter_car")
+    dt, n, m = 1e-3, gains.n, gains.m
+    M = scipy.linalg.expm(dt * np.block([[gains.A, gains.B], [np.zeros((m, n + m))]]))
+    step = M[:n, :n] + M[:n, n:] @ state_feedback(gains.A, gains.B)
+    result = closed_loop(gains, dt, dt, t_end=0.5)
+    x = np.ones(n)
+    for k in range(result.t.size):
+        np.testing.assert_allclose(result.x[k], x, rtol=1e-9, atol=1e-12)
+        x = step @ x
 
 
 def dilation(G_d: np.ndarray):
