@@ -4,7 +4,8 @@ Plant + filtering homogeneous observer + Luenberger observer, control ``u = K z`
 filtering observer's estimate, ``x(0) = (2, 2, 1, 2)``, observers at zero. Jacobi convention of
 docs/architecture.md: fixed communication step dt, ``t_k = k dt``; at t_k
 ``y_k = C x_k + eta_k``, ``u_k = K z_k``, ``q_k = q_amplitude sin(5 t_k)``; then the plant and both
-observers advance by dt with these inputs held.
+observers advance by dt with these inputs held. Other plants (the zoo of ``examples/``) run the
+same loop with their own ``K`` and ``x0``, optionally with the feedback on the true state.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ K_PAPER = np.array([[2.0, -35.0, 1.5, -3.0]])
 X0_PAPER = np.array([2.0, 2.0, 1.0, 2.0])
 H_PAPER = 5e-5
 Q_FREQUENCY = 5.0
+FEEDBACKS = ("estimate", "state")
 
 
 @dataclass(frozen=True)
@@ -90,8 +92,12 @@ def simulate(
     seed: int = 0,
     plant_scheme: str = "zoh",
     tau_max: float | None = None,
+    K: np.ndarray = K_PAPER,
+    x0: np.ndarray = X0_PAPER,
+    feedback: str = "estimate",
 ) -> SimulationResult:
-    """Run the paper's closed loop under the Jacobi convention.
+    """Run the paper's closed loop (or another plant's, with ``K`` and ``x0``) under the Jacobi
+    convention.
 
     Parameters
     ----------
@@ -113,10 +119,19 @@ def simulate(
         ``"zoh"`` (exact, the contract) or ``"euler"`` (the paper's all-Euler runs).
     tau_max : float or None
         Gain cap of the filtering observer's split scheme (None: automatic).
+    K : np.ndarray
+        State feedback gain (m x n), ``u_k = K v_k``.
+    x0 : np.ndarray
+        Plant's initial state (the observers start at zero).
+    feedback : str
+        ``"estimate"`` (v = z, the paper's loop) or ``"state"`` (v = x, the true state: the
+        observer's error then does not act on the plant).
     """
+    if feedback not in FEEDBACKS:
+        raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")
     spec = SCENARIOS[scenario]
     E = gains.B if gains.E is None else gains.E
-    plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=X0_PAPER,
+    plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=x0,
                      noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme)
     h = dt if h is None else h
     obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max)
@@ -132,7 +147,7 @@ def simulate(
             break
         t_k = step * dt
         y = plant.y
-        u = K_PAPER @ obs.x_hat
+        u = K @ (obs.x_hat if feedback == "estimate" else plant.x)
         q = np.full(E.shape[1], spec.q_amplitude * np.sin(Q_FREQUENCY * t_k))
         plant.step(u, q, dt)
         obs.step(y, u, dt)

@@ -1,0 +1,126 @@
+"""The zoo of example plants: their specs with default tuning, a state feedback, the closed loop.
+
+The zoo is the plants of ``examples/zoo/`` plus ``examples/pendulum.toml``,
+``examples/mass_chain.toml`` and ``examples/triple_integrator.toml``, each used without its
+``L_lin`` and without the tuning of its ``[observer]`` table (the design's defaults decide
+everything; only the plant's own ``state_scale`` and ``settling_time`` are kept). The examples
+live in the source tree, not in the installed package: :data:`EXAMPLES` is found relative to this
+file, as :data:`fhobs.design.PAPER_REFERENCE` is. The closed loop is
+:func:`fhobs.reference.simulate`, noise-free, from ``x(0) = state_scale`` with the observers at
+zero and the LQR feedback ``u = K x`` on the true state, so that the observers' errors do not act
+on the plant and unstable plants stay bounded.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+
+from .gains import ObserverGains
+from .reference import SimulationResult, simulate
+from .spec import PlantSpec, spec_from_dict
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+ZOO_EXTRAS = ("pendulum", "mass_chain", "triple_integrator")
+"""Plants of ``examples/`` (outside ``examples/zoo/``) that belong to the zoo."""
+PLANT_KEYS = ("state_scale", "settling_time")
+"""``[observer]`` keys that describe the plant and the request rather than tune the design."""
+CONVERGED = 1e-3
+"""Relative error at which the bench and the tests call the transient over."""
+
+
+def zoo_spec_paths(examples: Path = EXAMPLES) -> dict[str, Path]:
+    """The zoo's spec files by plant name (the file's stem), sorted by name.
+
+    Examples
+    --------
+    >>> sorted(zoo_spec_paths())[:2]
+    ['aircraft_pitch', 'cart_pole']
+    """
+    paths = list((examples / "zoo").glob("*.toml"))
+    paths += [examples / f"{name}.toml" for name in ZOO_EXTRAS]
+    return {path.stem: path for path in sorted(paths, key=lambda p: p.stem)}
+
+
+def load_zoo_spec(path: Path) -> PlantSpec:
+    """A zoo plant's spec without ``L_lin`` and with only ``state_scale`` and
+    ``settling_time`` of its ``[observer]`` table: the design's defaults.
+
+    Examples
+    --------
+    >>> load_zoo_spec(zoo_spec_paths()["pendulum"]).disturbance_order
+    0
+    """
+    data = tomllib.loads(Path(path).read_text())
+    kept = {k: v for k, v in data.get("observer", {}).items() if k in PLANT_KEYS}
+    plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin")}
+    return spec_from_dict(plant | {"observer": kept}, source=str(path))
+
+
+def state_feedback(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The LQR gain ``K = -B^T X`` (Q = I, R = I, X the continuous ARE's solution): A + B K is
+    Hurwitz for every stabilisable (A, B).
+
+    Examples
+    --------
+    >>> K = state_feedback(np.array([[1.0]]), np.array([[1.0]]))
+    >>> round(float(K[0, 0]), 6)  # -(1 + sqrt(2))
+    -2.414214
+    """
+    X = scipy.linalg.solve_continuous_are(A, B, np.eye(A.shape[0]), np.eye(B.shape[1]))
+    return -B.T @ X
+
+
+def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
+                scheme: str = "split", x0: np.ndarray | None = None) -> SimulationResult:
+    """The zoo's nominal closed loop: plant, filtering and Luenberger observers, ``u = K x``.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        A design of the plant.
+    dt, h : float
+        Communication step and the observers' internal step.
+    t_end : float
+        Final time.
+    scheme : str
+        The observers' scheme.
+    x0 : numpy.ndarray, optional
+        Initial state (the spec's ``state_scale``; ones if None).
+
+    Returns
+    -------
+    SimulationResult
+        Sampled at ``t_k = k dt``; :func:`relative_error` turns it into the errors.
+    """
+    return simulate(gains, "nominal", t_end=t_end, dt=dt, h=h, scheme=scheme,
+                    K=state_feedback(gains.A, gains.B),
+                    x0=np.ones(gains.n) if x0 is None else x0, feedback="state")
+
+
+def relative_error(result: SimulationResult, estimate: str = "z") -> np.ndarray:
+    """``|x(t) - x_hat(t)| / max_t |x(t)|`` of one observer (``"z"`` or ``"z_lin"``)."""
+    error = np.linalg.norm(result.x - getattr(result, estimate), axis=1)
+    return error / np.max(np.linalg.norm(result.x, axis=1))
+
+
+def convergence_figures(result: SimulationResult, estimate: str = "z") -> dict[str, float]:
+    """The zoo's figures of one observer in a closed-loop run.
+
+    Returns
+    -------
+    dict
+        ``time`` from which the relative error stays <= :data:`CONVERGED` (inf if it ends
+        above), ``peak`` = max |x - x_hat| / |x(0) - x_hat(0)|, ``floor`` = max of the relative
+        error over the last second.
+    """
+    rel = relative_error(result, estimate)
+    error = np.linalg.norm(result.x - getattr(result, estimate), axis=1)
+    above = np.flatnonzero(~(rel <= CONVERGED))  # NaN counts as above
+    time = (0.0 if above.size == 0 else
+            np.inf if above[-1] == rel.size - 1 else float(result.t[above[-1] + 1]))
+    return {"time": time, "peak": float(np.max(error) / error[0]),
+            "floor": float(np.max(rel[result.t >= result.t[-1] - 1.0]))}
