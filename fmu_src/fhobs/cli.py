@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .certificate import CertificateError
 from .design import design_observer
+from .kalman import KalmanDesignError, with_kalman
 from .lmi import OBJECTIVES, LMIError
 from .spec import SpecError, load_spec
 
@@ -18,7 +19,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="build_fmu.py",
         description="Design the filtering homogeneous observer for a plant spec (TOML) and "
-        "write design.json and the FMUs (observer.fmu, luenberger.fmu, plant.fmu).",
+        "write design.json and the FMUs (observer.fmu, luenberger.fmu, plant.fmu, and "
+        "kalman.fmu when the spec has a [noise] table).",
     )
     parser.add_argument("spec", type=Path, help="plant spec TOML file (see examples/)")
     parser.add_argument("--out", type=Path, default=Path("build"), help="output folder")
@@ -43,7 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         gains = design_observer(spec, objective=args.objective)
-    except (LMIError, CertificateError) as exc:
+        if spec.noise is not None:
+            gains = with_kalman(gains, spec.noise)
+    except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 1
     elapsed = time.perf_counter() - start
