@@ -5,9 +5,10 @@
   the plots into DIR. ``--seeds N`` runs N seeds and averages the figures.
 - ``paper --out DIR``: the main job. For each design (``--design both``, the default: our design
   of examples/pendulum.toml, label ``ours``, and the paper's published gains, label ``paper``)
-  builds the pendulum FMUs (build_fmu.py's machinery) into ``DIR/<label>/fmus``, runs the three
-  paper scenarios (the noisy one over 5 seeds) into ``DIR/<label>/<scenario>/`` and prints one
-  table of the summary figures.
+  builds the pendulum FMUs (build_fmu.py's machinery; the Kalman filter baseline, kalman.fmu,
+  from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus``, runs the three paper
+  scenarios (the noisy one over 5 seeds; homogeneous, Luenberger and Kalman estimates side by
+  side) into ``DIR/<label>/<scenario>/`` and prints one table of the summary figures.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 """
 
@@ -97,7 +98,8 @@ def _parser() -> argparse.ArgumentParser:
         help="spec: our design of --spec (label ours); paper: the published gains; both",
     )
     paper.add_argument(
-        "--spec", type=Path, default=PENDULUM_SPEC, help="plant spec (--design spec)"
+        "--spec", type=Path, default=PENDULUM_SPEC,
+        help="plant spec (--design spec); its [noise] table gives both designs' Kalman filter"
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
@@ -196,13 +198,14 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     Parameters
     ----------
     out
-        Folder for observer.fmu, luenberger.fmu, plant.fmu and design.json.
+        Folder for observer.fmu, luenberger.fmu, plant.fmu, kalman.fmu and design.json.
     design
         ``"paper"``: the paper's published gains (``examples/pendulum-paper.json``, certified),
         which reproduce its figures; ``"spec"``: our own design of ``spec``, as
         ``python build_fmu.py SPEC`` makes it.
     spec
-        The plant spec for ``design="spec"``.
+        The plant spec for ``design="spec"``; for ``design="paper"`` its ``[noise]`` table
+        gives the Kalman filter.
     """
     if design == "spec":
         from fhobs.cli import main as build_main
@@ -214,8 +217,16 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         raise ValueError(f"design must be 'paper' or 'spec', not {design!r}")
     from fhobs.build import build_fmus
     from fhobs.design import paper_gains
+    from fhobs.kalman import with_kalman
+    from fhobs.spec import SpecError, load_spec
 
     gains = paper_gains(PAPER_REFERENCE)
+    try:
+        noise = load_spec(spec).noise
+    except SpecError as err:
+        raise DescriptionError(str(err)) from err
+    if noise is not None:
+        gains = with_kalman(gains, noise)
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
     build_fmus(gains, out)
