@@ -29,7 +29,6 @@ from .gains import KalmanGains, ObserverGains
 from .spec import NoiseSpec
 
 
-
 class KalmanDesignError(ValueError):
     """The Kalman filter cannot be designed (bad argument, no stabilising Riccati solution)."""
 
