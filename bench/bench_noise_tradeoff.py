@@ -2,7 +2,7 @@
 
 Usage::
 
-    python bench/bench_noise_tradeoff.py [--out DIR] [--jobs 2] [--quick]
+    python bench/bench_noise_tradeoff.py [--out DIR] [--jobs 2] [--variants KEY ...] [--redo]
 
 The data are the paper's pendulum loop of :mod:`fhobs.reference` with the default design of
 examples/pendulum.toml in the loop (u = K x_hat of that homogeneous observer, K = (2, -35, 1.5,
@@ -25,7 +25,10 @@ Estimators:
   disturbance_order, nu, rho, gamma, filter_scale; a design that fails the LMI or the
   certificate is reported as such.
 
-Writes ``DIR/noise_tradeoff.png`` and ``DIR/noise_tradeoff.json`` and prints the tables.
+Writes ``DIR/noise_tradeoff.png`` and ``DIR/noise_tradeoff.json`` and prints the tables. The
+closed-loop runs are cached in ``DIR/data.pkl`` and the results kept in the JSON, so the
+homogeneous designs (about 30 s of CPU each) can be run a few at a time (``--variants``);
+``--redo`` recomputes everything but the cached runs.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import pickle
 import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -57,23 +61,26 @@ NOISE_AMPLITUDE = 1e-3
 SAMPLE_TIME = 5e-5
 WINDOW = (1.0, 3.0)
 INTENSITIES = 10.0 ** np.arange(-6.0, 12.5, 0.5)
-VARIANTS = {
-    "default (r=1, nu=-1/4, rho=6, gamma=6)": {},
-    "r=1 gamma=2.75": {"gamma": 2.75},
-    "r=1 rho=4 gamma=4": {"rho": 4.0, "gamma": 4.0},
-    "r=1 rho=9 gamma=9": {"rho": 9.0, "gamma": 9.0},
-    "r=1 filter_scale=2": {"filter_scale": 2.0},
-    "r=1 nu=-0.2": {"nu": -0.2},
-    "r=0 nu=-1/3 rho=6 gamma=2.75 fs=3": {"disturbance_order": 0, "nu": -1 / 3,
-                                          "gamma": 2.75, "filter_scale": 3.0},
-    "r=0 nu=-1/3 rho=6 gamma=6": {"disturbance_order": 0, "nu": -1 / 3},
-    "r=2 nu=-1/5 rho=6 gamma=6": {"disturbance_order": 2, "nu": -0.2},
-    "r=2 nu=-1/5 rho=4 gamma=4": {"disturbance_order": 2, "nu": -0.2, "rho": 4.0, "gamma": 4.0},
-    "r=3 nu=-1/6 rho=6 gamma=6": {"disturbance_order": 3, "nu": -1 / 6},
-    "r=3 nu=-1/6 rho=4 gamma=4": {"disturbance_order": 3, "nu": -1 / 6, "rho": 4.0,
-                                  "gamma": 4.0},
+FASTEST_TOLERANCE = 1.01
+"""'fastest' Kalman point: the least noisy one whose perturbed max is within 1 % of the order's
+smallest (the floor set by the transient's tail at t = 1, about 4.6e-4 here)."""
+VARIANTS = {  # key: (label, [observer] changes to examples/pendulum.toml)
+    "default": ("default: r=1 nu=-1/4 rho=6 gamma=6", {}),
+    "r1_g2.75": ("r=1 gamma=2.75", {"gamma": 2.75}),
+    "r1_rho4": ("r=1 rho=4 gamma=4", {"rho": 4.0, "gamma": 4.0}),
+    "r1_rho9": ("r=1 rho=9 gamma=9", {"rho": 9.0, "gamma": 9.0}),
+    "r1_fs2": ("r=1 filter_scale=2", {"filter_scale": 2.0}),
+    "r1_nu0.2": ("r=1 nu=-0.2", {"nu": -0.2}),
+    "r0_fs3": ("r=0 nu=-1/3 gamma=2.75 fs=3", {"disturbance_order": 0, "nu": -1 / 3,
+                                                "gamma": 2.75, "filter_scale": 3.0}),
+    "r0": ("r=0 nu=-1/3 rho=6 gamma=6", {"disturbance_order": 0, "nu": -1 / 3}),
+    "r2": ("r=2 nu=-1/5 rho=6 gamma=6", {"disturbance_order": 2, "nu": -0.2}),
+    "r2_rho4": ("r=2 nu=-1/5 rho=4 gamma=4", {"disturbance_order": 2, "nu": -0.2, "rho": 4.0,
+                                              "gamma": 4.0}),
+    "r3": ("r=3 nu=-1/6 rho=6 gamma=6", {"disturbance_order": 3, "nu": -1 / 6}),
+    "r3_rho4": ("r=3 nu=-1/6 rho=4 gamma=4", {"disturbance_order": 3, "nu": -1 / 6, "rho": 4.0,
+                                              "gamma": 4.0}),
 }
-QUICK_VARIANTS = ("default (r=1, nu=-1/4, rho=6, gamma=6)",)
 
 
 def spec_data(changes: dict) -> dict:
@@ -207,35 +214,54 @@ def plot(points: list[dict], tuned: dict, homogeneous: list[dict], path: Path) -
     return path
 
 
+def load_data(out: Path, jobs: int) -> list[SimulationResult]:
+    """The closed-loop runs [perturbed, noisy seeds 0..4, tuning seed], cached in ``out``."""
+    cache = out / "data.pkl"
+    if cache.exists():
+        return pickle.loads(cache.read_bytes())
+    cases = [("perturbed", 0), *[("perturbed_noisy", s) for s in EVAL_SEEDS],
+             ("perturbed_noisy", TUNING_SEED)]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        runs = list(pool.map(closed_loop, cases))
+    cache.write_bytes(pickle.dumps(runs))
+    return runs
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=Path("results") / "bench")
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--quick", action="store_true",
-                        help="only the default homogeneous design (the Kalman sweep is complete)")
+    parser.add_argument("--variants", nargs="*", choices=tuple(VARIANTS), default=None,
+                        help="homogeneous designs to run (default: all not yet in the results)")
+    parser.add_argument("--redo", action="store_true", help="recompute what is in the results")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    cases = [("perturbed", 0), *[("perturbed_noisy", s) for s in EVAL_SEEDS],
-             ("perturbed_noisy", TUNING_SEED)]
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        runs = list(pool.map(closed_loop, cases))
+    results_path = args.out / "noise_tradeoff.json"
+    results = json.loads(results_path.read_text()) if results_path.exists() else {}
+    homogeneous = {} if args.redo else results.get("homogeneous", {})
+    runs = load_data(args.out, args.jobs)
     perturbed, noisy, tuning = runs[0], runs[1:-1], runs[-1]
     gains = design_observer(spec_from_dict(spec_data({})))
-    points = kalman_sweep(gains, perturbed, noisy, tuning)
-    tuned = check_tuned(gains, points, perturbed, noisy)
-    labels = QUICK_VARIANTS if args.quick else tuple(VARIANTS)
-    jobs = [(label, VARIANTS[label], [perturbed, *noisy]) for label in labels]
+    if args.redo or "kalman" not in results:
+        points = kalman_sweep(gains, perturbed, noisy, tuning)
+        tuned = check_tuned(gains, points, perturbed, noisy)
+        results = {"kalman": points, "kalman_tuned": {str(k): v for k, v in tuned.items()}}
+        results_path.write_text(json.dumps(results | {"homogeneous": homogeneous}, indent=1))
+    todo = [key for key in (args.variants if args.variants is not None else VARIANTS)
+            if key not in homogeneous or args.variants is not None]
+    jobs = [(key, VARIANTS[key][1], [perturbed, *noisy]) for key in todo]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        homogeneous = list(pool.map(homogeneous_point, jobs))
-    default = homogeneous[0]
-    assert np.isclose(default["perturbed_max"], window_metrics(perturbed, perturbed.z)[0],
-                      rtol=1e-12), "the default design's replay differs from its loop"
-    print(format_tables(points, tuned, homogeneous))
-    path = plot(points, tuned, homogeneous, args.out / "noise_tradeoff.png")
-    (args.out / "noise_tradeoff.json").write_text(json.dumps(
-        {"kalman": points, "kalman_tuned": {str(k): v for k, v in tuned.items()},
-         "homogeneous": homogeneous}, indent=1))
-    print(f"picture: {path}")
+        for key, point in zip(todo, pool.map(homogeneous_point, jobs), strict=True):
+            homogeneous[key] = point | {"label": VARIANTS[key][0]}
+            if key == "default":
+                assert np.isclose(point["perturbed_max"],
+                                  window_metrics(perturbed, perturbed.z)[0], rtol=1e-12), \
+                    "the default design's replay differs from its closed loop"
+            results_path.write_text(json.dumps(results | {"homogeneous": homogeneous}, indent=1))
+    points, tuned = results["kalman"], {int(k): v for k, v in results["kalman_tuned"].items()}
+    ordered = [homogeneous[key] for key in VARIANTS if key in homogeneous]
+    print(format_tables(points, tuned, ordered))
+    print(f"picture: {plot(points, tuned, ordered, args.out / 'noise_tradeoff.png')}")
     return 0
 
 
@@ -247,9 +273,11 @@ def format_tables(points: list[dict], tuned: dict, homogeneous: list[dict]) -> s
     for order in range(4):
         valid = [p for p in points if p["order"] == order and "failed" not in p]
         failed = len([p for p in points if p["order"] == order and "failed" in p])
+        floor = min(p["perturbed_max"] for p in valid)
+        fastest = [p for p in valid if p["perturbed_max"] <= FASTEST_TOLERANCE * floor]
         rows = (("best noisy (seeds 0-4)", min(valid, key=lambda p: p["noisy_rms"])),
                 ("tuned (seed 10)", tuned[order]),
-                ("fastest", min(valid, key=lambda p: p["perturbed_max"])))
+                ("fastest", min(fastest, key=lambda p: p["noisy_rms"])))
         for name, p in rows:
             lines.append(f"{order:>5}  {name:<22} {p['intensity']:8.1e}  "
                          f"{p['perturbed_max']:13.2e}  {p['noisy_rms']:10.2e}")

@@ -109,13 +109,14 @@ def test_design_rejects_bad_arguments(tuned_gains, change, words):
         design_kalman(**args)
 
 
-def test_design_record_round_trips(kalman_gains, tmp_path):
+def test_design_record_round_trips(kalman_gains, pendulum_spec, tmp_path):
     path = kalman_gains.save_json(tmp_path / "design.json")
     back = ObserverGains.load_json(path)
     for field in dataclasses.fields(kalman_gains.kalman):
         a, b = getattr(back.kalman, field.name), getattr(kalman_gains.kalman, field.name)
         assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
-    assert back.kalman.process_intensity == 1e-2 and back.kalman.disturbance_order == 1
+    assert back.kalman.process_intensity == pendulum_spec.noise.process_intensity
+    assert back.kalman.disturbance_order == 1 and back.kalman.sample_time == 5e-5
     without = dataclasses.replace(kalman_gains, kalman=None)
     assert ObserverGains.load_json(without.save_json(tmp_path / "plain.json")).kalman is None
 

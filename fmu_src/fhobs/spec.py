@@ -21,7 +21,7 @@ Format::
     measurement_amplitude = [1e-3, 1e-3]  # uniform noise amplitude per output (std = a/sqrt(3)),
     # measurement_std = [...]             # or its standard deviation (exactly one of the two)
     sample_time = 5e-5        # the filter's sample time Ts (s)
-    process_intensity = 1e-2  # intensity of the white noise driving q^(r) (q itself for r = 0)
+    process_intensity = 3e-3  # intensity of the white noise driving q^(r) (q itself for r = 0)
     disturbance_order = 1     # r in 0..3; default: observer.disturbance_order
 
 Every defect raises :class:`SpecError` naming the field and the reason.
