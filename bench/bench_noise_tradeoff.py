@@ -69,7 +69,10 @@ VARIANTS = {  # key: (label, [observer] changes to examples/pendulum.toml)
     "r1_g2.75": ("r=1 gamma=2.75", {"gamma": 2.75}),
     "r1_rho4": ("r=1 rho=4 gamma=4", {"rho": 4.0, "gamma": 4.0}),
     "r1_rho9": ("r=1 rho=9 gamma=9", {"rho": 9.0, "gamma": 9.0}),
+    "r1_fs1.5": ("r=1 filter_scale=1.5", {"filter_scale": 1.5}),
     "r1_fs2": ("r=1 filter_scale=2", {"filter_scale": 2.0}),
+    "r1_fs3": ("r=1 filter_scale=3", {"filter_scale": 3.0}),
+    "r1_rho8_fs2": ("r=1 rho=8 filter_scale=2", {"rho": 8.0, "filter_scale": 2.0}),
     "r1_nu0.2": ("r=1 nu=-0.2", {"nu": -0.2}),
     "r0_fs3": ("r=0 nu=-1/3 gamma=2.75 fs=3", {"disturbance_order": 0, "nu": -1 / 3,
                                                 "gamma": 2.75, "filter_scale": 3.0}),
@@ -78,6 +81,8 @@ VARIANTS = {  # key: (label, [observer] changes to examples/pendulum.toml)
     "r2_rho4": ("r=2 nu=-1/5 rho=4 gamma=4", {"disturbance_order": 2, "nu": -0.2, "rho": 4.0,
                                               "gamma": 4.0}),
     "r3": ("r=3 nu=-1/6 rho=6 gamma=6", {"disturbance_order": 3, "nu": -1 / 6}),
+    "r3_fs2": ("r=3 nu=-1/6 filter_scale=2", {"disturbance_order": 3, "nu": -1 / 6,
+                                              "filter_scale": 2.0}),
     "r3_rho4": ("r=3 nu=-1/6 rho=4 gamma=4", {"disturbance_order": 3, "nu": -1 / 6, "rho": 4.0,
                                               "gamma": 4.0}),
 }
@@ -204,6 +209,8 @@ def plot(points: list[dict], tuned: dict, homogeneous: list[dict], path: Path) -
             continue
         ax.loglog(point["perturbed_max"], point["noisy_rms"], "*", ms=11,
                   label=f"homogeneous: {point['label']}")
+    ax.set_xlim(1e-7, 1.0)
+    ax.set_ylim(1e-3, 1.0)
     ax.set_xlabel("noise-free perturbed: max ||x - x_hat|| over [1, 3] s")
     ax.set_ylabel("noise 1e-3: RMS ||x - x_hat|| over [1, 3] s (seeds 0..4)")
     ax.set_title("Pendulum: noise against perturbation (squares: Kalman tuned on seed 10)")
@@ -234,6 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", nargs="*", choices=tuple(VARIANTS), default=None,
                         help="homogeneous designs to run (default: all not yet in the results)")
     parser.add_argument("--redo", action="store_true", help="recompute what is in the results")
+    parser.add_argument("--redo-kalman", action="store_true", help="recompute the Kalman sweep")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     results_path = args.out / "noise_tradeoff.json"
@@ -242,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = load_data(args.out, args.jobs)
     perturbed, noisy, tuning = runs[0], runs[1:-1], runs[-1]
     gains = design_observer(spec_from_dict(spec_data({})))
-    if args.redo or "kalman" not in results:
+    if args.redo or args.redo_kalman or "kalman" not in results:
         points = kalman_sweep(gains, perturbed, noisy, tuning)
         tuned = check_tuned(gains, points, perturbed, noisy)
         results = {"kalman": points, "kalman_tuned": {str(k): v for k, v in tuned.items()}}
@@ -252,14 +260,15 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(key, VARIANTS[key][1], [perturbed, *noisy]) for key in todo]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for key, point in zip(todo, pool.map(homogeneous_point, jobs), strict=True):
-            homogeneous[key] = point | {"label": VARIANTS[key][0]}
+            homogeneous[key] = point
             if key == "default":
                 assert np.isclose(point["perturbed_max"],
                                   window_metrics(perturbed, perturbed.z)[0], rtol=1e-12), \
                     "the default design's replay differs from its closed loop"
             results_path.write_text(json.dumps(results | {"homogeneous": homogeneous}, indent=1))
     points, tuned = results["kalman"], {int(k): v for k, v in results["kalman_tuned"].items()}
-    ordered = [homogeneous[key] for key in VARIANTS if key in homogeneous]
+    ordered = [homogeneous[key] | {"label": VARIANTS[key][0]} for key in VARIANTS
+               if key in homogeneous]
     print(format_tables(points, tuned, ordered))
     print(f"picture: {plot(points, tuned, ordered, args.out / 'noise_tradeoff.png')}")
     return 0
@@ -282,8 +291,8 @@ def format_tables(points: list[dict], tuned: dict, homogeneous: list[dict]) -> s
             lines.append(f"{order:>5}  {name:<22} {p['intensity']:8.1e}  "
                          f"{p['perturbed_max']:13.2e}  {p['noisy_rms']:10.2e}")
         if failed:
-            lines.append(f"{order:>5}  ({failed} grid points without a stabilising Riccati "
-                         "solution)")
+            lines.append(f"{order:>5}  ({failed} grid points without an accurate stabilising "
+                         "Riccati solution)")
     lines += ["", "Homogeneous designs (replayed on the same data)",
               f"{'design':<40} {'rho cert.':>9}  {'perturbed max':>13}  {'noisy RMS':>10}"]
     for h in homogeneous:

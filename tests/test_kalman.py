@@ -109,6 +109,13 @@ def test_design_rejects_bad_arguments(tuned_gains, change, words):
         design_kalman(**args)
 
 
+def test_inaccurate_riccati_solution_is_refused(tuned_gains):
+    """Order 0 with an intensity 1e6: scipy returns a P with an O(1) residual; not a filter."""
+    g = tuned_gains
+    with pytest.raises(KalmanDesignError, match="inaccurate"):
+        design_kalman(g.A, g.B, g.C, g.E, 0, STD, 1e6, TS)
+
+
 def test_design_record_round_trips(kalman_gains, pendulum_spec, tmp_path):
     path = kalman_gains.save_json(tmp_path / "design.json")
     back = ObserverGains.load_json(path)

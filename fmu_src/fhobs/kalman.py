@@ -28,9 +28,30 @@ from .disturbance import extended_model, model_perturbation_matrix
 from .gains import KalmanGains, ObserverGains
 from .spec import NoiseSpec
 
+RICCATI_TOLERANCE = 1e-8
+"""Largest accepted relative residual of the Riccati equation (and negative eigenvalue of P)."""
+
 
 class KalmanDesignError(ValueError):
-    """The Kalman filter cannot be designed (bad argument, no stabilising Riccati solution)."""
+    """The Kalman filter cannot be designed (bad argument, no accurate stabilising Riccati
+    solution)."""
+
+
+def riccati_residual(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray,
+                     P: np.ndarray) -> float:
+    """Relative residual of the filter's discrete Riccati equation at P (module docstring),
+    max |residual| / max(max |P|, max |Qd|).
+
+    Examples
+    --------
+    >>> one = np.eye(1)
+    >>> riccati_residual(one, one, one, one, np.array([[(1 + 5 ** 0.5) / 2]])) < 1e-15
+    True
+    """
+    gain = Phi @ P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    residual = Phi @ P @ Phi.T - gain @ C @ P @ Phi.T + Qd - P
+    scale = max(float(np.abs(P).max()), float(np.abs(Qd).max()), 1e-300)
+    return float(np.abs(residual).max()) / scale
 
 
 def noise_input_matrix(E: np.ndarray, n: int, order: int) -> np.ndarray:
@@ -119,7 +140,8 @@ def design_kalman(
     ------
     KalmanDesignError
         On E missing, a non-positive std, intensity or sample time, or a Riccati equation
-        without a stabilising solution.
+        without a stabilising solution or whose computed solution fails
+        ``RICCATI_TOLERANCE`` (an intensity too far from the noise for double precision).
 
     Examples
     --------
@@ -149,6 +171,15 @@ def design_kalman(
                          f"{err}") from err
     P = 0.5 * (P + P.T)
     gain = np.linalg.solve(C_model @ P @ C_model.T + R, C_model @ P).T
+    residual = riccati_residual(Phi, C_model, Qd, R, P)
+    smallest = float(np.linalg.eigvalsh(P)[0]) / max(float(np.abs(P).max()), 1e-300)
+    if not (residual <= RICCATI_TOLERANCE and smallest >= -RICCATI_TOLERANCE):
+        raise KalmanDesignError(
+            f"the Kalman filter's Riccati solution is inaccurate (order {order}, "
+            f"W = {process_intensity:g}, Ts = {sample_time:g}): relative residual "
+            f"{residual:.2e}, smallest eigenvalue of P / max |P| = {smallest:.2e} (required "
+            f"<= {RICCATI_TOLERANCE:g} and >= -{RICCATI_TOLERANCE:g}); the intensity is too "
+            "far from the measurement noise for double precision")
     return KalmanGains(order, float(sample_time), std, float(process_intensity), gain, P, tuning)
 
 
