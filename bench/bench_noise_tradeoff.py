@@ -196,7 +196,7 @@ def plot(points: list[dict], tuned: dict, homogeneous: list[dict], path: Path) -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8.5, 6), layout="constrained")
+    fig, ax = plt.subplots(figsize=(12, 6.5), layout="constrained")
     for order in range(4):
         valid = [p for p in points if p["order"] == order and "failed" not in p]
         line, = ax.loglog([p["perturbed_max"] for p in valid], [p["noisy_rms"] for p in valid],
@@ -204,10 +204,11 @@ def plot(points: list[dict], tuned: dict, homogeneous: list[dict], path: Path) -
         best = tuned[order]
         ax.loglog(best["perturbed_max"], best["noisy_rms"], "s", color=line.get_color(), ms=8,
                   mfc="none")
-    for point in homogeneous:
-        if "failed" in point:
-            continue
-        ax.loglog(point["perturbed_max"], point["noisy_rms"], "*", ms=11,
+    colours = plt.get_cmap("tab20").colors
+    markers = {0: "v", 1: "*", 2: "P", 3: "D"}  # by disturbance order
+    for i, point in enumerate(p for p in homogeneous if "failed" not in p):
+        ax.loglog(point["perturbed_max"], point["noisy_rms"], markers[point["order"]], ms=10,
+                  color=colours[(2 * i + 1) % len(colours)], mec="k", mew=0.5,
                   label=f"homogeneous: {point['label']}")
     ax.set_xlim(1e-7, 1.0)
     ax.set_ylim(1e-3, 1.0)
@@ -215,7 +216,7 @@ def plot(points: list[dict], tuned: dict, homogeneous: list[dict], path: Path) -
     ax.set_ylabel("noise 1e-3: RMS ||x - x_hat|| over [1, 3] s (seeds 0..4)")
     ax.set_title("Pendulum: noise against perturbation (squares: Kalman tuned on seed 10)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
+    fig.legend(fontsize=8, loc="outside right upper")
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
