@@ -236,12 +236,22 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
+def _check_kalman_fmu(fmu_dir: Path, spec: Path) -> None:
+    """The paper scenarios run the Kalman filter baseline: DescriptionError without it."""
+    if not (fmu_dir / "kalman.fmu").exists():
+        raise DescriptionError(
+            f"{spec} has no [noise] table: the paper scenarios run the Kalman filter baseline "
+            "(kalman.fmu) beside the observers; add [noise] (see examples/pendulum.toml)"
+        )
+
+
 def _cmd_paper(args: argparse.Namespace) -> int:
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
     table, folders = {}, {}
     for design in designs:
         label = DESIGN_LABELS[design]
         fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec)
+        _check_kalman_fmu(fmu_dir, args.spec)
         for name in PAPER_SCENARIOS:
             spec = load_scenario(name, fmu_dir, args.block_cache)
             n = PAPER_SEEDS.get(name)

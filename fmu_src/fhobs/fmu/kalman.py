@@ -14,6 +14,7 @@ import numpy as np
 
 from fhobs.disturbance import extended_model
 from fhobs.fmu.slave_base import ObserverSlave, positive_parameter
+from fhobs.gains import KalmanGains
 from fhobs.kalman_filter import KalmanObserver
 from fhobs.linalg import expm
 
@@ -43,7 +44,7 @@ class FhobsKalman(ObserverSlave):
     def _check_timing(self) -> None:
         positive_parameter(self, "Ts", "sample time Ts")
 
-    def _kalman(self):
+    def _kalman(self) -> KalmanGains:
         """The design's Kalman record with the current ``kalman_gain`` and ``Ts``."""
         return dataclasses.replace(self.design.kalman, gain=self.array("kalman_gain"),
                                    sample_time=float(self.array("Ts")))
