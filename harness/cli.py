@@ -5,9 +5,10 @@
   the plots into DIR. ``--seeds N`` runs N seeds and averages the figures.
 - ``paper --out DIR``: the main job. For each design (``--design both``, the default: our design
   of examples/pendulum.toml, label ``ours``, and the paper's published gains, label ``paper``)
-  builds the pendulum FMUs (build_fmu.py's machinery) into ``DIR/<label>/fmus``, runs the three
-  paper scenarios (the noisy one over 5 seeds) into ``DIR/<label>/<scenario>/`` and prints one
-  table of the summary figures.
+  builds the pendulum FMUs (build_fmu.py's machinery; the Kalman filter baseline, kalman.fmu,
+  from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus``, runs the three paper
+  scenarios (the noisy one over 5 seeds; homogeneous, Luenberger and Kalman estimates side by
+  side) into ``DIR/<label>/<scenario>/`` and prints one table of the summary figures.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 """
 
@@ -104,7 +105,8 @@ def _parser() -> argparse.ArgumentParser:
         help="spec: our design of --spec (label ours); paper: the published gains; both",
     )
     paper.add_argument(
-        "--spec", type=Path, default=PENDULUM_SPEC, help="plant spec (--design spec)"
+        "--spec", type=Path, default=PENDULUM_SPEC,
+        help="plant spec (--design spec); its [noise] table gives both designs' Kalman filter"
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
@@ -227,13 +229,14 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     Parameters
     ----------
     out
-        Folder for observer.fmu, luenberger.fmu, plant.fmu and design.json.
+        Folder for observer.fmu, luenberger.fmu, plant.fmu, kalman.fmu and design.json.
     design
         ``"paper"``: the paper's published gains (``examples/pendulum-paper.json``, certified),
         which reproduce its figures; ``"spec"``: our own design of ``spec``, as
         ``python build_fmu.py SPEC`` makes it.
     spec
-        The plant spec for ``design="spec"``.
+        The plant spec for ``design="spec"``; for ``design="paper"`` its ``[noise]`` table
+        gives the Kalman filter.
     """
     if design == "spec":
         from fhobs.cli import main as build_main
@@ -245,8 +248,16 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         raise ValueError(f"design must be 'paper' or 'spec', not {design!r}")
     from fhobs.build import build_fmus
     from fhobs.design import paper_gains
+    from fhobs.kalman import with_kalman
+    from fhobs.spec import SpecError, load_spec
 
     gains = paper_gains(PAPER_REFERENCE)
+    try:
+        noise = load_spec(spec).noise
+    except SpecError as err:
+        raise DescriptionError(str(err)) from err
+    if noise is not None:
+        gains = with_kalman(gains, noise)
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
     build_fmus(gains, out)
@@ -256,6 +267,15 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
+def _check_kalman_fmu(fmu_dir: Path, spec: Path) -> None:
+    """The paper scenarios run the Kalman filter baseline: DescriptionError without it."""
+    if not (fmu_dir / "kalman.fmu").exists():
+        raise DescriptionError(
+            f"{spec} has no [noise] table: the paper scenarios run the Kalman filter baseline "
+            "(kalman.fmu) beside the observers; add [noise] (see examples/pendulum.toml)"
+        )
+
+
 def _cmd_paper(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
@@ -263,6 +283,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     for design in designs:
         label = DESIGN_LABELS[design]
         fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec)
+        _check_kalman_fmu(fmu_dir, args.spec)
         for name in PAPER_SCENARIOS:
             spec = load_scenario(name, fmu_dir, args.block_cache)
             n = PAPER_SEEDS.get(name)

@@ -1,4 +1,5 @@
-"""Build ``observer.fmu``, ``luenberger.fmu`` and ``plant.fmu`` from an :class:`ObserverGains`.
+"""Build ``observer.fmu``, ``luenberger.fmu``, ``plant.fmu`` and, when the design has a Kalman
+filter, ``kalman.fmu`` from an :class:`ObserverGains`.
 
 Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
@@ -38,7 +39,10 @@ from .plant import PLANT_SCHEMES
 from .runtime import SCHEMES
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-SLAVE_SCRIPTS = {"observer": "observer.py", "luenberger": "luenberger.py", "plant": "plant.py"}
+SLAVE_SCRIPTS = {"observer": "observer.py", "luenberger": "luenberger.py", "plant": "plant.py",
+                 "kalman": "kalman.py"}
+DEFAULT_KINDS = ("observer", "luenberger", "plant")
+"""Built by default; ``kalman`` too when the design has a Kalman filter."""
 ALLOWED_THIRD_PARTY = {"numpy", "pythonfmu"}
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
@@ -52,7 +56,7 @@ def build_fmus(
     gains: ObserverGains,
     out_dir: Path,
     *,
-    kinds: Iterable[str] = ("observer", "luenberger", "plant"),
+    kinds: Iterable[str] | None = None,
     h: float = 5e-5,
     scheme: str | None = None,
     z0: Iterable[float] | None = None,
@@ -73,13 +77,15 @@ def build_fmus(
         The certified design; it is re-certified here (numpy-only check) before building.
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
-    kinds : iterable of {"observer", "luenberger", "plant"}
+    kinds : iterable of {"observer", "luenberger", "plant", "kalman"}, optional
+        Default: ``DEFAULT_KINDS``, plus ``kalman`` when ``gains.kalman`` is set.
     h : float
         Start value of the observers' internal step.
     scheme : str, optional
         Start value of the observers' integration scheme (default: the runtime's first).
     z0, psi0, xi0 : optional
-        Start values of the observers' initial state (default zero).
+        Start values of the observers' initial state (default zero; the Kalman filter's
+        disturbance states start at zero).
     x0 : iterable of float, optional
         Start value of the plant's initial state (default zero).
     noise_amplitude, noise_seed : float, int
@@ -96,10 +102,15 @@ def build_fmus(
     -------
     dict of str to Path
     """
+    if kinds is None:
+        kinds = DEFAULT_KINDS + (("kalman",) if gains.kalman is not None else ())
     kinds = tuple(kinds)
     unknown = set(kinds) - set(SLAVE_SCRIPTS)
     if unknown:
         raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(SLAVE_SCRIPTS)}")
+    if "kalman" in kinds and gains.kalman is None:
+        raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
+                         "give the spec a [noise] table)")
     certify(gains)
     compiler = shutil.which("cc") or shutil.which("gcc")
     if status_wrapper is None:

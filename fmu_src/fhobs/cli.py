@@ -14,6 +14,7 @@ import numpy as np
 from .certificate import CertificateError, augmented_matrices
 from .design import design_observer
 from .gains import ObserverGains
+from .kalman import KalmanDesignError, with_kalman
 from .limits import check_design_limits
 from .lmi import OBJECTIVES, LMIError
 from .spec import SpecError, load_spec
@@ -24,7 +25,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="build_fmu.py",
         description="Design the filtering homogeneous observer for a plant spec (TOML) and "
-        "write design.json and the FMUs (observer.fmu, luenberger.fmu, plant.fmu).",
+        "write design.json and the FMUs (observer.fmu, luenberger.fmu, plant.fmu, and "
+        "kalman.fmu when the spec has a [noise] table).",
     )
     parser.add_argument("spec", type=Path, help="plant spec TOML file (see examples/)")
     parser.add_argument("--out", type=Path, default=Path("build"), help="output folder")
@@ -153,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         gains = design_observer(spec, objective=args.objective)
-    except (LMIError, CertificateError) as exc:
+        if spec.noise is not None:
+            gains = with_kalman(gains, spec.noise)
+    except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - last resort: any failure inside the numerics

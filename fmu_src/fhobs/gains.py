@@ -23,6 +23,9 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
   model of :mod:`fhobs.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
   the plant's first): G0, L0, G_d, L, P_bar, L_pt, P_pt and n_tilde are of that model, while
   A, B, C, E and L_lin (the Luenberger baseline) stay the plant's.
+- ``kalman``: optional :class:`KalmanGains`, the steady-state discrete Kalman filter baseline
+  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.kalman_filter`); its
+  disturbance model is its own (``kalman.disturbance_order``), on the same plant A, B, C, E.
 """
 
 from __future__ import annotations
@@ -40,6 +43,61 @@ MATRIX_FIELDS = (
     "A", "B", "C", "E", "G0", "L0", "G_d", "L_tilde", "L", "P_bar", "L_pt", "P_pt", "L_lin",
 )
 SCALAR_FIELDS = ("nu", "rho", "gamma")
+
+
+@dataclass(frozen=True)
+class KalmanGains:
+    """A steady-state discrete Kalman filter on the plant of an :class:`ObserverGains`.
+
+    The filter runs on ``extended_model(A, B, C, E, disturbance_order)`` sampled with the
+    exact zero-order hold at ``sample_time``; the unknown input ``q^(r)`` (q itself through E
+    for r = 0) is continuous white noise of intensity ``process_intensity`` (power spectral
+    density, per component of q), the measurement noise is white with standard deviation
+    ``measurement_std`` per output.
+
+    Attributes
+    ----------
+    disturbance_order : int
+        r in 0..3 (see :mod:`fhobs.disturbance`).
+    sample_time : float
+        Ts, the filter's sampling period (s).
+    measurement_std : numpy.ndarray
+        (k,) standard deviations of the measurement noise.
+    process_intensity : float
+        Intensity W of the white noise driving ``q^(r)``.
+    gain : numpy.ndarray
+        (N x k) measurement-update gain M = P C^T (C P C^T + R)^-1, N the model's states.
+    covariance : numpy.ndarray
+        (N x N) steady-state a-priori error covariance P (one step ahead).
+    tuning : str
+        How ``process_intensity`` was chosen (free text, for the record).
+    """
+
+    disturbance_order: int
+    sample_time: float
+    measurement_std: np.ndarray
+    process_intensity: float
+    gain: np.ndarray
+    covariance: np.ndarray
+    tuning: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (arrays as lists)."""
+        return {f.name: (v.tolist() if isinstance(v := getattr(self, f.name), np.ndarray) else v)
+                for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> KalmanGains:
+        """Build from :meth:`to_dict` output."""
+        return cls(
+            disturbance_order=int(data["disturbance_order"]),
+            sample_time=float(data["sample_time"]),
+            measurement_std=np.array(data["measurement_std"], dtype=float, ndmin=1),
+            process_intensity=float(data["process_intensity"]),
+            gain=np.array(data["gain"], dtype=float, ndmin=2),
+            covariance=np.array(data["covariance"], dtype=float, ndmin=2),
+            tuning=str(data.get("tuning", "")),
+        )
 
 
 @dataclass(frozen=True)
@@ -65,6 +123,7 @@ class ObserverGains:
     L_lin: np.ndarray
     disturbance_order: int = 0
     certificate: dict[str, Any] = field(default_factory=dict)
+    kalman: KalmanGains | None = None
 
     @property
     def n(self) -> int:
@@ -103,6 +162,8 @@ class ObserverGains:
         out: dict[str, Any] = {}
         for f in fields(self):
             value = getattr(self, f.name)
+            if isinstance(value, KalmanGains):
+                value = value.to_dict()
             out[f.name] = value.tolist() if isinstance(value, np.ndarray) else value
         return out
 
@@ -112,7 +173,7 @@ class ObserverGains:
         kwargs: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in data:
-                if f.name in ("E", "disturbance_order", "certificate"):
+                if f.name in ("E", "disturbance_order", "certificate", "kalman"):
                     continue
                 raise KeyError(f"design record lacks the field {f.name!r}")
             value = data[f.name]
@@ -122,6 +183,8 @@ class ObserverGains:
                 value = float(value)
             elif f.name in ("n_tilde", "disturbance_order"):
                 value = int(value)
+            elif f.name == "kalman" and value is not None:
+                value = KalmanGains.from_dict(value)
             kwargs[f.name] = value
         return cls(**kwargs)
 

@@ -1,4 +1,5 @@
-"""Figures in the style of the paper's Figures 1-3: estimation errors, homogeneous vs linear."""
+"""Figures in the style of the paper's Figures 1-3: estimation errors, homogeneous vs linear (and
+the Kalman filter when the result has one)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ FIGURE_TITLES = {
 
 def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
                 log_scale: bool = True) -> Path:
-    """Write a PNG with the error components ``|z_i - x_i|`` of both observers.
+    """Write a PNG with the error components ``|z_i - x_i|`` of every observer (homogeneous,
+    Luenberger, and the Kalman filter when ``result.z_kalman`` is set), one panel each.
 
     Parameters
     ----------
@@ -39,9 +41,11 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
         The written file.
     """
     path = Path(path)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
-    panels = (("homogeneous (filtering) observer", result.z),
-              ("linear (Luenberger) observer", result.z_lin))
+    panels = [("homogeneous (filtering) observer", result.z),
+              ("linear (Luenberger) observer", result.z_lin)]
+    if result.z_kalman is not None:
+        panels.append(("steady-state Kalman filter", result.z_kalman))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), sharey=True)
     for ax, (title, estimate) in zip(axes, panels, strict=True):
         error = abs(estimate - result.x)
         for i in range(error.shape[1]):

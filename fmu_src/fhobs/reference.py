@@ -1,10 +1,13 @@
 """In-process reference simulation of the paper's closed loop (the ground truth for co-simulation).
 
-Plant + filtering homogeneous observer + Luenberger observer, control ``u = K z`` with z the
-filtering observer's estimate, ``x(0) = (2, 2, 1, 2)``, observers at zero. Jacobi convention of
-docs/architecture.md: fixed communication step dt, ``t_k = k dt``; at t_k
-``y_k = C x_k + eta_k``, ``u_k = K z_k``, ``q_k = q_amplitude sin(5 t_k)``; then the plant and both
-observers advance by dt with these inputs held. Other plants (the zoo of ``examples/``) run the
+Plant + filtering homogeneous observer + Luenberger observer (+ the Kalman filter when the design
+has one), control ``u = K z`` with z the filtering observer's estimate, ``x(0) = (2, 2, 1, 2)``,
+observers at zero. Jacobi convention of docs/architecture.md: fixed communication step dt,
+``t_k = k dt``; at t_k ``y_k = C x_k + eta_k``, ``u_k = K z_k``, ``q_k = q_amplitude sin(5 t_k)``;
+then the plant and every observer advance by dt with these inputs held. The loop is closed
+through the homogeneous observer only, so the data (x, y, u) are the same for every estimator:
+the others run open-loop on the recorded (y, u) (:func:`replay` runs any further estimator on
+them). Other plants (the zoo of ``examples/``) run the
 same loop with their own ``K`` and ``x0``, optionally with the feedback on the true state.
 """
 
@@ -15,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fhobs.gains import ObserverGains
+from fhobs.kalman_filter import KalmanObserver
 from fhobs.plant import LTIPlant
 from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
 
@@ -51,6 +55,11 @@ class SimulationResult:
     q_hat : np.ndarray
         The filtering observer's disturbance-model states (no columns without a disturbance
         model): estimates of q, dq/dt, ...; None when not recorded (co-simulation plots).
+    z_kalman : np.ndarray or None
+        The Kalman filter's estimate of x (None without a Kalman filter in the design).
+    y, u : np.ndarray or None
+        The measured outputs and the inputs held over the steps from t_k, k = 0 .. N - 1;
+        None when not recorded.
     """
 
     t: np.ndarray
@@ -61,6 +70,9 @@ class SimulationResult:
     xi: np.ndarray
     sigma: np.ndarray
     q_hat: np.ndarray | None = None
+    z_kalman: np.ndarray | None = None
+    y: np.ndarray | None = None
+    u: np.ndarray | None = None
 
     @property
     def error(self) -> np.ndarray:
@@ -71,6 +83,11 @@ class SimulationResult:
     def error_lin(self) -> np.ndarray:
         """``norm(x - z_lin)`` of the Luenberger observer at each t_k."""
         return np.linalg.norm(self.x - self.z_lin, axis=1)
+
+    @property
+    def error_kalman(self) -> np.ndarray:
+        """``norm(x - z_kalman)`` of the Kalman filter at each t_k."""
+        return np.linalg.norm(self.x - self.z_kalman, axis=1)
 
     def at(self, t: float) -> int:
         """Index of the sample nearest to t."""
@@ -135,27 +152,64 @@ def simulate(
                      noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme)
     h = dt if h is None else h
     obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max)
-    lin = LuenbergerObserver(gains, h=h, scheme=scheme)
+    others = [LuenbergerObserver(gains, h=h, scheme=scheme)]
+    if gains.kalman is not None:
+        others.append(KalmanObserver(gains))
     n_steps = int(round(t_end / dt))
     n, n_model, k = gains.n, gains.n_model, gains.k
     x = np.empty((n_steps + 1, n))
     obs_state = np.empty((n_steps + 1, n_model + k + 1))  # [z, psi, xi] of the filtering observer
-    z_lin = np.empty((n_steps + 1, n))
+    estimates = np.empty((len(others), n_steps + 1, n))
+    ys, us = np.empty((n_steps, k)), np.empty((n_steps, gains.m))
     for step in range(n_steps + 1):
-        x[step], obs_state[step], z_lin[step] = plant.x, obs.get_state(), lin.z
+        x[step], obs_state[step] = plant.x, obs.get_state()
+        for estimate, other in zip(estimates, others, strict=True):
+            estimate[step] = other.x_hat
         if step == n_steps:
             break
         t_k = step * dt
-        y = plant.y
-        u = K @ (obs.x_hat if feedback == "estimate" else plant.x)
+        y = ys[step] = plant.y
+        u = us[step] = K @ (obs.x_hat if feedback == "estimate" else plant.x)
         q = np.full(E.shape[1], spec.q_amplitude * np.sin(Q_FREQUENCY * t_k))
         plant.step(u, q, dt)
         obs.step(y, u, dt)
-        lin.step(y, u, dt)
+        for other in others:
+            other.step(y, u, dt)
     psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
     sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
-    return SimulationResult(t=np.arange(n_steps + 1) * dt, x=x, z=obs_state[:, :n], z_lin=z_lin,
-                            psi=psi, xi=xi, sigma=sigma, q_hat=obs_state[:, n:n_model])
+    return SimulationResult(t=np.arange(n_steps + 1) * dt, x=x, z=obs_state[:, :n],
+                            z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
+                            q_hat=obs_state[:, n:n_model],
+                            z_kalman=estimates[1] if gains.kalman is not None else None,
+                            y=ys, u=us)
+
+
+def replay(observer, result: SimulationResult) -> np.ndarray:
+    """Run an estimator open-loop on the recorded (y, u) of ``result``; its x_hat at every t_k.
+
+    Parameters
+    ----------
+    observer
+        Any object with the runtime interface (``step(y, u, dt)``, ``x_hat``), at its start.
+    result : SimulationResult
+        A run of :func:`simulate` (y and u recorded).
+
+    Returns
+    -------
+    np.ndarray
+        (N + 1, n) estimates, row k at t_k: what the observer would have given in the loop.
+
+    Examples
+    --------
+    >>> z = replay(KalmanObserver(gains), simulate(gains, "perturbed_noisy"))   # doctest: +SKIP
+    """
+    dt = float(result.t[1] - result.t[0])
+    out = np.empty((result.t.size, result.x.shape[1]))
+    for step in range(result.t.size):
+        out[step] = observer.x_hat
+        if step < len(result.y):
+            observer.step(result.y[step], result.u[step], dt)
+    return out
 
 
 def accuracy_metrics(results: list[SimulationResult], scenario: str) -> dict[str, float]:
@@ -168,20 +222,31 @@ def accuracy_metrics(results: list[SimulationResult], scenario: str) -> dict[str
         ``perturbed``: ``max_1_3`` = max of norm(x - z) over [1, 3];
         ``perturbed_noisy``: ``rms_1_3`` and ``rms_lin_1_3`` (means over the results of the RMS
         of norm(x - z) over [1, 3]) and their ``ratio`` (linear / homogeneous).
-        Each also has the Luenberger counterpart with the suffix ``_lin``.
+        Each also has the Luenberger counterpart with the suffix ``_lin``, and the Kalman
+        filter's with the suffix ``_kalman`` when the results have one.
     """
+    out = _metrics(results, scenario, "error", "")
+    out |= _metrics(results, scenario, "error_lin", "_lin")
+    if results[0].z_kalman is not None:
+        out |= _metrics(results, scenario, "error_kalman", "_kalman")
+    if scenario == "perturbed_noisy":
+        out["ratio"] = out["rms_1_3_lin"] / out["rms_1_3"]
+    return out
+
+
+def _metrics(results: list[SimulationResult], scenario: str, error: str,
+             suffix: str) -> dict[str, float]:
+    """The metrics of one estimator's error (the attribute ``error`` of each result)."""
+    r = results[0]
     if scenario == "nominal":
-        r = results[0]
-        return {"error_1_0": float(r.error[r.at(1.0)]), "error_1_5": float(r.error[r.at(1.5)]),
-                "error_1_5_lin": float(r.error_lin[r.at(1.5)])}
+        out = {f"error_1_5{suffix}": float(getattr(r, error)[r.at(1.5)])}
+        if not suffix:
+            out["error_1_0"] = float(r.error[r.at(1.0)])
+        return out
     if scenario == "perturbed":
-        r = results[0]
-        mask = r.window(1.0, 3.0)
-        return {"max_1_3": float(np.max(r.error[mask])),
-                "max_1_3_lin": float(np.max(r.error_lin[mask]))}
-    rms = np.mean([_rms(r.error[r.window(1.0, 3.0)]) for r in results])
-    rms_lin = np.mean([_rms(r.error_lin[r.window(1.0, 3.0)]) for r in results])
-    return {"rms_1_3": float(rms), "rms_1_3_lin": float(rms_lin), "ratio": float(rms_lin / rms)}
+        return {f"max_1_3{suffix}": float(np.max(getattr(r, error)[r.window(1.0, 3.0)]))}
+    rms = np.mean([_rms(getattr(r, error)[r.window(1.0, 3.0)]) for r in results])
+    return {f"rms_1_3{suffix}": float(rms)}
 
 
 def _rms(values: np.ndarray) -> float:

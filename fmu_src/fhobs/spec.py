@@ -21,6 +21,13 @@ Format::
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
                               # fhobs.disturbance; default 0 (no disturbance model)
 
+    [noise]                   # optional table: the Kalman filter baseline (fhobs.kalman); needs E
+    measurement_amplitude = [1e-3, 1e-3]  # uniform noise amplitude per output (std = a/sqrt(3)),
+    # measurement_std = [...]             # or its standard deviation (exactly one of the two)
+    sample_time = 5e-5        # the filter's sample time Ts (s)
+    process_intensity = 3e-3  # intensity of the white noise driving q^(r) (q itself for r = 0)
+    disturbance_order = 1     # r in 0..3; default: observer.disturbance_order
+
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
 
@@ -40,16 +47,41 @@ from .lmi import OBJECTIVES
 
 DEFAULT_SETTLING_TIME = 2.0
 DEFAULT_OBJECTIVE = "min_cond"
-TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer")
+TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise")
 OBSERVER_KEYS = (
     "nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order", "settling_time",
     "state_scale",
 )
+NOISE_KEYS = ("measurement_std", "measurement_amplitude", "sample_time", "process_intensity",
+              "disturbance_order")
 MAX_DISTURBANCE_ORDER = 3
 
 
 class SpecError(ValueError):
     """A plant specification is malformed; the message names the field and the reason."""
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """The ``[noise]`` table: what the Kalman filter baseline is designed for.
+
+    Attributes
+    ----------
+    measurement_std : numpy.ndarray
+        (k,) standard deviation of the measurement noise per output (from
+        ``measurement_amplitude`` a of uniform noise: a / sqrt(3)).
+    sample_time : float
+        The filter's sample time Ts.
+    process_intensity : float
+        Intensity of the white noise driving ``q^(r)``.
+    disturbance_order : int
+        The filter's disturbance-model order r.
+    """
+
+    measurement_std: np.ndarray
+    sample_time: float
+    process_intensity: float
+    disturbance_order: int
 
 
 @dataclass(frozen=True)
@@ -85,6 +117,8 @@ class PlantSpec:
         of itself.
     state_scale : numpy.ndarray
         Typical size of each plant state (n entries).
+    noise : NoiseSpec or None
+        The ``[noise]`` table (the Kalman filter baseline), if given.
     """
 
     A: np.ndarray
@@ -102,6 +136,7 @@ class PlantSpec:
     disturbance_order: int = 0
     settling_time: float = DEFAULT_SETTLING_TIME
     state_scale: np.ndarray | None = None
+    noise: NoiseSpec | None = None
 
 
 def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> PlantSpec:
@@ -201,9 +236,10 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     filter_scale = _scalar(obs, "filter_scale", 1.0, source)
     if filter_scale < 1.0:
         raise SpecError(f"{source}: observer.filter_scale = {filter_scale!r} must be >= 1")
+    noise = _noise(data, A, B, C, E, order, source) if "noise" in data else None
     return PlantSpec(
         A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order,
-        settling_time, state_scale,
+        settling_time, state_scale, noise,
     )
 
 
@@ -223,20 +259,61 @@ def _state_scale(obs: dict[str, Any], n: int, source: str) -> np.ndarray:
     return np.broadcast_to(np.array(entries, dtype=float), (n,)).copy()
 
 
-def _disturbance_order(obs: dict[str, Any], E: np.ndarray | None, source: str) -> int:
-    """``observer.disturbance_order``: an integer in 0..MAX_DISTURBANCE_ORDER, > 0 only with E."""
-    order = obs.get("disturbance_order", 0)
+def _disturbance_order(obs: dict[str, Any], E: np.ndarray | None, source: str,
+                       table: str = "observer", default: int = 0) -> int:
+    """``<table>.disturbance_order``: an integer in 0..MAX_DISTURBANCE_ORDER, > 0 only with E."""
+    order = obs.get("disturbance_order", default)
     if isinstance(order, bool) or not isinstance(order, int):
-        raise SpecError(f"{source}: observer.disturbance_order = {order!r} is not an integer")
+        raise SpecError(f"{source}: {table}.disturbance_order = {order!r} is not an integer")
     if not 0 <= order <= MAX_DISTURBANCE_ORDER:
         raise SpecError(
-            f"{source}: observer.disturbance_order = {order} is outside 0..{MAX_DISTURBANCE_ORDER}"
+            f"{source}: {table}.disturbance_order = {order} is outside 0..{MAX_DISTURBANCE_ORDER}"
         )
     if order and E is None:
         raise SpecError(
-            f"{source}: observer.disturbance_order = {order} needs E (where q enters the plant)"
+            f"{source}: {table}.disturbance_order = {order} needs E (where q enters the plant)"
         )
     return order
+
+
+def _noise(data: dict[str, Any], A: np.ndarray, B: np.ndarray, C: np.ndarray,
+           E: np.ndarray | None, observer_order: int, source: str) -> NoiseSpec:
+    """The ``[noise]`` table (module docstring): validated, the amplitude turned into a std."""
+    table = data["noise"]
+    if not isinstance(table, dict):
+        raise SpecError(f"{source}: noise must be a table, got {type(table).__name__}")
+    _reject_unknown(table, NOISE_KEYS, source, "noise.")
+    if E is None:
+        raise SpecError(f"{source}: the [noise] table needs E (the Kalman filter's process noise "
+                        "enters through it)")
+    given = [key for key in ("measurement_std", "measurement_amplitude") if key in table]
+    if len(given) != 1:
+        raise SpecError(f"{source}: the [noise] table needs exactly one of "
+                        f"noise.measurement_std and noise.measurement_amplitude, got {given}")
+    key = given[0]
+    values = table[key]
+    k = C.shape[0]
+    if not isinstance(values, list) or len(values) != k:
+        raise SpecError(f"{source}: noise.{key} must be a list of {k} numbers (one per output)")
+    for i, entry in enumerate(values, start=1):
+        _check_entry(entry, f"noise.{key}[{i}]", source)
+        if entry <= 0:
+            raise SpecError(f"{source}: noise.{key}[{i}] = {entry!r} must be > 0")
+    std = np.array(values, dtype=float) / (math.sqrt(3.0) if key == "measurement_amplitude" else 1)
+    positive = {}
+    for name in ("sample_time", "process_intensity"):
+        if name not in table:
+            raise SpecError(f"{source}: noise.{name} is missing (a positive number)")
+        _check_entry(table[name], f"noise.{name}", source)
+        if table[name] <= 0:
+            raise SpecError(f"{source}: noise.{name} = {table[name]!r} must be > 0")
+        positive[name] = float(table[name])
+    order = _disturbance_order(table, E, source, "noise", observer_order)
+    A_model, _, C_model = extended_model(A, B, C, E, order)
+    if observability_index(A_model, C_model)[0] is None:
+        raise SpecError(f"{source}: noise.disturbance_order = {order}: the Kalman filter's "
+                        "disturbance model (A, E, C) is not observable")
+    return NoiseSpec(std, positive["sample_time"], positive["process_intensity"], order)
 
 
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):

@@ -873,10 +873,22 @@ class FhobsSlave(Fmi2Slave):
         (called after every step: kept cheap)."""
 
 
-class ObserverSlave(FhobsSlave):
-    """Base of the two observer slaves: plant matrices, z0, h, scheme, inputs y, u, x_hat.
+def positive_parameter(slave: FhobsSlave, name: str, what: str) -> float:
+    """The scalar parameter ``name`` of ``slave``; ValueError naming ``what`` unless it is a
+    positive finite number."""
+    value = float(slave.array(name))
+    if not (np.isfinite(value) and value > 0.0):
+        raise ValueError(f"{what} = {value!r} is not a positive finite number")
+    return value
 
-    Subclasses add their gains with :meth:`_declare_gains` and may add outputs.
+
+class ObserverSlave(FhobsSlave):
+    """Base of the observer slaves: plant matrices, z0, timing, inputs y, u, output x_hat.
+
+    Subclasses add their gains with :meth:`_declare_gains` and may add outputs. The timing
+    parameters are by default those of :mod:`fhobs.runtime` (internal step ``h`` and
+    ``scheme``); a sampled-data observer replaces them (:meth:`_declare_timing`,
+    :meth:`_check_timing`).
     """
 
     def _declare(self) -> None:
@@ -886,12 +898,7 @@ class ObserverSlave(FhobsSlave):
         self.add_array("C", design.C, "parameter", "plant output matrix (k x n)")
         self._declare_gains()
         self.add_array("z0", config["z0"], "parameter", "initial state estimate")
-        self.add_array("h", config["h"], "parameter", "internal integration step (s)")
-        self.add_integer(
-            "scheme",
-            SCHEMES.index(config["scheme"]),
-            "integration scheme: " + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
-        )
+        self._declare_timing()
         self.add_array("y", np.zeros(design.k), "input", "measured plant output")
         self.add_array("u", np.zeros(design.m), "input", "plant input")
         self.add_array("x_hat", np.zeros(design.n), "output", "state estimate z")
@@ -903,14 +910,22 @@ class ObserverSlave(FhobsSlave):
             raise ValueError(f"scheme = {index} is not in 0..{len(SCHEMES) - 1} ({SCHEMES})")
         return SCHEMES[index]
 
-    def _check_parameters(self) -> None:
-        h = float(self.array("h"))
-        if not (np.isfinite(h) and h > 0.0):
-            raise ValueError(f"internal step h = {number(h)} is not a positive finite number")
-        problem = zoh_problem(self.edited_design().model[0], h, "the observer's model")
-        if problem:
-            raise ValueError(problem)
+    def _declare_timing(self) -> None:
+        """Register the internal step ``h`` and the integration ``scheme``."""
+        self.add_array("h", self.config["h"], "parameter", "internal integration step (s)")
+        self.add_integer(
+            "scheme",
+            SCHEMES.index(self.config["scheme"]),
+            "integration scheme: " + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
+        )
+
+    def _check_timing(self) -> None:
+        """Raise ValueError if ``h`` is not a positive finite number or ``scheme`` unknown."""
+        positive_parameter(self, "h", "internal step h")
         self.scheme_name()
+
+    def _check_parameters(self) -> None:
+        self._check_timing()
         self._check_gains()
 
     def _step_problem(self, step_size: float) -> str:

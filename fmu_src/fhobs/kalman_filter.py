@@ -1,0 +1,160 @@
+"""Steady-state discrete Kalman filter (numpy only): the noise-optimal linear baseline.
+
+The filter runs on the extended model of :mod:`fhobs.disturbance` (order
+``gains.kalman.disturbance_order``) sampled with the exact zero-order hold at the filter's
+sample time Ts: ``Phi = expm(Ts A_model)``, ``Gamma = int_0^Ts expm(t A_model) dt B_model``.
+One cycle with the measurement y_k and the input u_k of the sample t_k:
+
+    update:   z_k|k    = z_k|k-1 + M (y_k - C_model z_k|k-1)
+    predict:  z_k+1|k  = Phi z_k|k + Gamma u_k
+
+with the steady-state gain M of :class:`fhobs.gains.KalmanGains`. The state kept (and ``z``,
+``x_hat``) is the one-step prediction ``z_k+1|k``: after a communication step from t_k the
+estimate is that of t_k+1 from the measurements up to y_k, the information the Jacobi
+co-simulation gives every observer. Both equations are precomputed as one matrix
+``z+ = [Phi (I - M C), Phi M, Gamma] (z, y, u)``.
+
+Communication steps. The filter is designed for Ts: a step ``dt`` must be a whole multiple
+``n Ts`` (relative tolerance ``STEP_TOLERANCE``); it then runs n cycles with y and u held (the
+same measurement used n times: a zero-order-hold sensor read faster than it is sampled). Any
+other dt raises ValueError, state unchanged (fmi2Error in the FMU): a filter run at a sample time
+it was not designed for is not the designed filter.
+
+This module is numpy-only: it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fhobs.disturbance import extended_model
+from fhobs.gains import KalmanGains, ObserverGains
+from fhobs.linalg import zoh_blocks
+from fhobs.plant import all_finite, as_finite_vector, check_step_size, floating_point_failure
+
+STEP_TOLERANCE = 1e-9
+"""Relative tolerance of ``dt = n Ts`` (a master's t_k = k dt rounding stays far below it)."""
+
+MAX_CYCLES = 1_000_000
+"""A communication step of more filter cycles than this is rejected (a mistake, not a request)."""
+
+
+def cycles_per_step(dt: float, sample_time: float) -> int:
+    """The number n of filter cycles in a communication step ``dt = n Ts``.
+
+    Raises
+    ------
+    ValueError
+        If dt is not a whole multiple of Ts (within ``STEP_TOLERANCE``) or needs more than
+        ``MAX_CYCLES`` cycles.
+
+    Examples
+    --------
+    >>> cycles_per_step(1e-4, 5e-5)
+    2
+    """
+    n = round(dt / sample_time)
+    if n < 1 or abs(dt - n * sample_time) > STEP_TOLERANCE * dt:
+        raise ValueError(f"the step size {dt!r} is not a whole multiple of the Kalman filter's "
+                         f"sample time Ts = {sample_time!r}; state left unchanged")
+    if n > MAX_CYCLES:
+        raise ValueError(f"the step size {dt!r} needs {n} cycles of Ts = {sample_time!r}, more "
+                         f"than {MAX_CYCLES}; state left unchanged")
+    return n
+
+
+class KalmanObserver:
+    """Steady-state discrete Kalman filter with the observers' interface (module docstring).
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design; ``gains.kalman`` (a :class:`KalmanGains`) must be set.
+    z0 : array_like or None
+        Initial prediction: the plant's n states, or the model's N (zeros if None; with n
+        entries the disturbance states start at zero).
+    kalman : KalmanGains or None
+        Use this filter instead of ``gains.kalman`` (an edited FMU parameter set).
+
+    Examples
+    --------
+    >>> obs = KalmanObserver(gains)                         # doctest: +SKIP
+    >>> obs.step(y, u, gains.kalman.sample_time)            # doctest: +SKIP
+    >>> obs.x_hat                                           # doctest: +SKIP
+    """
+
+    def __init__(self, gains: ObserverGains, z0: np.ndarray | None = None,
+                 kalman: KalmanGains | None = None) -> None:
+        kalman = gains.kalman if kalman is None else kalman
+        if kalman is None:
+            raise ValueError("the design has no Kalman filter (ObserverGains.kalman is None)")
+        self.gains, self.kalman = gains, kalman
+        self.sample_time = check_step_size(kalman.sample_time)
+        A, B, C = extended_model(gains.A, gains.B, gains.C, gains.E, kalman.disturbance_order)
+        size = A.shape[0]
+        if kalman.gain.shape != (size, gains.k):
+            raise ValueError(f"Kalman gain has shape {kalman.gain.shape}, expected "
+                             f"({size}, {gains.k}) for disturbance order "
+                             f"{kalman.disturbance_order}")
+        self._k, self._m, self._n = gains.k, gains.m, gains.n
+        Phi, Gamma = zoh_blocks(A, [B], self.sample_time)
+        self._cycle = np.hstack((Phi - Phi @ kalman.gain @ C, Phi @ kalman.gain, Gamma))
+        self._z = np.zeros(size)
+        if z0 is not None:
+            z0 = np.asarray(z0, dtype=float).reshape(-1)
+            if z0.size == self._n:  # the plant's states; the disturbance states start at zero
+                z0 = np.concatenate((z0, self._z[self._n:]))
+            self._z = as_finite_vector(z0, size, "z0")
+
+    @property
+    def z(self) -> np.ndarray:
+        """The filter's model state (copy): x_hat, then the disturbance-model estimates."""
+        return self._z.copy()
+
+    @property
+    def x_hat(self) -> np.ndarray:
+        """Estimate of the plant's state (copy of the first n entries of z)."""
+        return self._z[:self._n].copy()
+
+    @property
+    def q_hat(self) -> np.ndarray:
+        """Disturbance-model estimates (q, then its derivatives; empty for order 0)."""
+        return self._z[self._n:].copy()
+
+    def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """Advance by dt = n Ts with y and u held (n filter cycles).
+
+        Raises
+        ------
+        ValueError
+            On invalid y, u or dt (dt not a whole multiple of Ts included), or a non-finite
+            result; the state is then left unchanged.
+        """
+        self.advance(as_finite_vector(y, self._k, "y"), as_finite_vector(u, self._m, "u"),
+                     check_step_size(dt))
+
+    def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """:meth:`step` without checking y, u (finite, of k and m entries) and the sign of dt;
+        a dt that is not a multiple of Ts and a non-finite result still raise ValueError."""
+        n_cycles = cycles_per_step(dt, self.sample_time)
+        z, tail = self._z, np.concatenate((y, u))
+        try:
+            for _ in range(n_cycles):
+                z = self._cycle.dot(np.concatenate((z, tail)))
+        except ArithmeticError as err:
+            raise floating_point_failure("Kalman", err) from err
+        if not all_finite(z):
+            raise ValueError("the Kalman step diverged (non-finite state); state left unchanged")
+        self._z = z
+
+    def get_state(self) -> np.ndarray:
+        """The full internal state (a copy): the prediction z."""
+        return self._z.copy()
+
+    def set_state(self, arr: np.ndarray) -> None:
+        """Restore a state from :meth:`get_state` exactly."""
+        self._z = as_finite_vector(arr, self._z.size, "Kalman state").copy()
+
+    def diagnostics(self) -> dict[str, float | np.ndarray]:
+        """``z``, ``q_hat`` and the sample time."""
+        return {"z": self.z, "q_hat": self.q_hat, "sample_time": self.sample_time}

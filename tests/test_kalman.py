@@ -1,0 +1,353 @@
+"""The steady-state Kalman filter baseline: design against python-control and a Riccati iteration,
+the numpy runtime against the filter's equations written out here, kalman.fmu through fmpy
+against the runtime, and the filter's behaviour on the paper's scenarios."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg as sl
+from fhobs.build import build_fmus
+from fhobs.disturbance import extended_model
+from fhobs.gains import ObserverGains
+from fhobs.kalman import KalmanDesignError, design_kalman, van_loan, with_kalman
+from fhobs.kalman_filter import KalmanObserver
+from fhobs.plant import LTIPlant
+from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, replay, simulate
+from fhobs.spec import SpecError, spec_from_dict
+from fmpy import extract
+from fmpy.fmi1 import FMICallException
+from fmu_fixtures import FmuDriver, random_walk
+from scipy.integrate import quad_vec
+
+STD = np.full(2, 1e-3 / np.sqrt(3.0))
+TS = 5e-5
+FMI_ERROR = 3
+
+
+def model(gains, order):
+    """(A_model, B_model, C_model) and the noise input G written out here (not fhobs')."""
+    A, B, C = extended_model(gains.A, gains.B, gains.C, gains.E, order)
+    G = np.zeros((A.shape[0], 1))
+    if order == 0:
+        G = gains.E
+    else:
+        G[-1, 0] = 1.0
+    return A, B, C, G
+
+
+def zoh(A, B, Ts):
+    """Exact ZOH with scipy: (Phi, Gamma)."""
+    n = A.shape[0]
+    aug = np.zeros((n + B.shape[1], n + B.shape[1]))
+    aug[:n, :n], aug[:n, n:] = A, B
+    E = sl.expm(aug * Ts)
+    return E[:n, :n], E[:n, n:]
+
+
+@pytest.fixture(scope="module")
+def kalman_gains(tuned_gains, pendulum_spec) -> ObserverGains:
+    """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
+    return with_kalman(tuned_gains, pendulum_spec.noise)
+
+
+# -- design ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
+def test_gain_equals_python_control_dlqe(tuned_gains, order):
+    g = tuned_gains
+    kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 10.0, TS)
+    A, _, C, G = model(g, order)
+    Phi, Qd = van_loan(A, 10.0 * G @ G.T, TS)
+    L, P, _ = control.dlqe(Phi, np.eye(A.shape[0]), C, Qd, np.diag(STD**2))
+    np.testing.assert_allclose(Phi @ kf.gain, L, rtol=1e-8, atol=1e-12 * np.abs(L).max())
+    np.testing.assert_allclose(kf.covariance, P, rtol=1e-8, atol=1e-12 * np.abs(P).max())
+    assert kf.gain.shape == (g.n + order, g.k) and kf.disturbance_order == order
+
+
+def test_van_loan_equals_quadrature(tuned_gains):
+    A, _, _, G = model(tuned_gains, 2)
+    Ts, W = 1e-2, 3.0
+    Phi, Qd = van_loan(A, W * G @ G.T, Ts)
+    integral, _ = quad_vec(lambda t: sl.expm(t * A) @ (W * G @ G.T) @ sl.expm(t * A).T, 0, Ts,
+                           epsabs=1e-16, epsrel=1e-12)
+    np.testing.assert_allclose(Qd, integral, rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(Phi, sl.expm(Ts * A), rtol=1e-12, atol=1e-14)
+
+
+def test_gain_is_the_limit_of_the_riccati_recursion(tuned_gains):
+    """Independent of any Riccati solver: the covariance recursion iterated to convergence."""
+    g = tuned_gains
+    Ts, W = 1e-2, 1.0
+    kf = design_kalman(g.A, g.B, g.C, g.E, 1, STD, W, Ts)
+    A, _, C, G = model(g, 1)
+    Phi = sl.expm(Ts * A)
+    Qd, _ = quad_vec(lambda t: sl.expm(t * A) @ (W * G @ G.T) @ sl.expm(t * A).T, 0, Ts,
+                     epsabs=1e-16, epsrel=1e-12)
+    R = np.diag(STD**2)
+    P = np.eye(A.shape[0])
+    for _ in range(3000):
+        S = C @ P @ C.T + R
+        P = Phi @ (P - P @ C.T @ np.linalg.solve(S, C @ P)) @ Phi.T + Qd
+    M = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    np.testing.assert_allclose(kf.gain, M, rtol=1e-6, atol=1e-9 * np.abs(M).max())
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [({"E": None}, "needs E"), ({"measurement_std": [1e-3, 0.0]}, "measurement_std"),
+     ({"measurement_std": [1e-3]}, "measurement_std"),
+     ({"process_intensity": -1.0}, "process_intensity"), ({"sample_time": np.nan}, "sample_time")],
+)
+def test_design_rejects_bad_arguments(tuned_gains, change, words):
+    g = tuned_gains
+    args = dict(A=g.A, B=g.B, C=g.C, E=g.E, order=1, measurement_std=STD,
+                process_intensity=1.0, sample_time=TS) | change
+    with pytest.raises(KalmanDesignError, match=words):
+        design_kalman(**args)
+
+
+def test_inaccurate_riccati_solution_is_refused(tuned_gains):
+    """Order 0 with an intensity 1e6: scipy returns a P with an O(1) residual; not a filter."""
+    g = tuned_gains
+    with pytest.raises(KalmanDesignError, match="inaccurate"):
+        design_kalman(g.A, g.B, g.C, g.E, 0, STD, 1e6, TS)
+
+
+def test_design_record_round_trips(kalman_gains, pendulum_spec, tmp_path):
+    path = kalman_gains.save_json(tmp_path / "design.json")
+    back = ObserverGains.load_json(path)
+    for field in dataclasses.fields(kalman_gains.kalman):
+        a, b = getattr(back.kalman, field.name), getattr(kalman_gains.kalman, field.name)
+        assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+    assert back.kalman.process_intensity == pendulum_spec.noise.process_intensity
+    assert back.kalman.disturbance_order == 1 and back.kalman.sample_time == 5e-5
+    without = dataclasses.replace(kalman_gains, kalman=None)
+    assert ObserverGains.load_json(without.save_json(tmp_path / "plain.json")).kalman is None
+
+
+# -- runtime -----------------------------------------------------------------------------------
+def written_out(gains, ys, us, cycles):
+    """The filter's two equations, written out: update with M, exact-ZOH prediction."""
+    kf = gains.kalman
+    A, B, C, _ = model(gains, kf.disturbance_order)
+    Phi, Gamma = zoh(A, B, kf.sample_time)
+    z = np.zeros(A.shape[0])
+    rows = []
+    for y, u in zip(ys, us, strict=True):
+        for _ in range(cycles):
+            z_filtered = z + kf.gain @ (y - C @ z)
+            z = Phi @ z_filtered + Gamma @ u
+        rows.append(z)
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("cycles", [1, 3])
+def test_runtime_equals_the_equations_written_out(kalman_gains, cycles):
+    g = kalman_gains
+    ys, us = random_walk(1, 200, g.k, 0.05), random_walk(2, 200, g.m, 0.1)
+    obs = KalmanObserver(g)
+    rows = []
+    for y, u in zip(ys, us, strict=True):
+        obs.step(y, u, cycles * TS)
+        rows.append(obs.z)
+        np.testing.assert_array_equal(obs.x_hat, obs.z[:g.n])
+    expected = written_out(g, ys, us, cycles)
+    np.testing.assert_allclose(np.array(rows), expected, rtol=0,
+                               atol=1e-10 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("dt", [1.5 * TS, 0.5 * TS, TS * (1 + 1e-6)])
+def test_step_not_a_multiple_of_ts_is_rejected_state_kept(kalman_gains, dt):
+    obs = KalmanObserver(kalman_gains)
+    obs.step(np.array([0.1, 0.2]), np.array([0.3]), TS)
+    before = obs.get_state()
+    with pytest.raises(ValueError, match="not a whole multiple"):
+        obs.step(np.array([0.1, 0.2]), np.array([0.3]), dt)
+    np.testing.assert_array_equal(obs.get_state(), before)
+
+
+def test_state_round_trip_and_bad_inputs(kalman_gains):
+    g = kalman_gains
+    obs = KalmanObserver(g, z0=np.arange(1.0, g.n + 1))
+    assert obs.z.size == g.n + 1 and obs.z[-1] == 0.0
+    ys, us = random_walk(5, 20, g.k, 0.05), random_walk(6, 20, g.m, 0.1)
+    for y, u in zip(ys[:10], us[:10], strict=True):
+        obs.step(y, u, TS)
+    state = obs.get_state()
+    first = [obs.step(y, u, TS) or obs.z for y, u in zip(ys[10:], us[10:], strict=True)]
+    obs.set_state(state)
+    again = [obs.step(y, u, TS) or obs.z for y, u in zip(ys[10:], us[10:], strict=True)]
+    np.testing.assert_array_equal(np.array(first), np.array(again))
+    with pytest.raises(ValueError, match="y"):
+        obs.step(np.array([np.nan, 0.0]), us[0], TS)
+    with pytest.raises(ValueError, match="Kalman filter"):
+        KalmanObserver(dataclasses.replace(g, kalman=None))
+
+
+def test_unbiased_on_a_constant_perturbation_with_a_disturbance_model(tuned_gains):
+    """Constant q, no noise, the plant stabilised by state feedback: with a disturbance model
+    (order >= 1) the error vanishes; without one (order 0) a bias remains."""
+    g, Ts, steps = tuned_gains, 1e-3, 3000
+    errors = {}
+    for order in (0, 1, 2):
+        kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 1.0, Ts)
+        obs = KalmanObserver(dataclasses.replace(g, kalman=kf))
+        plant = LTIPlant(g.A, g.B, g.C, g.E, x0=X0_PAPER)
+        for _ in range(steps):
+            u = K_PAPER @ plant.x
+            y = plant.y
+            plant.step(u, np.array([0.5]), Ts)
+            obs.step(y, u, Ts)
+        errors[order] = np.linalg.norm(plant.x - obs.x_hat)
+        if order:
+            np.testing.assert_allclose(obs.q_hat[0], 0.5, rtol=1e-6)
+    assert errors[1] < 1e-6 and errors[2] < 1e-6
+    assert errors[0] > 1e-3
+
+
+def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_gains):
+    """The paper's noisy scenario (short run, seed 2): the Kalman filter's RMS over [0.8, 1.2]
+    is far below the paper's Luenberger observer's, on the same data; the reference's Kalman
+    estimate equals an open-loop replay on the recorded (y, u)."""
+    r = simulate(kalman_gains, "perturbed_noisy", t_end=1.2, seed=2)
+    np.testing.assert_array_equal(replay(KalmanObserver(kalman_gains), r), r.z_kalman)
+    mask = r.window(0.8, 1.2)
+    rms_kalman = np.sqrt(np.mean(r.error_kalman[mask] ** 2))
+    rms_lin = np.sqrt(np.mean(r.error_lin[mask] ** 2))
+    assert rms_kalman < 0.05 * rms_lin
+    assert rms_kalman < 2e-2
+    metrics = accuracy_metrics([r], "perturbed_noisy")  # the window [1, 3] cut at 1.2
+    tail = r.error_kalman[r.window(1.0, 3.0)]
+    assert metrics["rms_1_3_kalman"] == pytest.approx(np.sqrt(np.mean(tail**2)), rel=1e-12)
+
+
+# -- FMU ---------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def kalman_fmu(tmp_path_factory, kalman_gains):
+    built = build_fmus(kalman_gains, tmp_path_factory.mktemp("kalman_fmu"), kinds=("kalman",))
+    path = built["kalman"]
+    return path, extract(str(path))
+
+
+@pytest.fixture
+def open_kalman(kalman_fmu):
+    opened = []
+
+    def factory(name="instance"):
+        driver = FmuDriver(kalman_fmu[0], kalman_fmu[1], name)
+        opened.append(driver)
+        return driver
+
+    yield factory
+    for driver in opened:
+        driver.fmu.freeInstance()
+
+
+def run_fmu(driver, g, ys, us, dt):
+    rows = []
+    for k, (y, u) in enumerate(zip(ys, us, strict=True)):
+        driver.set("y", y)
+        driver.set("u", u)
+        driver.fmu.doStep(k * dt, dt)
+        rows.append(np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))]))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("cycles", [1, 4])
+def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
+    g = kalman_gains
+    ys, us = random_walk(3, 100, g.k, 0.05), random_walk(4, 100, g.m, 0.1)
+    driver = open_kalman()
+    driver.start()
+    rows = run_fmu(driver, g, ys, us, cycles * TS)
+    obs = KalmanObserver(g)
+    expected = []
+    for y, u in zip(ys, us, strict=True):
+        obs.step(y, u, cycles * TS)
+        expected.append(obs.z)
+    np.testing.assert_allclose(rows, np.array(expected), rtol=0, atol=1e-12)
+
+
+def test_fmu_rejects_a_step_not_a_multiple_of_ts(open_kalman, kalman_gains):
+    g = kalman_gains
+    driver = open_kalman()
+    driver.start()
+    ys, us = random_walk(3, 5, g.k, 0.05), random_walk(4, 5, g.m, 0.1)
+    before = run_fmu(driver, g, ys, us, TS)[-1]
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.doStep(5 * TS, 1.5 * TS)
+    assert err.value.status == FMI_ERROR
+    status, message = driver.messages[-1]
+    assert status == FMI_ERROR and "whole multiple" in message
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[:g.n])
+    driver.fmu.doStep(5 * TS, TS)  # still usable
+
+
+def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):
+    driver = open_kalman()
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.set("kalman_gain", -kalman_gains.kalman.gain)
+    driver.fmu.enterInitializationMode()
+    with pytest.raises(FMICallException) as err:
+        driver.fmu.exitInitializationMode()
+    assert err.value.status == FMI_ERROR
+    assert "schur_kalman" in driver.messages[-1][1]
+
+
+def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
+    with pytest.raises(ValueError, match="Kalman"):
+        build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
+
+
+# -- the spec's [noise] table ------------------------------------------------------------------
+NOISE_PLANT = {
+    "A": [[0.0, 1.0], [-2.0, -3.0]], "B": [[0.0], [1.0]], "C": [[1.0, 0.0]], "E": [[0.0], [1.0]],
+    "observer": {"disturbance_order": 1},
+}
+NOISE = {"measurement_amplitude": [3e-3], "sample_time": 1e-3, "process_intensity": 2.0}
+
+
+def test_noise_table_is_read_and_designs_the_filter():
+    spec = spec_from_dict(NOISE_PLANT | {"noise": NOISE})
+    assert spec.noise.measurement_std == pytest.approx([3e-3 / np.sqrt(3.0)], rel=1e-15)
+    assert spec.noise.disturbance_order == 1  # the observer's by default
+    assert spec_from_dict(NOISE_PLANT).noise is None
+    given = spec_from_dict(NOISE_PLANT | {"noise": {
+        "measurement_std": [1e-3], "sample_time": 1e-3, "process_intensity": 2.0,
+        "disturbance_order": 2}}).noise
+    assert given.measurement_std.tolist() == [1e-3] and given.disturbance_order == 2
+
+
+@pytest.mark.parametrize(
+    ("noise", "plant_change", "words"),
+    [
+        (NOISE | {"colour": "white"}, {}, "unknown key noise.colour"),
+        (NOISE | {"measurement_std": [1e-3]}, {}, "exactly one of"),
+        ({k: v for k, v in NOISE.items() if k != "measurement_amplitude"}, {}, "exactly one of"),
+        (NOISE | {"measurement_amplitude": [1e-3, 1e-3]}, {}, "list of 1 numbers"),
+        (NOISE | {"measurement_amplitude": [-1e-3]}, {}, r"measurement_amplitude\[1\]"),
+        (NOISE | {"measurement_amplitude": ["a"]}, {}, "not a number"),
+        ({k: v for k, v in NOISE.items() if k != "sample_time"}, {}, "noise.sample_time is "
+         "missing"),
+        (NOISE | {"process_intensity": 0.0}, {}, "noise.process_intensity = 0.0 must be > 0"),
+        (NOISE | {"disturbance_order": 4}, {}, "noise.disturbance_order = 4 is outside"),
+        (NOISE | {"disturbance_order": 1.0}, {}, "not an integer"),
+        (NOISE, {"E": None, "observer": {}}, "needs E"),
+        (NOISE | {"disturbance_order": 1}, {"E": [[1.0], [0.0]], "A": [[0.0, 1.0], [0.0, 0.0]],
+                                            "observer": {}},
+         "Kalman filter's disturbance model .* not observable"),
+        ("white", {}, "noise must be a table"),
+    ],
+)
+def test_noise_table_errors_name_the_field(noise, plant_change, words):
+    data = NOISE_PLANT | {"noise": noise}
+    for key, value in plant_change.items():
+        if value is None:
+            del data[key]
+        else:
+            data[key] = value
+    with pytest.raises(SpecError, match=words):
+        spec_from_dict(data)
