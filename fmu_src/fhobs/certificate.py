@@ -165,8 +165,11 @@ def lmi_values(
     p_eigs = np.linalg.eigvalsh(P_sym)
     positive = float(p_eigs[0]) / max(float(np.max(np.abs(p_eigs))), 1e-300)
     monotone = lmi = rounding = float("nan")
-    if positive > 0:
-        chol_inv = np.linalg.inv(np.linalg.cholesky(P_sym))
+    try:
+        chol_inv = np.linalg.inv(np.linalg.cholesky(P_sym)) if positive > 0 else None
+    except np.linalg.LinAlgError:  # positive by a hair: the figures stay not computable
+        chol_inv = None
+    if chol_inv is not None:
         def rate(Q: np.ndarray) -> np.ndarray:
             return np.linalg.eigvalsh(sym(chol_inv @ sym(Q) @ chol_inv.T))
 

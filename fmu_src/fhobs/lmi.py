@@ -264,9 +264,12 @@ def _solve_normalised_chains(
     """
     scales, normalised = {}, {}
     for s, (h, g) in blocks.items():
-        c = np.cumprod(np.concatenate(([1.0], rho / np.diagonal(h, 1))))
+        with np.errstate(all="ignore"):
+            c = np.cumprod(np.concatenate(([1.0], rho / np.diagonal(h, 1))))
+            normalised[s] = (h * c[None, :] / c[:, None] / rho, g)
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(normalised[s][0]))):
+            raise LMIError(f"the chains' links span more than double precision (rho = {rho})")
         scales[s] = c
-        normalised[s] = (h * c[None, :] / c[:, None] / rho, g)
     p, y, solve_time = _solve_chains(normalised, 1.0, objective, margin / rho, margin)
     return (
         {s: p[s] / scales[s][:, None] / scales[s][None, :] for s in blocks},
@@ -321,7 +324,7 @@ def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Solution may be inaccurate")
             problem.solve(solver=cp.CLARABEL, **SOLVER_OPTIONS)
-    except cp.SolverError as exc:
+    except (cp.SolverError, ValueError) as exc:  # ValueError: cvxpy's non-finite data check
         raise LMIError(f"Clarabel failed (rho = {rho}, objective {objective}): {exc}") from exc
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         raise LMIError(

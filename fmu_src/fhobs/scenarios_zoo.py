@@ -46,8 +46,8 @@ def zoo_spec_paths(examples: Path = EXAMPLES) -> dict[str, Path]:
 
 
 def load_zoo_spec(path: Path) -> PlantSpec:
-    """A zoo plant's spec without ``L_lin`` and with only ``state_scale`` and
-    ``settling_time`` of its ``[observer]`` table: the design's defaults.
+    """A zoo plant's spec without ``L_lin`` and ``[noise]``, and with only ``state_scale``
+    and ``settling_time`` of its ``[observer]`` table: the design's defaults.
 
     Examples
     --------
@@ -56,7 +56,7 @@ def load_zoo_spec(path: Path) -> PlantSpec:
     """
     data = tomllib.loads(Path(path).read_text())
     kept = {k: v for k, v in data.get("observer", {}).items() if k in PLANT_KEYS}
-    plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin")}
+    plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin", "noise")}
     return spec_from_dict(plant | {"observer": kept}, source=str(path))
 
 
