@@ -395,6 +395,18 @@ def test_internal_step_larger_than_the_communication_step_is_the_step(open_fmu, 
     np.testing.assert_allclose(runs[1], runtime.x_hat, rtol=0, atol=1e-12)
 
 
+def test_step_size_the_observer_cannot_follow_is_an_error(open_fmu, tuned_gains):
+    """At dt = 0.2 no gain level makes the pendulum's sampled observer contract: doStep says so
+    (fmi2Error and the reason in the log) instead of running a diverging observer; the state is
+    kept and a step the observer can follow still works."""
+    driver = open_fmu("observer")
+    driver.start()
+    assert_error(driver, driver.fmu.doStep, 0.0, 0.2,
+                 words="no gain level makes the split step of size 0.2 contractive")
+    np.testing.assert_array_equal(driver.get("x_hat", (tuned_gains.n,)), np.zeros(tuned_gains.n))
+    driver.fmu.doStep(0.0, DT)
+
+
 # -- call sequence and messages ---------------------------------------------------------------
 def test_call_sequence_is_enforced(open_fmu):
     """A second initialisation mid-run and doStep after fmi2Terminate are refused; the run is

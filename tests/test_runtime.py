@@ -6,15 +6,18 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg as sl
+from fhobs.design import design_observer
 from fhobs.plant import LTIPlant
 from fhobs.reference import K_PAPER, X0_PAPER
 from fhobs.runtime import (
+    AMPLIFICATION_LIMIT,
     SCHEMES,
     FilteringObserver,
     LuenbergerObserver,
     PrescribedTimeObserver,
     spectral_radius,
 )
+from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from scipy.integrate import solve_ivp
 
 
@@ -312,3 +315,60 @@ def test_advance_is_step_without_checks(tuned_gains, cls):
 def test_unknown_scheme_is_rejected(paper_design):
     with pytest.raises(ValueError, match="scheme"):
         FilteringObserver(paper_design, scheme="rk4")
+
+
+def zoo_design(name):
+    """The default design of a zoo plant."""
+    return design_observer(load_zoo_spec(zoo_spec_paths()[name]))
+
+
+def test_step_without_a_contractive_gain_level_is_refused():
+    """maglev (unstable mode +44 rad/s) at dt = 0.1: no gain level makes the sampled observer
+    contract; the step says so (ValueError, state unchanged) instead of diverging silently."""
+    obs = FilteringObserver(zoo_design("maglev"), psi0=[0.1], xi0=0.3)
+    saved = obs.get_state()
+    with pytest.raises(ValueError, match="no gain level makes the split step of size 0.1"):
+        obs.step([0.01], [0.0], 0.1)
+    assert np.array_equal(obs.get_state(), saved)
+
+
+def test_ceiling_where_small_gains_do_not_contract():
+    """maglev at dt = 1e-3: the dilated map (scipy construction) does not contract for the
+    smallest taus, so the level gets a ceiling; at the ceiling and the floor it contracts."""
+    g = zoo_design("maglev")
+    dt = 1e-3
+    obs = FilteringObserver(g, h=dt)
+    floor, ceiling = obs._floor(dt), obs._ceiling(dt)
+    assert np.isfinite(ceiling) and ceiling > floor
+    for level in (floor, ceiling):
+        assert spectral_radius(dilated(g, level, scipy_error_map(g, level, dt))) < 1.0
+    huge = 1e6 * ceiling
+    assert spectral_radius(dilated(g, huge, scipy_error_map(g, huge, dt))) > 1.0
+
+
+def test_roundoff_floor_bounds_the_output_amplification():
+    """spring_chain3 (n_tilde = 6): the floor keeps ||C|| ||d(ln s)|| / s^(1+nu) at or below
+    AMPLIFICATION_LIMIT (d from scipy's expm); the contraction floor alone would not."""
+    g = zoo_design("spring_chain3")
+    dt = 1e-3
+    obs = FilteringObserver(g, h=dt)
+    floor = obs._floor(dt)
+
+    def amplification(s):
+        return (np.linalg.norm(g.C, 2) * np.linalg.norm(d_scipy(g.G_d, np.log(s)), 2)
+                / s ** (1.0 + g.nu))
+
+    assert amplification(floor) <= AMPLIFICATION_LIMIT * (1 + 1e-2)
+    assert amplification((obs.cap(dt) / dt) ** (1.0 / g.nu)) > AMPLIFICATION_LIMIT
+
+
+@pytest.mark.parametrize("h", [5e-5, 1e-4, 1.0])
+def test_split_step_does_not_depend_on_h(tuned_gains, h):
+    """The split scheme covers the communication step in one step: h only bounds euler."""
+    rng = np.random.default_rng(7)
+    ref, obs = FilteringObserver(tuned_gains, h=1e-3), FilteringObserver(tuned_gains, h=h)
+    for y, u in zip(rng.standard_normal((20, tuned_gains.k)),
+                    rng.standard_normal((20, tuned_gains.m)), strict=True):
+        ref.step(y, u, 1e-3)
+        obs.step(y, u, 1e-3)
+    assert np.array_equal(ref.get_state(), obs.get_state())
