@@ -13,6 +13,7 @@ import pytest
 from fhobs.build import build_fmus
 from fhobs.design import design_observer
 from fhobs.gains import ObserverGains
+from fhobs.kalman import with_kalman
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import (
@@ -92,10 +93,12 @@ class FmuDriver:
 
 
 @pytest.fixture(scope="session")
-def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: ObserverGains):
-    """observer.fmu, luenberger.fmu and plant.fmu of the pendulum design, built once."""
+def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: ObserverGains,
+                  pendulum_spec):
+    """observer.fmu, luenberger.fmu, kalman.fmu and plant.fmu of the pendulum design (the
+    Kalman filter of its [noise] table), built once."""
     return build_fmus(
-        tuned_gains,
+        with_kalman(tuned_gains, pendulum_spec.noise),
         tmp_path_factory.mktemp("pendulum_fmus"),
         x0=PENDULUM_X0,
         noise_amplitude=NOISE_AMPLITUDE,

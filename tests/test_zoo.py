@@ -28,7 +28,7 @@ CT_HORIZON = 10.0
 CT_STOP = 1e-4
 """The integration stops (event) when the error is CT_STOP of its initial size: near sigma = 0
 the right-hand side is singular (sigma^(nu-1)) and its solution reaches 0 in finite time."""
-CT_PEAK_BOUND = 1e3
+CT_PEAK_BOUND = 1e4
 """Bound on |eps(t)| / |eps(0)| (a divergent error system crosses it)."""
 XI0 = 1e-12
 """Initial xi: sigma(0) = 1e-6 > 0 keeps sigma^(nu-1) and ln(sigma) finite at t = 0 (psi = 0

@@ -84,9 +84,10 @@ def design_summary(gains: ObserverGains) -> list[str]:
         )
         if not tuning["met"]:
             lines.append(
-                "warning: the requested settling time is not met: the largest rho that the "
-                "LMI certifies gives the time above; ask for a longer settling_time, or "
-                "accept it"
+                f"warning: the requested settling time is not met with a peaking of at most "
+                f"{tuning['peaking_limit']:g}x (faster designs of this plant peak more, or "
+                "are not certified): ask for a longer settling_time, give rho yourself, or "
+                "accept the figures above"
             )
     return lines
 

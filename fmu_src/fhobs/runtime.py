@@ -103,9 +103,9 @@ TAU_GRID = np.geomspace(1e-7, 3.0, 76)
 ceiling)."""
 CONTRACTION_LIMIT = 1.0 - 1e-9
 """A dilated error map counts as contractive below this spectral radius."""
-AMPLIFICATION_LIMIT = 1e6
+AMPLIFICATION_LIMIT = 3e5
 """Largest output-to-estimate amplification ``||C|| ||d(ln s)|| / s^(1+nu)`` of a gain level
-(module docstring): y's round-off of 1e-16 then moves the estimate by about 1e-10 at most."""
+(module docstring): y's round-off of 1e-16 then moves the estimate by about 3e-11 at most."""
 CAP_CACHE_SIZE = 16
 """Gain caps are cached per communication step size; the cache is cleared at this many."""
 
