@@ -46,7 +46,7 @@ TIME_TARGET = 5.0
 
 
 def cosimulate(gains: ObserverGains, fmu_dir: Path, dt: float, h: float,
-               stop_time: float) -> SimulationResult:
+               stop_time: float, x0: np.ndarray) -> SimulationResult:
     """The closed loop of :func:`fhobs.scenarios_zoo.closed_loop` through the FMUs of
     ``fmu_dir``, co-simulated by the harness master with communication step dt."""
     from harness.master import run_system
@@ -54,7 +54,7 @@ def cosimulate(gains: ObserverGains, fmu_dir: Path, dt: float, h: float,
 
     K = state_feedback(gains.A, gains.B)
     start = expand_start("h", h)
-    plant_start = expand_start("x0", [1.0] * gains.n)
+    plant_start = expand_start("x0", [float(v) for v in x0])
     if gains.E is not None:
         plant_start |= expand_start("q", [0.0] * gains.E.shape[1])
     fmus = {"plant": FmuSpec("plant", fmu_dir / "plant.fmu", plant_start),
@@ -85,7 +85,8 @@ def run_plant(name: str, stop_time: float, fmu: bool = False) -> list[str]:
 
             build_fmus(gains, Path(tmp), x0=spec.state_scale)
             return _rows(name, gains, stop_time,
-                         lambda dt, h: cosimulate(gains, Path(tmp), dt, h, stop_time))
+                         lambda dt, h: cosimulate(gains, Path(tmp), dt, h, stop_time,
+                                                  spec.state_scale))
     return _rows(name, gains, stop_time,
                  lambda dt, h: closed_loop(gains, dt, h, stop_time, x0=spec.state_scale))
 
