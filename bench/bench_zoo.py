@@ -6,8 +6,8 @@ Usage::
 
 For every zoo plant (:func:`fhobs.scenarios_zoo.zoo_spec_paths`) the default design
 (:func:`fhobs.scenarios_zoo.load_zoo_spec`; a design failure is a row of the table) runs in the
-closed loop of :func:`fhobs.scenarios_zoo.closed_loop` (``u = K x`` on the true state, x(0) = state_scale,
-observers at zero, no noise, no perturbation) for each communication step dt in (1e-4, 1e-3) and
+closed loop of :func:`fhobs.scenarios_zoo.closed_loop` (``u = K x`` on the true state,
+x(0) = state_scale, observers at zero, no noise, no perturbation) for each communication step dt in (1e-4, 1e-3) and
 internal step h in (5e-5, dt). Columns: time from which the relative error |x - x_hat| / max|x|
 stays <= 1e-3, peak |x - x_hat| / |x(0) - x_hat(0)|, floor (max relative error over the last
 second) of the filtering observer (split scheme), and the Luenberger baseline's floor. ``MISS``
@@ -136,8 +136,8 @@ def main(argv: list[str] | None = None) -> int:
               f"error: --stop-time must be > 1 s (the floor is the last second), got "
               f"{args.stop_time}", file=sys.stderr)
         return 2
-    print(f"noise-free closed loop u = K x, x(0) = state_scale, {args.stop_time:g} s, split scheme, "
-          f"{'through the FMUs' if args.fmu else 'in process'}")
+    print(f"noise-free closed loop u = K x, x(0) = state_scale, {args.stop_time:g} s, "
+          f"split scheme, {'through the FMUs' if args.fmu else 'in process'}")
     print("| plant | n | k | n~ | rho / gamma / nu | dt | h | t(1e-3) s | peak | floor | "
           "Luenberger floor |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
