@@ -6,10 +6,10 @@ Usage::
 
 For every zoo plant (:func:`fhobs.scenarios_zoo.zoo_spec_paths`) the default design
 (:func:`fhobs.scenarios_zoo.load_zoo_spec`; a design failure is a row of the table) runs in the
-closed loop of :func:`fhobs.scenarios_zoo.closed_loop` (``u = K x`` on the true state,
-x(0) = state_scale, observers at zero, no noise, no perturbation) for each communication step
-dt in (1e-4, 1e-3) and internal step h in (5e-5, dt). Columns: time from which the relative
-error |x - x_hat| / max|x| stays <= 1e-3, peak |x - x_hat| / |x(0) - x_hat(0)|, floor (max relative error over the last
+closed loop of :func:`fhobs.scenarios_zoo.closed_loop` (``u = K x`` on the true state, x(0) =
+state_scale, observers at zero, no noise, no perturbation) for each communication step dt in (1e-4,
+1e-3) and internal step h in (5e-5, dt). Columns: time from which the relative error |x - x_hat| /
+max|x| stays <= 1e-3, peak |x - x_hat| / |x(0) - x_hat(0)|, floor (max relative error over the last
 second) of the filtering observer (split scheme), and the Luenberger baseline's floor. ``MISS``
 marks a floor > 1e-9 and a time to 1e-3 > 5 s (targets of the zoo).
 
