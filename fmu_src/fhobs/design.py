@@ -50,6 +50,8 @@ from .spec import PlantSpec, spec_from_dict
 
 RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0)
 """Values of rho tried, in this order, when the spec leaves rho to the design."""
+LADDER_PATIENCE = 3
+"""The climb stops after this many consecutive rungs that fail or are no faster."""
 MAX_PEAKING = 1e3
 """Largest predicted ``|e(t)| / |e(0)|`` that the automatic choice of rho accepts."""
 MARGIN_ATTEMPTS = 4
@@ -171,17 +173,22 @@ def _design_for_settling_time(
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
     candidates: list[tuple[ObserverGains, ErrorResponse]] = []
     last_error: Exception | None = None
+    stalled = 0  # consecutive rungs that failed or were no faster than the best so far
     for rho in RHO_LADDER:
         gamma = rho if spec.gamma is None else spec.gamma
         if rho <= gamma / 2:
             continue
+        if stalled >= LADDER_PATIENCE:
+            break
         try:
             gains = design_observer(replace(spec, rho=rho, gamma=gamma), objective, margin,
                                     filter_scale)
         except (LMIError, CertificateError) as exc:
-            last_error = exc
+            last_error, stalled = exc, stalled + 1
             continue
         response = error_response(gains, scale, spec.settling_time)
+        best = min((c[1].settling_time for c in candidates), default=np.inf)
+        stalled = stalled + 1 if candidates and not response.settling_time < best else 0
         candidates.append((gains, response))
         if response.peaking <= MAX_PEAKING and response.settling_time <= spec.settling_time:
             break
