@@ -1,4 +1,4 @@
-"""Command line: ``python -m harness {run,paper,export-ssp} ...``.
+"""Command line: ``python -m harness {run,paper,plant,list,export-ssp} ...``.
 
 - ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
   bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
@@ -9,6 +9,11 @@
   from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus``, runs the three paper
   scenarios (the noisy one over 5 seeds; homogeneous, Luenberger and Kalman estimates side by
   side) into ``DIR/<label>/<scenario>/`` and prints one table of the summary figures.
+- ``plant SPEC --out DIR``: your own plant: designs its observer (the design's defaults where
+  the spec is silent), builds its FMUs into ``DIR/fmus`` and runs the default scenario of
+  :mod:`harness.own_plant` (x(0) = state_scale, observers at zero, u = K x on the true state,
+  three settling times); results and plots (errors, states against estimates) in DIR.
+- ``list``: the bundled scenarios.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 """
 
@@ -23,9 +28,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fhobs.certificate import CertificateError
 from fhobs.cli import check_output_folder
+from fhobs.lmi import LMIError
+from fhobs.spec import SpecError
 
 from harness.master import CoSimResult, MasterError, run_system
+from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
 from harness.results import summary, write_csv, write_summary
 from harness.system import (
     DescriptionError,
@@ -110,6 +119,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
+    plant = sub.add_parser(
+        "plant", parents=[common],
+        help="design and build the FMUs of your own plant spec and run its default scenario",
+    )
+    plant.add_argument("spec", type=Path, help="plant spec TOML file")
+    plant.add_argument("--out", type=Path, required=True, help="results folder (FMUs in fmus/)")
+    plant.add_argument("--stop-time", type=float,
+                       help=f"run length (default {RUNS_PER_SETTLING_TIME:g} settling times)")
+    plant.add_argument("--step", type=float,
+                       help=f"communication step (default the [noise] sample time, else {STEP:g})")
+    plant.add_argument("--seed", type=int, default=0, help="measurement noise seed")
+    plant.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sub.add_parser("list", help="list the bundled scenarios")
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
     ssp.add_argument("--out", type=Path, required=True, help="the .ssp file")
@@ -298,6 +320,45 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_plant(args: argparse.Namespace) -> int:
+    from fhobs.build import build_fmus
+    from fhobs.cli import design_summary
+    from fhobs.design import design_observer
+    from fhobs.kalman import with_kalman
+    from fhobs.spec import load_spec
+
+    check_output_folder(args.out)
+    spec = load_spec(args.spec)
+    gains = design_observer(spec)
+    noise = 0.0
+    if spec.noise is not None:
+        gains = with_kalman(gains, spec.noise)
+        noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
+    for line in design_summary(gains):
+        print(line)
+    step = args.step or (spec.noise.sample_time if spec.noise is not None else STEP)
+    stop_time = args.stop_time or RUNS_PER_SETTLING_TIME * spec.settling_time
+    stop_time = step * round(stop_time / step)
+    check_timing(step, 0.0, stop_time, "--step/--stop-time")
+    fmus = build_fmus(gains, args.out / "fmus", x0=spec.state_scale, noise_amplitude=noise,
+                      h=step)
+    system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise)
+    data = run_scenario(system, args.out, None, [args.seed] if noise else None, 1,
+                        not args.no_plots)
+    print(format_table({f"{args.spec.stem}": data}))
+    if not args.no_plots:
+        print(f"plots: {', '.join(data['plots'])}")
+    print(f"results in {args.out}, FMUs in {args.out / 'fmus'}")
+    return 0
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    for path in sorted(SCENARIO_DIR.glob("*.toml")):
+        first = path.read_text().splitlines()[0].lstrip("# ")
+        print(f"{path.stem:<22} {first}")
+    return 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from harness.ssp import export_ssp
 
@@ -337,10 +398,11 @@ def main(argv: list[str] | None = None) -> int:
     other failure: never a traceback.
     """
     args = _parser().parse_args(argv)
-    commands = {"run": _cmd_run, "paper": _cmd_paper, "export-ssp": _cmd_export}
+    commands = {"run": _cmd_run, "paper": _cmd_paper, "plant": _cmd_plant, "list": _cmd_list,
+                "export-ssp": _cmd_export}
     try:
         return commands[args.command](args)
-    except (DescriptionError, MasterError, OSError) as err:
+    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "
