@@ -43,8 +43,10 @@ substeps of size ``<= h``, with one of two schemes:
     contractive gain instead of diverging.
 
     **Round-off floor.** At a level s the gain amplifies an error of the measured output by
-    about ``||C|| ||d(ln s)|| / s^(1+nu)`` into the estimate (the dilated coordinates see the
-    output scaled by ``s^-(1+nu)``, and ``d(ln s)`` maps them back): for deep observability
+    about ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` into the estimate of the plant's state (the
+    dilated coordinates see the output scaled by ``s^-(1+nu)``, and the plant's rows of
+    ``d(ln s)`` map them back; a disturbance model's states are estimates of q, not of the
+    plant, and are left out): for deep observability
     chains (n_tilde large) this reaches 1e10 long before the contraction floor, and the
     round-off of y (1e-16 relative) alone then keeps the deep states' error at 1e-6..1e-3 (the
     Levant limit ``eps^(1/n_tilde)`` of exact differentiators). The level is therefore also
@@ -309,13 +311,14 @@ class _Observer:
         return taus
 
     def _amplification_level(self) -> float:
-        """The level s at which ``||C|| ||d(ln s)|| / s^(1+nu)`` equals ``AMPLIFICATION_LIMIT``
-        (bisection in ln s; 0 if no level below 1 reaches it)."""
+        """The level s at which ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` equals
+        ``AMPLIFICATION_LIMIT`` (bisection in ln s; 0 if no level below 1 reaches it);
+        ``(.)_x``: the rows of the plant's states (a disturbance model's states are not)."""
         g = self.gains
         dilation, c_norm = Dilation(g.G_d), np.linalg.norm(self._C, 2)
 
         def amplification(log_s: float) -> float:
-            return c_norm * np.linalg.norm(dilation.matrix(log_s), 2) / math.exp(
+            return c_norm * np.linalg.norm(dilation.matrix(log_s)[:g.n], 2) / math.exp(
                 (1.0 + g.nu) * log_s)
 
         lo, hi = -700.0, 0.0
