@@ -1,12 +1,16 @@
 """The in-process reference closed loop: Jacobi sequence, the paper's Euler runs, and the
-accuracy targets of the runtime (issue 3) on the paper's three scenarios.
+accuracy figures of the runtime on the paper's three scenarios.
 
-The targets are asserted for the default configuration of the pendulum example (our tuned
-gains with the disturbance model of order 1, default scheme); the paper's gains are run beside
-them in the same runs."""
+The figures are asserted for the default configuration of the pendulum example (our tuned
+gains with the disturbance model of order 1, default scheme), with the Kalman filter of its
+[noise] table on the same data; the paper's gains are run beside them in the same runs."""
+
+import dataclasses
 
 import numpy as np
 import pytest
+from fhobs.design import design_observer
+from fhobs.kalman import with_kalman
 from fhobs.plant import LTIPlant
 from fhobs.plots import plot_errors
 from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, simulate
@@ -26,8 +30,10 @@ def scenario_runs(gains) -> dict:
 
 
 @pytest.fixture(scope="module")
-def tuned_runs(tuned_gains):
-    return scenario_runs(tuned_gains)
+def tuned_runs(tuned_gains, pendulum_spec):
+    """The default design with the Kalman filter of the [noise] table (order 1, as ours),
+    which runs on the same recorded (y, u)."""
+    return scenario_runs(with_kalman(tuned_gains, pendulum_spec.noise))
 
 
 @pytest.fixture(scope="module")
@@ -76,10 +82,14 @@ def test_observer_trajectories_stay_finite(tuned_runs, paper_runs):
             assert all(np.all(np.isfinite(a)) for a in (r.x, r.z, r.z_lin, r.psi, r.xi, r.sigma))
 
 
-def test_perturbed_target(tuned_runs, paper_runs):
-    """Target: max of norm(x - z) over [1, 3] <= 1e-3. The paper's gains miss it: they are still
-    converging at t = 1.0 under the perturbation (about 3.7e-2 there)."""
-    assert accuracy_metrics(tuned_runs["perturbed"], "perturbed")["max_1_3"] <= 1e-3
+def test_perturbed_figure_and_the_kalman_filter(tuned_runs, paper_runs):
+    """Max of norm(x - z) over [1, 3]: measured 1.27e-5 (above the 1e-6 target: the runtime's
+    round-off floor of the gain level, 1e-12 here, makes the observer a fixed linear one
+    below it); the Kalman filter of the same disturbance order on the same data reaches
+    6.8e-3, 500x more. The paper's gains are still converging at t = 1.0 (about 3.7e-2)."""
+    ours = accuracy_metrics(tuned_runs["perturbed"], "perturbed")
+    assert ours["max_1_3"] <= 2e-5
+    assert ours["max_1_3_kalman"] >= 300 * ours["max_1_3"]
     assert accuracy_metrics(paper_runs["perturbed"], "perturbed")["max_1_3"] > 1e-2
 
 
@@ -91,14 +101,35 @@ def test_perturbation_is_rejected_after_convergence(paper_runs):  # the paper's 
     assert np.max(r.error[mask]) < 1e-3 < 1e-1 < np.max(r.error_lin[mask])
 
 
-def test_noisy_target_and_beats_paper(tuned_runs, paper_runs):
-    """Target: mean over 5 seeds of the RMS of norm(x - z) over [1, 3] <= 1.5e-2 and >= 25x
-    below the linear observer in the same runs (measured 1.13e-2, 38.6x); the paper's gains
-    reach 3.6e-2 (12x)."""
+def test_noisy_figure_beats_paper_not_kalman(tuned_runs, paper_runs):
+    """Mean over 5 seeds of the RMS of norm(x - z) over [1, 3]: measured 1.03e-2, 42x below the
+    linear observer in the same runs; the paper's gains reach 3.6e-2 (12x). The Kalman filter
+    of the same disturbance order wins on noise (6.61e-3; ours is 1.56x): the target (at most
+    the Kalman filter's) is not met by the default design."""
     ours = accuracy_metrics(tuned_runs["perturbed_noisy"], "perturbed_noisy")
     paper = accuracy_metrics(paper_runs["perturbed_noisy"], "perturbed_noisy")
-    assert ours["rms_1_3"] <= 1.5e-2 and ours["ratio"] >= 25.0
+    assert ours["rms_1_3"] <= 1.1e-2 and ours["ratio"] >= 25.0
     assert ours["rms_1_3"] < 0.5 * paper["rms_1_3"] and paper["ratio"] > 10.0
+    assert ours["rms_1_3_kalman"] < ours["rms_1_3"] <= 1.7 * ours["rms_1_3_kalman"]
+
+
+def test_least_noisy_order_one_design_of_the_search(pendulum_spec):
+    """The least noisy design of disturbance order 1 that the noise search found with a
+    perturbed max below 1e-5 (nu = -0.21, rho = 9, gamma = 4.5, filter_scale = 3; its own
+    closed loop, the Kalman filter of the [noise] table on the same data): nominal at
+    round-off, perturbed max 3.6e-6 (the Kalman filter: 6.8e-3), noisy RMS 7.18e-3 over
+    seeds 0..4, 1.09x the Kalman filter's 6.61e-3. Nearer the Kalman filter on noise than the
+    default and better on the perturbation too, but the targets (1e-6, and at most the Kalman
+    filter's RMS) are still missed."""
+    spec = dataclasses.replace(pendulum_spec, nu=-0.21, rho=9.0, gamma=4.5, filter_scale=3.0)
+    gains = with_kalman(design_observer(spec), pendulum_spec.noise)
+    nominal = accuracy_metrics([simulate(gains, "nominal", t_end=1.5)], "nominal")
+    perturbed = accuracy_metrics([simulate(gains, "perturbed")], "perturbed")
+    noisy = accuracy_metrics([simulate(gains, "perturbed_noisy", seed=s) for s in SEEDS],
+                             "perturbed_noisy")
+    assert nominal["error_1_5"] <= 1e-9
+    assert perturbed["max_1_3"] <= 5e-6 and perturbed["max_1_3_kalman"] >= 1e3 * 5e-6
+    assert noisy["rms_1_3_kalman"] < noisy["rms_1_3"] <= 1.15 * noisy["rms_1_3_kalman"]
 
 
 def test_disturbance_estimate_tracks_the_perturbation(tuned_runs):
