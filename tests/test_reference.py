@@ -16,6 +16,9 @@ from fhobs.plots import plot_errors
 from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, simulate
 from fhobs.runtime import FilteringObserver, LuenbergerObserver
 
+KALMAN_INTENSITY = {1: 10**-2.5, 2: 10**-0.5}
+"""The tuned process intensities of the Kalman filters of order 1 and 2 (bench_noise_tradeoff:
+the least noisy RMS on the tuning seed 10 of the grid 10^(j/2))."""
 SEEDS = range(5)
 
 
@@ -82,14 +85,13 @@ def test_observer_trajectories_stay_finite(tuned_runs, paper_runs):
             assert all(np.all(np.isfinite(a)) for a in (r.x, r.z, r.z_lin, r.psi, r.xi, r.sigma))
 
 
-def test_perturbed_figure_and_the_kalman_filter(tuned_runs, paper_runs):
-    """Max of norm(x - z) over [1, 3]: measured 1.27e-5 (above the 1e-6 target: the runtime's
-    round-off floor of the gain level, 1e-12 here, makes the observer a fixed linear one
-    below it); the Kalman filter of the same disturbance order on the same data reaches
-    6.8e-3, 500x more. The paper's gains are still converging at t = 1.0 (about 3.7e-2)."""
+def test_perturbed_target_and_the_kalman_filter(tuned_runs, paper_runs):
+    """Target: max of norm(x - z) over [1, 3] <= 1e-6 (measured 2.4e-7); the Kalman filter of
+    the same disturbance order on the same data reaches 6.8e-3, 1e4 times more. The paper's
+    gains are still converging at t = 1.0 (about 3.7e-2)."""
     ours = accuracy_metrics(tuned_runs["perturbed"], "perturbed")
-    assert ours["max_1_3"] <= 2e-5
-    assert ours["max_1_3_kalman"] >= 300 * ours["max_1_3"]
+    assert ours["max_1_3"] <= 1e-6
+    assert ours["max_1_3_kalman"] >= 1e3 * ours["max_1_3"]
     assert accuracy_metrics(paper_runs["perturbed"], "perturbed")["max_1_3"] > 1e-2
 
 
@@ -104,8 +106,7 @@ def test_perturbation_is_rejected_after_convergence(paper_runs):  # the paper's 
 def test_noisy_figure_beats_paper_not_kalman(tuned_runs, paper_runs):
     """Mean over 5 seeds of the RMS of norm(x - z) over [1, 3]: measured 1.03e-2, 42x below the
     linear observer in the same runs; the paper's gains reach 3.6e-2 (12x). The Kalman filter
-    of the same disturbance order wins on noise (6.61e-3; ours is 1.56x): the target (at most
-    the Kalman filter's) is not met by the default design."""
+    of the same disturbance order wins on noise (6.61e-3; ours is 1.56x)."""
     ours = accuracy_metrics(tuned_runs["perturbed_noisy"], "perturbed_noisy")
     paper = accuracy_metrics(paper_runs["perturbed_noisy"], "perturbed_noisy")
     assert ours["rms_1_3"] <= 1.1e-2 and ours["ratio"] >= 25.0
@@ -113,23 +114,29 @@ def test_noisy_figure_beats_paper_not_kalman(tuned_runs, paper_runs):
     assert ours["rms_1_3_kalman"] < ours["rms_1_3"] <= 1.7 * ours["rms_1_3_kalman"]
 
 
-def test_least_noisy_order_one_design_of_the_search(pendulum_spec):
-    """The least noisy design of disturbance order 1 that the noise search found with a
-    perturbed max below 1e-5 (nu = -0.21, rho = 9, gamma = 4.5, filter_scale = 3; its own
-    closed loop, the Kalman filter of the [noise] table on the same data): nominal at
-    round-off, perturbed max 3.6e-6 (the Kalman filter: 6.8e-3), noisy RMS 7.18e-3 over
-    seeds 0..4, 1.09x the Kalman filter's 6.61e-3. Nearer the Kalman filter on noise than the
-    default and better on the perturbation too, but the targets (1e-6, and at most the Kalman
-    filter's RMS) are still missed."""
-    spec = dataclasses.replace(pendulum_spec, nu=-0.21, rho=9.0, gamma=4.5, filter_scale=3.0)
-    gains = with_kalman(design_observer(spec), pendulum_spec.noise)
+@pytest.mark.slow
+def test_least_noisy_design_of_the_search(pendulum_spec):
+    """The least noisy certified design the noise search found (disturbance order 2,
+    nu = -0.18, rho = gamma = 8, filter_scale = 1.5; its own closed loop, Kalman filters on the
+    same data): nominal at round-off, perturbed max 7.4e-9, noisy RMS 5.4e-3 over seeds 0..4:
+    below the order-1 Kalman filter's 6.61e-3, above the order-2 one's 3.56e-3 (the filter of
+    the same model wins on noise, ours on the perturbation by five orders of magnitude)."""
+    spec = dataclasses.replace(pendulum_spec, disturbance_order=2, nu=-0.18, rho=8.0,
+                               gamma=8.0, filter_scale=1.5)
+    gains = design_observer(spec)
+    runs = {}
+    for order in (1, 2):
+        noise = dataclasses.replace(pendulum_spec.noise, disturbance_order=order,
+                                    process_intensity=KALMAN_INTENSITY[order])
+        g = with_kalman(gains, noise)
+        runs[order] = (accuracy_metrics([simulate(g, "perturbed")], "perturbed"),
+                       accuracy_metrics([simulate(g, "perturbed_noisy", seed=s) for s in SEEDS],
+                                        "perturbed_noisy"))
     nominal = accuracy_metrics([simulate(gains, "nominal", t_end=1.5)], "nominal")
-    perturbed = accuracy_metrics([simulate(gains, "perturbed")], "perturbed")
-    noisy = accuracy_metrics([simulate(gains, "perturbed_noisy", seed=s) for s in SEEDS],
-                             "perturbed_noisy")
+    (perturbed, noisy_1), (_, noisy_2) = runs[1], runs[2]
     assert nominal["error_1_5"] <= 1e-9
-    assert perturbed["max_1_3"] <= 5e-6 and perturbed["max_1_3_kalman"] >= 1e3 * 5e-6
-    assert noisy["rms_1_3_kalman"] < noisy["rms_1_3"] <= 1.15 * noisy["rms_1_3_kalman"]
+    assert perturbed["max_1_3"] <= 1e-7 and perturbed["max_1_3_kalman"] >= 1e4 * 1e-7
+    assert noisy_2["rms_1_3_kalman"] < noisy_1["rms_1_3"] < noisy_1["rms_1_3_kalman"]
 
 
 def test_disturbance_estimate_tracks_the_perturbation(tuned_runs):
