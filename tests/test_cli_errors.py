@@ -84,6 +84,7 @@ def test_design_refuses_a_chain_longer_than_the_limit_before_designing(tmp_path,
     assert f"n_tilde = {MAX_CHAIN + 2}" in err and f"n_tilde <= {MAX_CHAIN}" in err
 
 
+@pytest.mark.slow
 def test_the_limit_is_on_the_chain_not_on_n(tmp_path, capsys):
     """60 states in 6 measured chains of 10 (n_tilde = 10) design and pass the certificate."""
     code, err = _design(tmp_path, capsys, _chain(60, 6))

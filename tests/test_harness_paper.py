@@ -21,6 +21,8 @@ from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
 from harness.system import load_system, resolve_system
 
+pytestmark = pytest.mark.slow  # full-length co-simulations of the paper through the FMUs
+
 REFERENCE_NAMES = {
     "pendulum_nominal": "nominal",
     "pendulum_perturbed": "perturbed",

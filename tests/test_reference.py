@@ -16,6 +16,8 @@ from fhobs.plots import plot_errors
 from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, simulate
 from fhobs.runtime import FilteringObserver, LuenbergerObserver
 
+pytestmark = pytest.mark.slow  # full-length closed loops of the paper (5 seeds)
+
 KALMAN_INTENSITY = {1: 10**-2.5, 2: 10**-0.5}
 """The tuned process intensities of the Kalman filters of order 1 and 2 (bench_noise_tradeoff:
 the least noisy RMS on the tuning seed 10 of the grid 10^(j/2))."""

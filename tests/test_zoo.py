@@ -51,6 +51,7 @@ def default_design(name: str) -> ObserverGains:
     return design_observer(load_zoo_spec(ZOO[name]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_default_design_is_certified(name):
     gains = default_design(name)  # raises (LMIError, CertificateError, ...) if not certified
@@ -118,6 +119,7 @@ def error_system(gains: ObserverGains):
     return rhs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_continuous_error_system_converges(name):
     """x(0) = state_scale, observer at 0: eps(0) = -state_scale on the state, 0 on the
