@@ -71,10 +71,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fhobs import kernel as compiled
 from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
 from fhobs.injection import InjectionFlow
-from fhobs.linalg import ExpmFamily, zoh_blocks
+from fhobs.linalg import PHI1_SERIES, ExpmFamily, zoh_blocks
 from fhobs.plant import (
     ZOH_CACHE_SIZE,
     all_finite,
@@ -170,6 +171,7 @@ class _Observer:
         self.tau_max: float | None = None
         self._caps: dict[float, float] = {}
         self._roundoff_level: float | None = None
+        self._stepper: compiled.Stepper | None = None
 
     # -- public interface -------------------------------------------------------------------
     @property
@@ -204,10 +206,9 @@ class _Observer:
         inputs once). A non-finite result, a step needing more than ``MAX_SUBSTEPS`` internal
         euler steps, or a step size without a contractive gain cap still raises ValueError,
         the state unchanged."""
-        n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
-        if n_sub > MAX_SUBSTEPS:
-            raise ValueError(f"the step size {dt!r} is more than {MAX_SUBSTEPS} internal steps "
-                             f"of h = {self.h!r}; state left unchanged")
+        if self._stepper is not None and self._kernel_step(y, u, dt):
+            return
+        n_sub = self._substeps(dt)
         try:  # the schemes never write into their arguments: the state stays as it was
             if self.scheme == "split":
                 z, aux = self._run_split(self._z, self._aux, y, u, dt)
@@ -219,6 +220,56 @@ class _Observer:
             raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
                              "state left unchanged")
         self._z, self._aux = z, aux
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the split step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        return self._stepper is not None
+
+    def _use_kernel(self, function: str) -> None:
+        """Make the split step run in the kernel's ``function`` when the library is there
+        (call at the end of a subclass's construction, ``_aux`` set)."""
+        library = compiled.library()
+        if library is not None and self.scheme == "split":
+            self._stepper = compiled.Stepper(getattr(library, function),
+                                             (self._z.size, self._aux.size),
+                                             (self._k, self._m))
+
+    def _kernel_step(self, y: np.ndarray, u: np.ndarray, dt: float) -> bool:
+        """The split step in the kernel; False when the numpy step must make it instead
+        (the kernel's fallback code). ValueError as :meth:`advance`."""
+        stepper = self._stepper
+        calls = stepper.calls.get(dt)
+        if calls is None:
+            self._substeps(dt)
+            try:
+                calls = self._kernel_plan(dt)
+            except ArithmeticError as err:
+                raise floating_point_failure(self.scheme, err) from err
+        y_in, u_in = stepper.inputs
+        y_in[...] = y
+        u_in[...] = u
+        side = stepper.source(self._z, self._aux)
+        code = stepper.function(calls[side])
+        if code == compiled.OK:
+            self._z, self._aux = stepper.views[1 - side]
+            return True
+        if code == compiled.NONFINITE:
+            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                             "state left unchanged")
+        return False
+
+    def _kernel_plan(self, dt: float):
+        """Register the kernel's plan for the communication step dt; return its calls."""
+        raise NotImplementedError
+
+    def _substeps(self, dt: float) -> int:
+        """Number of internal steps of size <= h in dt (ValueError beyond ``MAX_SUBSTEPS``)."""
+        n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
+        if n_sub > MAX_SUBSTEPS:
+            raise ValueError(f"the step size {dt!r} is more than {MAX_SUBSTEPS} internal steps "
+                             f"of h = {self.h!r}; state left unchanged")
+        return n_sub
 
     def get_state(self) -> np.ndarray:
         """Full internal state ``[z, aux]`` (a copy)."""
@@ -403,11 +454,14 @@ class FilteringObserver(_Observer):
     tau_max : float or None
         Gain cap of the split scheme, ``dt sigma^nu <= tau_max`` (dt the communication step);
         None picks it automatically.
+    kernel : bool
+        Run the split step in the compiled kernel when it is available (:mod:`fhobs.kernel`;
+        not for the expm fallback of the injection flow); False: numpy only.
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
-                 xi0: float = 0.0, tau_max: float | None = None) -> None:
+                 xi0: float = 0.0, tau_max: float | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
         k = gains.k
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
@@ -417,6 +471,8 @@ class FilteringObserver(_Observer):
         self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
         self._p = gains.nu / 2.0 + 1.0
         self.tau_max = None if tau_max is None else float(tau_max)
+        if kernel and self._flow.eigen:
+            self._use_kernel("fhobs_filter_step")
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
         """``z``, ``psi``, ``xi`` and ``sigma``."""
@@ -474,6 +530,24 @@ class FilteringObserver(_Observer):
             else:
                 lo = mid
         return result
+
+    def _kernel_plan(self, dt: float):
+        """The kernel's plan for dt: the ZOH prediction, the gain-level floor and ceiling and
+        the injection flow's eigen data."""
+        prediction = self._prediction(dt)
+        floor, ceiling = self._floor(dt), self._ceiling(dt)
+        data = self._flow.kernel_arrays()
+        arrays = {"C": np.ascontiguousarray(self._C, dtype=float),
+                  "M": np.ascontiguousarray(prediction.M), "F": np.ascontiguousarray(prediction.F),
+                  **{name: data[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")},
+                  "factors": np.zeros(4 * self._k, dtype=complex),
+                  "last_tau": np.array([math.nan])}
+        plan = compiled.FilterPlan(
+            n=self._z.size, k=self._k, m=self._m, real_lam=int(data["real_lam"]), nu=self._nu,
+            gamma=float(self.gains.gamma), p=self._p, dt=dt, floor_level=floor,
+            ceiling=ceiling, mismatch=LEVEL_MISMATCH, tiny=data["tiny"], series=PHI1_SERIES,
+            **{name: compiled.pointer(array) for name, array in arrays.items()})
+        return self._stepper.add_plan(dt, plan, *arrays.values())
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
@@ -586,6 +660,16 @@ class LuenbergerObserver(_Observer):
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
-                 z0: np.ndarray | None = None) -> None:
+                 z0: np.ndarray | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
         self._aux = np.zeros(0)
+        if kernel:
+            self._use_kernel("fhobs_luenberger_step")
+
+    def _kernel_plan(self, dt: float):
+        """The kernel's plan for dt: ``z+ = M (z, u, C z - y)``."""
+        C = np.ascontiguousarray(self._C, dtype=float)
+        M = np.ascontiguousarray(self._prediction(dt).M)
+        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
+                                   C=compiled.pointer(C), M=compiled.pointer(M))
+        return self._stepper.add_plan(dt, plan, C, M)
