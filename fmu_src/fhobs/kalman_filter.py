@@ -111,7 +111,7 @@ class KalmanObserver:
             self._z = as_finite_vector(z0, size, "z0")
         library = compiled.library() if kernel else None
         self._stepper = None if library is None else compiled.Stepper(
-            library.fhobs_kalman_step, (size,), (self._k, self._m))
+            library.fhobs_kalman_step, (size,), (self._k, self._m), self._kernel_plan)
 
     @property
     def z(self) -> np.ndarray:
@@ -143,8 +143,12 @@ class KalmanObserver:
     def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """:meth:`step` without checking y, u (finite, of k and m entries) and the sign of dt;
         a dt that is not a multiple of Ts and a non-finite result still raise ValueError."""
-        if self._stepper is not None:
-            self._kernel_step(y, u, dt)
+        stepper = self._stepper
+        if stepper is not None:
+            if stepper.run(dt, self._z, self._z, y, u) != compiled.OK:
+                raise ValueError("the Kalman step diverged (non-finite state); state left "
+                                 "unchanged")
+            self._z = stepper.state[0]
             return
         n_cycles = cycles_per_step(dt, self.sample_time)
         z, tail = self._z, np.concatenate((y, u))
@@ -162,24 +166,13 @@ class KalmanObserver:
         """Whether the cycles run in the compiled kernel (:mod:`fhobs.kernel`)."""
         return self._stepper is not None
 
-    def _kernel_step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
-        """:meth:`advance` in the kernel."""
-        stepper = self._stepper
-        calls = stepper.calls.get(dt)
-        if calls is None:
-            n_cycles = cycles_per_step(dt, self.sample_time)
-            work = np.zeros(2 * self._z.size)
-            plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=n_cycles,
-                                       M=compiled.pointer(self._cycle),
-                                       work=compiled.pointer(work))
-            calls = stepper.add_plan(dt, plan, self._cycle, work)
-        y_in, u_in = stepper.inputs
-        y_in[...] = y
-        u_in[...] = u
-        side = stepper.source(self._z, self._z)
-        if stepper.function(calls[side]) != compiled.OK:
-            raise ValueError("the Kalman step diverged (non-finite state); state left unchanged")
-        self._z = stepper.views[1 - side][0]
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan for dt (ValueError if dt is not a multiple of Ts)."""
+        work = np.zeros(2 * self._z.size)
+        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m,
+                                   cycles=cycles_per_step(dt, self.sample_time),
+                                   M=compiled.pointer(self._cycle), work=compiled.pointer(work))
+        self._stepper.add_plan(dt, plan, self._cycle, work)
 
     def get_state(self) -> np.ndarray:
         """The full internal state (a copy): the prediction z."""

@@ -177,7 +177,8 @@ def pointer(array: np.ndarray) -> ctypes.POINTER:
 
 
 class Call(ctypes.Structure):
-    """``Call`` of kernel.c: the one argument of a step function."""
+    """``Call`` of kernel.c: the one argument of a step function (plan, state read, state
+    written, inputs)."""
 
     _fields_ = [("plan", ctypes.c_void_p), ("src", ctypes.c_void_p), ("dst", ctypes.c_void_p),
                 ("inputs", ctypes.c_void_p)]
@@ -193,59 +194,73 @@ class Stepper:
     sizes : tuple of int
         Sizes of the model's state arrays, stored one after the other in each buffer.
     inputs : tuple of int
-        Sizes of the held inputs, one after the other in the input buffer.
+        Sizes of the two inputs held over a step, one after the other in the input buffer.
+    make_plan : callable
+        ``make_plan(dt)`` prepares the plan of a step size at its first use and registers it
+        with :meth:`add_plan` (it may raise ValueError: the step is then refused).
 
     Attributes
     ----------
-    function : ctypes function
-        As given.
-    views : list of tuple of np.ndarray
-        For each buffer, the state arrays (views).
-    inputs : tuple of np.ndarray
-        Views of the input buffer, one per input (the model copies its inputs there).
-    calls : dict
-        Step size -> the pair of calls (``Call`` pointers) stepping from buffer 0 into buffer
-        1 and from 1 into 0 (:meth:`add_plan`).
+    state : tuple of np.ndarray
+        The state arrays written by the last successful :meth:`run` (views of a buffer).
     """
 
-    def __init__(self, function, sizes: tuple[int, ...], inputs: tuple[int, ...]) -> None:
-        self.function = function
+    def __init__(self, function, sizes: tuple[int, ...], inputs: tuple[int, int],
+                 make_plan) -> None:
+        self._function = function
+        self._make_plan = make_plan
         self._buffers = [np.zeros(sum(sizes)), np.zeros(sum(sizes))]
-        self.views = [_split(buffer, sizes) for buffer in self._buffers]
+        self._views = [_split(buffer, sizes) for buffer in self._buffers]
         self._input_buffer = np.zeros(max(sum(inputs), 1))
-        self.inputs = _split(self._input_buffer, inputs)
-        self._first = [views[0] for views in self.views]
-        self._last = [views[-1] for views in self.views]
-        self.calls: dict[float, tuple[ctypes.c_void_p, ctypes.c_void_p]] = {}
+        self._in_a, self._in_b = _split(self._input_buffer, inputs)
+        self._first = [views[0] for views in self._views]
+        self._last = [views[-1] for views in self._views]
+        self._calls: dict[float, tuple[ctypes.c_void_p, ctypes.c_void_p]] = {}
         self._kept: dict[float, tuple] = {}
+        self.state = self._views[0]
 
-    def add_plan(self, dt: float, plan: ctypes.Structure,
-                 *arrays: np.ndarray) -> tuple[ctypes.c_void_p, ctypes.c_void_p]:
+    def add_plan(self, dt: float, plan: ctypes.Structure, *arrays: np.ndarray) -> None:
         """Register the plan of step size dt (``arrays``: what its pointers point into, kept
-        alive with it) and return its pair of calls."""
-        if len(self.calls) >= PLAN_CACHE_SIZE:
-            self.calls.clear()
+        alive with it)."""
+        if len(self._calls) >= PLAN_CACHE_SIZE:
+            self._calls.clear()
             self._kept.clear()
         ends = [buffer.ctypes.data for buffer in self._buffers]
         inputs = self._input_buffer.ctypes.data
         structs = [Call(ctypes.addressof(plan), ends[side], ends[1 - side], inputs)
                    for side in (0, 1)]
         self._kept[dt] = (plan, arrays, structs)
-        calls = self.calls[dt] = tuple(ctypes.c_void_p(ctypes.addressof(c)) for c in structs)
-        return calls
+        self._calls[dt] = tuple(ctypes.c_void_p(ctypes.addressof(c)) for c in structs)
 
-    def source(self, first: np.ndarray, last: np.ndarray) -> int:
-        """The buffer (0 or 1) whose views are the model's current state arrays ``first``
-        (and ``last``, the same for a one-array state). A state held elsewhere (after
-        ``set_state`` or a rollback to it) is copied into buffer 0 first, which is then not
-        the state: its arrays are left as they are, the step replaces them."""
+    def run(self, dt: float, first: np.ndarray, last: np.ndarray, a: np.ndarray,
+            b: np.ndarray) -> int:
+        """Step the state whose arrays are ``first`` ... ``last`` (the same for a one-array
+        state) by dt with the inputs ``a``, ``b`` held; the kernel's return code, the new
+        state in :attr:`state` when it is ``OK``.
+
+        The state is read from the buffer whose views ``first`` and ``last`` are, and the other
+        buffer is written: the arrays of the state before the step are never written by it. A
+        state held elsewhere (after ``set_state``, or a rollback to it) is first copied into
+        buffer 0 (then not the state: its arrays stay as they are).
+        """
+        calls = self._calls.get(dt)
+        if calls is None:
+            self._make_plan(dt)
+            calls = self._calls[dt]
+        self._in_a[...] = a
+        self._in_b[...] = b
         if first is self._first[0] and last is self._last[0]:
-            return 0
-        if first is self._first[1] and last is self._last[1]:
-            return 1
-        for view, array in zip(self.views[0], (first, last), strict=False):
-            view[...] = array
-        return 0
+            side = 0
+        elif first is self._first[1] and last is self._last[1]:
+            side = 1
+        else:
+            side = 0
+            for view, array in zip(self._views[0], (first, last), strict=False):
+                view[...] = array
+        code = self._function(calls[side])
+        if code == OK:
+            self.state = self._views[1 - side]
+        return code
 
 
 def _split(buffer: np.ndarray, sizes: tuple[int, ...]) -> tuple[np.ndarray, ...]:

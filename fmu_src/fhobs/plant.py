@@ -145,7 +145,8 @@ class LTIPlant:
         self._no_q = np.zeros(self.E.shape[1])
         library = compiled.library() if kernel and scheme == "zoh" else None
         self._stepper = None if library is None else compiled.Stepper(
-            library.fhobs_plant_step, (n,), (self.B.shape[1], self.E.shape[1]))
+            library.fhobs_plant_step, (n,), (self.B.shape[1], self.E.shape[1]),
+            self._kernel_plan)
 
     @property
     def x(self) -> np.ndarray:
@@ -176,8 +177,12 @@ class LTIPlant:
         not None) finite float vectors of the right sizes, dt positive and finite."""
         if q is None:
             q = self._no_q
-        if self._stepper is not None:
-            self._kernel_step(u, q, dt)
+        stepper = self._stepper
+        if stepper is not None:
+            if stepper.run(dt, self._x, self._x, u, q) != compiled.OK:
+                raise ValueError("the plant state overflowed; state left unchanged")
+            self._x = stepper.state[0]
+            self._k += 1
             return
         try:
             if self.scheme == "euler":
@@ -197,30 +202,15 @@ class LTIPlant:
         """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
         return self._stepper is not None
 
-    def _kernel_step(self, u: np.ndarray, q: np.ndarray, dt: float) -> None:
-        """:meth:`advance` in the kernel."""
-        stepper = self._stepper
-        calls = stepper.calls.get(dt)
-        if calls is None:
-            calls = self._kernel_plan(dt)
-        u_in, q_in = stepper.inputs
-        u_in[...] = u
-        q_in[...] = q
-        side = stepper.source(self._x, self._x)
-        if stepper.function(calls[side]) != compiled.OK:
-            raise ValueError("the plant state overflowed; state left unchanged")
-        self._x = stepper.views[1 - side][0]
-        self._k += 1
-
-    def _kernel_plan(self, dt: float) -> tuple:
-        """Register the kernel's plan for dt (the ZOH matrices); return its calls."""
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan for dt (the ZOH matrices)."""
         try:
             blocks = [np.ascontiguousarray(block) for block in self._blocks(dt)]
         except ArithmeticError as err:
             raise floating_point_failure("plant", err) from err
         n, m, r = (block.shape[1] for block in blocks)
         plan = compiled.PlantPlan(n, m, r, *(compiled.pointer(block) for block in blocks))
-        return self._stepper.add_plan(dt, plan, *blocks)
+        self._stepper.add_plan(dt, plan, *blocks)
 
     def _blocks(self, dt: float) -> list[np.ndarray]:
         """ZOH matrices ``[expm(dt A), Gamma_B, Gamma_E]`` for the step dt (cached per dt)."""

@@ -206,8 +206,14 @@ class _Observer:
         inputs once). A non-finite result, a step needing more than ``MAX_SUBSTEPS`` internal
         euler steps, or a step size without a contractive gain cap still raises ValueError,
         the state unchanged."""
-        if self._stepper is not None and self._kernel_step(y, u, dt):
-            return
+        stepper = self._stepper
+        if stepper is not None:  # the kernel, unless its code asks for the numpy step
+            code = stepper.run(dt, self._z, self._aux, y, u)
+            if code == compiled.OK:
+                self._z, self._aux = stepper.state
+                return
+            if code == compiled.NONFINITE:
+                raise self._diverged()
         n_sub = self._substeps(dt)
         try:  # the schemes never write into their arguments: the state stays as it was
             if self.scheme == "split":
@@ -217,9 +223,13 @@ class _Observer:
         except ArithmeticError as err:
             raise floating_point_failure(self.scheme, err) from err
         if not (all_finite(z) and all_finite(aux)):
-            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
-                             "state left unchanged")
+            raise self._diverged()
         self._z, self._aux = z, aux
+
+    def _diverged(self) -> ValueError:
+        """The error of a step whose result is not finite."""
+        return ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                          "state left unchanged")
 
     @property
     def compiled(self) -> bool:
@@ -233,34 +243,18 @@ class _Observer:
         if library is not None and self.scheme == "split":
             self._stepper = compiled.Stepper(getattr(library, function),
                                              (self._z.size, self._aux.size),
-                                             (self._k, self._m))
+                                             (self._k, self._m), self._first_kernel_step)
 
-    def _kernel_step(self, y: np.ndarray, u: np.ndarray, dt: float) -> bool:
-        """The split step in the kernel; False when the numpy step must make it instead
-        (the kernel's fallback code). ValueError as :meth:`advance`."""
-        stepper = self._stepper
-        calls = stepper.calls.get(dt)
-        if calls is None:
-            self._substeps(dt)
-            try:
-                calls = self._kernel_plan(dt)
-            except ArithmeticError as err:
-                raise floating_point_failure(self.scheme, err) from err
-        y_in, u_in = stepper.inputs
-        y_in[...] = y
-        u_in[...] = u
-        side = stepper.source(self._z, self._aux)
-        code = stepper.function(calls[side])
-        if code == compiled.OK:
-            self._z, self._aux = stepper.views[1 - side]
-            return True
-        if code == compiled.NONFINITE:
-            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
-                             "state left unchanged")
-        return False
+    def _first_kernel_step(self, dt: float) -> None:
+        """At the first step of size dt: its checks, then the kernel's plan."""
+        self._substeps(dt)
+        try:
+            self._kernel_plan(dt)
+        except ArithmeticError as err:
+            raise floating_point_failure(self.scheme, err) from err
 
-    def _kernel_plan(self, dt: float):
-        """Register the kernel's plan for the communication step dt; return its calls."""
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan for the communication step dt."""
         raise NotImplementedError
 
     def _substeps(self, dt: float) -> int:
@@ -531,7 +525,7 @@ class FilteringObserver(_Observer):
                 lo = mid
         return result
 
-    def _kernel_plan(self, dt: float):
+    def _kernel_plan(self, dt: float) -> None:
         """The kernel's plan for dt: the ZOH prediction, the gain-level floor and ceiling and
         the injection flow's eigen data."""
         prediction = self._prediction(dt)
@@ -547,7 +541,7 @@ class FilteringObserver(_Observer):
             gamma=float(self.gains.gamma), p=self._p, dt=dt, floor_level=floor,
             ceiling=ceiling, mismatch=LEVEL_MISMATCH, tiny=data["tiny"], series=PHI1_SERIES,
             **{name: compiled.pointer(array) for name, array in arrays.items()})
-        return self._stepper.add_plan(dt, plan, *arrays.values())
+        self._stepper.add_plan(dt, plan, *arrays.values())
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
@@ -666,10 +660,10 @@ class LuenbergerObserver(_Observer):
         if kernel:
             self._use_kernel("fhobs_luenberger_step")
 
-    def _kernel_plan(self, dt: float):
+    def _kernel_plan(self, dt: float) -> None:
         """The kernel's plan for dt: ``z+ = M (z, u, C z - y)``."""
         C = np.ascontiguousarray(self._C, dtype=float)
         M = np.ascontiguousarray(self._prediction(dt).M)
         plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
                                    C=compiled.pointer(C), M=compiled.pointer(M))
-        return self._stepper.add_plan(dt, plan, C, M)
+        self._stepper.add_plan(dt, plan, C, M)
