@@ -22,6 +22,7 @@ temporary folder).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import json
 import math
@@ -29,6 +30,7 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -48,16 +50,6 @@ from harness.system import resolve_system
 
 T_END = 1.5
 CALLS = 3000
-
-
-def best_of(repeat: int, fn) -> float:
-    """Smallest wall time of ``repeat`` calls of ``fn`` (seconds)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> dict[str, float]:
@@ -141,79 +133,83 @@ def model_step_costs(gains: ObserverGains, repeat: int, kernel: bool) -> dict[st
     return costs
 
 
-def bare_numpy_loop(gains: ObserverGains, steps: int, repeat: int) -> float:
-    """Seconds for ``steps`` steps of three linear 4-state updates in a plain numpy loop (best
-    of ``repeat``): the plant ``x = Ad x + Bd u`` and two observers
-    ``z = Ad z + Bd u + L (C z - y)`` (the Luenberger gain's ZOH), u = K z of the first."""
+def bare_numpy_loop(gains: ObserverGains, steps: int) -> None:
+    """``steps`` steps of three linear 4-state updates in a plain numpy loop: the plant
+    ``x = Ad x + Bd u`` and two observers ``z = Ad z + Bd u + L (C z - y)`` (the Luenberger
+    gain's ZOH), u = K z of the first."""
     Ad, Bd, Ld = zoh_blocks(gains.A, [gains.B, gains.L_lin], H_PAPER)
     C, K = gains.C, K_PAPER
-
-    def loop() -> None:
-        x, z1, z2 = X0_PAPER.copy(), np.zeros(4), np.zeros(4)
-        for _ in range(steps):
-            y, u = C @ x, K @ z1
-            x = Ad @ x + Bd @ u
-            z1 = Ad @ z1 + Bd @ u + Ld @ (C @ z1 - y)
-            z2 = Ad @ z2 + Bd @ u + Ld @ (C @ z2 - y)
-
-    return best_of(repeat, loop)
+    x, z1, z2 = X0_PAPER.copy(), np.zeros(4), np.zeros(4)
+    for _ in range(steps):
+        y, u = C @ x, K @ z1
+        x = Ad @ x + Bd @ u
+        z1 = Ad @ z1 + Bd @ u + Ld @ (C @ z1 - y)
+        z2 = Ad @ z2 + Bd @ u + Ld @ (C @ z2 - y)
 
 
-def harness_without_models(system, repeat: int) -> float:
-    """Wall time of the harness run with every FMU model's ``advance`` made a no-op (best of
-    ``repeat``): what the FMI calls, the slaves and the master cost without any arithmetic.
+def _vendored(suffixes: tuple[str, ...], names: tuple[str, ...]) -> list[type]:
+    """Classes of the FMUs' vendored ``fhobs_<hash>`` packages loaded in this interpreter (the
+    FMUs' Python runs here)."""
+    return [getattr(module, name) for key, module in list(sys.modules.items())
+            if key.startswith("fhobs_") and key.endswith(suffixes)
+            for name in names if hasattr(module, name)]
 
-    The FMUs' Python runs in this interpreter, from the vendored ``fhobs_<hash>`` packages
-    they import; their runtime, plant and Kalman classes are patched there and restored."""
-    run_system(system, T_END, progress=False)  # loads the FMUs' packages
-    classes = [getattr(module, name) for key, module in list(sys.modules.items())
-               if key.startswith("fhobs_")
-               and key.endswith((".runtime", ".plant", ".kalman_filter"))
-               for name in ("FilteringObserver", "LuenbergerObserver", "LTIPlant",
-                            "KalmanObserver")
-               if hasattr(module, name)]
-    originals = [cls.advance for cls in classes]
+
+@contextlib.contextmanager
+def _patched(classes: list[type], name: str, replacement) -> Iterator[None]:
+    """Replace a method of the classes for the duration of the block."""
+    originals = [cls.__dict__[name] for cls in classes]
     try:
         for cls in classes:
-            cls.advance = lambda self, *args: None
-        return best_of(repeat, lambda: run_system(system, T_END, progress=False))
+            setattr(cls, name, replacement)
+        yield
     finally:
-        for cls, advance in zip(classes, originals, strict=True):
-            cls.advance = advance
+        for cls, original in zip(classes, originals, strict=True):
+            setattr(cls, name, original)
 
 
-def harness_with_python_loop(system, repeat: int) -> float:
-    """The harness run with the master's step loop in Python (no ``harness/step_loop.c``)."""
-    with_env = {native.DISABLE_ENV: "1"}
-    saved = {k: os.environ.get(k) for k in with_env}
-    os.environ.update(with_env)
+def no_model_steps() -> contextlib.AbstractContextManager:
+    """Every FMU model's ``advance`` a no-op: what the FMI calls, the slaves and the master
+    cost without any arithmetic."""
+    classes = _vendored((".runtime", ".plant", ".kalman_filter"),
+                        ("_Observer", "LTIPlant", "KalmanObserver"))
+    return _patched(classes, "advance", lambda self, *args: None)
+
+
+def no_wrapper_paths() -> contextlib.AbstractContextManager:
+    """The slaves do not register with the status wrapper: every fmi2GetReal / fmi2SetReal /
+    fmi2DoStep goes through pythonfmu (the wrapper still answers with fmi2Error)."""
+    return _patched(_vendored((".fmu.slave_base",), ("FhobsSlave",)), "_register_with_wrapper",
+                    lambda self: False)
+
+
+@contextlib.contextmanager
+def python_step_loop() -> Iterator[None]:
+    """The master's step loop in Python (no ``harness/step_loop.c``)."""
+    saved = os.environ.get(native.DISABLE_ENV)
+    os.environ[native.DISABLE_ENV] = "1"
     native.step_library.cache_clear()
     try:
-        return best_of(repeat, lambda: run_system(system, T_END, progress=False))
+        yield
     finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+        if saved is None:
+            os.environ.pop(native.DISABLE_ENV, None)
+        else:
+            os.environ[native.DISABLE_ENV] = saved
         native.step_library.cache_clear()
 
 
-def harness_without_wrapper_paths(system, repeat: int) -> float:
-    """The harness run with the slaves not registering with the status wrapper: every
-    fmi2GetReal / fmi2SetReal / fmi2DoStep goes through pythonfmu (the wrapper still answers
-    with fmi2Error). The vendored slave base classes are patched and restored."""
-    run_system(system, T_END, progress=False)
-    bases = [module.FhobsSlave for key, module in list(sys.modules.items())
-             if key.startswith("fhobs_") and key.endswith(".fmu.slave_base")]
-    originals = [base._register_with_wrapper for base in bases]
-    try:
-        for base in bases:
-            base._register_with_wrapper = lambda self: False
-        return best_of(repeat, lambda: run_system(system, T_END, progress=False))
-    finally:
-        for base, original in zip(bases, originals, strict=True):
-            base._register_with_wrapper = original
+def interleaved(runs: dict[str, tuple], repeat: int) -> dict[str, float]:
+    """Best wall time of each run ``name -> (function, context factory)``, the runs taking
+    turns ``repeat`` times (so that a change of the shared machine's load hits them alike)."""
+    best = dict.fromkeys(runs, math.inf)
+    for _ in range(repeat):
+        for name, (function, context) in runs.items():
+            with context():
+                start = time.perf_counter()
+                function()
+                best[name] = min(best[name], time.perf_counter() - start)
+    return best
 
 
 def call_costs(fmu_dir: Path) -> dict[str, dict[str, float]]:
@@ -234,61 +230,64 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
-    harness_s, systems = {}, {}
+    systems = {}
     with tempfile.TemporaryDirectory() as tmp:
         for kernel in (True, False):
             label = "kernel" if kernel else "numpy"
             fmu_dir = build_paper_fmus(Path(tmp) / label, kernel=kernel)
             systems[label] = resolve_system(
                 load_scenario("pendulum_nominal", fmu_dir, Path(tmp) / f"b_{label}"))
+            run_system(systems[label], T_END, progress=False)  # loads the FMUs' packages
         gains = ObserverGains.load_json(fmu_dir / "design.json")
         steps = int(round(T_END / systems["kernel"].spec.step))
-        bare_s = bare_numpy_loop(gains, steps, args.repeat)
-        for label, system in systems.items():
-            harness_s[label] = best_of(args.repeat,
-                                       lambda s=system: run_system(s, T_END, progress=False))
-        plumbing = {
-            "python_step_loop": harness_with_python_loop(systems["kernel"], args.repeat),
-            "no_wrapper_paths": harness_without_wrapper_paths(systems["kernel"], args.repeat),
-            "no_model_steps": harness_without_models(systems["kernel"], args.repeat),
-        }
-        reference_s = {kernel: best_of(args.repeat, lambda k=kernel: simulate(
-            gains, "nominal", t_end=T_END, kernel=k)) for kernel in (True, False)}
+        plain = contextlib.nullcontext
+
+        def harness(label: str):
+            return lambda: run_system(systems[label], T_END, progress=False)
+
+        times = interleaved({
+            "harness_kernel": (harness("kernel"), plain),
+            "harness_numpy": (harness("numpy"), plain),
+            "bare_numpy_loop": (lambda: bare_numpy_loop(gains, steps), plain),
+            "reference_kernel": (lambda: simulate(gains, "nominal", t_end=T_END), plain),
+            "reference_numpy": (lambda: simulate(gains, "nominal", t_end=T_END, kernel=False),
+                                plain),
+            "python_step_loop": (harness("kernel"), python_step_loop),
+            "no_wrapper_paths": (harness("kernel"), no_wrapper_paths),
+            "no_model_steps": (harness("kernel"), no_model_steps),
+        }, args.repeat)
         fmu_costs = call_costs(Path(tmp) / "kernel")
     runtime_costs = {label: model_step_costs(gains, args.repeat, kernel)
                      for label, kernel in (("kernel", True), ("numpy", False))}
+    harness_s = times["harness_kernel"]
     report = {
         "steps": steps,
-        "harness_s": harness_s,
-        "bare_numpy_loop_s": bare_s,
-        "harness_over_bare_loop": harness_s["kernel"] / bare_s,
-        "reference_s": {"kernel": reference_s[True], "numpy": reference_s[False]},
-        "plumbing_off_s": plumbing,
+        "seconds": times,
+        "harness_over_bare_loop": harness_s / times["bare_numpy_loop"],
         "runtime_step_us": runtime_costs,
         "fmu_call_us": fmu_costs,
         "targets": {
             "observer_step_us<=2": runtime_costs["kernel"]["observer"] <= 2.0,
-            "harness_s<=0.5": harness_s["kernel"] <= 0.5,
-            "harness<=bare_loop": harness_s["kernel"] <= bare_s,
+            "harness_s<=0.5": harness_s <= 0.5,
+            "harness<=bare_loop": harness_s <= times["bare_numpy_loop"],
         },
     }
     print(f"nominal to t = {T_END} ({steps} steps, {len(systems['kernel'].fmus)} FMUs), "
-          f"best of {args.repeat}:")
+          f"best of {args.repeat} (runs interleaved):")
     print("| what | kernel | numpy |")
     print("|---|---|---|")
-    print(f"| harness, s | {harness_s['kernel']:.3f} | {harness_s['numpy']:.3f} |")
-    print(f"| in-process reference loop, s | {reference_s[True]:.3f} | "
-          f"{reference_s[False]:.3f} |")
+    print(f"| harness, s | {harness_s:.3f} | {times['harness_numpy']:.3f} |")
+    print(f"| in-process reference loop, s | {times['reference_kernel']:.3f} | "
+          f"{times['reference_numpy']:.3f} |")
     for name in runtime_costs["kernel"]:
         print(f"| {name} advance in process, us/step | {runtime_costs['kernel'][name]:.2f} | "
               f"{runtime_costs['numpy'][name]:.2f} |")
-    print(f"| bare numpy loop (3 linear 4-state updates), s | {bare_s:.3f} | |")
+    print(f"| bare numpy loop (3 linear 4-state updates), s | {times['bare_numpy_loop']:.3f} | |")
     print(f"harness (kernel) / bare numpy loop: {report['harness_over_bare_loop']:.2f}; "
           f"targets: {report['targets']}")
-    print("speed plumbing, harness with the kernel and one piece off, s "
-          f"(all on: {harness_s['kernel']:.3f}):")
-    for name, seconds in plumbing.items():
-        print(f"  {name:18s} {seconds:.3f}  ({seconds / harness_s['kernel'] - 1:+.0%})")
+    print(f"harness with the kernel and one piece off, s (all on: {harness_s:.3f}):")
+    for name in ("python_step_loop", "no_wrapper_paths", "no_model_steps"):
+        print(f"  {name:18s} {times[name]:.3f}  ({times[name] / harness_s - 1:+.0%})")
     print("per step, us: FMU calls (kernel FMUs, set/doStep/get, fixed inputs)")
     for name, costs in fmu_costs.items():
         print(f"    {name:9s} " + " ".join(f"{k}={v:.1f}" for k, v in costs.items()))
