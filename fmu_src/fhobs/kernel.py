@@ -158,6 +158,10 @@ def compile_library(target: Path, compiler: str) -> None:
     ------
     OSError, subprocess.SubprocessError
         If the compiler fails or cannot be run.
+
+    Examples
+    --------
+    >>> compile_library(Path("build/kernel_linux64.so"), "cc")  # doctest: +SKIP
     """
     fd, partial = tempfile.mkstemp(suffix=".so", dir=target.parent)
     os.close(fd)
@@ -170,8 +174,15 @@ def compile_library(target: Path, compiler: str) -> None:
             os.unlink(partial)
 
 
-def pointer(array: np.ndarray) -> ctypes.POINTER:
-    """A ``double *`` to a C-contiguous float64 or complex128 array (kept alive by the caller)."""
+def pointer(array: np.ndarray) -> ctypes._Pointer:
+    """A ``double *`` to a C-contiguous float64 or complex128 array (kept alive by the caller).
+
+    Examples
+    --------
+    >>> values = np.array([1.0, 2.0])
+    >>> pointer(values)[1]
+    2.0
+    """
     assert array.flags.c_contiguous and array.dtype in (np.float64, np.complex128)
     return ctypes.cast(array.ctypes.data, _DOUBLE_P)
 
@@ -203,6 +214,14 @@ class Stepper:
     ----------
     state : tuple of np.ndarray
         The state arrays written by the last successful :meth:`run` (views of a buffer).
+
+    Examples
+    --------
+    As :class:`fhobs.plant.LTIPlant` uses it (``make_plan`` registers a ``PlantPlan``)::
+
+        stepper = Stepper(library().fhobs_plant_step, (n,), (m, r), make_plan)
+        if stepper.run(dt, x, x, u, q) == OK:
+            x = stepper.state[0]
     """
 
     def __init__(self, function, sizes: tuple[int, ...], inputs: tuple[int, int],
