@@ -16,7 +16,7 @@ import fhobs.reference as reference
 import numpy as np
 import pytest
 from fhobs import kernel
-from fhobs.build import build_fmus
+from fhobs.build import BuildError, build_fmus
 from fhobs.design import design_observer
 from fhobs.kalman import with_kalman
 from fhobs.kalman_filter import KalmanObserver
@@ -257,6 +257,21 @@ def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
     assert not FilteringObserver(tuned_gains).compiled
     assert not LTIPlant(tuned_gains.A, tuned_gains.B, tuned_gains.C).compiled
+
+
+def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_gains, tmp_path):
+    """No cc/gcc: the runtime falls back to numpy silently; build_fmus(kernel=True) refuses."""
+    with monkeypatch.context() as patch:
+        patch.setattr(kernel.shutil, "which", lambda name: None)
+        kernel._load.cache_clear()
+        try:
+            assert kernel.library() is None
+            assert not FilteringObserver(tuned_gains).compiled
+            with pytest.raises(BuildError, match="kernel=True needs Linux and a C compiler"):
+                build_fmus(tuned_gains, tmp_path / "fmus", kinds=("plant",), kernel=True)
+        finally:
+            kernel._load.cache_clear()  # found again below, the compiler back
+    assert kernel.library() is not None
 
 
 # -- the paper's scenarios end to end ---------------------------------------------------------
