@@ -21,7 +21,7 @@ from fhobs.design import design_observer
 from fhobs.kalman import with_kalman
 from fhobs.kalman_filter import KalmanObserver
 from fhobs.plant import LTIPlant
-from fhobs.runtime import FilteringObserver, LuenbergerObserver
+from fhobs.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.spec import NoiseSpec, spec_from_dict
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
@@ -124,6 +124,17 @@ def test_filtering_observer_matches_numpy_on_random_designs(case, dt):
     a, b, numpy_steps = run_pair(make, ys, us, dt)
     assert relative(a, b) <= tolerance(make, ys, us, dt)  # RTOL but for seed 2 (3.5e-12)
     assert numpy_steps <= 2
+
+
+@pytest.mark.parametrize("case", RANDOM_CASES)
+@pytest.mark.parametrize(("dt", "h"), [(5e-5, 5e-5), (2e-4, 5e-5)])
+def test_euler_scheme_matches_numpy_on_random_designs(case, dt, h):
+    """The explicit Euler substeps (one, or four per communication step) of both observers."""
+    g = random_design(*case)
+    ys, us = plant_measurements(g, 1, 300, dt)
+    for cls in (FilteringObserver, LuenbergerObserver):
+        a, b, _ = run_pair(lambda c, cls=cls: cls(g, h=h, scheme="euler", kernel=c), ys, us, dt)
+        assert relative(a, b) <= RTOL
 
 
 def test_filtering_observer_matches_numpy_for_huge_errors():
@@ -252,7 +263,8 @@ def test_non_finite_step_is_refused_state_kept():
 
 def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_gains):
     assert FilteringObserver(tuned_gains).compiled
-    assert not FilteringObserver(tuned_gains, scheme="euler").compiled  # split only
+    assert FilteringObserver(tuned_gains, scheme="euler").compiled
+    assert not PrescribedTimeObserver(tuned_gains).compiled  # no kernel step
     assert not FilteringObserver(tuned_gains, kernel=False).compiled
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
     assert not FilteringObserver(tuned_gains).compiled
@@ -285,6 +297,18 @@ def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
     fast = reference.simulate(kalman_gains, scenario, t_end=1.5)
     slow = reference.simulate(kalman_gains, scenario, t_end=1.5, kernel=False)
     for name in ("x", "z", "z_lin", "z_kalman", "psi", "xi", "u"):
+        assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_paper_scenario_with_the_euler_scheme(kalman_gains):
+    """The noisy scenario with both observers on the explicit Euler scheme. (Not the nominal
+    one: there Euler's sigma collapses to 1e-14, where its gain sigma^(nu-1) is about 1e17 and
+    any round-off, in numpy as in C, moves the estimate by 1e-10 or more.)"""
+    fast = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler")
+    slow = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler",
+                              kernel=False)
+    for name in ("x", "z", "z_lin", "psi", "xi"):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
 
 

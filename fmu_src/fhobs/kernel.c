@@ -395,3 +395,114 @@ int fhobs_filter_step(const Call *call)
     }
     return all_finite(dst, n + k + 1) ? FHOBS_OK : FHOBS_NONFINITE;
 }
+
+/* ---------------------------------------------------------------------------------------- */
+/* Explicit Euler scheme of the filtering and Luenberger observers                          */
+
+typedef struct {
+    int n, k, m, n_sub;       /* model states, outputs, inputs, substeps */
+    int homogeneous;          /* the filtering observer (psi, xi, gain term); else Luenberger */
+    int real_g;               /* the dilation's eigen data real (numpy's products then real) */
+    double hs, nu, gamma, p, guard;
+    const double *A, *B, *C, *L_inj; /* n x n, n x m, k x n, n x k */
+    const double *L_tilde;    /* k x k */
+    const cplx *V_d;          /* n x n: G_d = V_d diag(g) V_d^-1 */
+    const cplx *inverse_L;    /* n x k: V_d^-1 L */
+    const cplx *g;            /* n */
+    double *work;             /* 2 (n + k + 1) (scratch) */
+} EulerPlan;
+
+/* sum_i a[i] b[i] as numpy's dot of a short vector (fused multiply-adds in sequence) */
+static double dot_fma(const double *a, const double *b, int k)
+{
+    double s = 0.0;
+    for (int i = 0; i < k; i++)
+        s = fma(a[i], b[i], s);
+    return s;
+}
+
+/* The paper's right-hand side beyond A z + B u + L_inj v (FilteringObserver._euler_rates):
+ * dpsi, dxi and the gain term of dz at the state (psi, xi). */
+static void euler_rates(const EulerPlan *p, const double *psi, double xi, const double *v,
+                        double *dpsi, double *dxi, double *dz_gain)
+{
+    const int n = p->n, k = p->k;
+    double sigma = sigma_of(psi, k, xi);
+    if (sigma > 0.0) {
+        double log_s = log(sigma > p->guard ? sigma : p->guard);
+        double gain = exp((p->nu - 1.0) * log_s), level = exp(p->nu * log_s);
+        cplx c[n];
+        for (int i = 0; i < n; i++) { /* Dilation.apply: V (exp(s g) * (V^-1 L psi)) */
+            double re = 0.0, im = 0.0;
+            const cplx *a = p->inverse_L + (size_t)i * k;
+            for (int j = 0; j < k; j++) {
+                re += a[j].re * psi[j];
+                im += a[j].im * psi[j];
+            }
+            cplx scale = cexp_((cplx){log_s * p->g[i].re, log_s * p->g[i].im});
+            c[i] = p->real_g ? (cplx){scale.re * re, 0.0} : cmul(scale, (cplx){re, im});
+        }
+        for (int i = 0; i < n; i++) {
+            double re = 0.0;
+            const cplx *a = p->V_d + (size_t)i * n;
+            for (int j = 0; j < n; j++)
+                re += a[j].re * c[j].re - a[j].im * c[j].im;
+            dz_gain[i] = gain * re;
+        }
+        for (int i = 0; i < k; i++) {
+            const double *a = p->L_tilde + (size_t)i * k;
+            double s = 0.0;
+            for (int j = 0; j < k; j++)
+                s += a[j] * psi[j];
+            dpsi[i] = v[i] + level * s;
+        }
+    } else { /* sigma = 0 forces psi = 0: the homogeneous terms vanish */
+        for (int i = 0; i < n; i++)
+            dz_gain[i] = 0.0;
+        for (int i = 0; i < k; i++)
+            dpsi[i] = v[i];
+    }
+    double w = xi - 0.5 * dot_fma(psi, psi, k), power = 0.0;
+    if (w != 0.0)
+        power = copysign(pow(fabs(w), p->p), w);
+    *dxi = fabs(dot_fma(psi, dpsi, k)) - p->gamma * power;
+}
+
+/* n_sub explicit Euler substeps of size hs (_Observer._run_euler): state (z[, psi, xi]),
+ * inputs (y, u). */
+int fhobs_euler_step(const Call *call)
+{
+    const EulerPlan *p = call->plan;
+    const int n = p->n, k = p->k, size = n + (p->homogeneous ? k + 1 : 0);
+    const double *y = call->inputs, *u = call->inputs + k, *src = call->src;
+    double *dst = call->dst;
+    double v[k], dpsi[k], dz_gain[n], rate[n], az[n], bu[n], lv[n], dxi = 0.0;
+
+    for (int s = 0; s < p->n_sub; s++) {
+        /* read from src, then from the last written scratch; the last substep writes dst */
+        const double *x = s == 0 ? src : p->work + (size_t)((s - 1) % 2) * size;
+        double *out = s == p->n_sub - 1 ? dst : p->work + (size_t)(s % 2) * size;
+        matvec(p->C, x, k, n, v);
+        for (int i = 0; i < k; i++)
+            v[i] -= y[i];
+        if (p->homogeneous) {
+            euler_rates(p, x + n, x[n + k], v, dpsi, &dxi, dz_gain);
+        } else {
+            for (int i = 0; i < n; i++)
+                dz_gain[i] = 0.0;
+        }
+        matvec(p->A, x, n, n, az);
+        matvec(p->B, u, n, p->m, bu);
+        matvec(p->L_inj, v, n, k, lv);
+        for (int i = 0; i < n; i++) {
+            rate[i] = ((az[i] + bu[i]) + lv[i]) + dz_gain[i];
+            out[i] = x[i] + p->hs * rate[i];
+        }
+        if (p->homogeneous) {
+            for (int i = 0; i < k; i++)
+                out[n + i] = x[n + i] + p->hs * dpsi[i];
+            out[n + k] = x[n + k] + p->hs * dxi;
+        }
+    }
+    return all_finite(dst, size) ? FHOBS_OK : FHOBS_NONFINITE;
+}

@@ -2,11 +2,12 @@
 
 The numpy runtime (:mod:`fhobs.runtime`, :mod:`fhobs.plant`, :mod:`fhobs.kalman_filter`) is the
 reference implementation; when this kernel is available, the models make their common step in
-C instead: the plant's ZOH step (the noise stays numpy's), the Luenberger observer's and the
-filtering observer's split step, the Kalman filter's cycles. The numpy side prepares everything
-(matrices, eigen-decompositions, gain-level floor and ceiling) once per design and step size, in
-a *plan*, and the kernel only does the per-step arithmetic, to about 1e-15 relative of the
-numpy step (the matrix-vector sums may be added in another order than numpy's BLAS).
+C instead: the plant's ZOH step (the noise stays numpy's), the split step and the explicit Euler
+substeps of the Luenberger and the filtering observers, the Kalman filter's cycles. The numpy
+side prepares everything (matrices, eigen-decompositions, gain-level floor and ceiling) once per
+design and step size, in a *plan*, and the kernel only does the per-step arithmetic, to about
+1e-15 relative of the numpy step (the matrix-vector sums may be added in another order than
+numpy's BLAS).
 
 Where the library comes from (:func:`library`), in this order:
 
@@ -87,6 +88,18 @@ class FilterPlan(ctypes.Structure):
                 ("last_tau", _DOUBLE_P)]
 
 
+class EulerPlan(ctypes.Structure):
+    """``EulerPlan`` of kernel.c (complex arrays as interleaved doubles)."""
+
+    _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
+                ("n_sub", ctypes.c_int), ("homogeneous", ctypes.c_int), ("real_g", ctypes.c_int),
+                ("hs", ctypes.c_double), ("nu", ctypes.c_double), ("gamma", ctypes.c_double),
+                ("p", ctypes.c_double), ("guard", ctypes.c_double),
+                ("A", _DOUBLE_P), ("B", _DOUBLE_P), ("C", _DOUBLE_P), ("L_inj", _DOUBLE_P),
+                ("L_tilde", _DOUBLE_P), ("V_d", _DOUBLE_P), ("inverse_L", _DOUBLE_P),
+                ("g", _DOUBLE_P), ("work", _DOUBLE_P)]
+
+
 def library() -> ctypes.PyDLL | None:
     """The loaded kernel, or None when the numpy runtime must do without (module docstring).
 
@@ -133,7 +146,7 @@ def _open(path: Path) -> ctypes.PyDLL | None:
     try:
         lib = ctypes.PyDLL(str(path))
         for name in ("fhobs_plant_step", "fhobs_luenberger_step", "fhobs_kalman_step",
-                     "fhobs_filter_step"):
+                     "fhobs_filter_step", "fhobs_euler_step"):
             function = getattr(lib, name)
             function.restype = ctypes.c_int
             function.argtypes = None  # called with ctypes objects only: nothing to convert

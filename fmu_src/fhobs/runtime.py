@@ -233,29 +233,51 @@ class _Observer:
 
     @property
     def compiled(self) -> bool:
-        """Whether the split step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
         return self._stepper is not None
 
-    def _use_kernel(self, function: str) -> None:
-        """Make the split step run in the kernel's ``function`` when the library is there
-        (call at the end of a subclass's construction, ``_aux`` set)."""
+    def _use_kernel(self, split_function: str) -> None:
+        """Make the step run in the kernel (the split step in ``split_function``, the euler
+        substeps in ``fhobs_euler_step``) when the library is there (call at the end of a
+        subclass's construction, ``_aux`` set)."""
         library = compiled.library()
-        if library is not None and self.scheme == "split":
+        if library is not None:
+            function = split_function if self.scheme == "split" else "fhobs_euler_step"
             self._stepper = compiled.Stepper(getattr(library, function),
                                              (self._z.size, self._aux.size),
                                              (self._k, self._m), self._first_kernel_step)
 
     def _first_kernel_step(self, dt: float) -> None:
         """At the first step of size dt: its checks, then the kernel's plan."""
-        self._substeps(dt)
+        n_sub = self._substeps(dt)
         try:
-            self._kernel_plan(dt)
+            if self.scheme == "split":
+                self._kernel_plan(dt)
+            else:
+                self._euler_kernel_plan(dt, n_sub)
         except ArithmeticError as err:
             raise floating_point_failure(self.scheme, err) from err
 
     def _kernel_plan(self, dt: float) -> None:
-        """Register the kernel's plan for the communication step dt."""
+        """Register the kernel's plan of the split step for the communication step dt."""
         raise NotImplementedError
+
+    def _euler_kernel_plan(self, dt: float, n_sub: int) -> None:
+        """Register the kernel's plan of the euler scheme for dt (n_sub substeps)."""
+        arrays = {name: np.ascontiguousarray(matrix, dtype=float) for name, matrix in
+                  (("A", self._A), ("B", self._B), ("C", self._C), ("L_inj", self._L_inj))}
+        arrays["work"] = np.zeros(2 * (self._z.size + self._aux.size))
+        gain, values = self._euler_gain_data()
+        arrays.update(gain)
+        plan = compiled.EulerPlan(n=self._z.size, k=self._k, m=self._m, n_sub=n_sub,
+                                  hs=dt / n_sub, **values,
+                                  **{name: compiled.pointer(a) for name, a in arrays.items()})
+        self._stepper.add_plan(dt, plan, *arrays.values())
+
+    def _euler_gain_data(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """Arrays and numbers of the euler plan's gain term (:meth:`_euler_rates`): none for
+        an observer without one."""
+        return {}, {"homogeneous": 0}
 
     def _substeps(self, dt: float) -> int:
         """Number of internal steps of size <= h in dt (ValueError beyond ``MAX_SUBSTEPS``)."""
@@ -449,8 +471,9 @@ class FilteringObserver(_Observer):
         Gain cap of the split scheme, ``dt sigma^nu <= tau_max`` (dt the communication step);
         None picks it automatically.
     kernel : bool
-        Run the split step in the compiled kernel when it is available (:mod:`fhobs.kernel`;
-        not for the expm fallback of the injection flow); False: numpy only.
+        Run the step (split, or the euler substeps) in the compiled kernel when it is
+        available (:mod:`fhobs.kernel`; not with the expm fallbacks of the injection flow or
+        of the dilation); False: numpy only.
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -465,7 +488,7 @@ class FilteringObserver(_Observer):
         self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
         self._p = gains.nu / 2.0 + 1.0
         self.tau_max = None if tau_max is None else float(tau_max)
-        if kernel and self._flow.eigen:
+        if kernel and (self._flow.eigen if scheme == "split" else self._dilation.use_eig):
             self._use_kernel("fhobs_filter_step")
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
@@ -542,6 +565,18 @@ class FilteringObserver(_Observer):
             ceiling=ceiling, mismatch=LEVEL_MISMATCH, tiny=data["tiny"], series=PHI1_SERIES,
             **{name: compiled.pointer(array) for name, array in arrays.items()})
         self._stepper.add_plan(dt, plan, *arrays.values())
+
+    def _euler_gain_data(self):
+        """The dilation's eigen data, L_tilde and the xi equation's constants."""
+        dilation = self._dilation
+        arrays = {"L_tilde": np.ascontiguousarray(self.gains.L_tilde, dtype=float),
+                  "V_d": np.ascontiguousarray(dilation.eigenvectors, dtype=complex),
+                  "inverse_L": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
+                  "g": np.ascontiguousarray(dilation.eigenvalues, dtype=complex)}
+        values = {"homogeneous": 1, "real_g": int(not np.iscomplexobj(dilation.eigenvalues)),
+                  "nu": self._nu, "gamma": float(self.gains.gamma), "p": self._p,
+                  "guard": SIGMA_GUARD}
+        return arrays, values
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
