@@ -85,7 +85,7 @@ def accuracy_table(gains_names: list[str], dts: list[float], n_seeds: int, jobs:
 
 
 COST_COLUMNS = (("split, kernel", "split", True), ("split, numpy", "split", False),
-                ("euler", "euler", False))
+                ("euler, kernel", "euler", True), ("euler, numpy", "euler", False))
 """Cost table columns: (title, scheme, compiled kernel)."""
 
 
