@@ -1,54 +1,55 @@
-"""Benchmark: the nominal pendulum scenario to t = 1.5 (30,000 steps, plant + two observers)
-through the harness, beside the in-process reference loop (fhobs.reference), as a ratio.
+"""Benchmark: the nominal pendulum scenario to t = 1.5 (30,000 steps: plant, filtering observer,
+Luenberger observer, Kalman filter) through the harness, with the FMUs' compiled step kernel
+and without it (numpy runtime), beside the in-process reference loop (fhobs.reference) and a
+bare numpy loop of three linear 4-state updates timed in the same run.
 
-Targets (issue 5): harness <= 1.0 s and <= 1.5 x the in-process loop.
+Targets: filtering observer step in process <= 2 us; harness <= 0.5 s and no slower than the
+bare numpy loop.
 
 It also splits the cost: per FMU, the three calls the master makes per step (fmi2SetReal,
 fmi2DoStep, fmi2GetReal, straight through ctypes) are timed in isolation at fixed inputs; the
-same arithmetic without FMI (the runtime objects' ``advance``) is timed replaying the nominal
-run's inputs in a tight loop, its sum over the three models being the cost of the arithmetic
-alone, which no master over these FMUs can go below; and the harness is run once more with
-every model's ``advance`` a no-op, the cost of the FMI calls, the slaves and the master alone.
+same arithmetic without FMI (the runtime objects' ``advance``, kernel and numpy) is timed
+replaying the nominal run's inputs in a tight loop, its sum over the models being the cost of
+the arithmetic alone, which no master over these FMUs can go below; the harness is run once
+more with every model's ``advance`` a no-op (the FMI calls, the slaves and the master alone);
+and the speed plumbing is switched off one piece at a time (the master's compiled step loop,
+the status wrapper's direct get/set and ctypes doStep callback) to measure what each saves.
 
-Usage: ``python bench/bench_harness.py [--fmu-dir DIR] [--repeat N] [--json FILE]``
-(builds the FMUs into a temporary folder unless --fmu-dir is given).
+Usage: ``python bench/bench_harness.py [--repeat N] [--json FILE]`` (builds the FMUs into a
+temporary folder).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import json
 import math
+import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 from fhobs.gains import ObserverGains
+from fhobs.kalman_filter import KalmanObserver
+from fhobs.linalg import zoh_blocks
 from fhobs.plant import LTIPlant
 from fhobs.reference import H_PAPER, K_PAPER, X0_PAPER, simulate
 from fhobs.runtime import FilteringObserver, LuenbergerObserver
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
+from harness import native
 from harness.cli import build_paper_fmus, load_scenario
 from harness.master import run_system
 from harness.system import resolve_system
 
 T_END = 1.5
 CALLS = 3000
-
-
-def best_of(repeat: int, fn) -> float:
-    """Smallest wall time of ``repeat`` calls of ``fn`` (seconds)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> dict[str, float]:
@@ -85,6 +86,7 @@ def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> d
         ("fmi2DoStep", lambda: do_step(comp, t, h, no_set_prior)),
         ("fmi2GetReal", lambda: get_real(comp, out_vr, out_n, out_buf)),
     ]:
+        call()  # the first step of a size prepares it (ZOH, gain cap): not timed
         start = time.perf_counter()
         for _ in range(CALLS):
             call()
@@ -94,126 +96,201 @@ def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> d
     return costs
 
 
-def model_step_costs(gains: ObserverGains, repeat: int) -> dict[str, float]:
+def model_step_costs(gains: ObserverGains, repeat: int, kernel: bool) -> dict[str, float]:
     """Microseconds per ``advance`` (the step the FMUs make, their inputs checked by the slave)
-    of each runtime object, replaying the inputs of the in-process nominal run to T_END in a
-    tight loop (best of ``repeat``): the trajectory the harness computes, at the most favourable
-    cost. Their sum is what the model arithmetic alone costs per step, a lower bound for any
-    master over these FMUs."""
+    of each runtime object, in the kernel or in numpy, replaying the inputs of the in-process
+    nominal run to T_END in a tight loop (best of ``repeat``): the trajectory the harness
+    computes, at the most favourable cost. Their sum is what the model arithmetic alone costs
+    per step, a lower bound for any master over these FMUs. The first step, which prepares
+    the step size (ZOH, the observer's gain cap: tens of ms, once per instance and step
+    size), is not timed."""
     result = simulate(gains, "nominal", t_end=T_END)
     ys, us = list(result.x[:-1] @ gains.C.T), list(result.z[:-1] @ K_PAPER.T)
     E = gains.B if gains.E is None else gains.E
     q = np.zeros(E.shape[1])
     models = {
-        "plant": lambda: (LTIPlant(gains.A, gains.B, gains.C, E, x0=X0_PAPER),
+        "plant": lambda: (LTIPlant(gains.A, gains.B, gains.C, E, x0=X0_PAPER, kernel=kernel),
                           lambda m, y, u: m.advance(u, q, H_PAPER)),
-        "observer": lambda: (FilteringObserver(gains, h=H_PAPER),
+        "observer": lambda: (FilteringObserver(gains, h=H_PAPER, kernel=kernel),
                              lambda m, y, u: m.advance(y, u, H_PAPER)),
-        "linear": lambda: (LuenbergerObserver(gains, h=H_PAPER),
+        "linear": lambda: (LuenbergerObserver(gains, h=H_PAPER, kernel=kernel),
                            lambda m, y, u: m.advance(y, u, H_PAPER)),
     }
+    if gains.kalman is not None:
+        models["kalman"] = (lambda: (KalmanObserver(gains, kernel=kernel),
+                                     lambda m, y, u: m.advance(y, u, H_PAPER)))
     costs = {}
     for name, make in models.items():
         best = math.inf
         for _ in range(repeat):
             model, advance = make()
+            advance(model, ys[0], us[0])
             start = time.perf_counter()
-            for y, u in zip(ys, us, strict=True):
+            for y, u in zip(ys[1:], us[1:], strict=True):
                 advance(model, y, u)
             best = min(best, time.perf_counter() - start)
-        costs[name] = best / len(ys) * 1e6
+        costs[name] = best / (len(ys) - 1) * 1e6
     return costs
 
 
-def harness_without_models(system, repeat: int) -> float:
-    """Wall time of the harness run with every FMU model's ``advance`` made a no-op (best of
-    ``repeat``): what the FMI calls, the slaves and the master cost without any arithmetic.
+def bare_numpy_loop(gains: ObserverGains, steps: int) -> None:
+    """``steps`` steps of three linear 4-state updates in a plain numpy loop: the plant
+    ``x = Ad x + Bd u`` and two observers ``z = Ad z + Bd u + L (C z - y)`` (the Luenberger
+    gain's ZOH), u = K z of the first."""
+    Ad, Bd, Ld = zoh_blocks(gains.A, [gains.B, gains.L_lin], H_PAPER)
+    C, K = gains.C, K_PAPER
+    x, z1, z2 = X0_PAPER.copy(), np.zeros(4), np.zeros(4)
+    for _ in range(steps):
+        y, u = C @ x, K @ z1
+        x = Ad @ x + Bd @ u
+        z1 = Ad @ z1 + Bd @ u + Ld @ (C @ z1 - y)
+        z2 = Ad @ z2 + Bd @ u + Ld @ (C @ z2 - y)
 
-    The FMUs' Python runs in this interpreter, from the vendored ``fhobs_<hash>`` packages
-    they import; their runtime and plant classes are patched there and restored."""
-    run_system(system, T_END, progress=False)  # loads the FMUs' packages
-    classes = [getattr(module, name) for key, module in list(sys.modules.items())
-               if key.startswith("fhobs_") and key.endswith((".runtime", ".plant"))
-               for name in ("FilteringObserver", "LuenbergerObserver", "LTIPlant")
-               if hasattr(module, name)]
-    originals = [cls.advance for cls in classes]
+
+def _vendored(suffixes: tuple[str, ...], names: tuple[str, ...]) -> list[type]:
+    """Classes of the FMUs' vendored ``fhobs_<hash>`` packages loaded in this interpreter (the
+    FMUs' Python runs here)."""
+    return [getattr(module, name) for key, module in list(sys.modules.items())
+            if key.startswith("fhobs_") and key.endswith(suffixes)
+            for name in names if hasattr(module, name)]
+
+
+@contextlib.contextmanager
+def _patched(classes: list[type], name: str, replacement) -> Iterator[None]:
+    """Replace a method of the classes for the duration of the block."""
+    originals = [cls.__dict__[name] for cls in classes]
     try:
         for cls in classes:
-            cls.advance = lambda self, *args: None
-        return best_of(repeat, lambda: run_system(system, T_END, progress=False))
+            setattr(cls, name, replacement)
+        yield
     finally:
-        for cls, advance in zip(classes, originals, strict=True):
-            cls.advance = advance
+        for cls, original in zip(classes, originals, strict=True):
+            setattr(cls, name, original)
+
+
+def no_model_steps() -> contextlib.AbstractContextManager:
+    """Every FMU model's ``advance`` a no-op: what the FMI calls, the slaves and the master
+    cost without any arithmetic."""
+    classes = _vendored((".runtime", ".plant", ".kalman_filter"),
+                        ("_Observer", "LTIPlant", "KalmanObserver"))
+    return _patched(classes, "advance", lambda self, *args: None)
+
+
+def no_wrapper_paths() -> contextlib.AbstractContextManager:
+    """The slaves do not register with the status wrapper: every fmi2GetReal / fmi2SetReal /
+    fmi2DoStep goes through pythonfmu (the wrapper still answers with fmi2Error)."""
+    return _patched(_vendored((".fmu.slave_base",), ("FhobsSlave",)), "_register_with_wrapper",
+                    lambda self: False)
+
+
+@contextlib.contextmanager
+def python_step_loop() -> Iterator[None]:
+    """The master's step loop in Python (no ``harness/step_loop.c``)."""
+    saved = os.environ.get(native.DISABLE_ENV)
+    os.environ[native.DISABLE_ENV] = "1"
+    native.step_library.cache_clear()
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(native.DISABLE_ENV, None)
+        else:
+            os.environ[native.DISABLE_ENV] = saved
+        native.step_library.cache_clear()
+
+
+def interleaved(runs: dict[str, tuple], repeat: int) -> dict[str, float]:
+    """Best wall time of each run ``name -> (function, context factory)``, the runs taking
+    turns ``repeat`` times (so that a change of the shared machine's load hits them alike)."""
+    best = dict.fromkeys(runs, math.inf)
+    for _ in range(repeat):
+        for name, (function, context) in runs.items():
+            with context():
+                start = time.perf_counter()
+                function()
+                best[name] = min(best[name], time.perf_counter() - start)
+    return best
+
+
+def call_costs(fmu_dir: Path) -> dict[str, dict[str, float]]:
+    """:func:`fmu_call_costs` of the plant and the two observers of ``fmu_dir``."""
+    x_hat = [f"x_hat[{i}]" for i in range(1, 5)]
+    return {
+        "plant": fmu_call_costs(fmu_dir / "plant.fmu", {"u[1]": 0.0, "q[1]": 0.0},
+                                [f"y[{i}]" for i in (1, 2)] + [f"x[{i}]" for i in range(1, 5)]),
+        "observer": fmu_call_costs(fmu_dir / "observer.fmu",
+                                   {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0}, x_hat),
+        "linear": fmu_call_costs(fmu_dir / "luenberger.fmu",
+                                 {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0}, x_hat),
+    }
 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--fmu-dir", type=Path)
-    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
+    systems = {}
     with tempfile.TemporaryDirectory() as tmp:
-        fmu_dir = args.fmu_dir or build_paper_fmus(Path(tmp))
+        for kernel in (True, False):
+            label = "kernel" if kernel else "numpy"
+            fmu_dir = build_paper_fmus(Path(tmp) / label, kernel=kernel)
+            systems[label] = resolve_system(
+                load_scenario("pendulum_nominal", fmu_dir, Path(tmp) / f"b_{label}"))
+            run_system(systems[label], T_END, progress=False)  # loads the FMUs' packages
         gains = ObserverGains.load_json(fmu_dir / "design.json")
-        system = resolve_system(load_scenario("pendulum_nominal", fmu_dir, Path(tmp) / "b"))
-        steps = int(round(T_END / system.spec.step))
-        harness_s = best_of(args.repeat, lambda: run_system(system, T_END, progress=False))
-        reference_s = best_of(args.repeat, lambda: simulate(gains, "nominal", t_end=T_END))
-        no_models_s = harness_without_models(system, args.repeat)
-        fmu_costs = {
-            "plant": fmu_call_costs(
-                fmu_dir / "plant.fmu",
-                {"u[1]": 0.0, "q[1]": 0.0},
-                [f"y[{i}]" for i in (1, 2)] + [f"x[{i}]" for i in range(1, 5)],
-            ),
-            "observer": fmu_call_costs(
-                fmu_dir / "observer.fmu",
-                {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0},
-                [f"x_hat[{i}]" for i in range(1, 5)],
-            ),
-            "linear": fmu_call_costs(
-                fmu_dir / "luenberger.fmu",
-                {"y[1]": 2.0, "y[2]": 2.0, "u[1]": 0.0},
-                [f"x_hat[{i}]" for i in range(1, 5)],
-            ),
-        }
-    runtime_costs = model_step_costs(gains, args.repeat)
-    model_us = sum(runtime_costs.values())
-    fmu_us = sum(sum(c.values()) for c in fmu_costs.values())
+        steps = int(round(T_END / systems["kernel"].spec.step))
+        plain = contextlib.nullcontext
+
+        def harness(label: str):
+            return lambda: run_system(systems[label], T_END, progress=False)
+
+        times = interleaved({
+            "harness_kernel": (harness("kernel"), plain),
+            "harness_numpy": (harness("numpy"), plain),
+            "bare_numpy_loop": (lambda: bare_numpy_loop(gains, steps), plain),
+            "reference_kernel": (lambda: simulate(gains, "nominal", t_end=T_END), plain),
+            "reference_numpy": (lambda: simulate(gains, "nominal", t_end=T_END, kernel=False),
+                                plain),
+            "python_step_loop": (harness("kernel"), python_step_loop),
+            "no_wrapper_paths": (harness("kernel"), no_wrapper_paths),
+            "no_model_steps": (harness("kernel"), no_model_steps),
+        }, args.repeat)
+        fmu_costs = call_costs(Path(tmp) / "kernel")
+    runtime_costs = {label: model_step_costs(gains, args.repeat, kernel)
+                     for label, kernel in (("kernel", True), ("numpy", False))}
+    harness_s = times["harness_kernel"]
     report = {
         "steps": steps,
-        "harness_s": harness_s,
-        "reference_s": reference_s,
-        "ratio": harness_s / reference_s,
-        "harness_us_per_step": harness_s / steps * 1e6,
-        "reference_us_per_step": reference_s / steps * 1e6,
-        "fmu_calls_us_per_step": fmu_us,
+        "seconds": times,
+        "harness_over_bare_loop": harness_s / times["bare_numpy_loop"],
         "runtime_step_us": runtime_costs,
         "fmu_call_us": fmu_costs,
-        "model_steps_us_per_step": model_us,
-        "model_steps_s": model_us * steps * 1e-6,
-        "overhead_us_per_step": harness_s / steps * 1e6 - model_us,
-        "harness_without_models_s": no_models_s,
         "targets": {
-            "harness_s<=1.0": harness_s <= 1.0,
-            "ratio<=1.5": harness_s / reference_s <= 1.5,
+            "observer_step_us<=2": runtime_costs["kernel"]["observer"] <= 2.0,
+            "harness_s<=0.5": harness_s <= 0.5,
+            "harness<=bare_loop": harness_s <= times["bare_numpy_loop"],
         },
     }
-    print(f"nominal to t = {T_END} ({steps} steps), best of {args.repeat}:")
-    print(f"  harness   {harness_s:7.3f} s  ({report['harness_us_per_step']:.1f} us/step)")
-    print(f"  reference {reference_s:7.3f} s  ({report['reference_us_per_step']:.1f} us/step)")
-    print(f"  ratio     {report['ratio']:7.2f}   targets: {report['targets']}")
-    print("  per step, us: FMU calls (set/doStep/get, fixed inputs) | model advance "
-          "(in process, the nominal run's inputs replayed)")
+    print(f"nominal to t = {T_END} ({steps} steps, {len(systems['kernel'].fmus)} FMUs), "
+          f"best of {args.repeat} (runs interleaved):")
+    print("| what | kernel | numpy |")
+    print("|---|---|---|")
+    print(f"| harness, s | {harness_s:.3f} | {times['harness_numpy']:.3f} |")
+    print(f"| in-process reference loop, s | {times['reference_kernel']:.3f} | "
+          f"{times['reference_numpy']:.3f} |")
+    for name in runtime_costs["kernel"]:
+        print(f"| {name} advance in process, us/step | {runtime_costs['kernel'][name]:.2f} | "
+              f"{runtime_costs['numpy'][name]:.2f} |")
+    print(f"| bare numpy loop (3 linear 4-state updates), s | {times['bare_numpy_loop']:.3f} | |")
+    print(f"harness (kernel) / bare numpy loop: {report['harness_over_bare_loop']:.2f}; "
+          f"targets: {report['targets']}")
+    print(f"harness with the kernel and one piece off, s (all on: {harness_s:.3f}):")
+    for name in ("python_step_loop", "no_wrapper_paths", "no_model_steps"):
+        print(f"  {name:18s} {times[name]:.3f}  ({times[name] / harness_s - 1:+.0%})")
+    print("per step, us: FMU calls (kernel FMUs, set/doStep/get, fixed inputs)")
     for name, costs in fmu_costs.items():
-        calls = " ".join(f"{k}={v:.1f}" for k, v in costs.items())
-        print(f"    {name:9s} {calls}  | model advance {runtime_costs[name]:.1f}")
-    print(f"  model steps alone: {model_us:.1f} us/step = {report['model_steps_s']:.2f} s for "
-          f"{steps} steps (a lower bound for any master over these FMUs)")
-    print(f"  harness minus model steps (FMI calls, slaves, master): "
-          f"{report['overhead_us_per_step']:.1f} us/step")
-    print(f"  harness with no-op model steps: {no_models_s:.2f} s "
-          f"({no_models_s / steps * 1e6:.1f} us/step: FMI calls, slaves and master alone)")
+        print(f"    {name:9s} " + " ".join(f"{k}={v:.1f}" for k, v in costs.items()))
     if args.json:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return report

@@ -85,23 +85,33 @@ def accuracy_table(gains_names: list[str], dts: list[float], n_seeds: int, jobs:
             print(f"| {dt:g} | {scheme} | {plant_scheme} | " + " | ".join(cells) + " |")
 
 
+COST_COLUMNS = (("split, kernel", "split", True), ("split, numpy", "split", False),
+                ("euler, kernel", "euler", True), ("euler, numpy", "euler", False))
+"""Cost table columns: (title, scheme, compiled kernel)."""
+
+
 def cost_per_step(gains_name: str, steps: int = 20000, repeat: int = 3) -> None:
-    """Microseconds per internal step of each observer and scheme (one substep per call,
-    best of ``repeat`` runs from the same start)."""
+    """Microseconds per internal step of each observer and scheme, the split step in the
+    compiled kernel and in numpy (one substep per call, best of ``repeat`` runs from the same
+    start; the first step, which prepares the step size, included)."""
     gains = load_gains(gains_name)
     print(f"\n### cost per internal step ({gains_name} gains, {steps} steps, h = {H_PAPER:g}, "
           f"best of {repeat})")
-    print("| observer | " + " | ".join(SCHEMES) + " |")
-    print("|---|" + "---|" * len(SCHEMES))
+    print("| observer | " + " | ".join(title for title, _, _ in COST_COLUMNS) + " |")
+    print("|---|" + "---|" * len(COST_COLUMNS))
     rng = np.random.default_rng(0)
     y = 1e-3 * rng.uniform(-1.0, 1.0, size=(steps, gains.k))
     u = np.zeros(gains.m)
     for cls in (FilteringObserver, PrescribedTimeObserver, LuenbergerObserver):
         cells = []
-        for scheme in SCHEMES:
+        for _, scheme, kernel in COST_COLUMNS:
+            if kernel and cls is PrescribedTimeObserver:  # no kernel step
+                cells.append("-")
+                continue
+            options = {} if cls is PrescribedTimeObserver else {"kernel": kernel}
             times = []
             for _ in range(repeat):
-                obs = cls(gains, h=H_PAPER, scheme=scheme)
+                obs = cls(gains, h=H_PAPER, scheme=scheme, **options)
                 start = time.perf_counter()
                 try:
                     with np.errstate(all="ignore"):  # a diverging cell is reported, not warned

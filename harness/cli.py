@@ -245,7 +245,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPEC) -> Path:
+def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPEC,
+                     kernel: bool | None = None) -> Path:
     """Build the pendulum FMUs (and design.json) into ``out`` with build_fmu.py's machinery.
 
     Parameters
@@ -259,11 +260,15 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     spec
         The plant spec for ``design="spec"``; for ``design="paper"`` its ``[noise]`` table
         gives the Kalman filter.
+    kernel
+        Ship the compiled step kernel in the FMUs (:func:`fhobs.build.build_fmus`; default:
+        when it can be compiled); False: the FMUs run the numpy runtime alone.
     """
     if design == "spec":
         from fhobs.cli import main as build_main
 
-        if build_main([str(spec), "--out", str(out)]) != 0:
+        if build_main([str(spec), "--out", str(out)] + (["--no-kernel"] if kernel is False
+                                                          else [])) != 0:
             raise RuntimeError(f"designing and building the FMUs from {spec} failed")
         return out
     if design != "paper":
@@ -282,7 +287,7 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         gains = with_kalman(gains, noise)
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
-    build_fmus(gains, out)
+    build_fmus(gains, out, kernel=kernel)
     return out
 
 

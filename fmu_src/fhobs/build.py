@@ -13,7 +13,11 @@ Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
 On linux64 a small C wrapper (``fmu/status_wrapper.c``, compiled here with the system C
 compiler) is placed in front of pythonfmu's binary so that rejected inputs and rejected
-parameters are answered with ``fmi2Error`` (see :mod:`fhobs.fmu.slave_base`).
+parameters are answered with ``fmi2Error`` (see :mod:`fhobs.fmu.slave_base`), and the runtime's
+step kernel (``kernel.c``, :mod:`fhobs.kernel`) is compiled into the vendored package as
+``kernel_linux64.so``: the models step in C inside the FMU. Without it (no compiler, another
+platform, ``kernel=False``) the FMU runs the numpy runtime alone, with the same results to
+round-off.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import numpy as np
 from .certificate import certify
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE, STATUS_VALUE_REFERENCE
 from .gains import ObserverGains
+from .kernel import SHIPPED, SOURCE, compile_library
 from .plant import PLANT_SCHEMES
 from .runtime import SCHEMES
 
@@ -68,6 +73,7 @@ def build_fmus(
     plant_scheme: str = "zoh",
     input_bound: float = DEFAULT_INPUT_BOUND,
     status_wrapper: bool | None = None,
+    kernel: bool | None = None,
 ) -> dict[str, Path]:
     """Build the requested FMUs into ``out_dir`` and return ``{kind: path}``.
 
@@ -97,6 +103,10 @@ def build_fmus(
     status_wrapper : bool, optional
         Put the ``fmi2Error`` wrapper in front of pythonfmu's linux64 binary. Default: when
         a C compiler is found. True without a compiler raises :class:`BuildError`.
+    kernel : bool, optional
+        Ship the compiled step kernel (linux64). Default: on Linux when a C compiler is found.
+        True without a compiler or on another platform raises :class:`BuildError`; False
+        builds FMUs that run the numpy runtime alone.
 
     Returns
     -------
@@ -117,8 +127,13 @@ def build_fmus(
         status_wrapper = compiler is not None
     if status_wrapper and compiler is None:
         raise BuildError("status_wrapper=True needs a C compiler (cc or gcc) on PATH")
+    if kernel is None:
+        kernel = compiler is not None and sys.platform == "linux"
+    if kernel and (compiler is None or sys.platform != "linux"):
+        raise BuildError("kernel=True needs Linux and a C compiler (cc or gcc) on PATH")
     config = {
         "status_wrapper": status_wrapper,
+        "kernel": kernel,
         "input_bound": float(input_bound),
         "h": float(h),
         "scheme": SCHEMES[0] if scheme is None else scheme,
@@ -142,6 +157,8 @@ def build_fmus(
         tag = build_tag(design_json + json.dumps(config, sort_keys=True))
         package = stage / f"fhobs_{tag}"
         vendor_modules(package, tag)
+        if kernel:
+            _compile_kernel(package, compiler)
         (stage / DESIGN_FILE).write_text(design_json)
         (stage / CONFIG_FILE).write_text(json.dumps(config, indent=1))
         wrapper = _compile_wrapper(stage, compiler) if status_wrapper else None
@@ -166,7 +183,8 @@ def _vector(value: Iterable[float] | None, size: int) -> list[float]:
 def build_tag(extra: str) -> str:
     """Hash of the code shipped in the FMUs and of ``extra`` (design + options), 12 hex digits."""
     digest = hashlib.sha256(extra.encode())
-    for path in sorted(PACKAGE_DIR.rglob("*.py")) + [PACKAGE_DIR / "fmu" / "status_wrapper.c"]:
+    for path in sorted(PACKAGE_DIR.rglob("*.py")) + [PACKAGE_DIR / "fmu" / "status_wrapper.c",
+                                                     SOURCE]:
         digest.update(path.relative_to(PACKAGE_DIR).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
@@ -291,6 +309,15 @@ def _compile_wrapper(stage: Path, compiler: str) -> Path:
     if result.returncode != 0:
         raise BuildError(f"compiling the status wrapper failed:\n{result.stderr}")
     return library
+
+
+def _compile_kernel(package: Path, compiler: str) -> None:
+    """Compile ``kernel.c`` into the vendored package, where its ``fhobs.kernel`` finds it."""
+    try:
+        compile_library(package / SHIPPED.name, compiler)
+    except (OSError, subprocess.SubprocessError) as err:
+        detail = getattr(err, "stderr", None) or err
+        raise BuildError(f"compiling the step kernel failed:\n{detail}") from err
 
 
 def _install_wrapper(fmu: Path, wrapper: Path) -> None:

@@ -44,6 +44,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--h", type=float, default=DEFAULT_H, metavar="X",
         help=f"the observer FMUs' internal step h, s (default {DEFAULT_H:g})",
     )
+    parser.add_argument(
+        "--no-kernel", action="store_true",
+        help="do not compile the step kernel into the FMUs (they run the numpy runtime alone)",
+    )
     return parser.parse_args(argv)
 
 
@@ -181,7 +185,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.design_only:
             from .build import build_fmus
 
-            for name, fmu in build_fmus(gains, args.out, h=args.h).items():
+            kernel = False if args.no_kernel else None
+            for name, fmu in build_fmus(gains, args.out, h=args.h, kernel=kernel).items():
                 print(f"{name}: {fmu}")
     except OSError as exc:
         print(f"error: --out {args.out}: cannot write ({exc})", file=sys.stderr)

@@ -87,6 +87,25 @@ class InjectionFlow:
         self._exponents = np.concatenate((np.full(k, -1.0), np.full(k, -(1.0 + self._nu)),
                                           np.ones(k), g)).astype(g.dtype)
 
+    def kernel_arrays(self) -> dict[str, np.ndarray | float]:
+        """The eigen path's data for the compiled kernel (:mod:`fhobs.kernel`), complex128
+        and C-contiguous: ``V_inv`` (2k x 2k), ``V_k = V[:k]``, ``WL = V_g^-1 L V[:k]``, ``V_g``,
+        ``g`` (eigenvalues of G_d), ``lam`` (of R); ``real_lam`` (numpy's spectral factors are
+        then real) and ``tiny`` (below this tau the factors use phi1's series where needed).
+        Only when :attr:`eigen`."""
+        k = self._k
+        lam = self._R.eigenvalues
+        return {
+            "V_inv": np.ascontiguousarray(self._R.eigenvectors_inverse, dtype=complex),
+            "V_k": np.ascontiguousarray(self._W[:k, :2 * k]),
+            "WL": np.ascontiguousarray(self._W[k:, 2 * k:]),
+            "V_g": np.ascontiguousarray(self._V_g),
+            "g": np.ascontiguousarray(self._exponents[3 * k:], dtype=complex),
+            "lam": np.ascontiguousarray(lam, dtype=complex),
+            "real_lam": not np.iscomplexobj(lam),
+            "tiny": self._R.tiny,
+        }
+
     def apply(self, psi: np.ndarray, v: np.ndarray, log_s: float,
               tau: float) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(psi(hs), dz)`` for the level ``s = exp(log_s)`` and ``tau = hs s^nu``.

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fhobs import kernel as compiled
 from fhobs.disturbance import extended_model
 from fhobs.gains import KalmanGains, ObserverGains
 from fhobs.linalg import zoh_blocks
@@ -75,6 +76,9 @@ class KalmanObserver:
         entries the disturbance states start at zero).
     kalman : KalmanGains or None
         Use this filter instead of ``gains.kalman`` (an edited FMU parameter set).
+    kernel : bool
+        Run the cycles in the compiled kernel when it is available (:mod:`fhobs.kernel`);
+        False: numpy only.
 
     Examples
     --------
@@ -84,7 +88,7 @@ class KalmanObserver:
     """
 
     def __init__(self, gains: ObserverGains, z0: np.ndarray | None = None,
-                 kalman: KalmanGains | None = None) -> None:
+                 kalman: KalmanGains | None = None, kernel: bool = True) -> None:
         kalman = gains.kalman if kalman is None else kalman
         if kalman is None:
             raise ValueError("the design has no Kalman filter (ObserverGains.kalman is None)")
@@ -105,6 +109,9 @@ class KalmanObserver:
             if z0.size == self._n:  # the plant's states; the disturbance states start at zero
                 z0 = np.concatenate((z0, self._z[self._n:]))
             self._z = as_finite_vector(z0, size, "z0")
+        library = compiled.library() if kernel else None
+        self._stepper = None if library is None else compiled.Stepper(
+            library.fhobs_kalman_step, (size,), (self._k, self._m), self._kernel_plan)
 
     @property
     def z(self) -> np.ndarray:
@@ -136,6 +143,13 @@ class KalmanObserver:
     def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """:meth:`step` without checking y, u (finite, of k and m entries) and the sign of dt;
         a dt that is not a multiple of Ts and a non-finite result still raise ValueError."""
+        stepper = self._stepper
+        if stepper is not None:
+            if stepper.run(dt, self._z, self._z, y, u) != compiled.OK:
+                raise ValueError("the Kalman step diverged (non-finite state); state left "
+                                 "unchanged")
+            self._z = stepper.state[0]
+            return
         n_cycles = cycles_per_step(dt, self.sample_time)
         z, tail = self._z, np.concatenate((y, u))
         try:
@@ -146,6 +160,19 @@ class KalmanObserver:
         if not all_finite(z):
             raise ValueError("the Kalman step diverged (non-finite state); state left unchanged")
         self._z = z
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the cycles run in the compiled kernel (:mod:`fhobs.kernel`)."""
+        return self._stepper is not None
+
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan for dt (ValueError if dt is not a multiple of Ts)."""
+        work = np.zeros(2 * self._z.size)
+        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m,
+                                   cycles=cycles_per_step(dt, self.sample_time),
+                                   M=compiled.pointer(self._cycle), work=compiled.pointer(work))
+        self._stepper.add_plan(dt, plan, self._cycle, work)
 
     def get_state(self) -> np.ndarray:
         """The full internal state (a copy): the prediction z."""

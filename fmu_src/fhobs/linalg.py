@@ -129,6 +129,9 @@ class ExpmFamily:
     eigenvalues, eigenvectors, eigenvectors_inverse : np.ndarray
         ``lam``, ``V`` and ``V^-1`` (complex unless every eigenvalue is real), set only when
         ``use_eig``.
+    tiny : float
+        At or below this tau, :meth:`spectral_factors` uses phi1's series where
+        ``|tau lam| < PHI1_SERIES`` (set only when ``use_eig``).
     """
 
     def __init__(self, R: np.ndarray, force_fallback: bool = False) -> None:
@@ -143,7 +146,7 @@ class ExpmFamily:
             self._lam2 = np.concatenate((lam, lam))
             self._divisor = np.concatenate((np.ones(size), lam))
             self._offset = np.concatenate((np.ones(size), np.zeros(size)))
-            self._tiny = PHI1_SERIES / max(float(np.min(np.abs(lam))), 1e-300)
+            self.tiny = PHI1_SERIES / max(float(np.min(np.abs(lam))), 1e-300)
             self._last: tuple[float, np.ndarray] = (math.nan, self._offset)
 
     def spectral_factors(self, tau: float) -> np.ndarray:
@@ -153,7 +156,7 @@ class ExpmFamily:
         tau repeatedly)."""
         last_tau, factors = self._last
         if tau != last_tau:
-            if tau > self._tiny:
+            if tau > self.tiny:
                 factors = np.expm1(tau * self._lam2) / self._divisor + self._offset
             else:
                 mu = tau * self.eigenvalues

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from fhobs import kernel as compiled
 from fhobs.linalg import zoh_blocks
 
 NOISE_BLOCK = 1024
@@ -107,6 +108,9 @@ class LTIPlant:
         Noise seed.
     scheme : str
         One of ``PLANT_SCHEMES``.
+    kernel : bool
+        Make the ``zoh`` step in the compiled kernel when it is available
+        (:mod:`fhobs.kernel`); False: numpy only. The noise is numpy's either way.
     """
 
     def __init__(
@@ -119,6 +123,7 @@ class LTIPlant:
         noise_amplitude: float = 0.0,
         seed: int = 0,
         scheme: str = "zoh",
+        kernel: bool = True,
     ) -> None:
         if scheme not in PLANT_SCHEMES:
             raise ValueError(f"unknown plant scheme {scheme!r}; choose one of {PLANT_SCHEMES}")
@@ -138,6 +143,10 @@ class LTIPlant:
         self._k = 0
         self._zoh: dict[float, list[np.ndarray]] = {}
         self._no_q = np.zeros(self.E.shape[1])
+        library = compiled.library() if kernel and scheme == "zoh" else None
+        self._stepper = None if library is None else compiled.Stepper(
+            library.fhobs_plant_step, (n,), (self.B.shape[1], self.E.shape[1]),
+            self._kernel_plan)
 
     @property
     def x(self) -> np.ndarray:
@@ -168,6 +177,13 @@ class LTIPlant:
         not None) finite float vectors of the right sizes, dt positive and finite."""
         if q is None:
             q = self._no_q
+        stepper = self._stepper
+        if stepper is not None:
+            if stepper.run(dt, self._x, self._x, u, q) != compiled.OK:
+                raise ValueError("the plant state overflowed; state left unchanged")
+            self._x = stepper.state[0]
+            self._k += 1
+            return
         try:
             if self.scheme == "euler":
                 x_new = self._x + dt * (self.A @ self._x + self.B @ u + self.E @ q)
@@ -180,6 +196,21 @@ class LTIPlant:
             raise ValueError("the plant state overflowed; state left unchanged")
         self._x = x_new
         self._k += 1
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        return self._stepper is not None
+
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan for dt (the ZOH matrices)."""
+        try:
+            blocks = [np.ascontiguousarray(block) for block in self._blocks(dt)]
+        except ArithmeticError as err:
+            raise floating_point_failure("plant", err) from err
+        n, m, r = (block.shape[1] for block in blocks)
+        plan = compiled.PlantPlan(n, m, r, *(compiled.pointer(block) for block in blocks))
+        self._stepper.add_plan(dt, plan, *blocks)
 
     def _blocks(self, dt: float) -> list[np.ndarray]:
         """ZOH matrices ``[expm(dt A), Gamma_B, Gamma_E]`` for the step dt (cached per dt)."""

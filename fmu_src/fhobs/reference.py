@@ -112,6 +112,7 @@ def simulate(
     K: np.ndarray = K_PAPER,
     x0: np.ndarray = X0_PAPER,
     feedback: str = "estimate",
+    kernel: bool = True,
 ) -> SimulationResult:
     """Run the paper's closed loop (or another plant's, with ``K`` and ``x0``) under the Jacobi
     convention.
@@ -143,18 +144,22 @@ def simulate(
     feedback : str
         ``"estimate"`` (v = z, the paper's loop) or ``"state"`` (v = x, the true state: the
         observer's error then does not act on the plant).
+    kernel : bool
+        Step the plant and the estimators in the compiled kernel when it is available
+        (:mod:`fhobs.kernel`); False: the numpy runtime only.
     """
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")
     spec = SCENARIOS[scenario]
     E = gains.B if gains.E is None else gains.E
     plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=x0,
-                     noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme)
+                     noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme,
+                     kernel=kernel)
     h = dt if h is None else h
-    obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max)
-    others = [LuenbergerObserver(gains, h=h, scheme=scheme)]
+    obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max, kernel=kernel)
+    others = [LuenbergerObserver(gains, h=h, scheme=scheme, kernel=kernel)]
     if gains.kalman is not None:
-        others.append(KalmanObserver(gains))
+        others.append(KalmanObserver(gains, kernel=kernel))
     n_steps = int(round(t_end / dt))
     n, n_model, k = gains.n, gains.n_model, gains.k
     x = np.empty((n_steps + 1, n))

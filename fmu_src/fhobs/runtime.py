@@ -73,10 +73,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fhobs import kernel as compiled
 from fhobs.dilation import Dilation
 from fhobs.gains import ObserverGains
 from fhobs.injection import InjectionFlow
-from fhobs.linalg import ExpmFamily, zoh_blocks
+from fhobs.linalg import PHI1_SERIES, ExpmFamily, zoh_blocks
 from fhobs.plant import (
     ZOH_CACHE_SIZE,
     all_finite,
@@ -172,6 +173,7 @@ class _Observer:
         self.tau_max: float | None = None
         self._caps: dict[float, float] = {}
         self._roundoff_level: float | None = None
+        self._stepper: compiled.Stepper | None = None
 
     # -- public interface -------------------------------------------------------------------
     @property
@@ -206,10 +208,15 @@ class _Observer:
         inputs once). A non-finite result, a step needing more than ``MAX_SUBSTEPS`` internal
         euler steps, or a step size without a contractive gain cap still raises ValueError,
         the state unchanged."""
-        n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
-        if n_sub > MAX_SUBSTEPS:
-            raise ValueError(f"the step size {dt!r} is more than {MAX_SUBSTEPS} internal steps "
-                             f"of h = {self.h!r}; state left unchanged")
+        stepper = self._stepper
+        if stepper is not None:  # the kernel, unless its code asks for the numpy step
+            code = stepper.run(dt, self._z, self._aux, y, u)
+            if code == compiled.OK:
+                self._z, self._aux = stepper.state
+                return
+            if code == compiled.NONFINITE:
+                raise self._diverged()
+        n_sub = self._substeps(dt)
         try:  # the schemes never write into their arguments: the state stays as it was
             if self.scheme == "split":
                 z, aux = self._run_split(self._z, self._aux, y, u, dt)
@@ -218,9 +225,69 @@ class _Observer:
         except ArithmeticError as err:
             raise floating_point_failure(self.scheme, err) from err
         if not (all_finite(z) and all_finite(aux)):
-            raise ValueError(f"the {self.scheme} step diverged (non-finite state); "
-                             "state left unchanged")
+            raise self._diverged()
         self._z, self._aux = z, aux
+
+    def _diverged(self) -> ValueError:
+        """The error of a step whose result is not finite."""
+        return ValueError(f"the {self.scheme} step diverged (non-finite state); "
+                          "state left unchanged")
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        return self._stepper is not None
+
+    def _use_kernel(self, split_function: str) -> None:
+        """Make the step run in the kernel (the split step in ``split_function``, the euler
+        substeps in ``fhobs_euler_step``) when the library is there (call at the end of a
+        subclass's construction, ``_aux`` set)."""
+        library = compiled.library()
+        if library is not None:
+            function = split_function if self.scheme == "split" else "fhobs_euler_step"
+            self._stepper = compiled.Stepper(getattr(library, function),
+                                             (self._z.size, self._aux.size),
+                                             (self._k, self._m), self._first_kernel_step)
+
+    def _first_kernel_step(self, dt: float) -> None:
+        """At the first step of size dt: its checks, then the kernel's plan."""
+        n_sub = self._substeps(dt)
+        try:
+            if self.scheme == "split":
+                self._kernel_plan(dt)
+            else:
+                self._euler_kernel_plan(dt, n_sub)
+        except ArithmeticError as err:
+            raise floating_point_failure(self.scheme, err) from err
+
+    def _kernel_plan(self, dt: float) -> None:
+        """Register the kernel's plan of the split step for the communication step dt."""
+        raise NotImplementedError
+
+    def _euler_kernel_plan(self, dt: float, n_sub: int) -> None:
+        """Register the kernel's plan of the euler scheme for dt (n_sub substeps)."""
+        arrays = {name: np.ascontiguousarray(matrix, dtype=float) for name, matrix in
+                  (("A", self._A), ("B", self._B), ("C", self._C), ("L_inj", self._L_inj))}
+        arrays["work"] = np.zeros(2 * (self._z.size + self._aux.size))
+        gain, values = self._euler_gain_data()
+        arrays.update(gain)
+        plan = compiled.EulerPlan(n=self._z.size, k=self._k, m=self._m, n_sub=n_sub,
+                                  hs=dt / n_sub, **values,
+                                  **{name: compiled.pointer(a) for name, a in arrays.items()})
+        self._stepper.add_plan(dt, plan, *arrays.values())
+
+    def _euler_gain_data(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """Arrays and numbers of the euler plan's gain term (:meth:`_euler_rates`): none for
+        an observer without one."""
+        return {}, {"homogeneous": 0}
+
+    def _substeps(self, dt: float) -> int:
+        """Number of internal steps of size <= h in dt (ValueError beyond ``MAX_SUBSTEPS``)."""
+        n_sub = max(1, math.ceil(dt / self.h * (1.0 - 1e-12)))
+        if n_sub > MAX_SUBSTEPS:
+            raise ValueError(f"the step size {dt!r} is more than {MAX_SUBSTEPS} internal steps "
+                             f"of h = {self.h!r}; state left unchanged")
+        return n_sub
 
     def get_state(self) -> np.ndarray:
         """Full internal state ``[z, aux]`` (a copy)."""
@@ -406,11 +473,15 @@ class FilteringObserver(_Observer):
     tau_max : float or None
         Gain cap of the split scheme, ``dt sigma^nu <= tau_max`` (dt the communication step);
         None picks it automatically.
+    kernel : bool
+        Run the step (split, or the euler substeps) in the compiled kernel when it is
+        available (:mod:`fhobs.kernel`; not with the expm fallbacks of the injection flow or
+        of the dilation); False: numpy only.
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
-                 xi0: float = 0.0, tau_max: float | None = None) -> None:
+                 xi0: float = 0.0, tau_max: float | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
         k = gains.k
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
@@ -420,6 +491,8 @@ class FilteringObserver(_Observer):
         self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
         self._p = gains.nu / 2.0 + 1.0
         self.tau_max = None if tau_max is None else float(tau_max)
+        if kernel and (self._flow.eigen if scheme == "split" else self._dilation.use_eig):
+            self._use_kernel("fhobs_filter_step")
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
         """``z``, ``psi``, ``xi`` and ``sigma``."""
@@ -477,6 +550,36 @@ class FilteringObserver(_Observer):
             else:
                 lo = mid
         return result
+
+    def _kernel_plan(self, dt: float) -> None:
+        """The kernel's plan for dt: the ZOH prediction, the gain-level floor and ceiling and
+        the injection flow's eigen data."""
+        prediction = self._prediction(dt)
+        floor, ceiling = self._floor(dt), self._ceiling(dt)
+        data = self._flow.kernel_arrays()
+        arrays = {"C": np.ascontiguousarray(self._C, dtype=float),
+                  "M": np.ascontiguousarray(prediction.M), "F": np.ascontiguousarray(prediction.F),
+                  **{name: data[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")},
+                  "factors": np.zeros(4 * self._k, dtype=complex),
+                  "last_tau": np.array([math.nan])}
+        plan = compiled.FilterPlan(
+            n=self._z.size, k=self._k, m=self._m, real_lam=int(data["real_lam"]), nu=self._nu,
+            gamma=float(self.gains.gamma), p=self._p, dt=dt, floor_level=floor,
+            ceiling=ceiling, mismatch=LEVEL_MISMATCH, tiny=data["tiny"], series=PHI1_SERIES,
+            **{name: compiled.pointer(array) for name, array in arrays.items()})
+        self._stepper.add_plan(dt, plan, *arrays.values())
+
+    def _euler_gain_data(self):
+        """The dilation's eigen data, L_tilde and the xi equation's constants."""
+        dilation = self._dilation
+        arrays = {"L_tilde": np.ascontiguousarray(self.gains.L_tilde, dtype=float),
+                  "V_d": np.ascontiguousarray(dilation.eigenvectors, dtype=complex),
+                  "inverse_L": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
+                  "g": np.ascontiguousarray(dilation.eigenvalues, dtype=complex)}
+        values = {"homogeneous": 1, "real_g": int(not np.iscomplexobj(dilation.eigenvalues)),
+                  "nu": self._nu, "gamma": float(self.gains.gamma), "p": self._p,
+                  "guard": SIGMA_GUARD}
+        return arrays, values
 
     def _correct(self, aux, v, hs, level):
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
@@ -589,6 +692,16 @@ class LuenbergerObserver(_Observer):
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
-                 z0: np.ndarray | None = None) -> None:
+                 z0: np.ndarray | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
         self._aux = np.zeros(0)
+        if kernel:
+            self._use_kernel("fhobs_luenberger_step")
+
+    def _kernel_plan(self, dt: float) -> None:
+        """The kernel's plan for dt: ``z+ = M (z, u, C z - y)``."""
+        C = np.ascontiguousarray(self._C, dtype=float)
+        M = np.ascontiguousarray(self._prediction(dt).M)
+        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
+                                   C=compiled.pointer(C), M=compiled.pointer(M))
+        self._stepper.add_plan(dt, plan, C, M)

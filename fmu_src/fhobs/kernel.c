@@ -1,0 +1,508 @@
+/*
+ * Compiled step kernel of the fhobs runtime (loaded by fhobs.kernel through ctypes).
+ *
+ * Each function advances one model by one communication step: its one argument, a Call,
+ * names the plan, the state to read (`src`, never written), where to write the new state
+ * (`dst`) and the inputs held over the step (arrays the caller owns). One argument keeps the
+ * ctypes call cheap. Everything that depends on the design or on the step size (ZOH matrices,
+ * eigen-decompositions, gain-level floor and ceiling) is prepared by the numpy runtime and
+ * handed over in a plan. The arithmetic follows the numpy reference step operation by
+ * operation (same formulas, complex products and quotients as numpy forms them); only the
+ * summation order of the matrix-vector products may differ from numpy's BLAS.
+ *
+ * Return codes: FHOBS_OK, FHOBS_FALLBACK (the numpy runtime must make this step: the
+ * filtering observer's self-consistent level search), FHOBS_NONFINITE (dst is not finite).
+ */
+#include <math.h>
+#include <stddef.h>
+
+#define FHOBS_OK 0
+#define FHOBS_FALLBACK 1
+#define FHOBS_NONFINITE 2
+
+typedef struct {
+    double re, im;
+} cplx;
+
+/* One call of a step function (fhobs.kernel.Call). */
+typedef struct {
+    const void *plan;
+    const double *src;
+    double *dst;
+    const double *inputs;
+} Call;
+
+/* numpy's complex product */
+static cplx cmul(cplx a, cplx b)
+{
+    cplx r = {a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re};
+    return r;
+}
+
+/* numpy's complex quotient (Smith's algorithm) */
+static cplx cdiv(cplx a, cplx b)
+{
+    cplx r;
+    double rat, scl;
+    if (fabs(b.re) >= fabs(b.im)) {
+        rat = b.im / b.re;
+        scl = 1.0 / (b.re + b.im * rat);
+        r.re = (a.re + a.im * rat) * scl;
+        r.im = (a.im - a.re * rat) * scl;
+    } else {
+        rat = b.re / b.im;
+        scl = 1.0 / (b.im + b.re * rat);
+        r.re = (a.re * rat + a.im) * scl;
+        r.im = (a.im * rat - a.re) * scl;
+    }
+    return r;
+}
+
+static cplx cexp_(cplx a)
+{
+    cplx r;
+    double e = exp(a.re);
+    if (a.im == 0.0) {
+        r.re = e;
+        r.im = 0.0;
+    } else {
+        r.re = e * cos(a.im);
+        r.im = e * sin(a.im);
+    }
+    return r;
+}
+
+/* numpy's complex expm1 */
+static cplx cexpm1_(cplx a)
+{
+    cplx r;
+    if (a.im == 0.0) {
+        r.re = expm1(a.re);
+        r.im = 0.0;
+    } else {
+        double s = sin(a.im / 2.0);
+        r.re = expm1(a.re) * cos(a.im) - 2.0 * s * s;
+        r.im = exp(a.re) * sin(a.im);
+    }
+    return r;
+}
+
+static int all_finite(const double *x, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (!isfinite(x[i]))
+            return 0;
+    return 1;
+}
+
+/* y[i] = sum_j A[i, j] x[j], A row-major rows x cols */
+static void matvec(const double *A, const double *x, int rows, int cols, double *y)
+{
+    for (int i = 0; i < rows; i++) {
+        const double *a = A + (size_t)i * cols;
+        double s = 0.0;
+        for (int j = 0; j < cols; j++)
+            s += a[j] * x[j];
+        y[i] = s;
+    }
+}
+
+/* y[i] = sum_j A[i, j] x[j] for a matrix A whose columns are split over the consecutive
+ * vectors x0 (n0 entries), x1 (n1), x2 (n2): A (x0, x1, x2) without forming the stack. */
+static void matvec3(const double *A, int rows, const double *x0, int n0, const double *x1,
+                    int n1, const double *x2, int n2, double *y)
+{
+    int cols = n0 + n1 + n2;
+    for (int i = 0; i < rows; i++) {
+        const double *a = A + (size_t)i * cols;
+        double s = 0.0;
+        for (int j = 0; j < n0; j++)
+            s += a[j] * x0[j];
+        for (int j = 0; j < n1; j++)
+            s += a[n0 + j] * x1[j];
+        for (int j = 0; j < n2; j++)
+            s += a[n0 + n1 + j] * x2[j];
+        y[i] = s;
+    }
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* Linear models: the plant's ZOH, the Luenberger observer, the Kalman filter               */
+
+typedef struct {
+    int n, m, r;           /* states, inputs u, perturbations q */
+    const double *Phi;     /* n x n */
+    const double *Gamma_B; /* n x m */
+    const double *Gamma_E; /* n x r */
+} PlantPlan;
+
+/* x+ = (Phi x + Gamma_B u) + Gamma_E q; inputs = (u, q). */
+int fhobs_plant_step(const Call *call)
+{
+    const PlantPlan *p = call->plan;
+    const double *src = call->src, *inputs = call->inputs;
+    double *dst = call->dst;
+    const double *u = inputs, *q = inputs + p->m;
+    for (int i = 0; i < p->n; i++) {
+        const double *a = p->Phi + (size_t)i * p->n, *b = p->Gamma_B + (size_t)i * p->m;
+        const double *e = p->Gamma_E + (size_t)i * p->r;
+        double s = 0.0, t = 0.0, w = 0.0;
+        for (int j = 0; j < p->n; j++)
+            s += a[j] * src[j];
+        for (int j = 0; j < p->m; j++)
+            t += b[j] * u[j];
+        for (int j = 0; j < p->r; j++)
+            w += e[j] * q[j];
+        dst[i] = (s + t) + w;
+    }
+    return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
+}
+
+typedef struct {
+    int n, k, m;     /* states, outputs y, inputs u */
+    int cycles;      /* Kalman: filter cycles per communication step */
+    const double *C; /* Luenberger: k x n */
+    const double *M; /* n x (n + m + k) (Luenberger) or n x (n + k + m) (Kalman) */
+    double *work;    /* Kalman: 2 n (scratch) */
+} LinearPlan;
+
+/* Luenberger split step: v = C z - y, z+ = M (z, u, v); inputs = (y, u). */
+int fhobs_luenberger_step(const Call *call)
+{
+    const LinearPlan *p = call->plan;
+    const double *src = call->src, *inputs = call->inputs;
+    double *dst = call->dst;
+    double v[p->k];
+    const double *y = inputs, *u = inputs + p->k;
+    matvec(p->C, src, p->k, p->n, v);
+    for (int i = 0; i < p->k; i++)
+        v[i] -= y[i];
+    matvec3(p->M, p->n, src, p->n, u, p->m, v, p->k, dst);
+    return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
+}
+
+/* Kalman filter: `cycles` times z <- M (z, y, u); inputs = (y, u). */
+int fhobs_kalman_step(const Call *call)
+{
+    const LinearPlan *p = call->plan;
+    const double *src = call->src, *inputs = call->inputs;
+    double *dst = call->dst;
+    const double *y = inputs, *u = inputs + p->k, *z = src;
+    for (int c = 0; c < p->cycles; c++) {
+        double *out = (c == p->cycles - 1) ? dst : p->work + (size_t)(c % 2) * p->n;
+        matvec3(p->M, p->n, z, p->n, y, p->k, u, p->m, out);
+        z = out;
+    }
+    return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* Filtering homogeneous observer, split scheme                                             */
+
+typedef struct {
+    int n, k, m;              /* model states N, outputs, inputs */
+    int real_lam;             /* R's eigenvalues all real (numpy's factors are then real) */
+    double nu, gamma, p, dt;  /* degree, xi gain, nu/2 + 1, communication step */
+    double floor_level, ceiling, mismatch;
+    double tiny, series;      /* spectral factors: series below tau = tiny, |mu| < series */
+    const double *C;          /* k x n */
+    const double *M;          /* n x (n + m + k): ZOH prediction, (z, u, v) */
+    const double *F;          /* n x n: carries dz into z+ */
+    const cplx *V_inv;        /* 2k x 2k: R = V diag(lam) V^-1 */
+    const cplx *V_k;          /* k x 2k: V[:k] */
+    const cplx *WL;           /* n x 2k: V_g^-1 L V[:k] */
+    const cplx *V_g;          /* n x n: G_d = V_g diag(g) V_g^-1 */
+    const cplx *g;            /* n: eigenvalues of G_d */
+    const cplx *lam;          /* 2k: eigenvalues of R */
+    cplx *factors;            /* 4k: spectral factors of last_tau (cache, written here) */
+    double *last_tau;         /* 1 (cache, written here) */
+} FilterPlan;
+
+static double sigma_of(const double *psi, int k, double xi)
+{
+    double half = 0.0;
+    for (int i = 0; i < k; i++)
+        half += psi[i] * psi[i];
+    half = 0.5 * half;
+    double s = xi;
+    if (half > s)
+        s = half;
+    if (0.0 > s)
+        s = 0.0;
+    return sqrt(s);
+}
+
+/* ExpmFamily.spectral_factors: [exp(tau lam); tau phi1(tau lam)] */
+static void spectral_factors(const FilterPlan *p, double tau, cplx *f)
+{
+    int k2 = 2 * p->k;
+    if (tau > p->tiny) {
+        for (int i = 0; i < k2; i++) {
+            cplx mu = {tau * p->lam[i].re, tau * p->lam[i].im};
+            cplx e = cexpm1_(mu);
+            f[i].re = e.re + 1.0;
+            f[i].im = e.im;
+            if (p->real_lam) {
+                f[k2 + i].re = e.re / p->lam[i].re;
+                f[k2 + i].im = 0.0;
+            } else {
+                f[k2 + i] = cdiv(e, p->lam[i]);
+            }
+        }
+        return;
+    }
+    for (int i = 0; i < k2; i++) {
+        cplx mu = {tau * p->lam[i].re, tau * p->lam[i].im};
+        cplx phi;
+        f[i] = cexp_(mu);
+        if (hypot(mu.re, mu.im) < p->series) {
+            phi.re = 1.0 + 0.5 * mu.re;
+            phi.im = 0.5 * mu.im;
+        } else {
+            phi = p->real_lam ? (cplx){expm1(mu.re) / mu.re, 0.0} : cdiv(cexpm1_(mu), mu);
+        }
+        f[k2 + i].re = tau * phi.re;
+        f[k2 + i].im = tau * phi.im;
+    }
+}
+
+/* Exact w-decay of the xi equation (runtime.signed_power_decay). */
+static double signed_power_decay(double w, double gamma, double p, double h)
+{
+    if (w == 0.0)
+        return 0.0;
+    double q = 1.0 - p;
+    double base = pow(fabs(w), q) - q * gamma * h;
+    if (0.0 > base) /* Python's max(base, 0.0) */
+        base = 0.0;
+    return copysign(pow(base, 1.0 / q), w);
+}
+
+/* Exact correction flow over dt at the frozen level exp(log_s) (FilteringObserver._correct):
+ * psi_new (k), xi_new (1) and the increment dz (n) of z. */
+static void correct(const FilterPlan *p, const double *psi, double xi, const double *v,
+                    double log_s, double *psi_new, double *xi_new, double *dz)
+{
+    const int n = p->n, k = p->k, k2 = 2 * p->k;
+    const double tau = p->dt * exp(p->nu * log_s);
+    cplx c[k2], prod[2 * k2], out_n[n];
+
+    /* InjectionFlow.apply: r = (psi, v) scaled by (s^-1, s^-(1+nu)), its coefficients c */
+    cplx scale_psi = cexp_((cplx){log_s * -1.0, 0.0});
+    cplx scale_v = cexp_((cplx){log_s * -(1.0 + p->nu), 0.0});
+    for (int i = 0; i < k2; i++) {
+        double re = 0.0, im = 0.0;
+        const cplx *a = p->V_inv + (size_t)i * k2;
+        for (int j = 0; j < k2; j++) {
+            double r = j < k ? psi[j] * scale_psi.re : v[j - k] * scale_v.re;
+            re += a[j].re * r;
+            im += a[j].im * r;
+        }
+        c[i].re = re;
+        c[i].im = im;
+    }
+    if (tau != *p->last_tau) {
+        spectral_factors(p, tau, p->factors);
+        *p->last_tau = tau;
+    }
+    for (int i = 0; i < 2 * k2; i++)
+        prod[i] = cmul(p->factors[i], c[i % k2]);
+    cplx s_level = cexp_((cplx){log_s * 1.0, 0.0});
+    for (int i = 0; i < k; i++) {
+        double re = 0.0, im = 0.0;
+        const cplx *a = p->V_k + (size_t)i * k2;
+        for (int j = 0; j < k2; j++) {
+            cplx t = cmul(a[j], prod[j]);
+            re += t.re;
+            im += t.im;
+        }
+        psi_new[i] = cmul((cplx){re, im}, s_level).re;
+    }
+    for (int i = 0; i < n; i++) {
+        double re = 0.0, im = 0.0;
+        const cplx *a = p->WL + (size_t)i * k2;
+        for (int j = 0; j < k2; j++) {
+            cplx t = cmul(a[j], prod[k2 + j]);
+            re += t.re;
+            im += t.im;
+        }
+        cplx scale = cexp_((cplx){log_s * p->g[i].re, log_s * p->g[i].im});
+        out_n[i] = cmul((cplx){re, im}, scale);
+    }
+    for (int i = 0; i < n; i++) {
+        double re = 0.0;
+        const cplx *a = p->V_g + (size_t)i * n;
+        for (int j = 0; j < n; j++)
+            re += a[j].re * out_n[j].re - a[j].im * out_n[j].im;
+        dz[i] = re;
+    }
+
+    /* xi: |Delta |psi|^2/2| integrated, then the exact decay of w = xi - |psi|^2/2. The
+     * squared norms are fused multiply-adds in sequence, as numpy's dot of a short vector
+     * (OpenBLAS on x86-64 with FMA): the invariant xi >= |psi|^2/2, reached exactly by the
+     * decay, then holds for numpy's |psi|^2 too. */
+    double half_old = 0.0, half_new = 0.0;
+    for (int i = 0; i < k; i++) {
+        half_old = fma(psi[i], psi[i], half_old);
+        half_new = fma(psi_new[i], psi_new[i], half_new);
+    }
+    half_old *= 0.5;
+    half_new *= 0.5;
+    double w = xi + fabs(half_new - half_old) - half_new;
+    *xi_new = signed_power_decay(w, p->gamma, p->p, p->dt) + half_new;
+}
+
+/* One split step over dt: state (z, psi, xi), inputs (y, u). The level is sigma between the
+ * floor and the ceiling; when sigma after the correction exceeds `mismatch` times it, the
+ * self-consistent level is searched (FilteringObserver._correct_own_level): at the ceiling
+ * that search ends at once with the correction at exp(log(ceiling)), made here; below it,
+ * the numpy runtime makes the step (FHOBS_FALLBACK). */
+int fhobs_filter_step(const Call *call)
+{
+    const FilterPlan *p = call->plan;
+    const double *src = call->src, *inputs = call->inputs;
+    double *dst = call->dst;
+    const int n = p->n, k = p->k;
+    const double *z = src, *psi = src + n, *y = inputs, *u = inputs + k;
+    const double xi = src[n + k];
+    double v[k], dz[n];
+
+    matvec(p->C, z, k, n, v);
+    for (int i = 0; i < k; i++)
+        v[i] -= y[i];
+
+    double level = sigma_of(psi, k, xi);
+    if (p->floor_level > level)
+        level = p->floor_level;
+    if (p->ceiling < level)
+        level = p->ceiling;
+    correct(p, psi, xi, v, log(level), dst + n, dst + n + k, dz);
+    double after = sigma_of(dst + n, k, dst[n + k]);
+    if (!(after <= p->mismatch * level)) {
+        if (level != p->ceiling || isnan(after))
+            return FHOBS_FALLBACK;
+        correct(p, psi, xi, v, log(exp(log(level))), dst + n, dst + n + k, dz);
+    }
+
+    /* prediction: z+ = M (z, u, v) + F dz */
+    matvec3(p->M, n, z, n, u, p->m, v, k, dst);
+    for (int i = 0; i < n; i++) {
+        const double *a = p->F + (size_t)i * n;
+        double s = 0.0;
+        for (int j = 0; j < n; j++)
+            s += a[j] * dz[j];
+        dst[i] += s;
+    }
+    return all_finite(dst, n + k + 1) ? FHOBS_OK : FHOBS_NONFINITE;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* Explicit Euler scheme of the filtering and Luenberger observers                          */
+
+typedef struct {
+    int n, k, m, n_sub;       /* model states, outputs, inputs, substeps */
+    int homogeneous;          /* the filtering observer (psi, xi, gain term); else Luenberger */
+    int real_g;               /* the dilation's eigen data real (numpy's products then real) */
+    double hs, nu, gamma, p, guard;
+    const double *A, *B, *C, *L_inj; /* n x n, n x m, k x n, n x k */
+    const double *L_tilde;    /* k x k */
+    const cplx *V_d;          /* n x n: G_d = V_d diag(g) V_d^-1 */
+    const cplx *inverse_L;    /* n x k: V_d^-1 L */
+    const cplx *g;            /* n */
+    double *work;             /* 2 (n + k + 1) (scratch) */
+} EulerPlan;
+
+/* sum_i a[i] b[i] as numpy's dot of a short vector (fused multiply-adds in sequence) */
+static double dot_fma(const double *a, const double *b, int k)
+{
+    double s = 0.0;
+    for (int i = 0; i < k; i++)
+        s = fma(a[i], b[i], s);
+    return s;
+}
+
+/* The paper's right-hand side beyond A z + B u + L_inj v (FilteringObserver._euler_rates):
+ * dpsi, dxi and the gain term of dz at the state (psi, xi). */
+static void euler_rates(const EulerPlan *p, const double *psi, double xi, const double *v,
+                        double *dpsi, double *dxi, double *dz_gain)
+{
+    const int n = p->n, k = p->k;
+    double sigma = sigma_of(psi, k, xi);
+    if (sigma > 0.0) {
+        double log_s = log(sigma > p->guard ? sigma : p->guard);
+        double gain = exp((p->nu - 1.0) * log_s), level = exp(p->nu * log_s);
+        cplx c[n];
+        for (int i = 0; i < n; i++) { /* Dilation.apply: V (exp(s g) * (V^-1 L psi)) */
+            double re = 0.0, im = 0.0;
+            const cplx *a = p->inverse_L + (size_t)i * k;
+            for (int j = 0; j < k; j++) {
+                re += a[j].re * psi[j];
+                im += a[j].im * psi[j];
+            }
+            cplx scale = cexp_((cplx){log_s * p->g[i].re, log_s * p->g[i].im});
+            c[i] = p->real_g ? (cplx){scale.re * re, 0.0} : cmul(scale, (cplx){re, im});
+        }
+        for (int i = 0; i < n; i++) {
+            double re = 0.0;
+            const cplx *a = p->V_d + (size_t)i * n;
+            for (int j = 0; j < n; j++)
+                re += a[j].re * c[j].re - a[j].im * c[j].im;
+            dz_gain[i] = gain * re;
+        }
+        for (int i = 0; i < k; i++) {
+            const double *a = p->L_tilde + (size_t)i * k;
+            double s = 0.0;
+            for (int j = 0; j < k; j++)
+                s += a[j] * psi[j];
+            dpsi[i] = v[i] + level * s;
+        }
+    } else { /* sigma = 0 forces psi = 0: the homogeneous terms vanish */
+        for (int i = 0; i < n; i++)
+            dz_gain[i] = 0.0;
+        for (int i = 0; i < k; i++)
+            dpsi[i] = v[i];
+    }
+    double w = xi - 0.5 * dot_fma(psi, psi, k), power = 0.0;
+    if (w != 0.0)
+        power = copysign(pow(fabs(w), p->p), w);
+    *dxi = fabs(dot_fma(psi, dpsi, k)) - p->gamma * power;
+}
+
+/* n_sub explicit Euler substeps of size hs (_Observer._run_euler): state (z[, psi, xi]),
+ * inputs (y, u). */
+int fhobs_euler_step(const Call *call)
+{
+    const EulerPlan *p = call->plan;
+    const int n = p->n, k = p->k, size = n + (p->homogeneous ? k + 1 : 0);
+    const double *y = call->inputs, *u = call->inputs + k, *src = call->src;
+    double *dst = call->dst;
+    double v[k], dpsi[k], dz_gain[n], rate[n], az[n], bu[n], lv[n], dxi = 0.0;
+
+    for (int s = 0; s < p->n_sub; s++) {
+        /* read from src, then from the last written scratch; the last substep writes dst */
+        const double *x = s == 0 ? src : p->work + (size_t)((s - 1) % 2) * size;
+        double *out = s == p->n_sub - 1 ? dst : p->work + (size_t)(s % 2) * size;
+        matvec(p->C, x, k, n, v);
+        for (int i = 0; i < k; i++)
+            v[i] -= y[i];
+        if (p->homogeneous) {
+            euler_rates(p, x + n, x[n + k], v, dpsi, &dxi, dz_gain);
+        } else {
+            for (int i = 0; i < n; i++)
+                dz_gain[i] = 0.0;
+        }
+        matvec(p->A, x, n, n, az);
+        matvec(p->B, u, n, p->m, bu);
+        matvec(p->L_inj, v, n, k, lv);
+        for (int i = 0; i < n; i++) {
+            rate[i] = ((az[i] + bu[i]) + lv[i]) + dz_gain[i];
+            out[i] = x[i] + p->hs * rate[i];
+        }
+        if (p->homogeneous) {
+            for (int i = 0; i < k; i++)
+                out[n + i] = x[n + i] + p->hs * dpsi[i];
+            out[n + k] = x[n + k] + p->hs * dxi;
+        }
+    }
+    return all_finite(dst, size) ? FHOBS_OK : FHOBS_NONFINITE;
+}

@@ -1,0 +1,301 @@
+"""The compiled step kernel (``kernel.c``) of the runtime, through ctypes.
+
+The numpy runtime (:mod:`fhobs.runtime`, :mod:`fhobs.plant`, :mod:`fhobs.kalman_filter`) is the
+reference implementation; when this kernel is available, the models make their common step in
+C instead: the plant's ZOH step (the noise stays numpy's), the split step and the explicit Euler
+substeps of the Luenberger and the filtering observers, the Kalman filter's cycles. The numpy
+side prepares everything (matrices, eigen-decompositions, gain-level floor and ceiling) once per
+design and step size, in a *plan*, and the kernel only does the per-step arithmetic, to about
+1e-15 relative of the numpy step (the matrix-vector sums may be added in another order than
+numpy's BLAS).
+
+Where the library comes from (:func:`library`), in this order:
+
+- ``kernel_linux64.so`` next to this file: inside an FMU, where :mod:`fhobs.build` compiled it
+  when the FMU was built (linux64 only);
+- otherwise, on Linux with ``cc`` or ``gcc``, ``kernel.c`` compiled on first use into the user's
+  cache directory (``$XDG_CACHE_HOME/fhobs`` or ``~/.cache/fhobs``, a private temporary
+  directory if that is not writable), under a name derived from the source;
+- none (the numpy runtime alone): on another platform, without a compiler, when compiling or
+  loading fails, when the environment variable ``FHOBS_NO_KERNEL`` is set (non-empty), or when
+  a model is made with ``kernel=False``.
+
+State. The kernel never writes a model's state in place: :class:`Stepper` keeps two buffers,
+the state arrays of the model are views of one of them, and a step writes the other one, which
+then becomes the state. A model thus *replaces* its state arrays in every step, as the numpy
+runtime does, so a caller that keeps references to them (the FMU slaves' rollback) and
+``get_state``/``set_state`` work unchanged.
+
+This module is numpy-only (plus the standard library): it runs inside the FMUs.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+SOURCE = Path(__file__).resolve().with_name("kernel.c")
+SHIPPED = Path(__file__).resolve().with_name("kernel_linux64.so")
+"""The library inside an FMU (compiled by :mod:`fhobs.build`)."""
+DISABLE_ENV = "FHOBS_NO_KERNEL"
+COMPILE_FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off")
+"""No contraction into fused multiply-adds: each product is rounded, as in numpy."""
+OK, FALLBACK, NONFINITE = 0, 1, 2
+"""Return codes of the kernel's step functions (``kernel.c``)."""
+PLAN_CACHE_SIZE = 16
+"""Plans are cached per step size; the cache is cleared when it holds this many."""
+
+_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+
+
+class PlantPlan(ctypes.Structure):
+    """``PlantPlan`` of kernel.c."""
+
+    _fields_ = [("n", ctypes.c_int), ("m", ctypes.c_int), ("r", ctypes.c_int),
+                ("Phi", _DOUBLE_P), ("Gamma_B", _DOUBLE_P), ("Gamma_E", _DOUBLE_P)]
+
+
+class LinearPlan(ctypes.Structure):
+    """``LinearPlan`` of kernel.c."""
+
+    _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
+                ("cycles", ctypes.c_int), ("C", _DOUBLE_P), ("M", _DOUBLE_P),
+                ("work", _DOUBLE_P)]
+
+
+class FilterPlan(ctypes.Structure):
+    """``FilterPlan`` of kernel.c (complex arrays as interleaved doubles)."""
+
+    _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
+                ("real_lam", ctypes.c_int),
+                ("nu", ctypes.c_double), ("gamma", ctypes.c_double), ("p", ctypes.c_double),
+                ("dt", ctypes.c_double), ("floor_level", ctypes.c_double),
+                ("ceiling", ctypes.c_double), ("mismatch", ctypes.c_double),
+                ("tiny", ctypes.c_double), ("series", ctypes.c_double),
+                ("C", _DOUBLE_P), ("M", _DOUBLE_P), ("F", _DOUBLE_P),
+                ("V_inv", _DOUBLE_P), ("V_k", _DOUBLE_P), ("WL", _DOUBLE_P), ("V_g", _DOUBLE_P),
+                ("g", _DOUBLE_P), ("lam", _DOUBLE_P), ("factors", _DOUBLE_P),
+                ("last_tau", _DOUBLE_P)]
+
+
+class EulerPlan(ctypes.Structure):
+    """``EulerPlan`` of kernel.c (complex arrays as interleaved doubles)."""
+
+    _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
+                ("n_sub", ctypes.c_int), ("homogeneous", ctypes.c_int), ("real_g", ctypes.c_int),
+                ("hs", ctypes.c_double), ("nu", ctypes.c_double), ("gamma", ctypes.c_double),
+                ("p", ctypes.c_double), ("guard", ctypes.c_double),
+                ("A", _DOUBLE_P), ("B", _DOUBLE_P), ("C", _DOUBLE_P), ("L_inj", _DOUBLE_P),
+                ("L_tilde", _DOUBLE_P), ("V_d", _DOUBLE_P), ("inverse_L", _DOUBLE_P),
+                ("g", _DOUBLE_P), ("work", _DOUBLE_P)]
+
+
+def library() -> ctypes.PyDLL | None:
+    """The loaded kernel, or None when the numpy runtime must do without (module docstring).
+
+    Examples
+    --------
+    >>> lib = library()
+    >>> lib is None or hasattr(lib, "fhobs_filter_step")
+    True
+    """
+    if os.environ.get(DISABLE_ENV):
+        return None
+    return _load()
+
+
+@functools.cache
+def _load() -> ctypes.PyDLL | None:
+    """Load the shipped library, else compile the source into the cache (once per process)."""
+    if sys.platform != "linux":
+        return None
+    if SHIPPED.exists():
+        return _open(SHIPPED)
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None or not SOURCE.exists():
+        return None
+    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join(COMPILE_FLAGS).encode()
+                         + compiler.encode() + platform.machine().encode()).hexdigest()
+    name = f"fhobs_kernel_{tag[:16]}.so"
+    try:
+        path = _cache_dir() / name
+        if not path.exists():
+            compile_library(path, compiler)
+        return _open(path)
+    except (OSError, subprocess.SubprocessError):
+        with tempfile.TemporaryDirectory(prefix="fhobs_kernel_") as private:
+            try:
+                compile_library(Path(private) / name, compiler)
+            except (OSError, subprocess.SubprocessError):
+                return None
+            return _open(Path(private) / name)  # stays mapped once loaded
+
+
+def _open(path: Path) -> ctypes.PyDLL | None:
+    """Load the library (GIL held during calls: they are short) and type its functions."""
+    try:
+        lib = ctypes.PyDLL(str(path))
+        for name in ("fhobs_plant_step", "fhobs_luenberger_step", "fhobs_kalman_step",
+                     "fhobs_filter_step", "fhobs_euler_step"):
+            function = getattr(lib, name)
+            function.restype = ctypes.c_int
+            function.argtypes = None  # called with ctypes objects only: nothing to convert
+    except (OSError, AttributeError):
+        return None
+    return lib
+
+
+def _cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/fhobs`` (default ``~/.cache/fhobs``), created private to the user."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    path = Path(base) / "fhobs"
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    return path
+
+
+def compile_library(target: Path, compiler: str) -> None:
+    """Compile ``kernel.c`` into ``target`` (written under another name, then renamed, so that
+    concurrent processes never load a partial file).
+
+    Raises
+    ------
+    OSError, subprocess.SubprocessError
+        If the compiler fails or cannot be run.
+
+    Examples
+    --------
+    >>> compile_library(Path("build/kernel_linux64.so"), "cc")  # doctest: +SKIP
+    """
+    fd, partial = tempfile.mkstemp(suffix=".so", dir=target.parent)
+    os.close(fd)
+    try:
+        subprocess.run([compiler, *COMPILE_FLAGS, "-o", partial, str(SOURCE), "-lm"],
+                       check=True, capture_output=True, timeout=120)
+        os.replace(partial, target)
+    finally:
+        if os.path.exists(partial):
+            os.unlink(partial)
+
+
+def pointer(array: np.ndarray) -> ctypes._Pointer:
+    """A ``double *`` to a C-contiguous float64 or complex128 array (kept alive by the caller).
+
+    Examples
+    --------
+    >>> values = np.array([1.0, 2.0])
+    >>> pointer(values)[1]
+    2.0
+    """
+    assert array.flags.c_contiguous and array.dtype in (np.float64, np.complex128)
+    return ctypes.cast(array.ctypes.data, _DOUBLE_P)
+
+
+class Call(ctypes.Structure):
+    """``Call`` of kernel.c: the one argument of a step function (plan, state read, state
+    written, inputs)."""
+
+    _fields_ = [("plan", ctypes.c_void_p), ("src", ctypes.c_void_p), ("dst", ctypes.c_void_p),
+                ("inputs", ctypes.c_void_p)]
+
+
+class Stepper:
+    """Two state buffers, an input buffer and the per-step-size plans of one model.
+
+    Parameters
+    ----------
+    function : ctypes function
+        The kernel's step function ``f(call)``.
+    sizes : tuple of int
+        Sizes of the model's state arrays, stored one after the other in each buffer.
+    inputs : tuple of int
+        Sizes of the two inputs held over a step, one after the other in the input buffer.
+    make_plan : callable
+        ``make_plan(dt)`` prepares the plan of a step size at its first use and registers it
+        with :meth:`add_plan` (it may raise ValueError: the step is then refused).
+
+    Attributes
+    ----------
+    state : tuple of np.ndarray
+        The state arrays written by the last successful :meth:`run` (views of a buffer).
+
+    Examples
+    --------
+    As :class:`fhobs.plant.LTIPlant` uses it (``make_plan`` registers a ``PlantPlan``)::
+
+        stepper = Stepper(library().fhobs_plant_step, (n,), (m, r), make_plan)
+        if stepper.run(dt, x, x, u, q) == OK:
+            x = stepper.state[0]
+    """
+
+    def __init__(self, function, sizes: tuple[int, ...], inputs: tuple[int, int],
+                 make_plan) -> None:
+        self._function = function
+        self._make_plan = make_plan
+        self._buffers = [np.zeros(sum(sizes)), np.zeros(sum(sizes))]
+        self._views = [_split(buffer, sizes) for buffer in self._buffers]
+        self._input_buffer = np.zeros(max(sum(inputs), 1))
+        self._in_a, self._in_b = _split(self._input_buffer, inputs)
+        self._first = [views[0] for views in self._views]
+        self._last = [views[-1] for views in self._views]
+        self._calls: dict[float, tuple[ctypes.c_void_p, ctypes.c_void_p]] = {}
+        self._kept: dict[float, tuple] = {}
+        self.state = self._views[0]
+
+    def add_plan(self, dt: float, plan: ctypes.Structure, *arrays: np.ndarray) -> None:
+        """Register the plan of step size dt (``arrays``: what its pointers point into, kept
+        alive with it)."""
+        if len(self._calls) >= PLAN_CACHE_SIZE:
+            self._calls.clear()
+            self._kept.clear()
+        ends = [buffer.ctypes.data for buffer in self._buffers]
+        inputs = self._input_buffer.ctypes.data
+        structs = [Call(ctypes.addressof(plan), ends[side], ends[1 - side], inputs)
+                   for side in (0, 1)]
+        self._kept[dt] = (plan, arrays, structs)
+        self._calls[dt] = tuple(ctypes.c_void_p(ctypes.addressof(c)) for c in structs)
+
+    def run(self, dt: float, first: np.ndarray, last: np.ndarray, a: np.ndarray,
+            b: np.ndarray) -> int:
+        """Step the state whose arrays are ``first`` ... ``last`` (the same for a one-array
+        state) by dt with the inputs ``a``, ``b`` held; the kernel's return code, the new
+        state in :attr:`state` when it is ``OK``.
+
+        The state is read from the buffer whose views ``first`` and ``last`` are, and the other
+        buffer is written: the arrays of the state before the step are never written by it. A
+        state held elsewhere (after ``set_state``, or a rollback to it) is first copied into
+        buffer 0 (then not the state: its arrays stay as they are).
+        """
+        calls = self._calls.get(dt)
+        if calls is None:
+            self._make_plan(dt)
+            calls = self._calls[dt]
+        self._in_a[...] = a
+        self._in_b[...] = b
+        if first is self._first[0] and last is self._last[0]:
+            side = 0
+        elif first is self._first[1] and last is self._last[1]:
+            side = 1
+        else:
+            side = 0
+            for view, array in zip(self._views[0], (first, last), strict=False):
+                view[...] = array
+        code = self._function(calls[side])
+        if code == OK:
+            self.state = self._views[1 - side]
+        return code
+
+
+def _split(buffer: np.ndarray, sizes: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+    """Consecutive views of ``buffer`` of the given sizes."""
+    bounds = np.cumsum((0,) + tuple(sizes)).tolist()
+    return tuple(buffer[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True))

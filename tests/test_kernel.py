@@ -1,0 +1,450 @@
+"""The compiled step kernel (fhobs.kernel) against the numpy runtime, its reference.
+
+The kernel's arithmetic is numpy's formula by formula but its matrix-vector sums are added in
+another order than numpy's BLAS, so the two agree to round-off, not bit for bit: every
+comparison here is relative, ``max |kernel - numpy| / max |numpy|`` over the compared run.
+The FMUs built without the kernel (the numpy fallback) are checked on a representative part of
+test_fmu's behaviour.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import zipfile
+
+import fhobs.reference as reference
+import numpy as np
+import pytest
+from fhobs import kernel
+from fhobs.build import BuildError, build_fmus
+from fhobs.design import design_observer
+from fhobs.kalman import with_kalman
+from fhobs.kalman_filter import KalmanObserver
+from fhobs.plant import LTIPlant
+from fhobs.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.spec import NoiseSpec, spec_from_dict
+from fmpy import extract
+from fmpy.fmi1 import FMICallException
+from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, random_walk
+
+if kernel.library() is None:
+    pytest.skip("no compiled kernel on this machine (needs Linux and cc)",
+                allow_module_level=True)
+
+RTOL = 1e-12
+FMI_ERROR = 3
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> float:
+    """``max |a - b| / max |b|`` (b the numpy reference)."""
+    return float(np.max(np.abs(np.asarray(a) - b)) / np.max(np.abs(b)))
+
+
+def random_design(seed: int, n: int, k: int, order: int):
+    """A random observable plant (as in test_design), designed with explicit rho and gamma;
+    with ``order`` >= 1 a random E and a disturbance model of that order."""
+    rng = np.random.default_rng(seed)
+    data = {"A": (rng.standard_normal((n, n)) / np.sqrt(n)).tolist(),
+            "B": rng.standard_normal((n, 2)).tolist(),
+            "C": rng.standard_normal((k, n)).tolist(),
+            "observer": {"rho": 3.0, "gamma": 2.75}}
+    if order:
+        data["E"] = rng.standard_normal((n, 1)).tolist()
+        data["observer"]["disturbance_order"] = order
+    return design_observer(spec_from_dict(data, source=f"random seed {seed}"))
+
+
+def plant_measurements(gains, seed: int, steps: int, dt: float, scale: float = 1.0):
+    """(ys, us): a random plant run (numpy, noise 1e-3 relative) with random inputs."""
+    rng = np.random.default_rng(seed)
+    plant = LTIPlant(gains.A, gains.B, gains.C, x0=scale * rng.standard_normal(gains.n),
+                     noise_amplitude=1e-3 * scale, seed=seed, kernel=False)
+    us = scale * random_walk(seed, steps, gains.m, 0.3)
+    ys = []
+    for u in us:
+        ys.append(plant.y)
+        plant.step(u, None, dt)
+    return np.array(ys), us
+
+
+def run_pair(make, ys, us, dt):
+    """States of the kernel model and of the numpy model after each step, and how many steps
+    the kernel's model made in numpy (its fallback)."""
+    fast, slow = make(True), make(False)
+    assert fast.compiled and not slow.compiled
+    numpy_steps = []
+    own_level = fast._correct_own_level  # the numpy split step's (not the gain cap search's)
+
+    def counted(*args):
+        numpy_steps.append(1)
+        return own_level(*args)
+
+    fast._correct_own_level = counted
+    a, b = [], []
+    for y, u in zip(ys, us, strict=True):
+        fast.step(y, u, dt)
+        slow.step(y, u, dt)
+        a.append(fast.get_state())
+        b.append(slow.get_state())
+    return np.array(a), np.array(b), len(numpy_steps)
+
+
+def tolerance(make, ys, us, dt) -> float:
+    """``RTOL``, or more where the design amplifies round-off beyond it: ``ULP_FACTOR`` times
+    how far a one-ulp change of every measurement moves the numpy run (relative)."""
+    runs = []
+    for y_run in (ys, np.nextafter(ys, np.inf)):
+        model = make(False)
+        states = []
+        for y, u in zip(y_run, us, strict=True):
+            model.step(y, u, dt)
+            states.append(model.get_state())
+        runs.append(np.array(states))
+    return max(RTOL, ULP_FACTOR * relative(runs[1], runs[0]))
+
+
+ULP_FACTOR = 4
+
+RANDOM_CASES = [(0, 4, 2, 0), (1, 6, 3, 0), (2, 8, 2, 1), (3, 12, 4, 0), (4, 10, 3, 1),
+                (9, 20, 4, 0), (7, 6, 2, 0), (6, 16, 4, 2)]
+"""(seed, n, k, disturbance order) of :func:`random_design`."""
+STEP_CASES = [(case, dt) for case in RANDOM_CASES for dt in (5e-5, 1e-3)
+              if (case[0], dt) != (2, 5e-5)]
+"""Seed 2 at dt = 5e-5 is left out: its gain ceiling lies below its floor (8e-20 < 3e-7), the
+level sits at 8e-20 and a one-ulp change of y moves even the numpy run by 12 %."""
+
+
+@pytest.mark.parametrize(("case", "dt"), STEP_CASES)
+def test_filtering_observer_matches_numpy_on_random_designs(case, dt):
+    """From the all-zero start (sigma = 0: the level search, in numpy, in the first step) to
+    convergence; the other steps run in C."""
+    g = random_design(*case)
+    ys, us = plant_measurements(g, case[0], 300, dt)
+    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    a, b, numpy_steps = run_pair(make, ys, us, dt)
+    assert relative(a, b) <= tolerance(make, ys, us, dt)  # RTOL but for seed 2 (3.5e-12)
+    assert numpy_steps <= 2
+
+
+@pytest.mark.parametrize("case", RANDOM_CASES)
+@pytest.mark.parametrize(("dt", "h"), [(5e-5, 5e-5), (2e-4, 5e-5)])
+def test_euler_scheme_matches_numpy_on_random_designs(case, dt, h):
+    """The explicit Euler substeps (one, or four per communication step) of both observers."""
+    g = random_design(*case)
+    ys, us = plant_measurements(g, 1, 300, dt)
+    for cls in (FilteringObserver, LuenbergerObserver):
+        a, b, _ = run_pair(lambda c, cls=cls: cls(g, h=h, scheme="euler", kernel=c), ys, us, dt)
+        assert relative(a, b) <= RTOL
+
+
+def test_filtering_observer_matches_numpy_for_huge_errors():
+    """Errors of 1e10: the level at its ceiling, where the level search ends at once (in C)."""
+    g, dt = random_design(4, 10, 3, 1), 1e-3
+    ys, us = plant_measurements(g, 2, 200, dt, scale=1e10)
+    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    a, b, numpy_steps = run_pair(make, ys, us, dt)
+    ceiling = make(False)._ceiling(dt)
+    assert np.all(np.sqrt(0.5 * np.sum(b[1:, g.n_model:-1] ** 2, axis=1)) > ceiling)
+    assert relative(a, b) <= RTOL
+    assert numpy_steps <= 1
+
+
+@pytest.mark.parametrize("scale", [1e-9, 1e-14])
+def test_filtering_observer_matches_numpy_for_tiny_errors(scale):
+    """Errors of 1e-9 and 1e-14: the level at its floor, where the gain amplifies round-off
+    of y by up to 1e6 (the runtime's round-off floor): the two agree to what one ulp of y
+    changes in the numpy run (about 5e-11 relative here), not to 1e-12."""
+    g, dt = random_design(4, 10, 3, 1), 1e-3
+    ys, us = plant_measurements(g, 2, 200, dt, scale=scale)
+    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    a, b, numpy_steps = run_pair(make, ys, us, dt)
+    assert relative(a, b) <= tolerance(make, ys, us, dt)
+    assert numpy_steps <= 1
+
+
+def test_filtering_observer_matches_numpy_near_convergence(tuned_gains):
+    """Started next to the plant's state with sigma = 0: tiny errors, the level at its floor
+    (the capped spectral factors reused)."""
+    g, dt = tuned_gains, 5e-5
+    ys, us = plant_measurements(g, 3, 400, dt)
+    ys = ys * 0 + ys[0]  # a plant at rest at x with y = C x: the observer at z0 = x errs by 1e-9
+    us = us * 0
+    x = np.linalg.lstsq(g.C, ys[0], rcond=None)[0]
+    z0 = np.concatenate((x + 1e-9, np.zeros(g.n_model - g.n)))
+    a, b, numpy_steps = run_pair(lambda c: FilteringObserver(g, z0=z0, kernel=c), ys, us, dt)
+    assert relative(a, b) <= RTOL
+    assert numpy_steps < 10  # the first steps' level search (psi grows from sigma = 0)
+
+
+def test_real_spectrum_of_the_injection_flow(chain_gains_for_kernel):
+    """R = [[L_tilde, 1], [C L, 0]] with real eigenvalues (real spectral factors in numpy)."""
+    g = chain_gains_for_kernel
+    g = dataclasses.replace(g, L_tilde=np.array([[-40.0]]))
+    obs = FilteringObserver(g)
+    assert obs._flow.kernel_arrays()["real_lam"]
+    ys, us = plant_measurements(g, 4, 200, 1e-3)
+    a, b, _ = run_pair(lambda c: FilteringObserver(g, kernel=c), ys, us, 1e-3)
+    assert relative(a, b) <= RTOL
+
+
+@pytest.fixture(scope="module")
+def chain_gains_for_kernel():
+    return random_design(5, 3, 1, 0)
+
+
+@pytest.mark.parametrize(("seed", "n", "k", "order"), RANDOM_CASES[:6])
+def test_linear_models_match_numpy(seed, n, k, order):
+    """Luenberger observer, plant (ZOH, with noise and q) and Kalman filter (2 cycles per
+    step)."""
+    g, dt = random_design(seed, n, k, order), 1e-3
+    ys, us = plant_measurements(g, seed, 200, dt)
+    a, b, _ = run_pair(lambda c: LuenbergerObserver(g, kernel=c), ys, us, dt)
+    assert relative(a, b) <= RTOL
+    E = np.ones((n, 1)) if g.E is None else g.E
+    plants = [LTIPlant(g.A, g.B, g.C, E, x0=np.ones(n), noise_amplitude=1e-3, seed=1, kernel=c)
+              for c in (True, False)]
+    qs = random_walk(seed, 200, 1, 1.0)
+    for u, q in zip(us, qs, strict=True):
+        for plant in plants:
+            plant.step(u, q, dt)
+        assert relative(plants[0].get_state(), plants[1].get_state()) <= RTOL
+        assert relative(plants[0].y, plants[1].y) <= RTOL
+    noise = NoiseSpec(measurement_std=np.full(k, 1e-3), sample_time=dt / 2,
+                      process_intensity=1e-2, disturbance_order=order)
+    gk = with_kalman(g if order else dataclasses.replace(g, E=E), noise)
+    filters = [KalmanObserver(gk, kernel=c) for c in (True, False)]
+    for y, u in zip(ys, us, strict=True):
+        for kf in filters:
+            kf.step(y, u, dt)
+        assert relative(filters[0].get_state(), filters[1].get_state()) <= RTOL
+
+
+def test_state_restore_and_rollback(tuned_gains):
+    """A step leaves the arrays of the state before it untouched (it writes the other buffer),
+    so the FMU slaves' rollback (their attributes as before the step) and set_state continue
+    exactly as the uninterrupted run."""
+    g, dt = tuned_gains, 1e-3
+    ys, us = plant_measurements(g, 6, 60, dt)
+    obs = FilteringObserver(g)
+    for y, u in zip(ys[:20], us[:20], strict=True):
+        obs.step(y, u, dt)
+    state = obs.get_state()
+    first = []
+    for step, (y, u) in enumerate(zip(ys[20:], us[20:], strict=True)):
+        saved = obs.__dict__.copy()
+        before = [saved["_z"].copy(), saved["_aux"].copy()]
+        obs.step(y, u, dt)
+        np.testing.assert_array_equal(saved["_z"], before[0])
+        np.testing.assert_array_equal(saved["_aux"], before[1])
+        if step % 3 == 0:  # roll back and make the step again
+            obs.__dict__.clear()
+            obs.__dict__.update(saved)
+            np.testing.assert_array_equal(obs.get_state(), np.concatenate(before))
+            obs.step(y, u, dt)
+        first.append(obs.get_state())
+    other = FilteringObserver(g)
+    other.set_state(state)
+    restored = []
+    for y, u in zip(ys[20:], us[20:], strict=True):
+        other.step(y, u, dt)
+        restored.append(other.get_state())
+    np.testing.assert_array_equal(restored, first)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+def test_non_finite_step_is_refused_state_kept():
+    plant = LTIPlant(np.array([[1e300]]), np.ones((1, 1)), np.ones((1, 1)), x0=[1e10])
+    assert plant.compiled
+    with pytest.raises(ValueError, match="overflowed"):
+        plant.step([0.0], None, 1.0)
+    np.testing.assert_array_equal(plant.x, [1e10])
+
+
+def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_gains):
+    assert FilteringObserver(tuned_gains).compiled
+    assert FilteringObserver(tuned_gains, scheme="euler").compiled
+    assert not PrescribedTimeObserver(tuned_gains).compiled  # no kernel step
+    assert not FilteringObserver(tuned_gains, kernel=False).compiled
+    monkeypatch.setenv(kernel.DISABLE_ENV, "1")
+    assert not FilteringObserver(tuned_gains).compiled
+    assert not LTIPlant(tuned_gains.A, tuned_gains.B, tuned_gains.C).compiled
+
+
+def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_gains, tmp_path):
+    """No cc/gcc: the runtime falls back to numpy silently; build_fmus(kernel=True) refuses."""
+    with monkeypatch.context() as patch:
+        patch.setattr(kernel.shutil, "which", lambda name: None)
+        kernel._load.cache_clear()
+        try:
+            assert kernel.library() is None
+            assert not FilteringObserver(tuned_gains).compiled
+            with pytest.raises(BuildError, match="kernel=True needs Linux and a C compiler"):
+                build_fmus(tuned_gains, tmp_path / "fmus", kinds=("plant",), kernel=True)
+        finally:
+            kernel._load.cache_clear()  # found again below, the compiler back
+    assert kernel.library() is not None
+
+
+# -- the paper's scenarios end to end ---------------------------------------------------------
+@pytest.fixture(scope="module")
+def kalman_gains(tuned_gains, pendulum_spec):
+    return with_kalman(tuned_gains, pendulum_spec.noise)
+
+
+@pytest.mark.parametrize("scenario", ["nominal", "perturbed", "perturbed_noisy"])
+def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
+    fast = reference.simulate(kalman_gains, scenario, t_end=1.5)
+    slow = reference.simulate(kalman_gains, scenario, t_end=1.5, kernel=False)
+    for name in ("x", "z", "z_lin", "z_kalman", "psi", "xi", "u"):
+        assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_paper_scenario_with_the_euler_scheme(kalman_gains):
+    """The noisy scenario with both observers on the explicit Euler scheme. (Not the nominal
+    one: there Euler's sigma collapses to 1e-14, where its gain sigma^(nu-1) is about 1e17 and
+    any round-off, in numpy as in C, moves the estimate by 1e-10 or more.)"""
+    fast = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler")
+    slow = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler",
+                              kernel=False)
+    for name in ("x", "z", "z_lin", "psi", "xi"):
+        assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
+
+
+def test_paper_gains_differ_by_no_more_than_one_ulp_of_y_makes(paper_design, monkeypatch):
+    """With the paper's gains the observer amplifies round-off of y by up to 1e6 (its
+    round-off floor): a one-ulp change of every measurement already moves the numpy run's
+    estimate by ~7e-13 relative. The kernel's difference stays within a few such ulps."""
+    slow = reference.simulate(paper_design, "perturbed", t_end=1.5, kernel=False)
+    fast = reference.simulate(paper_design, "perturbed", t_end=1.5)
+
+    class OneUlpPlant(LTIPlant):
+        @property
+        def y(self) -> np.ndarray:
+            return np.nextafter(LTIPlant.y.fget(self), np.inf)
+
+    monkeypatch.setattr(reference, "LTIPlant", OneUlpPlant)
+    nudged = reference.simulate(paper_design, "perturbed", t_end=1.5, kernel=False)
+    ulp_effect = relative(nudged.z, slow.z)
+    assert 0.0 < ulp_effect
+    assert relative(fast.z, slow.z) <= max(4 * ulp_effect, RTOL)
+    for name in ("x", "z_lin", "psi", "xi"):
+        assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
+
+
+# -- FMUs built without the kernel (the numpy fallback) ---------------------------------------
+@pytest.fixture(scope="module")
+def fmu_pair(tmp_path_factory, tuned_gains):
+    """The pendulum FMUs built with and without the kernel: kind -> (path, unzip dir)."""
+    built = {}
+    for with_kernel in (True, False):
+        folder = tmp_path_factory.mktemp(f"kernel_{with_kernel}")
+        fmus = build_fmus(tuned_gains, folder, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+                          noise_seed=NOISE_SEED, h=5e-5, kernel=with_kernel)
+        built[with_kernel] = {kind: (path, extract(str(path))) for kind, path in fmus.items()}
+    return built
+
+
+@pytest.fixture
+def open_pair(fmu_pair):
+    opened = []
+
+    def factory(with_kernel: bool, kind: str, name: str = "instance") -> FmuDriver:
+        path, folder = fmu_pair[with_kernel][kind]
+        opened.append(FmuDriver(path, folder, name))
+        return opened[-1]
+
+    yield factory
+    for driver in opened:
+        driver.fmu.freeInstance()
+
+
+def test_kernel_is_shipped_only_when_asked(fmu_pair):
+    for with_kernel, fmus in fmu_pair.items():
+        for path, _ in fmus.values():
+            with zipfile.ZipFile(path) as z:
+                shipped = [n for n in z.namelist() if n.endswith(kernel.SHIPPED.name)]
+            assert len(shipped) == (1 if with_kernel else 0)
+
+
+def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tuned_gains):
+    g, dt = tuned_gains, 1e-3
+    ys, us = plant_measurements(g, 8, 120, dt)
+    runtime = FilteringObserver(g, h=5e-5, kernel=False)
+    drivers = [open_pair(False, "observer"), open_pair(True, "observer", "k")]
+    for driver in drivers:
+        driver.start()
+    for step, (y, u) in enumerate(zip(ys, us, strict=True)):
+        runtime.step(y, u, dt)
+        outputs = []
+        for driver in drivers:
+            driver.set("y", y)
+            driver.set("u", u)
+            driver.fmu.doStep(step * dt, dt)
+            outputs.append(np.concatenate([driver.get("x_hat", (g.n,)),
+                                           driver.get("psi", (g.k,)),
+                                           driver.get("xi", ()).ravel()]))
+        expected = np.concatenate([runtime.x_hat, runtime.diagnostics()["psi"],
+                                   [runtime.diagnostics()["xi"]]])
+        np.testing.assert_array_equal(outputs[0], expected)
+        assert relative(outputs[1], expected) <= RTOL
+
+
+@pytest.mark.parametrize("with_kernel", [False, True])
+def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_gains,
+                                                             with_kernel):
+    g, dt = tuned_gains, 1e-3
+    us, qs = random_walk(9, 40, g.m, 0.1), random_walk(10, 40, g.E.shape[1], 0.1)
+    driver = open_pair(with_kernel, "plant")
+    driver.start()
+    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+                     seed=NOISE_SEED, kernel=with_kernel)
+
+    def run(steps):
+        rows = []
+        for k in steps:
+            driver.set("u", us[k])
+            driver.set("q", qs[k])
+            driver.fmu.doStep(k * dt, dt)
+            rows.append(np.concatenate([driver.get("x", (g.n,)), driver.get("y", (g.k,))]))
+        return np.array(rows)
+
+    for k, row in zip(range(20), run(range(20)), strict=True):
+        plant.step(us[k], qs[k], dt)
+        np.testing.assert_array_equal(row, np.concatenate([plant.x, plant.y]))
+    state = driver.fmu.getFMUstate()
+    first = run(range(20, 40))
+    driver.fmu.setFMUstate(state)
+    np.testing.assert_array_equal(run(range(20, 40)), first)
+    driver.fmu.freeFMUstate(state)
+
+
+@pytest.mark.parametrize("with_kernel", [False, True])
+def test_fmu_bad_input_and_overflow_are_errors_state_kept(open_pair, tuned_gains, with_kernel):
+    g = tuned_gains
+    observer = open_pair(with_kernel, "observer")
+    observer.start()
+    observer.set("y", [np.nan, 0.0])
+    with pytest.raises(FMICallException) as err:
+        observer.fmu.doStep(0.0, 1e-3)
+    assert err.value.status == FMI_ERROR
+    observer.set("y", [0.1, 0.2])
+    observer.fmu.doStep(0.0, 1e-3)  # still usable
+    C = g.C.copy()
+    C[0, 0] = 1.7e308
+    plant = open_pair(with_kernel, "plant", "p")
+    plant.start({"C": C, "x0": np.ones(g.n)})
+    refs = [plant.vr[f"x[{i + 1}]"] for i in range(g.n)]
+    with np.errstate(over="ignore"):
+        for k in range(100):
+            before = plant.fmu.getReal(refs)
+            try:
+                plant.fmu.doStep(k * 1e-2, 1e-2)
+            except FMICallException as exc:
+                assert exc.status == FMI_ERROR
+                break
+        else:
+            pytest.fail("the plant output never overflowed")
+    assert k > 0
+    assert plant.fmu.getReal(refs) == before
