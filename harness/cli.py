@@ -50,6 +50,8 @@ PENDULUM_SPEC = REPO / "examples" / "pendulum.toml"
 PAPER_REFERENCE = REPO / "examples" / "pendulum-paper.json"
 PAPER_SCENARIOS = ("pendulum_nominal", "pendulum_perturbed", "pendulum_noisy")
 PAPER_SEEDS = {"pendulum_noisy": 5}
+PAPER_CSV_EVERY = 20
+"""The main job writes every 20th point (1 ms at the paper's step) of its 60,000-step runs."""
 
 
 def scenario_path(name: str) -> Path:
@@ -86,6 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--fmu-dir", type=Path, help="value of ${fmu_dir} in FMU paths")
     common.add_argument("--block-cache", type=Path, help="where harness blocks are built")
+    common.add_argument("--csv-every", type=int, default=None, metavar="K",
+                        help="write every K-th communication point to results.csv (figures "
+                             f"use every point; default 1, paper: {PAPER_CSV_EVERY})")
     run = sub.add_parser("run", parents=[common], help="run one scenario")
     run.add_argument("scenario", help="system description file or bundled scenario name")
     run.add_argument("--out", type=Path, required=True, help="results folder")
@@ -187,6 +192,7 @@ def run_scenario(
     seeds: list[int] | None = None,
     jobs: int = 2,
     plots: bool = True,
+    csv_every: int = 1,
 ) -> dict[str, Any]:
     """Run, write results.csv (first seed), summary.json and plots into ``out``.
 
@@ -205,7 +211,7 @@ def run_scenario(
         if err.partial is not None:
             write_incomplete(err, spec, out)
         raise
-    write_csv(results[0], out / "results.csv")
+    write_csv(results[0], out / "results.csv", csv_every)
     data = mean_summary(results, spec, seeds)
     if plots:
         from harness.plotting import plot_results
@@ -221,6 +227,14 @@ def write_incomplete(err: MasterError, spec: SystemSpec, out: Path) -> None:
     data = summary(err.partial, spec.evaluation, scenario=spec.name, step=spec.step)
     data |= {"incomplete": True, "error": str(err), "stop_time": float(err.partial.time[-1])}
     write_summary(data, out / "summary.json")
+
+
+def csv_every(args: argparse.Namespace, default: int) -> int:
+    """``--csv-every``, or the command's default; DescriptionError unless it is >= 1."""
+    every = default if args.csv_every is None else args.csv_every
+    if every < 1:
+        raise DescriptionError(f"--csv-every = {every} must be >= 1")
+    return every
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -239,7 +253,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         seeds = [args.seed]
     if args.seeds is not None:
         seeds = list(range(args.seeds))
-    data = run_scenario(spec, args.out, args.stop_time, seeds, args.jobs, not args.no_plots)
+    data = run_scenario(spec, args.out, args.stop_time, seeds, args.jobs, not args.no_plots,
+                        csv_every(args, 1))
     print(format_table({spec.name: data}))
     print(f"results in {args.out}")
     return 0
@@ -318,7 +333,8 @@ def _cmd_paper(args: argparse.Namespace) -> int:
             print(f"running {label} {name}" + (f" ({n} seeds)" if n else ""), flush=True)
             key = f"{label} {name}"
             folders[key] = args.out / label / name
-            table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs)
+            table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs,
+                                      csv_every=csv_every(args, PAPER_CSV_EVERY))
     print(format_table(table))
     for key, data in table.items():
         print(f"{key}: {folders[key]} (plots: {', '.join(data.get('plots', []))})")
@@ -349,7 +365,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
                       h=step)
     system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise)
     data = run_scenario(system, args.out, None, [args.seed] if noise else None, 1,
-                        not args.no_plots)
+                        not args.no_plots, csv_every(args, 1))
     print(format_table({f"{args.spec.stem}": data}))
     if not args.no_plots:
         print(f"plots: {', '.join(data['plots'])}")

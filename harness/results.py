@@ -69,15 +69,18 @@ def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str
     }
 
 
-def write_csv(result: CoSimResult, path: Path) -> Path:
-    """Write the recorded signals (``time`` first) as CSV with fmpy's writer."""
+def write_csv(result: CoSimResult, path: Path, every: int = 1) -> Path:
+    """Write the recorded signals (``time`` first) as CSV with fmpy's writer: every
+    ``every``-th communication point (the first always, the last too). The summary figures are
+    computed from every point whatever ``every`` is."""
     from fmpy.util import write_csv as fmpy_write_csv
 
+    rows = np.unique(np.append(np.arange(0, len(result.time), every), len(result.time) - 1))
     dtype = [("time", np.float64)] + [(n, np.float64) for n in result.names]
-    table = np.empty(len(result.time), dtype=dtype)
-    table["time"] = result.time
+    table = np.empty(rows.size, dtype=dtype)
+    table["time"] = result.time[rows]
     for j, name in enumerate(result.names):
-        table[name] = result.values[:, j]
+        table[name] = result.values[rows, j]
     fmpy_write_csv(str(path), table)
     return path
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from harness.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -47,3 +49,23 @@ def test_bad_spec_is_one_paragraph(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
     assert err.startswith("error: ") and "C has 3 columns, expected 2" in err
+
+
+def test_csv_every_thins_the_csv_not_the_figures(tmp_path, capsys):
+    """--csv-every 10 writes every 10th point (and the last) to results.csv; the summary's
+    figures are the same as with every point."""
+    spec = str(EXAMPLES / "zoo" / "dc_motor.toml")
+    figures = {}
+    for every in (1, 10):
+        out = tmp_path / str(every)
+        assert main(["plant", spec, "--out", str(out), "--stop-time", "1.005", "--step", "1e-3",
+                     "--csv-every", str(every), "--no-plots"]) == 0
+        rows = (out / "results.csv").read_text().splitlines()[1:]
+        figures[every] = json.loads((out / "summary.json").read_text())["homogeneous"]
+        times = [float(r.split(",")[0]) for r in rows]
+        assert len(times) == (1006 if every == 1 else 102)
+        assert times[-1] == pytest.approx(1.005) and times[1] == pytest.approx(every * 1e-3)
+    capsys.readouterr()
+    assert figures[1] == figures[10]
+    assert main(["plant", spec, "--out", str(tmp_path / "bad"), "--csv-every", "0"]) == 2
+    assert "--csv-every = 0 must be >= 1" in capsys.readouterr().err

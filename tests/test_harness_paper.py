@@ -88,9 +88,9 @@ def test_nominal_accuracy_at_1_5(fmu_dir, block_cache):
 
 def test_noisy_target_through_fmus_five_seeds(fmu_dir, block_cache, gains):
     """The noisy figure through the FMUs: mean over seeds 0-4 of the RMS of norm(x - x_hat)
-    over [1, 3] (measured 1.03e-2) <= 1.1e-2 and >= 25x below the linear observer in the same
+    over [1, 3] (measured 8.44e-3) <= 9e-3 and >= 25x below the linear observer in the same
     runs (the Kalman filter's too); the Kalman filter of the same disturbance order wins on
-    noise (6.61e-3, ours 1.56x); the seed-0
+    noise (6.61e-3, ours 1.28x); the seed-0
     run also equals the reference to 1e-9 over the full 3 s."""
     rms, rms_lin, rms_kalman = [], [], []
     for seed in range(5):
@@ -105,10 +105,10 @@ def test_noisy_target_through_fmus_five_seeds(fmu_dir, block_cache, gains):
         rms_kalman.append(figures["kalman"]["rms_error_1_3"])
     print(f"noisy, 5 seeds: {np.mean(rms):.3e} vs linear {np.mean(rms_lin):.3e}, "
           f"Kalman {np.mean(rms_kalman):.3e}")
-    assert np.mean(rms) <= 1.1e-2
+    assert np.mean(rms) <= 9e-3
     assert np.mean(rms_lin) >= 25 * np.mean(rms)
     assert np.mean(rms_lin) >= 25 * np.mean(rms_kalman)
-    assert np.mean(rms_kalman) < np.mean(rms) <= 1.7 * np.mean(rms_kalman)
+    assert np.mean(rms_kalman) < np.mean(rms) <= 1.35 * np.mean(rms_kalman)
 
 
 VENDOR_LOOP = """
@@ -190,7 +190,8 @@ def test_cli_run_writes_csv_summary_and_plots(tmp_path, fmu_dir, block_cache):
     columns = [c.strip('"') for c in header[0].split(",")]
     first = dict(zip(columns, map(float, header[1].split(",")), strict=True))
     assert [first[f"plant.x[{i}]"] for i in range(1, 5)] == [1.0, 0.5, 0.0, 0.0]
-    assert summary["plots"] == [str(out / "errors.png"), str(out / "figure.png")]
+    assert summary["plots"] == [str(out / name) for name in ("errors.png", "states.png",
+                                                             "figure.png")]
     assert all(Path(p).stat().st_size > 0 for p in summary["plots"])
 
 

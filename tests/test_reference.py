@@ -106,14 +106,14 @@ def test_perturbation_is_rejected_after_convergence(paper_runs):  # the paper's 
 
 
 def test_noisy_figure_beats_paper_not_kalman(tuned_runs, paper_runs):
-    """Mean over 5 seeds of the RMS of norm(x - z) over [1, 3]: measured 1.03e-2, 42x below the
+    """Mean over 5 seeds of the RMS of norm(x - z) over [1, 3]: measured 8.44e-3, 51x below the
     linear observer in the same runs; the paper's gains reach 3.6e-2 (12x). The Kalman filter
-    of the same disturbance order wins on noise (6.61e-3; ours is 1.56x)."""
+    of the same disturbance order wins on noise (6.61e-3; ours is 1.28x)."""
     ours = accuracy_metrics(tuned_runs["perturbed_noisy"], "perturbed_noisy")
     paper = accuracy_metrics(paper_runs["perturbed_noisy"], "perturbed_noisy")
-    assert ours["rms_1_3"] <= 1.1e-2 and ours["ratio"] >= 25.0
+    assert ours["rms_1_3"] <= 9e-3 and ours["ratio"] >= 25.0
     assert ours["rms_1_3"] < 0.5 * paper["rms_1_3"] and paper["ratio"] > 10.0
-    assert ours["rms_1_3_kalman"] < ours["rms_1_3"] <= 1.7 * ours["rms_1_3_kalman"]
+    assert ours["rms_1_3_kalman"] < ours["rms_1_3"] <= 1.35 * ours["rms_1_3_kalman"]
 
 
 @pytest.mark.slow
