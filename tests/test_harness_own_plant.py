@@ -28,6 +28,7 @@ def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu")) == [
         "luenberger.fmu", "observer.fmu", "plant.fmu"]
 
+@pytest.mark.slow
 
 def test_own_plant_with_noise_runs_the_kalman_filter_at_its_sample_time(tmp_path, capsys):
     """A spec with a [noise] table: kalman.fmu is built and run, the step is its sample time,
@@ -50,6 +51,7 @@ def test_bad_spec_is_one_paragraph(tmp_path, capsys):
     assert code == 2 and "Traceback" not in err
     assert err.startswith("error: ") and "C has 3 columns, expected 2" in err
 
+@pytest.mark.slow
 
 def test_csv_every_thins_the_csv_not_the_figures(tmp_path, capsys):
     """--csv-every 10 writes every 10th point (and the last) to results.csv; the summary's

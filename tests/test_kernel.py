@@ -292,6 +292,7 @@ def kalman_gains(tuned_gains, pendulum_spec):
     return with_kalman(tuned_gains, pendulum_spec.noise)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["nominal", "perturbed", "perturbed_noisy"])
 def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
     """Every state of the closed loop (u = K z follows from z: K's cancellations make its
@@ -302,6 +303,7 @@ def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_paper_scenario_with_the_euler_scheme(kalman_gains):
     """The noisy scenario with both observers on the explicit Euler scheme. (Not the nominal
@@ -313,6 +315,7 @@ def test_paper_scenario_with_the_euler_scheme(kalman_gains):
     for name in ("x", "z", "z_lin", "psi", "xi"):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
 
+@pytest.mark.slow
 
 def test_paper_gains_differ_by_no_more_than_one_ulp_of_y_makes(paper_design, monkeypatch):
     """With the paper's gains the observer amplifies round-off of y by up to 1e6 (its
