@@ -21,6 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from fhobs.kernel import cache_dir
+
 SOURCE = Path(__file__).resolve().parent / "step_loop.c"
 DISABLE_ENV = "FHOBS_HARNESS_PYTHON_LOOP"
 CALLS = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
@@ -56,7 +58,7 @@ def step_library() -> ctypes.CDLL | None:
     name = f"harness_step_{tag[:16]}.so"
     private = None  # a temporary directory, removed once the library is loaded
     try:
-        library = _cache_dir() / name
+        library = cache_dir() / name
         if not library.exists():
             _compile(compiler, library)
     except (OSError, subprocess.SubprocessError):
@@ -78,14 +80,6 @@ def step_library() -> ctypes.CDLL | None:
     step.restype = ctypes.c_int
     step.argtypes = None
     return lib
-
-
-def _cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/fhobs`` (default ``~/.cache/fhobs``), created private to the user."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    path = Path(base) / "fhobs"
-    path.mkdir(mode=0o700, parents=True, exist_ok=True)
-    return path
 
 
 def _compile(compiler: str, library: Path) -> None:

@@ -128,7 +128,7 @@ def _load() -> ctypes.PyDLL | None:
                          + compiler.encode() + platform.machine().encode()).hexdigest()
     name = f"fhobs_kernel_{tag[:16]}.so"
     try:
-        path = _cache_dir() / name
+        path = cache_dir() / name
         if not path.exists():
             compile_library(path, compiler)
         return _open(path)
@@ -155,8 +155,9 @@ def _open(path: Path) -> ctypes.PyDLL | None:
     return lib
 
 
-def _cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/fhobs`` (default ``~/.cache/fhobs``), created private to the user."""
+def cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/fhobs`` (default ``~/.cache/fhobs``), created private to the user: where
+    compiled helpers (this kernel, the harness's step loop) are kept."""
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     path = Path(base) / "fhobs"
     path.mkdir(mode=0o700, parents=True, exist_ok=True)
