@@ -141,3 +141,15 @@ def test_toml_nan_literal_is_rejected(tmp_path: Path):
     spec.write_text("A = [[0, 1], [nan, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n")
     with pytest.raises(SpecError, match=r"A\[2,1\] = nan is not finite"):
         load_spec(spec)
+
+
+def test_numpy_arrays_are_accepted_as_matrices():
+    """A 2-D numpy array is read as its rows: the same spec as the lists; a 1-D array is not a
+    matrix and is refused with the field named."""
+    arrays = {k: (np.array(v, dtype=float) if k in ("A", "B", "C") else v)
+              for k, v in GOOD.items()}
+    from_arrays, from_lists = spec_from_dict(arrays), spec_from_dict(GOOD)
+    for name in ("A", "B", "C"):
+        np.testing.assert_array_equal(getattr(from_arrays, name), getattr(from_lists, name))
+    with pytest.raises(SpecError, match="C must be a non-empty list of rows"):
+        spec_from_dict(arrays | {"C": np.array([1.0, 0.0])})

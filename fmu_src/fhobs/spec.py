@@ -188,13 +188,22 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     Parameters
     ----------
     data : dict
-        Keys ``A``, ``B``, ``C``, optional ``E``, ``L_lin`` and ``observer``.
+        Keys ``A``, ``B``, ``C``, optional ``E``, ``L_lin``, ``observer`` and ``noise``; the
+        matrices as lists of rows or 2-D numpy arrays.
     source : str
         Name used in error messages.
 
     Returns
     -------
     PlantSpec
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> spec = spec_from_dict({"A": np.array([[0.0, 1.0], [0.0, 0.0]]), "B": [[0], [1]],
+    ...                        "C": [[1, 0]], "observer": {"settling_time": 1.0}})
+    >>> spec.n_tilde, round(spec.nu, 4), spec.rho
+    (2, -0.3333, None)
     """
     _reject_unknown(data, TOP_KEYS, source, "")
     A = _matrix(data, "A", source)
@@ -327,10 +336,13 @@ def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str
 def _matrix(
     data: dict[str, Any], name: str, source: str, rows: int | None = None, cols: int | None = None
 ) -> np.ndarray:
-    """Parse ``data[name]`` as a finite real matrix given as a list of rows."""
+    """Parse ``data[name]`` as a finite real matrix given as a list of rows (or a 2-D numpy
+    array, taken as its rows)."""
     if name not in data:
         raise SpecError(f"{source}: {name} is missing (a matrix given as a list of rows)")
     value = data[name]
+    if isinstance(value, np.ndarray) and value.ndim == 2:
+        value = value.tolist()
     if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
         raise SpecError(f"{source}: {name} must be a non-empty list of rows, e.g. [[1, 0], [0, 1]]")
     width = len(value[0])
