@@ -436,13 +436,22 @@ class _Observer:
             columns.append(np.concatenate([aux[:n_lin], z]))
         return np.linalg.solve(S, np.column_stack(columns))
 
+    def _dilated_radius(self, level: float, dt: float) -> float:
+        """Spectral radius of :meth:`error_map` at ``level``; inf where the map cannot be
+        formed (a dilation that over- or underflows at an extreme level is singular)."""
+        try:
+            with np.errstate(all="ignore"):
+                radius = spectral_radius(self.error_map(level, dt))
+        except (np.linalg.LinAlgError, ArithmeticError, ValueError):
+            return math.inf
+        return radius if math.isfinite(radius) else math.inf
+
     def _auto_taus(self, dt: float) -> tuple[float | None, float]:
         """``(tau_min, tau_max)`` on ``TAU_GRID``: tau_max minimises the spectral radius of the
         dilated error map, tau_min is the smallest tau of the contractive run that holds
         tau_max, None when that run starts at the grid's first tau (module docstring)."""
         nu = self.gains.nu
-        radii = [spectral_radius(self.error_map((tau / dt) ** (1.0 / nu), dt))
-                 for tau in TAU_GRID]
+        radii = [self._dilated_radius((tau / dt) ** (1.0 / nu), dt) for tau in TAU_GRID]
         best = int(np.argmin(radii))
         if not radii[best] < CONTRACTION_LIMIT:
             raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
