@@ -171,7 +171,7 @@ class _Observer:
         self._L_inj = L_inj
         self._zoh: dict[float, Prediction] = {}
         self.tau_max: float | None = None
-        self._caps: dict[float, float] = {}
+        self._caps: dict[float, tuple[float | None, float, float, float]] = {}
         self._roundoff_level: float | None = None
         self._stepper: compiled.Stepper | None = None
 
@@ -345,15 +345,12 @@ class _Observer:
     def _floor(self, dt: float) -> float:
         """Gain-level floor for the communication step dt: ``(tau_max / dt)^(1/nu)``, and at
         least the round-off floor (module docstring)."""
-        if self._roundoff_level is None:
-            self._roundoff_level = self._amplification_level()
-        return max((self.cap(dt) / dt) ** (1.0 / self.gains.nu), self._roundoff_level)
+        return self._step_size_plan(dt)[2]
 
     def _ceiling(self, dt: float) -> float:
         """Gain-level ceiling for the communication step dt: ``(tau_min / dt)^(1/nu)`` when the
         dilated map does not contract for the smallest taus (module docstring), else inf."""
-        tau_min = self._tau_range(dt)[0]
-        return math.inf if tau_min is None else (tau_min / dt) ** (1.0 / self.gains.nu)
+        return self._step_size_plan(dt)[3]
 
     def cap(self, dt: float) -> float:
         """``tau_max`` for the communication step dt: the fixed one given at construction, or
@@ -364,18 +361,24 @@ class _Observer:
         ValueError
             If no tau of ``TAU_GRID`` gives a contractive error map for this dt.
         """
-        return self._tau_range(dt)[1]
+        return self._step_size_plan(dt)[1]
 
-    def _tau_range(self, dt: float) -> tuple[float | None, float]:
-        """``(tau_min, tau_max)`` for dt (tau_min None: no ceiling), cached per step size."""
-        if self.tau_max is not None:
-            return None, self.tau_max
-        taus = self._caps.get(dt)
-        if taus is None:
+    def _step_size_plan(self, dt: float) -> tuple[float | None, float, float, float]:
+        """``(tau_min, tau_max, floor, ceiling)`` for the communication step dt (tau_min None:
+        no ceiling), computed at the first step of that size and cached."""
+        plan = self._caps.get(dt)
+        if plan is None:
+            tau_min, tau_max = ((None, self.tau_max) if self.tau_max is not None
+                                else self._auto_taus(dt))
+            if self._roundoff_level is None:
+                self._roundoff_level = self._amplification_level()
+            inverse_nu = 1.0 / self.gains.nu
+            floor = max((tau_max / dt) ** inverse_nu, self._roundoff_level)
+            ceiling = math.inf if tau_min is None else (tau_min / dt) ** inverse_nu
             if len(self._caps) >= CAP_CACHE_SIZE:
                 self._caps.clear()
-            taus = self._caps[dt] = self._auto_taus(dt)
-        return taus
+            plan = self._caps[dt] = (tau_min, tau_max, floor, ceiling)
+        return plan
 
     def _amplification_level(self) -> float:
         """The level s at which ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` equals
