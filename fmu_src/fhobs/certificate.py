@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from .gains import ObserverGains
-from .linalg import balancing_scale
+from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity
 
 DEFAULT_TOLERANCE = 1e-7
 DEFAULT_MARGIN = 1e-6
@@ -95,7 +95,8 @@ def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
     """The four homogeneity figures of the table in the module docstring (in the balanced
     coordinates of :func:`_balancing`)."""
     d = _balancing(gains)
-    A0, G_d, C, nu = _similar(gains.A0, d), _similar(gains.G_d, d), gains.model[2] * d, gains.nu
+    A0, G_d = diagonal_similarity(gains.A0, d), diagonal_similarity(gains.G_d, d)
+    C, nu = gains.model[2] * d, gains.nu
     eye = np.eye(gains.n_model)
     a0_norm = max(np.linalg.norm(A0), 1e-300)
     return {
@@ -117,11 +118,6 @@ def _balancing(gains: ObserverGains) -> np.ndarray:
     figures are computed for ``x = diag(d) x_b``, an exact similarity that leaves every check's
     value unchanged in exact arithmetic and keeps its rounding small for badly scaled plants."""
     return balancing_scale(gains.model[0])
-
-
-def _similar(M: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``diag(d)^-1 M diag(d)``."""
-    return M / d[:, None] * d[None, :]
 
 
 def lmi_values(
@@ -159,7 +155,7 @@ def lmi_values(
     diagonal = np.diagonal(P)
     if np.all(diagonal > 0.0) and np.all(np.isfinite(diagonal)):
         t = 2.0 ** np.round(-0.5 * np.log2(diagonal))
-        P, H, G = P * t[:, None] * t[None, :], _similar(H, t), _similar(G, t)
+        P, H, G = diagonal_congruence(P, t), diagonal_similarity(H, t), diagonal_similarity(G, t)
     P_sym = sym(P)
     M = H + rho * G
     p_eigs = np.linalg.eigvalsh(P_sym)
@@ -194,13 +190,13 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     d_bar = np.concatenate([np.ones(gains.k), d])
     bar_A0, bar_G, bar_C = augmented_matrices(gains)
     bar_L = np.vstack([gains.L_tilde, gains.L])
-    values |= lmi_values(gains.P_bar * d_bar[:, None] * d_bar[None, :],
-                         _similar(bar_A0 + bar_L @ bar_C, d_bar), _similar(bar_G, d_bar),
-                         gains.rho, "filtering")
+    values |= lmi_values(diagonal_congruence(gains.P_bar, d_bar),
+                         diagonal_similarity(bar_A0 + bar_L @ bar_C, d_bar),
+                         diagonal_similarity(bar_G, d_bar), gains.rho, "filtering")
     G_pt = gains.G_d - gains.nu * np.eye(gains.n_model)
-    values |= lmi_values(gains.P_pt * d[:, None] * d[None, :],
-                         _similar(gains.A0 + gains.L_pt @ gains.model[2], d), _similar(G_pt, d),
-                         gains.rho, "pt")
+    values |= lmi_values(diagonal_congruence(gains.P_pt, d),
+                         diagonal_similarity(gains.A0 + gains.L_pt @ gains.model[2], d),
+                         diagonal_similarity(G_pt, d), gains.rho, "pt")
     values["hurwitz_luenberger"] = float(
         np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real)
     )

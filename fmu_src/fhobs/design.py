@@ -38,6 +38,7 @@ from .certificate import CertificateError, augmented_matrices, certify
 from .disturbance import extended_model, model_perturbation_matrix
 from .gains import ObserverGains
 from .homogenisation import Homogenisation, dilation_basis, homogenise
+from .linalg import diagonal_congruence, diagonal_similarity
 from .lmi import (
     DEFAULT_MARGIN,
     LMIError,
@@ -100,7 +101,7 @@ def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: floa
         return spec.L_lin
     n = spec.A.shape[0]
     d = _balancing(spec.A)
-    A_b, C_b = spec.A / d[:, None] * d[None, :], spec.C * d[None, :]
+    A_b, C_b = diagonal_similarity(spec.A, d), spec.C * d[None, :]
     A0, levels = _chain_levels(A_b, C_b, spec.nu, homogenise(A_b, C_b, spec.nu))
     basis = chain_basis(A0, levels)
     return solve_gain_lmi(A_b, np.eye(n), C_b, decay, basis, objective, margin).gain * d[:, None]
@@ -221,7 +222,7 @@ def _design_at_margin(
     """
     A_model, _, C_model = extended_model(spec.A, spec.B, spec.C, spec.E, spec.disturbance_order)
     d = _balancing(A_model)
-    A_b, C_b = A_model / d[:, None] * d[None, :], C_model * d[None, :]
+    A_b, C_b = diagonal_similarity(A_model, d), C_model * d[None, :]
     hom = homogenise(A_b, C_b, spec.nu)
     n, k = A_model.shape[0], spec.C.shape[0]
     A0, levels = _chain_levels(A_b, C_b, spec.nu, hom)
@@ -242,10 +243,10 @@ def _design_at_margin(
     d_bar = np.concatenate([np.ones(k), d])
     base = dict(
         A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=rho, gamma=spec.gamma,
-        n_tilde=hom.n_tilde, G0=hom.G0 * d[:, None] / d[None, :], L0=hom.L0 * d[:, None],
-        G_d=hom.G_d * d[:, None] / d[None, :], L_tilde=bar_L[:k], L=bar_L[k:] * d[:, None],
-        P_bar=P_bar / d_bar[:, None] / d_bar[None, :], L_pt=pt.gain * d[:, None],
-        P_pt=pt.P / d[:, None] / d[None, :],
+        n_tilde=hom.n_tilde, G0=diagonal_similarity(hom.G0, 1.0 / d), L0=hom.L0 * d[:, None],
+        G_d=diagonal_similarity(hom.G_d, 1.0 / d), L_tilde=bar_L[:k], L=bar_L[k:] * d[:, None],
+        P_bar=diagonal_congruence(P_bar, 1.0 / d_bar), L_pt=pt.gain * d[:, None],
+        P_pt=diagonal_congruence(pt.P, 1.0 / d),
         L_lin=_luenberger_gain(spec, decay, objective, margin),
         disturbance_order=spec.disturbance_order,
     )

@@ -181,6 +181,29 @@ class ExpmFamily:
         return (E[:size, :size] @ r)[:rows], E[:size, size][:rows]
 
 
+def diagonal_similarity(M: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``diag(d)^-1 M diag(d)``: M in the coordinates ``x = diag(d) x_b`` (exact in floating
+    point when d holds powers of two, as :func:`balancing_scale` gives).
+
+    Examples
+    --------
+    >>> diagonal_similarity(np.array([[1.0, 8.0], [2.0, 3.0]]), np.array([1.0, 0.25])).tolist()
+    [[1.0, 2.0], [8.0, 3.0]]
+    """
+    return M / d[:, None] * d[None, :]
+
+
+def diagonal_congruence(P: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``diag(d) P diag(d)``: a quadratic form's matrix in the coordinates ``x = diag(d) x_b``.
+
+    Examples
+    --------
+    >>> diagonal_congruence(np.eye(2), np.array([2.0, 0.5])).tolist()
+    [[4.0, 0.0], [0.0, 0.25]]
+    """
+    return P * d[:, None] * d[None, :]
+
+
 BALANCE_SWEEPS = 100
 """Most sweeps of :func:`balancing_scale` (it usually converges in a few)."""
 
