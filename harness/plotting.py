@@ -83,12 +83,13 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
 
     x = result.vector(state)
     n = x.shape[1]
+    columns = {label: result.vector(signal) for label, signal in estimates.items()}
     fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True,
                              layout="constrained", squeeze=False)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(result.time, x[:, i], color="k", lw=2, label=state)
-        for label, signal in estimates.items():
-            ax.plot(result.time, result.vector(signal)[:, i], lw=1, label=label)
+        for label, estimate in columns.items():
+            ax.plot(result.time, estimate[:, i], lw=1, label=label)
         ax.set_ylabel(f"x[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)

@@ -94,17 +94,11 @@ def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
     Returns
     -------
     SimulationResult
-        Sampled at ``t_k = k dt``; :func:`relative_error` turns it into the errors.
+        Sampled at ``t_k = k dt``; :func:`convergence_figures` turns it into the figures.
     """
     return simulate(gains, "nominal", t_end=t_end, dt=dt, h=h, scheme=scheme,
                     K=state_feedback(gains.A, gains.B),
                     x0=np.ones(gains.n) if x0 is None else x0, feedback="state")
-
-
-def relative_error(result: SimulationResult, estimate: str = "z") -> np.ndarray:
-    """``|x(t) - x_hat(t)| / max_t |x(t)|`` of one observer (``"z"`` or ``"z_lin"``)."""
-    error = np.linalg.norm(result.x - getattr(result, estimate), axis=1)
-    return error / np.max(np.linalg.norm(result.x, axis=1))
 
 
 def convergence_figures(result: SimulationResult, estimate: str = "z") -> dict[str, float]:
@@ -117,8 +111,8 @@ def convergence_figures(result: SimulationResult, estimate: str = "z") -> dict[s
         above), ``peak`` = max |x - x_hat| / |x(0) - x_hat(0)|, ``floor`` = max of the relative
         error over the last second.
     """
-    rel = relative_error(result, estimate)
     error = np.linalg.norm(result.x - getattr(result, estimate), axis=1)
+    rel = error / np.max(np.linalg.norm(result.x, axis=1))  # |x - x_hat| / max_t |x|
     above = np.flatnonzero(~(rel <= CONVERGED))  # NaN counts as above
     time = (0.0 if above.size == 0 else
             np.inf if above[-1] == rel.size - 1 else float(result.t[above[-1] + 1]))
