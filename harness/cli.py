@@ -343,17 +343,16 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
 def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.build import build_fmus
-    from fhobs.cli import design_summary
-    from fhobs.design import design_observer
-    from fhobs.kalman import with_kalman
+    from fhobs.cli import design_from_spec, design_summary
+    from fhobs.limits import check_design_limits
     from fhobs.spec import load_spec
 
     check_output_folder(args.out)
     spec = load_spec(args.spec)
-    gains = design_observer(spec)
+    check_design_limits(spec)
+    gains = design_from_spec(spec)
     noise = 0.0
     if spec.noise is not None:
-        gains = with_kalman(gains, spec.noise)
         noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
     for line in design_summary(gains):
         print(line)

@@ -71,3 +71,15 @@ def test_csv_every_thins_the_csv_not_the_figures(tmp_path, capsys):
     assert figures[1] == figures[10]
     assert main(["plant", spec, "--out", str(tmp_path / "bad"), "--csv-every", "0"]) == 2
     assert "--csv-every = 0 must be >= 1" in capsys.readouterr().err
+
+
+def test_a_spec_beyond_the_design_limits_is_refused_before_any_design(tmp_path, capsys):
+    """The same early limits as build_fmu.py (fhobs.limits): one paragraph, exit 2."""
+    spec = tmp_path / "huge.toml"
+    spec.write_text("A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n"
+                    "[observer]\nrho = 1e300\n")
+    code = main(["plant", str(spec), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert "observer.rho = 1e+300 is beyond the design's range" in err
+    assert not (tmp_path / "out" / "fmus").exists()

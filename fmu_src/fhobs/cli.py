@@ -17,7 +17,7 @@ from .gains import ObserverGains
 from .kalman import KalmanDesignError, with_kalman
 from .limits import check_design_limits
 from .lmi import OBJECTIVES, LMIError
-from .spec import SpecError, load_spec
+from .spec import PlantSpec, SpecError, load_spec
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -137,6 +137,27 @@ def check_output_folder(path: Path) -> None:
         raise PermissionError(f"--out {path}: the folder {existing} is not writable")
 
 
+def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverGains:
+    """Everything a spec asks for: the certified observer design and, with a ``[noise]``
+    table, its Kalman filter baseline.
+
+    Raises
+    ------
+    fhobs.lmi.LMIError, fhobs.certificate.CertificateError, fhobs.kalman.KalmanDesignError
+        As :func:`fhobs.design.design_observer` and :func:`fhobs.kalman.with_kalman`.
+
+    Examples
+    --------
+    >>> from fhobs.spec import spec_from_dict
+    >>> gains = design_from_spec(spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]],
+    ...                                          "C": [[1, 0]], "observer": {"rho": 2.0}}))
+    >>> gains.rho, gains.kalman is None
+    (2.0, True)
+    """
+    gains = design_observer(spec, objective=objective)
+    return gains if spec.noise is None else with_kalman(gains, spec.noise)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command; return the process exit code (0 ok, 2 any failure).
 
@@ -159,9 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     start = time.perf_counter()
     try:
-        gains = design_observer(spec, objective=args.objective)
-        if spec.noise is not None:
-            gains = with_kalman(gains, spec.noise)
+        gains = design_from_spec(spec, args.objective)
     except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 2
