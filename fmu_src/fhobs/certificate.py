@@ -203,9 +203,36 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     return values
 
 
+def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: int,
+                   prefix: str = "") -> str:
+    """Why nu, gamma and rho are outside Theorem 2's ranges ('' if they are not):
+    -1/(n_tilde+1) <= nu < 0, gamma > 0, rho > 0 and rho > gamma/2; a None rho or gamma (left
+    to the design) is not checked. ``prefix`` goes before the names (``"observer."``).
+
+    Examples
+    --------
+    >>> tuning_problem(-0.25, 6.0, 6.0, 3)
+    ''
+    >>> tuning_problem(-0.25, 2.0, 6.0, 3)
+    'rho = 2.0 must be > gamma/2 = 3.0 (Theorem 2)'
+    """
+    nu_min = -1.0 / (n_tilde + 1)
+    if not nu_min - 1e-12 <= nu < 0.0:
+        return (f"{prefix}nu = {float(nu)!r} is outside [-1/(n_tilde+1), 0) = [{nu_min:.6g}, 0) "
+                f"(n_tilde = {n_tilde})")
+    if gamma is not None and not gamma > 0.0:
+        return f"{prefix}gamma = {float(gamma)!r} must be > 0 (the xi equation's gain)"
+    if rho is not None and not rho > 0.0:
+        return f"{prefix}rho = {float(rho)!r} must be > 0"
+    if rho is not None and gamma is not None and not rho > gamma / 2:
+        return (f"{prefix}rho = {float(rho)!r} must be > gamma/2 = {float(gamma) / 2!r} "
+                "(Theorem 2)")
+    return ""
+
+
 def check_tuning(gains: ObserverGains) -> None:
-    """Raise CertificateError unless nu, gamma and rho are in Theorem 2's ranges:
-    -1/(n_tilde+1) <= nu < 0, gamma > 0, rho > gamma/2 (the spec loader's rules).
+    """Raise CertificateError if :func:`tuning_problem` finds the design's nu, gamma or rho
+    outside Theorem 2's ranges (the spec loader's rules).
 
     Examples
     --------
@@ -217,16 +244,9 @@ def check_tuning(gains: ObserverGains) -> None:
     ...
     fhobs.certificate.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
     """
-    nu_min = -1.0 / (gains.n_tilde + 1)
-    if not nu_min - 1e-12 <= gains.nu < 0.0:
-        raise CertificateError(f"nu = {float(gains.nu)!r} is outside [-1/(n_tilde+1), 0) = "
-                               f"[{nu_min:.6g}, 0) (n_tilde = {gains.n_tilde})")
-    if not gains.gamma > 0.0:
-        raise CertificateError(f"gamma = {float(gains.gamma)!r} must be > 0 "
-                               "(the xi equation's gain)")
-    if not gains.rho > gains.gamma / 2:
-        raise CertificateError(f"rho = {float(gains.rho)!r} must be > gamma/2 = "
-                               f"{float(gains.gamma) / 2!r} (Theorem 2)")
+    problem = tuning_problem(gains.nu, gains.rho, gains.gamma, gains.n_tilde)
+    if problem:
+        raise CertificateError(problem)
 
 
 def _violations(

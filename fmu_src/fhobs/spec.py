@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from .certificate import tuning_problem
 from .disturbance import extended_model
 from .homogenisation import observability_index
 from .lmi import OBJECTIVES
@@ -393,19 +394,8 @@ def _scalar(
 def _check_tuning(
     nu: float, rho: float | None, gamma: float | None, n_tilde: int, source: str
 ) -> None:
-    """Enforce Theorem 2's ranges: nu in [-1/(n_tilde+1), 0), gamma > 0, rho > gamma/2 (for
-    the ones given)."""
-    nu_min = -1.0 / (n_tilde + 1)
-    if not (nu_min - 1e-12 <= nu < 0.0):
-        raise SpecError(
-            f"{source}: observer.nu = {nu!r} is outside [-1/(n_tilde+1), 0) = [{nu_min:.6g}, 0) "
-            f"(n_tilde = {n_tilde})"
-        )
-    if gamma is not None and gamma <= 0.0:
-        raise SpecError(f"{source}: observer.gamma = {gamma!r} must be > 0")
-    if rho is not None and rho <= 0.0:
-        raise SpecError(f"{source}: observer.rho = {rho!r} must be > 0")
-    if rho is not None and gamma is not None and rho <= gamma / 2:
-        raise SpecError(
-            f"{source}: observer.rho = {rho!r} must be > gamma/2 = {gamma / 2!r} (Theorem 2)"
-        )
+    """Enforce Theorem 2's ranges (:func:`fhobs.certificate.tuning_problem`, the check the
+    FMUs make too) for the ones given."""
+    problem = tuning_problem(nu, rho, gamma, n_tilde, prefix="observer.")
+    if problem:
+        raise SpecError(f"{source}: {problem}")
