@@ -12,16 +12,11 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import hashlib
 import os
-import platform
-import shutil
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
-from fhobs.kernel import cache_dir
+from fhobs.kernel import cached_library
 
 SOURCE = Path(__file__).resolve().parent / "step_loop.c"
 DISABLE_ENV = "FHOBS_HARNESS_PYTHON_LOOP"
@@ -48,51 +43,18 @@ class StepFmu(ctypes.Structure):
 @functools.cache
 def step_library() -> ctypes.CDLL | None:
     """The compiled step_loop.c (``harness_step``), or None (see the module docstring)."""
-    if os.environ.get(DISABLE_ENV) or sys.platform != "linux" or not SOURCE.exists():
+    if os.environ.get(DISABLE_ENV) or sys.platform != "linux":
         return None
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        return None
-    source = SOURCE.read_bytes()
-    tag = hashlib.sha256(source + compiler.encode() + platform.machine().encode()).hexdigest()
-    name = f"harness_step_{tag[:16]}.so"
-    private = None  # a temporary directory, removed once the library is loaded
+    return cached_library(SOURCE, "harness_step", ("-shared", "-fPIC", "-O2"), (), _open)
+
+
+def _open(path: Path) -> ctypes.CDLL | None:
+    """Load the library and type ``harness_step``."""
     try:
-        library = cache_dir() / name
-        if not library.exists():
-            _compile(compiler, library)
-    except (OSError, subprocess.SubprocessError):
-        private = tempfile.mkdtemp(prefix="fhobs_harness_")
-        library = Path(private) / name
-        try:
-            _compile(compiler, library)
-        except (OSError, subprocess.SubprocessError):
-            shutil.rmtree(private, ignore_errors=True)
-            return None
-    try:
-        lib = ctypes.PyDLL(str(library))
+        lib = ctypes.PyDLL(str(path))
         step = lib.harness_step
     except (OSError, AttributeError):
         return None
-    finally:
-        if private is not None:
-            shutil.rmtree(private, ignore_errors=True)
     step.restype = ctypes.c_int
     step.argtypes = None
     return lib
-
-
-def _compile(compiler: str, library: Path) -> None:
-    """Compile step_loop.c into ``library`` (written under another name, then renamed, so that
-    concurrent processes never load a partial file)."""
-    fd, partial = tempfile.mkstemp(suffix=".so", dir=library.parent)
-    os.close(fd)
-    try:
-        subprocess.run(
-            [compiler, "-shared", "-fPIC", "-O2", "-o", partial, str(SOURCE)],
-            check=True, capture_output=True, timeout=60,
-        )
-        os.replace(partial, library)
-    finally:
-        if os.path.exists(partial):
-            os.unlink(partial)

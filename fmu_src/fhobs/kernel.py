@@ -40,7 +40,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -56,6 +58,7 @@ PLAN_CACHE_SIZE = 16
 """Plans are cached per step size; the cache is cleared when it holds this many."""
 
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+T = TypeVar("T")
 
 
 class PlantPlan(ctypes.Structure):
@@ -121,24 +124,40 @@ def _load() -> ctypes.PyDLL | None:
         return None
     if SHIPPED.exists():
         return _open(SHIPPED)
+    return cached_library(SOURCE, "fhobs_kernel", COMPILE_FLAGS, ("-lm",), _open)
+
+
+def cached_library(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[str, ...],
+                   open_library: Callable[[Path], T | None]) -> T | None:
+    """``open_library`` of ``source`` compiled with ``cc`` (or ``gcc``) into :func:`cache_dir`,
+    under a name that hashes the source, the flags, the compiler and the machine; into a
+    private temporary folder when the cache cannot be written. None without a compiler or when
+    the compilation fails.
+
+    Examples
+    --------
+    >>> lib = cached_library(SOURCE, "fhobs_kernel", COMPILE_FLAGS, ("-lm",), _open)
+    >>> lib is None or hasattr(lib, "fhobs_plant_step")
+    True
+    """
     compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None or not SOURCE.exists():
+    if compiler is None or not source.exists():
         return None
-    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join(COMPILE_FLAGS).encode()
+    tag = hashlib.sha256(source.read_bytes() + " ".join(flags).encode()
                          + compiler.encode() + platform.machine().encode()).hexdigest()
-    name = f"fhobs_kernel_{tag[:16]}.so"
+    name = f"{prefix}_{tag[:16]}.so"
     try:
         path = cache_dir() / name
         if not path.exists():
-            compile_library(path, compiler)
-        return _open(path)
+            compile_source(source, path, compiler, flags, libs)
+        return open_library(path)
     except (OSError, subprocess.SubprocessError):
-        with tempfile.TemporaryDirectory(prefix="fhobs_kernel_") as private:
+        with tempfile.TemporaryDirectory(prefix=f"{prefix}_") as private:
             try:
-                compile_library(Path(private) / name, compiler)
+                compile_source(source, Path(private) / name, compiler, flags, libs)
             except (OSError, subprocess.SubprocessError):
                 return None
-            return _open(Path(private) / name)  # stays mapped once loaded
+            return open_library(Path(private) / name)  # stays mapped once loaded
 
 
 def _open(path: Path) -> ctypes.PyDLL | None:
@@ -165,8 +184,7 @@ def cache_dir() -> Path:
 
 
 def compile_library(target: Path, compiler: str) -> None:
-    """Compile ``kernel.c`` into ``target`` (written under another name, then renamed, so that
-    concurrent processes never load a partial file).
+    """Compile ``kernel.c`` into ``target`` (:func:`compile_source` with the kernel's flags).
 
     Raises
     ------
@@ -177,10 +195,27 @@ def compile_library(target: Path, compiler: str) -> None:
     --------
     >>> compile_library(Path("build/kernel_linux64.so"), "cc")  # doctest: +SKIP
     """
+    compile_source(SOURCE, target, compiler, COMPILE_FLAGS, ("-lm",))
+
+
+def compile_source(source: Path, target: Path, compiler: str, flags: tuple[str, ...],
+                   libs: tuple[str, ...] = ()) -> None:
+    """Compile a C ``source`` into the shared library ``target`` (written under another name,
+    then renamed, so that concurrent processes never load a partial file).
+
+    Raises
+    ------
+    OSError, subprocess.SubprocessError
+        If the compiler fails or cannot be run.
+
+    Examples
+    --------
+    >>> compile_source(SOURCE, Path("build/kernel.so"), "cc", COMPILE_FLAGS)  # doctest: +SKIP
+    """
     fd, partial = tempfile.mkstemp(suffix=".so", dir=target.parent)
     os.close(fd)
     try:
-        subprocess.run([compiler, *COMPILE_FLAGS, "-o", partial, str(SOURCE), "-lm"],
+        subprocess.run([compiler, *flags, "-o", partial, str(source), *libs],
                        check=True, capture_output=True, timeout=120)
         os.replace(partial, target)
     finally:
