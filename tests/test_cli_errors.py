@@ -320,3 +320,23 @@ def test_harness_subprocess_prints_no_traceback(tmp_path, block_cache, observer_
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "step = 0.0 must be > 0" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        (("--rho", "-1"), "observer.rho = -1.0 must be > 0"),
+        (("--rho", "1", "--gamma", "4"), "observer.rho = 1.0 must be > gamma/2 = 2.0"),
+        (("--settling-time", "0"), "observer.settling_time = 0.0 must be > 0"),
+        (("--nu", "0.5"), "observer.nu = 0.5 is outside"),
+        (("--h", "0"), "--h = 0.0: the internal step must be positive and finite"),
+        (("--h", "nan"), "--h = nan: the internal step must be positive and finite"),
+    ],
+)
+def test_design_overrides_are_checked_like_the_spec(tmp_path, capsys, options, words):
+    """The command line's --rho, --gamma, --settling-time, --nu and --h: one paragraph naming
+    the item, exit 2, before any design work (no output folder)."""
+    code, err = _design(tmp_path, capsys, DOUBLE_INTEGRATOR, *options)
+    assert code == 2 and words in err, err
+    _one_paragraph(err)
+    assert not (tmp_path / "out").exists()
