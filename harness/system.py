@@ -8,6 +8,9 @@ message naming the FMU, the variable and what was expected.
 
 File format (all keys except ``fmus`` optional)::
 
+    extends = "pendulum_perturbed.toml"   # optional: start from that file (relative to this
+                                          # one) and change it: tables merge key by key,
+                                          # [[connections]] are appended, other values replace
     name = "pendulum_nominal"
     [variables]                      # ${NAME} placeholders in FMU paths; overridable by callers
     fmu_dir = "../../build/pendulum"
@@ -64,7 +67,7 @@ from fmpy.model_description import ModelDescription, ScalarVariable
 from harness.blocks import BLOCK_KINDS, block_fmu
 
 StartValue = float | int | bool
-TOP_KEYS = ("name", "variables", "run", "fmus", "connections", "evaluation", "plots")
+TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evaluation", "plots")
 RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
 CONNECTION_KEYS = ("from", "to", "gain")
 EVALUATION_KEYS = ("at", "windows", "errors")
@@ -237,13 +240,7 @@ def load_system(
     SystemSpec
     """
     path = Path(path)
-    if not path.is_file():
-        raise DescriptionError(f"system description {path} does not exist")
-    try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as err:
-        raise DescriptionError(f"{path}: invalid TOML: {err}") from None
+    data = _read_description(path, ())
     where = str(path)
     _reject_unknown(data, TOP_KEYS, where)
     subst = {**_strings(data, "variables", where), **(variables or {})}
@@ -282,6 +279,42 @@ def load_system(
         figure=_figure_spec(_table(data, "plots", where), f"{where}: [plots]"),
         source=path,
     )
+
+
+def _read_description(path: Path, extending: tuple[Path, ...]) -> dict[str, Any]:
+    """The TOML data of ``path``, merged onto the description it ``extends`` (recursively);
+    ``extending`` are the files that extend this one (a cycle is an error)."""
+    if not path.is_file():
+        raise DescriptionError(f"system description {path} does not exist"
+                               + (f" (extended by {extending[-1]})" if extending else ""))
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as err:
+        raise DescriptionError(f"{path}: invalid TOML: {err}") from None
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise DescriptionError(f"{path}: extends = {base!r} must name a description file")
+    base_path = (path.parent / base).resolve()
+    if base_path in (*extending, path.resolve()):
+        raise DescriptionError(f"{path}: extends {base} which extends it again (a cycle)")
+    return _merged(_read_description(base_path, (*extending, path.resolve())), data, str(path))
+
+
+def _merged(base: dict[str, Any], changes: dict[str, Any], where: str) -> dict[str, Any]:
+    """``base`` changed by ``changes``: tables merged key by key, connections appended, any
+    other value replaced."""
+    merged = dict(base)
+    for key, value in changes.items():
+        if key == "connections":
+            merged[key] = [*_list(base, key, where), *_list(changes, key, where)]
+        elif isinstance(value, dict) and isinstance(base.get(key), dict):
+            merged[key] = _merged(base[key], value, where)
+        else:
+            merged[key] = value
+    return merged
 
 
 def check_timing(step: float, start_time: float, stop_time: float, where: str) -> int:
