@@ -41,6 +41,7 @@ from harness.results import summary, write_csv, write_summary
 from harness.system import (
     DescriptionError,
     SystemSpec,
+    build_blocks,
     check_timing,
     load_system,
     resolve_system,
@@ -143,9 +144,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def load_scenario(name: str, fmu_dir: Path | None, block_cache: Path | None) -> SystemSpec:
-    """Load a scenario with an optional ``${fmu_dir}``."""
+    """Load a scenario with an optional ``${fmu_dir}`` and build its harness blocks."""
     variables = {} if fmu_dir is None else {"fmu_dir": str(Path(fmu_dir).resolve())}
-    return load_system(scenario_path(name), variables, block_cache)
+    return build_blocks(load_system(scenario_path(name), variables), block_cache)
 
 
 def _run_one(spec: SystemSpec, stop_time: float | None) -> CoSimResult:

@@ -19,7 +19,7 @@ from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
-from harness.system import load_system, resolve_system
+from harness.system import build_blocks, load_system, resolve_system
 
 pytestmark = pytest.mark.slow  # full-length co-simulations of the paper through the FMUs
 
@@ -218,7 +218,7 @@ def test_paper_scenario_ssp_in_fmpy_and_libcosim(tmp_path, fmu_dir, block_cache)
     """The perturbed scenario exported as SSP (sine source and three gain blocks as FMUs)."""
     spec = replace(_scenario("pendulum_perturbed", fmu_dir, block_cache), stop_time=0.02)
     ssp = export_ssp(spec, tmp_path / "perturbed.ssp", block_cache)
-    lowered = resolve_system(lower_gains(spec, block_cache))
+    lowered = resolve_system(build_blocks(lower_gains(spec), block_cache))
     signals = [f"plant.x[{i}]" for i in range(1, 5)] + [f"observer.x_hat[{i}]" for i in range(1, 5)]
 
     def table(result):
