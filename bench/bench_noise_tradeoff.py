@@ -18,7 +18,7 @@ Estimators:
 - Kalman filters (:mod:`fhobs.kalman`) of disturbance orders 0..3 over process intensities
   10^(j/2). For speed the sweep runs the filter's two equations batched over the data sets
   (one matrix per cycle); the tuned point of each order is re-run with the product's
-  :class:`fhobs.kalman_filter.KalmanObserver` and must agree to 1e-9. The tuned intensity of an
+  :class:`fhobs.core.kalman_filter.KalmanObserver` and must agree to 1e-9. The tuned intensity of an
   order is the grid point with the least noisy RMS on the tuning seed 10 (the rule behind
   ``[noise] process_intensity`` of examples/pendulum.toml).
 - Homogeneous designs (:func:`fhobs.design.design_observer`): the default and variants of
@@ -49,15 +49,15 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from fhobs.certificate import CertificateError
+from fhobs.core.certificate import CertificateError
+from fhobs.core.disturbance import extended_model
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.linalg import zoh_blocks
+from fhobs.core.runtime import FilteringObserver
 from fhobs.design import design_observer
-from fhobs.disturbance import extended_model
 from fhobs.kalman import KalmanDesignError, design_kalman
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.linalg import zoh_blocks
 from fhobs.lmi import LMIError
 from fhobs.reference import SimulationResult, replay, simulate
-from fhobs.runtime import FilteringObserver
 from fhobs.spec import SpecError, spec_from_dict
 
 REPO = Path(__file__).resolve().parents[1]

@@ -21,9 +21,14 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from fhobs.core.runtime import (
+    SCHEMES,
+    FilteringObserver,
+    LuenbergerObserver,
+    PrescribedTimeObserver,
+)
 from fhobs.design import design_observer, paper_gains
 from fhobs.reference import H_PAPER, accuracy_metrics, simulate
-from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.spec import load_spec
 
 REPO = Path(__file__).resolve().parents[1]

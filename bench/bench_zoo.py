@@ -28,8 +28,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from fhobs.core.gains import ObserverGains
 from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
 from fhobs.reference import SimulationResult
 from fhobs.scenarios_zoo import (
     closed_loop,

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.certificate import CertificateError
 from fhobs.cli import check_output_folder
+from fhobs.core.certificate import CertificateError
 from fhobs.lmi import LMIError
 from fhobs.spec import SpecError
 

@@ -3,8 +3,8 @@
 from pathlib import Path
 
 import pytest
+from fhobs.core.gains import ObserverGains
 from fhobs.design import design_observer, paper_gains
-from fhobs.gains import ObserverGains
 from fhobs.spec import PlantSpec, load_spec
 
 REPO = Path(__file__).resolve().parents[1]

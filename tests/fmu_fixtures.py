@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
+from fhobs.core.gains import ObserverGains
 from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
 from fhobs.kalman import with_kalman
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description

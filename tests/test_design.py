@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from conftest import EXAMPLES, REPO
-from fhobs.certificate import CertificateError, augmented_matrices, certify
+from fhobs.core.certificate import CertificateError, augmented_matrices, certify
 from fhobs.design import design_observer, matched_perturbation_residual
 from fhobs.homogenisation import homogenise, observability_index
 from fhobs.lmi import LMISolution

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fhobs.core.disturbance import extended_model, model_perturbation_matrix
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver
 from fhobs.design import design_observer
-from fhobs.disturbance import extended_model, model_perturbation_matrix
-from fhobs.plant import LTIPlant
 from fhobs.reference import K_PAPER, X0_PAPER
-from fhobs.runtime import FilteringObserver
 from fhobs.scenarios_zoo import state_feedback
 from fhobs.spec import spec_from_dict
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
 from fhobs.reference import simulate
 from test_harness_plantfmu import build_vendor_plant
 

@@ -9,12 +9,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
 from fhobs.design import design_observer
 from fhobs.kalman import with_kalman
-from fhobs.plant import LTIPlant
 from fhobs.plots import plot_errors
 from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, simulate
-from fhobs.runtime import FilteringObserver, LuenbergerObserver
 
 pytestmark = pytest.mark.slow  # full-length closed loops of the paper (5 seeds)
 

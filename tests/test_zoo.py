@@ -1,5 +1,5 @@
 """The zoo of example plants with the default design: certificate, continuous-time convergence
-of the certified error system (integrated here with scipy, independently of fhobs.runtime) and
+of the certified error system (integrated here with scipy, independently of fhobs.core.runtime) and
 the runtime's noise-free floor in the closed loop of :func:`fhobs.scenarios_zoo.closed_loop`."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import functools
 import numpy as np
 import pytest
 import scipy.linalg
+from fhobs.core.gains import ObserverGains
 from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
 from fhobs.scenarios_zoo import (
     CONVERGED,
     closed_loop,

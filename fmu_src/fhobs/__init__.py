@@ -1,7 +1,7 @@
 """fhobs: the filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov) for FMI 2.0.
 
-Import the submodules you need; only ``gains``, ``certificate``, ``runtime`` and ``plant`` (and
-their helpers) are numpy-only and run inside the FMUs.
+Import the submodules you need; :mod:`fhobs.core` is numpy-only and runs inside the FMUs (with
+the slave classes of :mod:`fhobs.fmu`).
 """
 
 __version__ = "0.1.0"

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .certificate import CertificateError, augmented_matrices
+from .core.certificate import CertificateError, augmented_matrices
+from .core.gains import ObserverGains
 from .design import design_observer
-from .gains import ObserverGains
 from .kalman import KalmanDesignError, with_kalman
 from .limits import check_design_limits
 from .lmi import OBJECTIVES, LMIError
@@ -143,7 +143,7 @@ def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverG
 
     Raises
     ------
-    fhobs.lmi.LMIError, fhobs.certificate.CertificateError, fhobs.kalman.KalmanDesignError
+    fhobs.lmi.LMIError, fhobs.core.certificate.CertificateError, fhobs.kalman.KalmanDesignError
         As :func:`fhobs.design.design_observer` and :func:`fhobs.kalman.with_kalman`.
 
     Examples

@@ -8,7 +8,7 @@ everything a user needs):
 3. Theorem 1's LMI for the prescribed-time observer: L_pt and P_pt;
 4. the Luenberger baseline L_lin (given in the spec, or an LMI with decay equal to the
    filtering observer's slowest linear mode, so both observers are compared at equal speed);
-5. the numpy certificate (:mod:`fhobs.certificate`), which must pass.
+5. the numpy certificate (:mod:`fhobs.core.certificate`), which must pass.
 
 Fast output filter (``[observer] filter_scale = c``, default 1). After step 2, L_tilde is
 multiplied by c (L unchanged) and P_bar is found again for the fixed gain by
@@ -34,11 +34,11 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from .certificate import CertificateError, augmented_matrices, certify
-from .disturbance import extended_model, model_perturbation_matrix
-from .gains import ObserverGains
+from .core.certificate import CertificateError, augmented_matrices, certify
+from .core.disturbance import extended_model, model_perturbation_matrix
+from .core.gains import ObserverGains
+from .core.linalg import diagonal_congruence, diagonal_similarity
 from .homogenisation import Homogenisation, dilation_basis, homogenise
-from .linalg import diagonal_congruence, diagonal_similarity
 from .lmi import (
     DEFAULT_MARGIN,
     LMIError,
@@ -140,7 +140,7 @@ def design_observer(
     ------
     fhobs.lmi.LMIError
         If an LMI solve fails.
-    fhobs.certificate.CertificateError
+    fhobs.core.certificate.CertificateError
         If the solver's result does not pass the numpy certificate, also after solving the
         LMIs again with the margin the failed checks asked for (``MARGIN_ATTEMPTS`` solves in
         all: the certificate allows for the rounding error of its own figures, which grows

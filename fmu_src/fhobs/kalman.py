@@ -1,9 +1,9 @@
 """Design of the steady-state discrete Kalman filter baseline (scipy; the filter itself runs in
-:mod:`fhobs.kalman_filter`, numpy only).
+:mod:`fhobs.core.kalman_filter`, numpy only).
 
 Model. The plant dx/dt = A x + B u + E q, y = C x + eta, with q modelled as in
-:mod:`fhobs.disturbance`: for order r >= 1, ``q^(r) = w`` (the extended model, w entering the last
-q block), for r = 0 ``q = w`` itself (through E). w is continuous white noise of intensity W
+:mod:`fhobs.core.disturbance`: for order r >= 1, ``q^(r) = w`` (the extended model, w entering the
+last q block), for r = 0 ``q = w`` itself (through E). w is continuous white noise of intensity W
 (``process_intensity``, power spectral density per component of q), eta is white with standard
 deviation ``measurement_std`` per output (uniform noise of amplitude a: std a / sqrt(3)).
 
@@ -24,8 +24,8 @@ import dataclasses
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from .disturbance import extended_model, model_perturbation_matrix
-from .gains import KalmanGains, ObserverGains
+from .core.disturbance import extended_model, model_perturbation_matrix
+from .core.gains import KalmanGains, ObserverGains
 from .spec import NoiseSpec
 
 RICCATI_TOLERANCE = 1e-8
@@ -122,7 +122,7 @@ def design_kalman(
     E : numpy.ndarray or None
         Perturbation input matrix (n x p); required (the process noise enters through it).
     order : int
-        Disturbance-model order r in 0..3 (:func:`fhobs.disturbance.extended_model`).
+        Disturbance-model order r in 0..3 (:func:`fhobs.core.disturbance.extended_model`).
     measurement_std : array_like
         (k,) standard deviation of the measurement noise per output (> 0).
     process_intensity : float

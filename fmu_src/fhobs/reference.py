@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fhobs.gains import ObserverGains
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.plant import LTIPlant
-from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from .core.gains import ObserverGains
+from .core.kalman_filter import KalmanObserver
+from .core.plant import LTIPlant
+from .core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
 
 K_PAPER = np.array([[2.0, -35.0, 1.5, -3.0]])
 X0_PAPER = np.array([2.0, 2.0, 1.0, 2.0])
@@ -146,7 +146,7 @@ def simulate(
         observer's error then does not act on the plant).
     kernel : bool
         Step the plant and the estimators in the compiled kernel when it is available
-        (:mod:`fhobs.kernel`); False: the numpy runtime only.
+        (:mod:`fhobs.core.kernel`); False: the numpy runtime only.
     """
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")

@@ -19,7 +19,7 @@ Format::
     objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
     filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
-                              # fhobs.disturbance; default 0 (no disturbance model)
+                              # fhobs.core.disturbance; default 0 (no disturbance model)
 
     [noise]                   # optional table: the Kalman filter baseline (fhobs.kalman); needs E
     measurement_amplitude = [1e-3, 1e-3]  # uniform noise amplitude per output (std = a/sqrt(3)),
@@ -41,8 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from .certificate import tuning_problem
-from .disturbance import extended_model
+from .core.certificate import tuning_problem
+from .core.disturbance import extended_model
 from .homogenisation import observability_index
 from .lmi import OBJECTIVES
 
@@ -112,7 +112,7 @@ class PlantSpec:
         Factor (>= 1) applied to the LMI's L_tilde (fast output filter); see
         :func:`fhobs.design.design_observer`.
     disturbance_order : int
-        Order of the disturbance model (0: none), see :mod:`fhobs.disturbance`.
+        Order of the disturbance model (0: none), see :mod:`fhobs.core.disturbance`.
     settling_time : float
         Requested time (s) for an initial error of the size of ``state_scale`` to fall to 1e-3
         of itself.
@@ -394,7 +394,7 @@ def _scalar(
 def _check_tuning(
     nu: float, rho: float | None, gamma: float | None, n_tilde: int, source: str
 ) -> None:
-    """Enforce Theorem 2's ranges (:func:`fhobs.certificate.tuning_problem`, the check the
+    """Enforce Theorem 2's ranges (:func:`fhobs.core.certificate.tuning_problem`, the check the
     FMUs make too) for the ones given."""
     problem = tuning_problem(nu, rho, gamma, n_tilde, prefix="observer.")
     if problem:

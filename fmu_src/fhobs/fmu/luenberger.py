@@ -1,6 +1,6 @@
-"""pythonfmu slave script of ``luenberger.fmu``: the linear baseline observer.
+"""pythonfmu slave of ``luenberger.fmu``: the linear baseline observer.
 
-dz/dt = A z + B u + L_lin (C z - y). Copied into the FMU by :mod:`fhobs.build` like
+dz/dt = A z + B u + L_lin (C z - y). Shipped in the FMU by :mod:`fhobs.build` like
 ``observer.py``.
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fhobs.fmu.slave_base import ObserverSlave
-from fhobs.runtime import LuenbergerObserver
+from ..core.runtime import LuenbergerObserver
+from .slave_base import ObserverSlave
 
 
 class FhobsLuenberger(ObserverSlave):

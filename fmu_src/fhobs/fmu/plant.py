@@ -1,15 +1,15 @@
-"""pythonfmu slave script of ``plant.fmu``: the LTI plant with reproducible measurement noise.
+"""pythonfmu slave of ``plant.fmu``: the LTI plant with reproducible measurement noise.
 
 dx/dt = A x + B u + E q, y = C x + eta, with eta uniform in [-a, a], a function of
-(noise_seed, step index) only. Copied into the FMU by :mod:`fhobs.build` like ``observer.py``.
+(noise_seed, step index) only. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from fhobs.fmu.slave_base import FhobsSlave, zoh_problem
-from fhobs.plant import PLANT_SCHEMES, LTIPlant
+from ..core.plant import PLANT_SCHEMES, LTIPlant
+from .slave_base import FhobsSlave, zoh_problem
 
 
 class FhobsPlant(FhobsSlave):

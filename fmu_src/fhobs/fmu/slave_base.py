@@ -48,7 +48,7 @@ pythonfmu, and answers a refusal with ``fmi2Error``. The rules:
   format version, the FMU it was made by, every variable's shape, finiteness, and for a state
   of an initialised instance its parameters pass the initialisation checks again.
 
-Only numpy, the standard library, pythonfmu and numpy-only fhobs modules are imported here.
+Only numpy, the standard library, pythonfmu and :mod:`fhobs.core` are imported here.
 """
 
 from __future__ import annotations
@@ -79,8 +79,8 @@ from pythonfmu import (
 )
 from pythonfmu.enums import Fmi2Status
 
-from ..gains import ObserverGains
-from ..runtime import SCHEMES
+from ..core.gains import ObserverGains
+from ..core.runtime import SCHEMES
 
 DESIGN_FILE = "design.json"
 CONFIG_FILE = "fmu_config.json"
@@ -151,7 +151,7 @@ class SlaveModel(Protocol):
 
     Its ``advance`` (its ``step`` without the argument checks, which the slave has made) must
     replace the arrays that hold the state, never write into them, and leave them as they were
-    when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
+    when it raises (as :mod:`fhobs.core.runtime` and :mod:`fhobs.core.plant` do):
     :meth:`FhobsSlave.do_step` keeps the state before a step as the references in the model's
     ``__dict__``. Its array arguments are views of the slave's input variables: ``advance`` may
     read them during the call only, never write into them or keep references to them (the
@@ -886,7 +886,7 @@ class ObserverSlave(FhobsSlave):
     """Base of the observer slaves: plant matrices, z0, timing, inputs y, u, output x_hat.
 
     Subclasses add their gains with :meth:`_declare_gains` and may add outputs. The timing
-    parameters are by default those of :mod:`fhobs.runtime` (internal step ``h`` and
+    parameters are by default those of :mod:`fhobs.core.runtime` (internal step ``h`` and
     ``scheme``); a sampled-data observer replaces them (:meth:`_declare_timing`,
     :meth:`_check_timing`).
     """

@@ -20,11 +20,11 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
 - ``L_lin``: gain of the Luenberger baseline dz/dt = A z + B u + L_lin (C z - y).
 - ``xi``, ``sigma``: the observer's scalar gain state and sigma = sqrt(max(xi, |psi|^2 / 2)).
 - ``disturbance_order``: r >= 0; with r >= 1 the homogeneous observers work on the extended
-  model of :mod:`fhobs.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
+  model of :mod:`fhobs.core.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
   the plant's first): G0, L0, G_d, L, P_bar, L_pt, P_pt and n_tilde are of that model, while
   A, B, C, E and L_lin (the Luenberger baseline) stay the plant's.
 - ``kalman``: optional :class:`KalmanGains`, the steady-state discrete Kalman filter baseline
-  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.kalman_filter`); its
+  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.core.kalman_filter`); its
   disturbance model is its own (``kalman.disturbance_order``), on the same plant A, B, C, E.
 """
 
@@ -58,7 +58,7 @@ class KalmanGains:
     Attributes
     ----------
     disturbance_order : int
-        r in 0..3 (see :mod:`fhobs.disturbance`).
+        r in 0..3 (see :mod:`fhobs.core.disturbance`).
     sample_time : float
         Ts, the filter's sampling period (s).
     measurement_std : numpy.ndarray

@@ -21,11 +21,11 @@ check                         value                                             
 ============================  ===========================================================  =======
 
 The figures are computed in balanced coordinates ``x = diag(d) x_b`` (d powers of two from
-:func:`fhobs.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
+:func:`fhobs.core.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
 P), so every value is that of the original coordinates, with a rounding error that stays small
 for plants whose entries span many decades. The homogeneous observers' figures are of the
 observer's model (``gains.model``: the plant, or
-its extended-state model of :mod:`fhobs.disturbance`); ``hurwitz_luenberger`` is of the plant.
+its extended-state model of :mod:`fhobs.core.disturbance`); ``hurwitz_luenberger`` is of the plant.
 sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
 eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
 LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
@@ -38,28 +38,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import CertificateError
 from .gains import ObserverGains
 from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity
 
 DEFAULT_TOLERANCE = 1e-7
 DEFAULT_MARGIN = 1e-6
 EPS = float(np.finfo(float).eps)
-
-
-class CertificateError(ValueError):
-    """A design fails a check; the message names the check, the value and the bound.
-
-    Attributes
-    ----------
-    lmi_margin_needed : float
-        The largest margin (1/s) that a failed LMI check required (its margin plus its
-        rounding allowance), 0 if no LMI check failed: a design may be solved again with a
-        larger margin than that.
-    """
-
-    def __init__(self, message: str, lmi_margin_needed: float = 0.0) -> None:
-        super().__init__(message)
-        self.lmi_margin_needed = lmi_margin_needed
 
 
 def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -242,7 +227,7 @@ def check_tuning(gains: ObserverGains) -> None:
     >>> check_tuning(dataclasses.replace(paper_gains(), gamma=-5.0))
     Traceback (most recent call last):
     ...
-    fhobs.certificate.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
+    fhobs.core.errors.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
     """
     problem = tuning_problem(gains.nu, gains.rho, gains.gamma, gains.n_tilde)
     if problem:

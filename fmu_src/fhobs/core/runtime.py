@@ -20,7 +20,7 @@ substeps of size ``<= h``, with one of two schemes:
        the step's start. Because ``C G_d = (1 + nu) C``, the innovation pair ``(psi, v)`` obeys
        ``d/dt (psi/s, v/s^(1+nu)) = s^nu R (psi/s, v/s^(1+nu))`` with the constant
        ``R = [[L_tilde, I], [C L, 0]]``, so one eigen-decomposition of R (done once) gives the
-       exact flow for every sigma (:class:`fhobs.injection.InjectionFlow`);
+       exact flow for every sigma (:class:`fhobs.core.injection.InjectionFlow`);
     2. *prediction*: ``z <- expm(dt A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of
        the model, the innovation held), the very map that the plant applies to x.
 
@@ -73,18 +73,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fhobs import kernel as compiled
-from fhobs.dilation import Dilation
-from fhobs.gains import ObserverGains
-from fhobs.injection import InjectionFlow
-from fhobs.linalg import PHI1_SERIES, ExpmFamily, zoh_blocks
-from fhobs.plant import (
-    ZOH_CACHE_SIZE,
-    all_finite,
-    as_finite_vector,
-    check_step_size,
-    floating_point_failure,
-)
+from . import kernel as compiled
+from .dilation import Dilation
+from .gains import ObserverGains
+from .injection import InjectionFlow
+from .linalg import PHI1_SERIES, ZOH_CACHE_SIZE, ExpmFamily, zoh_blocks
+from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
 
 class Prediction(NamedTuple):
@@ -235,7 +229,7 @@ class _Observer:
 
     @property
     def compiled(self) -> bool:
-        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
     def _use_kernel(self, split_function: str) -> None:
@@ -487,7 +481,7 @@ class FilteringObserver(_Observer):
         None picks it automatically.
     kernel : bool
         Run the step (split, or the euler substeps) in the compiled kernel when it is
-        available (:mod:`fhobs.kernel`; not with the expm fallbacks of the injection flow or
+        available (:mod:`fhobs.core.kernel`; not with the expm fallbacks of the injection flow or
         of the dilation); False: numpy only.
     """
 
