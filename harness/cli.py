@@ -29,9 +29,7 @@ from typing import Any
 
 import numpy as np
 from fhobs.cli import check_output_folder
-from fhobs.core.certificate import CertificateError
-from fhobs.lmi import LMIError
-from fhobs.spec import SpecError
+from fhobs.errors import CertificateError, LMIError, SpecError
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
@@ -290,8 +288,9 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         raise ValueError(f"design must be 'paper' or 'spec', not {design!r}")
     from fhobs.build import build_fmus
     from fhobs.design import paper_gains
+    from fhobs.errors import SpecError
     from fhobs.kalman import with_kalman
-    from fhobs.spec import SpecError, load_spec
+    from fhobs.spec import load_spec
 
     gains = paper_gains(PAPER_REFERENCE)
     try:

@@ -15,12 +15,13 @@ import zipfile
 import fhobs.reference as reference
 import numpy as np
 import pytest
-from fhobs.build import BuildError, build_fmus
+from fhobs.build import build_fmus
 from fhobs.core import kernel
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
-from fhobs.design import design_observer
+from fhobs.design import design_for_spec
+from fhobs.errors import BuildError
 from fhobs.kalman import with_kalman
 from fhobs.spec import NoiseSpec, spec_from_dict
 from fmpy import extract
@@ -51,7 +52,7 @@ def random_design(seed: int, n: int, k: int, order: int):
     if order:
         data["E"] = rng.standard_normal((n, 1)).tolist()
         data["observer"]["disturbance_order"] = order
-    return design_observer(spec_from_dict(data, source=f"random seed {seed}"))
+    return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
 
 
 def plant_measurements(gains, seed: int, steps: int, dt: float, scale: float = 1.0):

@@ -15,7 +15,7 @@ from fhobs.core.runtime import (
     PrescribedTimeObserver,
     spectral_radius,
 )
-from fhobs.design import design_observer
+from fhobs.design import design_for_spec
 from fhobs.reference import K_PAPER, X0_PAPER
 from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from scipy.integrate import solve_ivp
@@ -319,7 +319,7 @@ def test_unknown_scheme_is_rejected(paper_design):
 
 def zoo_design(name):
     """The default design of a zoo plant."""
-    return design_observer(load_zoo_spec(zoo_spec_paths()[name]))
+    return design_for_spec(load_zoo_spec(zoo_spec_paths()[name]))
 
 
 def test_step_without_a_contractive_gain_level_is_refused():

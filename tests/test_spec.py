@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import EXAMPLES
-from fhobs.spec import SpecError, load_spec, spec_from_dict
+from fhobs.errors import SpecError
+from fhobs.spec import load_spec, spec_from_dict
 
 GOOD = {
     "A": [[0.0, 1.0], [-2.0, -3.0]],

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_observer
+from fhobs.design import design_for_spec
 from fhobs.scenarios_zoo import (
     CONVERGED,
     closed_loop,
@@ -48,7 +48,7 @@ def test_zoo_has_its_thirteen_plants():
 @functools.cache
 def default_design(name: str) -> ObserverGains:
     """The plant's design with every tuning parameter at its default."""
-    return design_observer(load_zoo_spec(ZOO[name]))
+    return design_for_spec(load_zoo_spec(ZOO[name]))
 
 
 @pytest.mark.slow

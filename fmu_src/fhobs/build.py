@@ -41,6 +41,7 @@ from .core.gains import ObserverGains
 from .core.kernel import SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import SCHEMES
+from .errors import BuildError
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE, STATUS_VALUE_REFERENCE
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -53,10 +54,6 @@ DEFAULT_KINDS = ("observer", "luenberger", "plant")
 """Built by default; ``kalman`` too when the design has a Kalman filter."""
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
-
-
-class BuildError(RuntimeError):
-    """The FMUs cannot be built (forbidden import, missing tool...)."""
 
 
 def build_fmus(
@@ -113,6 +110,16 @@ def build_fmus(
     Returns
     -------
     dict of str to Path
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> built = build_fmus(gains, tempfile.mkdtemp(), kinds=("observer", "plant"),
+    ...                    x0=[1.0, 0.0], status_wrapper=False, kernel=False)
+    >>> sorted(path.name for path in built.values())
+    ['observer.fmu', 'plant.fmu']
     """
     if kinds is None:
         kinds = DEFAULT_KINDS + (("kalman",) if gains.kalman is not None else ())

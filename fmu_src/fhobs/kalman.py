@@ -26,15 +26,11 @@ from scipy.linalg import expm, solve_discrete_are
 
 from .core.disturbance import extended_model, model_perturbation_matrix
 from .core.gains import KalmanGains, ObserverGains
+from .errors import KalmanDesignError
 from .spec import NoiseSpec
 
 RICCATI_TOLERANCE = 1e-8
 """Largest accepted relative residual of the Riccati equation (and negative eigenvalue of P)."""
-
-
-class KalmanDesignError(ValueError):
-    """The Kalman filter cannot be designed (bad argument, no accurate stabilising Riccati
-    solution)."""
 
 
 def riccati_residual(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray,
@@ -203,7 +199,7 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
 
     Examples
     --------
-    >>> gains = with_kalman(design_observer(spec), spec.noise)   # doctest: +SKIP
+    >>> gains = with_kalman(design_for_spec(spec), spec.noise)   # doctest: +SKIP
     """
     kalman = design_kalman(gains.A, gains.B, gains.C, gains.E, noise.disturbance_order,
                            noise.measurement_std, noise.process_intensity, noise.sample_time,

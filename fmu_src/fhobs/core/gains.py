@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -140,10 +141,11 @@ class ObserverGains:
         """Number of measured outputs."""
         return self.C.shape[0]
 
-    @property
+    @cached_property
     def model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A_model, B_model, C_model)`` of the homogeneous observers (the plant's if
-        ``disturbance_order`` is 0)."""
+        ``disturbance_order`` is 0); built once per record (a frozen record's fields do not
+        change; :func:`dataclasses.replace` makes a new record with its own cache)."""
         return extended_model(self.A, self.B, self.C, self.E, self.disturbance_order)
 
     @property
@@ -151,9 +153,9 @@ class ObserverGains:
         """Number of states of the homogeneous observers' model (n if no disturbance model)."""
         return self.G_d.shape[0]
 
-    @property
+    @cached_property
     def A0(self) -> np.ndarray:
-        """The nilpotent matrix A0 = A_model + L0 C_model."""
+        """The nilpotent matrix A0 = A_model + L0 C_model (computed once per record)."""
         A_model, _, C_model = self.model
         return A_model + self.L0 @ C_model
 

@@ -76,6 +76,17 @@ class LTIPlant:
     kernel : bool
         Make the ``zoh`` step in the compiled kernel when it is available
         (:mod:`fhobs.core.kernel`); False: numpy only. The noise is numpy's either way.
+
+    Examples
+    --------
+    A double integrator pushed by u = 1 for 0.1 s from x = (1, 0):
+
+    >>> import numpy as np
+    >>> plant = LTIPlant(np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[0.0], [1.0]]),
+    ...                  np.array([[1.0, 0.0]]), x0=[1.0, 0.0])
+    >>> plant.step(u=[1.0], q=None, dt=0.1)
+    >>> [round(float(v), 12) for v in plant.x]
+    [1.005, 0.1]
     """
 
     def __init__(

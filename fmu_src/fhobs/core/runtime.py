@@ -483,6 +483,15 @@ class FilteringObserver(_Observer):
         Run the step (split, or the euler substeps) in the compiled kernel when it is
         available (:mod:`fhobs.core.kernel`; not with the expm fallbacks of the injection flow or
         of the dilation); False: numpy only.
+
+    Examples
+    --------
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = FilteringObserver(gains, h=1e-3, z0=[0.5, 0.0])
+    >>> obs.step(y=[0.5], u=[0.0], dt=1e-2)
+    >>> obs.x_hat.shape, bool(abs(obs.x_hat[0] - 0.5) < 1e-6)
+    ((2,), True)
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -695,6 +704,17 @@ class LuenbergerObserver(_Observer):
 
     The split scheme is the exact ZOH of the model with the innovation held, i.e. the error
     obeys ``e_{k+1} = (expm(h A) + Gamma_Llin C) e_k`` exactly; ``euler`` is explicit Euler.
+    The parameters are those of :class:`FilteringObserver` (the gain is ``gains.L_lin``).
+
+    Examples
+    --------
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = LuenbergerObserver(gains, h=1e-3)
+    >>> for _ in range(2000):
+    ...     obs.step(y=[1.0], u=[0.0], dt=1e-2)
+    >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-6))
+    True
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],

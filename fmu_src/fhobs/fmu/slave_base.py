@@ -574,6 +574,14 @@ class FhobsSlave(Fmi2Slave):
         """Current value of an Integer parameter."""
         return self._integers[name]
 
+    def choice(self, name: str, choices: Sequence[str]) -> str:
+        """The entry of ``choices`` that the Integer parameter ``name`` selects; ValueError if
+        the index is out of range."""
+        index = self.integer(name)
+        if not 0 <= index < len(choices):
+            raise ValueError(f"{name} = {index} is not in 0..{len(choices) - 1} ({choices})")
+        return choices[index]
+
     def edited_design(self) -> ObserverGains:
         """The design record with every design field replaced by its current parameter value."""
         changes: dict[str, Any] = {}
@@ -905,10 +913,7 @@ class ObserverSlave(FhobsSlave):
 
     def scheme_name(self) -> str:
         """Name of the selected integration scheme; ValueError if the index is unknown."""
-        index = self.integer("scheme")
-        if not 0 <= index < len(SCHEMES):
-            raise ValueError(f"scheme = {index} is not in 0..{len(SCHEMES) - 1} ({SCHEMES})")
-        return SCHEMES[index]
+        return self.choice("scheme", SCHEMES)
 
     def _declare_timing(self) -> None:
         """Register the internal step ``h`` and the integration ``scheme``."""
