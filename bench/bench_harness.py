@@ -179,7 +179,7 @@ def no_model_steps() -> contextlib.AbstractContextManager:
 def no_wrapper_paths() -> contextlib.AbstractContextManager:
     """The slaves do not register with the status wrapper: every fmi2GetReal / fmi2SetReal /
     fmi2DoStep goes through pythonfmu (the wrapper still answers with fmi2Error)."""
-    return _patched(_vendored((".fmu.slave_base",), ("FhobsSlave",)), "_register_with_wrapper",
+    return _patched(_vendored((".fmu.wrapper",), ("WrapperCalls",)), "_register_with_wrapper",
                     lambda self: False)
 
 

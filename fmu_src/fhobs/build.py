@@ -42,7 +42,8 @@ from .core.kernel import SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import SCHEMES
 from .errors import BuildError
-from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE, STATUS_VALUE_REFERENCE
+from .fmu.modes import STATUS_VALUE_REFERENCE
+from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SLAVE_CLASSES = {"observer": "FhobsObserver", "luenberger": "FhobsLuenberger",
