@@ -16,8 +16,7 @@ from .design import augmented_system, design_for_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .kalman import with_kalman
 from .limits import check_design_limits
-from .lmi import OBJECTIVES
-from .spec import PlantSpec, load_spec
+from .spec import OBJECTIVES, PlantSpec, load_spec
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -185,7 +185,7 @@ def design_observer(
     filter_scale : float
         >= 1: L_tilde is multiplied by it after the LMI (module docstring).
     objective : {"min_cond", "min_gain"}
-        LMI objective (:data:`fhobs.lmi.OBJECTIVES`).
+        LMI objective (:data:`fhobs.spec.OBJECTIVES`).
     margin : float
         Margin imposed on the strict LMI inequalities.
 

@@ -70,8 +70,8 @@ import numpy as np
 import scipy.linalg
 
 from .errors import LMIError
+from .spec import OBJECTIVES
 
-OBJECTIVES = ("min_cond", "min_gain")
 GAIN_STAGE_KAPPA = 10.0
 DEFAULT_MARGIN = 1e-2
 STRUCTURE_RTOL = 1e-8

@@ -16,7 +16,7 @@ Format::
     rho = 1.5                 # LMI decay parameter; default: the smallest rho of RHO_LADDER
                               # that meets settling_time (fhobs.design)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default: rho
-    objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
+    objective = "min_cond"    # LMI objective, see fhobs.spec.OBJECTIVES
     filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
                               # fhobs.core.disturbance; default 0 (no disturbance model)
@@ -45,9 +45,10 @@ from .core.certificate import tuning_problem
 from .core.disturbance import extended_model
 from .errors import SpecError
 from .homogenisation import observability_index
-from .lmi import OBJECTIVES
 
 DEFAULT_SETTLING_TIME = 2.0
+OBJECTIVES = ("min_cond", "min_gain")
+"""The LMI objectives a design accepts (:mod:`fhobs.lmi` implements them)."""
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise")
 OBSERVER_KEYS = (
@@ -102,7 +103,7 @@ class PlantSpec:
     n_tilde : int
         Observability index of the observer's model (``(A, C)`` without a disturbance model).
     objective : str
-        LMI objective (a key of :data:`fhobs.lmi.OBJECTIVES`).
+        LMI objective (one of :data:`OBJECTIVES`).
     source : str
         Where the spec came from (file name), for messages.
     filter_scale : float
