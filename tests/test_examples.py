@@ -7,7 +7,8 @@ import pytest
 
 PUBLIC_MODULES = (
     "fhobs", "fhobs.design", "fhobs.spec", "fhobs.errors", "fhobs.limits", "fhobs.build",
-    "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant", "fhobs.core.linalg",
+    "fhobs.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
+    "fhobs.core.kalman_filter", "fhobs.core.linalg",
 )
 
 
@@ -22,12 +23,18 @@ def test_docstring_examples(name):
 def test_public_functions_have_examples():
     from fhobs.build import build_fmus
     from fhobs.core.certificate import certify
+    from fhobs.core.kalman_filter import KalmanObserver
     from fhobs.core.plant import LTIPlant
-    from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
+    from fhobs.core.runtime import (
+        FilteringObserver,
+        LuenbergerObserver,
+        PrescribedTimeObserver,
+    )
     from fhobs.design import design_for_spec, design_observer
     from fhobs.spec import load_spec, plant_spec
 
     for item in (build_fmus, certify, LTIPlant, FilteringObserver, LuenbergerObserver,
+                 PrescribedTimeObserver, KalmanObserver,
                  design_for_spec, design_observer, load_spec, plant_spec):
         assert "Examples\n    --------\n    >>>" in item.__doc__ or (
             "Examples\n    --------\n    A " in item.__doc__), item.__qualname__
