@@ -17,7 +17,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from fhobs.design import design_observer
+from fhobs.design import design_for_spec
 from fhobs.homogenisation import homogenise
 from fhobs.spec import spec_from_dict
 
@@ -60,8 +60,8 @@ def main() -> None:
     for name, given, auto in cases:
         spec, spec_auto = spec_from_dict(given, name), spec_from_dict(auto, name)
         t_hom = best_time(lambda s=spec: homogenise(s.A, s.C, s.nu), args.repeat)
-        t_design = best_time(lambda s=spec: design_observer(s), args.repeat)
-        t_auto = best_time(lambda s=spec_auto: design_observer(s), 1)
+        t_design = best_time(lambda s=spec: design_for_spec(s), args.repeat)
+        t_auto = best_time(lambda s=spec_auto: design_for_spec(s), 1)
         n, k = spec.A.shape[0], spec.C.shape[0]
         print(f"{name:<14} {n:>3} {k:>3} {spec.n_tilde:>3} {t_hom:>13.3f} {t_design:>9.3f} "
               f"{t_auto:>11.2f}")

@@ -34,12 +34,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from fhobs.gains import ObserverGains
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.linalg import zoh_blocks
-from fhobs.plant import LTIPlant
+from fhobs.core.gains import ObserverGains
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.linalg import zoh_blocks
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
 from fhobs.reference import H_PAPER, K_PAPER, X0_PAPER, simulate
-from fhobs.runtime import FilteringObserver, LuenbergerObserver
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
@@ -148,7 +148,7 @@ def bare_numpy_loop(gains: ObserverGains, steps: int) -> None:
 
 
 def _vendored(suffixes: tuple[str, ...], names: tuple[str, ...]) -> list[type]:
-    """Classes of the FMUs' vendored ``fhobs_<hash>`` packages loaded in this interpreter (the
+    """Classes of the FMUs' shipped ``fhobs_<kind>_<hash>`` packages loaded in this interpreter (the
     FMUs' Python runs here)."""
     return [getattr(module, name) for key, module in list(sys.modules.items())
             if key.startswith("fhobs_") and key.endswith(suffixes)
@@ -179,7 +179,7 @@ def no_model_steps() -> contextlib.AbstractContextManager:
 def no_wrapper_paths() -> contextlib.AbstractContextManager:
     """The slaves do not register with the status wrapper: every fmi2GetReal / fmi2SetReal /
     fmi2DoStep goes through pythonfmu (the wrapper still answers with fmi2Error)."""
-    return _patched(_vendored((".fmu.slave_base",), ("FhobsSlave",)), "_register_with_wrapper",
+    return _patched(_vendored((".fmu.wrapper",), ("WrapperCalls",)), "_register_with_wrapper",
                     lambda self: False)
 
 

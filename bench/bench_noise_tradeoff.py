@@ -18,10 +18,10 @@ Estimators:
 - Kalman filters (:mod:`fhobs.kalman`) of disturbance orders 0..3 over process intensities
   10^(j/2). For speed the sweep runs the filter's two equations batched over the data sets
   (one matrix per cycle); the tuned point of each order is re-run with the product's
-  :class:`fhobs.kalman_filter.KalmanObserver` and must agree to 1e-9. The tuned intensity of an
+  :class:`fhobs.core.kalman_filter.KalmanObserver` and must agree to 1e-9. The tuned intensity of an
   order is the grid point with the least noisy RMS on the tuning seed 10 (the rule behind
   ``[noise] process_intensity`` of examples/pendulum.toml).
-- Homogeneous designs (:func:`fhobs.design.design_observer`): the default and variants of
+- Homogeneous designs (:func:`fhobs.design.design_for_spec`): the default and variants of
   disturbance_order, nu, rho, gamma, filter_scale (among them the least noisy designs of each
   disturbance order found by a search over these keys whose perturbed max stays below
   ``STRONG_PERTURBED``); a design that fails the LMI or the certificate is reported as such.
@@ -49,16 +49,15 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from fhobs.certificate import CertificateError
-from fhobs.design import design_observer
-from fhobs.disturbance import extended_model
-from fhobs.kalman import KalmanDesignError, design_kalman
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.linalg import zoh_blocks
-from fhobs.lmi import LMIError
+from fhobs.core.disturbance import extended_model
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.linalg import zoh_blocks
+from fhobs.core.runtime import FilteringObserver
+from fhobs.design import design_for_spec
+from fhobs.errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from fhobs.kalman import design_kalman
 from fhobs.reference import SimulationResult, replay, simulate
-from fhobs.runtime import FilteringObserver
-from fhobs.spec import SpecError, spec_from_dict
+from fhobs.spec import spec_from_dict
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = REPO / "examples" / "pendulum.toml"
@@ -135,7 +134,7 @@ def spec_data(changes: dict) -> dict:
 def closed_loop(case: tuple[str, int]) -> SimulationResult:
     """The default design's loop for one (scenario, seed)."""
     scenario, seed = case
-    return simulate(design_observer(spec_from_dict(spec_data({}))), scenario, seed=seed)
+    return simulate(design_for_spec(spec_from_dict(spec_data({}))), scenario, seed=seed)
 
 
 def window_metrics(result: SimulationResult, estimate: np.ndarray) -> tuple[float, float]:
@@ -216,7 +215,7 @@ def homogeneous_point(job: tuple) -> dict:
     perturbed max and noisy RMS."""
     label, changes, data = job
     try:
-        gains = design_observer(spec_from_dict(spec_data(changes)))
+        gains = design_for_spec(spec_from_dict(spec_data(changes)))
     except (SpecError, LMIError, CertificateError) as err:
         return {"label": label, "changes": changes, "failed": f"{type(err).__name__}: {err}"}
     figures = [window_metrics(r, replay(FilteringObserver(gains), r)) for r in data]
@@ -295,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     homogeneous = {} if args.redo else results.get("homogeneous", {})
     runs = load_data(args.out, args.jobs)
     perturbed, noisy, tuning = runs[0], runs[1:-1], runs[-1]
-    gains = design_observer(spec_from_dict(spec_data({})))
+    gains = design_for_spec(spec_from_dict(spec_data({})))
     if args.redo or args.redo_kalman or "kalman" not in results:
         points = kalman_sweep(gains, perturbed, noisy, tuning)
         tuned = check_tuned(gains, points, perturbed, noisy)

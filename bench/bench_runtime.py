@@ -21,9 +21,14 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from fhobs.design import design_observer, paper_gains
+from fhobs.core.runtime import (
+    SCHEMES,
+    FilteringObserver,
+    LuenbergerObserver,
+    PrescribedTimeObserver,
+)
+from fhobs.design import design_for_spec, paper_gains
 from fhobs.reference import H_PAPER, accuracy_metrics, simulate
-from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.spec import load_spec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,7 +39,7 @@ def load_gains(name: str):
     """The paper's published design or our tuned design of examples/pendulum.toml."""
     if name == "paper":
         return paper_gains(REPO / "examples" / "pendulum-paper.json")
-    return design_observer(load_spec(REPO / "examples" / "pendulum.toml"))
+    return design_for_spec(load_spec(REPO / "examples" / "pendulum.toml"))
 
 
 def run_case(case: tuple) -> tuple:

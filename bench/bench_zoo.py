@@ -28,8 +28,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
+from fhobs.design import design_for_spec
 from fhobs.reference import SimulationResult
 from fhobs.scenarios_zoo import (
     closed_loop,
@@ -76,7 +76,7 @@ def run_plant(name: str, stop_time: float, fmu: bool = False) -> list[str]:
     """The table rows of one plant (one per (dt, h), or one row saying why the design failed)."""
     spec = load_zoo_spec(zoo_spec_paths()[name])
     try:
-        gains = design_observer(spec)
+        gains = design_for_spec(spec)
     except (ValueError, RuntimeError) as err:  # LMIError, CertificateError, homogenisation
         return [f"| {name} | design failed: {str(err).splitlines()[0]} |"]
     if fmu:

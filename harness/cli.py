@@ -28,12 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.certificate import CertificateError
 from fhobs.cli import check_output_folder
-from fhobs.kalman import KalmanDesignError
-from fhobs.lmi import LMIError
+from fhobs.errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import SpecError
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system

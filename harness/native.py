@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-from fhobs.kernel import cached_library
+from fhobs.core.kernel import cached_library
 
 SOURCE = Path(__file__).resolve().parent / "step_loop.c"
 DISABLE_ENV = "FHOBS_HARNESS_PYTHON_LOOP"

@@ -13,7 +13,7 @@ figures are evaluated over the last half of the run.
 from __future__ import annotations
 
 import numpy as np
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
 from fhobs.scenarios_zoo import state_feedback
 
 from harness.system import ConnectionSpec, Evaluation, FmuSpec, SystemSpec, expand_start

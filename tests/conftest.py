@@ -3,8 +3,8 @@
 from pathlib import Path
 
 import pytest
-from fhobs.design import design_observer, paper_gains
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
+from fhobs.design import design_for_spec, paper_gains
 from fhobs.spec import PlantSpec, load_spec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -20,7 +20,7 @@ def pendulum_spec() -> PlantSpec:
 @pytest.fixture(scope="session")
 def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
     """Our design for the pendulum (default objective)."""
-    return design_observer(pendulum_spec)
+    return design_for_spec(pendulum_spec)
 
 
 @pytest.fixture(scope="session")

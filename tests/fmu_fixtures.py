@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
-from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
+from fhobs.design import design_for_spec
 from fhobs.kalman import with_kalman
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
@@ -110,7 +110,7 @@ def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: Observe
 @pytest.fixture(scope="session")
 def chain_gains() -> ObserverGains:
     """A second design with other dimensions (n = 3, k = 1): the triple integrator."""
-    return design_observer(load_spec(EXAMPLES / "triple_integrator.toml"))
+    return design_for_spec(load_spec(EXAMPLES / "triple_integrator.toml"))
 
 
 @pytest.fixture(scope="session")

@@ -13,7 +13,7 @@ from pathlib import Path
 import fmpy
 import numpy as np
 import pytest
-from fhobs.kernel import compile_source
+from fhobs.core.kernel import compile_source
 
 HOST_SOURCE = Path(__file__).resolve().with_name("native_host.c")
 FMI_HEADERS = Path(fmpy.__file__).resolve().parent / "c-code"

@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 from fhobs.build import build_fmus
 from fhobs.cli import main as design_main
-from fhobs.design import design_observer
+from fhobs.design import design_for_spec
+from fhobs.errors import SpecError
 from fhobs.homogenisation import observability_index
 from fhobs.limits import MAX_CHAIN, check_design_limits
-from fhobs.spec import SpecError, load_spec, spec_from_dict
+from fhobs.spec import load_spec, spec_from_dict
 
 from harness.cli import main as harness_main
 
@@ -137,7 +138,7 @@ def test_any_failure_inside_the_design_is_a_message(tmp_path, capsys, monkeypatc
     def failing(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(fhobs.cli, "design_observer", failing)
+    monkeypatch.setattr(fhobs.cli, "design_for_spec", failing)
     code, err = _design(tmp_path, capsys, DOUBLE_INTEGRATOR)
     assert code == 2
     _one_paragraph(err)
@@ -186,7 +187,7 @@ tracking = ["wave.y", "observer.x_hat[1]"]
 @pytest.fixture(scope="module")
 def observer_fmu(tmp_path_factory) -> Path:
     """The triple integrator's observer FMU (n = 3, k = 1)."""
-    gains = design_observer(load_spec(EXAMPLES / "triple_integrator.toml"))
+    gains = design_for_spec(load_spec(EXAMPLES / "triple_integrator.toml"))
     return build_fmus(gains, tmp_path_factory.mktemp("chain"), kinds=("observer",))["observer"]
 
 

@@ -6,14 +6,17 @@ import json
 import subprocess
 import sys
 import tomllib
+from types import SimpleNamespace
 
 import fhobs.design
 import numpy as np
 import pytest
 import scipy.linalg
 from conftest import EXAMPLES, REPO
-from fhobs.certificate import CertificateError, augmented_matrices, certify
-from fhobs.design import design_observer, matched_perturbation_residual
+from fhobs.core.certificate import augmented_matrices, certify, checked_model
+from fhobs.core.disturbance import extended_model
+from fhobs.design import augmented_system, design_for_spec, matched_perturbation_residual
+from fhobs.errors import CertificateError
 from fhobs.homogenisation import homogenise, observability_index
 from fhobs.lmi import LMISolution
 from fhobs.spec import spec_from_dict
@@ -77,10 +80,69 @@ def test_matched_perturbation_condition_for_pendulum(tuned_gains, paper_design):
     assert tuned_gains.certificate["matched_perturbation_residual"] < 1e-12
 
 
+def model_by_loops(A, C, E, order):
+    """The observer's model entry by entry (the test's own construction, independent of the
+    design's fhobs.core.disturbance and of the certificate's checked_model): x' = A x + E q1,
+    q_j' = q_(j+1), q_order' = unknown; y = C x."""
+    n, k = A.shape[0], C.shape[0]
+    p = 0 if order == 0 else E.shape[1]
+    size = n + order * p
+    A_model, C_model = np.zeros((size, size)), np.zeros((k, size))
+    for i in range(n):
+        for j in range(n):
+            A_model[i, j] = A[i, j]
+        for j in range(p if order else 0):
+            A_model[i, n + j] = E[i, j]
+    for block in range(order - 1):
+        for j in range(p):
+            A_model[n + block * p + j, n + (block + 1) * p + j] = 1.0
+    for i in range(k):
+        for j in range(n):
+            C_model[i, j] = C[i, j]
+    return A_model, C_model
+
+
+def augmented_by_loops(gains):
+    """bar_A0, bar_G, bar_C of Theorem 2 from :func:`model_by_loops` and scipy's block_diag."""
+    A_model, C_model = model_by_loops(gains.A, gains.C, gains.E, gains.disturbance_order)
+    k, n = C_model.shape
+    bar_A0 = np.zeros((k + n, k + n))
+    bar_A0[:k, k:] = C_model
+    bar_A0[k:, k:] = A_model + gains.L0 @ C_model
+    bar_C = np.zeros((k, k + n))
+    for i in range(k):
+        bar_C[i, i] = 1.0
+    return bar_A0, scipy.linalg.block_diag(np.eye(k), gains.G_d), bar_C
+
+
 def closed_loop_error_matrix(gains) -> np.ndarray:
     """(psi, z - x) error system of Theorem 2 at sigma = 1: bar_A0 + bar_L bar_C."""
-    bar_A0, _, bar_C = augmented_matrices(gains)
+    bar_A0, _, bar_C = augmented_by_loops(gains)
     return bar_A0 + np.vstack([gains.L_tilde, gains.L]) @ bar_C
+
+
+@pytest.mark.parametrize("order, p", [(0, 1), (1, 1), (2, 1), (3, 1), (1, 2), (3, 2)])
+def test_the_three_model_constructions_agree(order, p):
+    """The design's extended model, the certificate's own and the test's loops are equal."""
+    rng = np.random.default_rng(order * 10 + p)
+    A, B = rng.standard_normal((3, 3)), rng.standard_normal((3, 1))
+    C, E = rng.standard_normal((2, 3)), rng.standard_normal((3, p))
+    expected_A, expected_C = model_by_loops(A, C, E, order)
+    design_A, _, design_C = extended_model(A, B, C, E, order)
+    gains = SimpleNamespace(A=A, C=C, E=E, disturbance_order=order)
+    checked_A, checked_C = checked_model(gains)
+    for got in (design_A, checked_A):
+        np.testing.assert_array_equal(got, expected_A)
+    for got in (design_C, checked_C):
+        np.testing.assert_array_equal(got, expected_C)
+
+
+def test_the_design_and_certificate_augmented_systems_agree_with_the_tests(tuned_gains):
+    g = tuned_gains
+    expected = augmented_by_loops(g)
+    for built in (augmented_matrices(g), augmented_system(g.A0, g.model[2], g.G_d)):
+        for got, want in zip(built, expected, strict=True):
+            np.testing.assert_array_equal(got, want)
 
 
 def test_tuned_and_paper_error_systems_are_stable(tuned_gains, paper_design):
@@ -119,7 +181,7 @@ RANDOM_CASES = [(seed, n, k) for seed, (n, k) in enumerate(
 def test_random_observable_plants(seed, n, k):
     data = random_spec(seed, n, k)
     spec = spec_from_dict(data, source=f"random seed {seed}")
-    gains = design_observer(spec)
+    gains = design_for_spec(spec)
     A, C, nu, eye = spec.A, spec.C, spec.nu, np.eye(n)
     A0 = A + gains.L0 @ C
     scale = np.linalg.norm(A0) * np.linalg.norm(gains.G_d)
@@ -131,7 +193,7 @@ def test_random_observable_plants(seed, n, k):
     weights = np.sort(np.linalg.eigvals(gains.G_d).real)
     expected = np.sort([1 + nu + nu * j for j in range(gains.n_tilde)])
     assert np.allclose(np.unique(weights.round(8)), expected, atol=1e-7)
-    bar_A0, bar_G, _ = augmented_matrices(gains)
+    bar_A0, bar_G, _ = augmented_by_loops(gains)
     p_min, mono, lmi = independent_lmi_check(
         gains.P_bar, closed_loop_error_matrix(gains), bar_G, gains.rho)
     assert p_min > 0 and mono > 0 and lmi < 0
@@ -171,7 +233,7 @@ def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
 
     monkeypatch.setattr(fhobs.design, "solve_gain_lmi", corrupted)
     with pytest.raises(CertificateError, match="lmi_filtering"):
-        design_observer(dataclasses.replace(pendulum_spec, filter_scale=1.0))
+        design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=1.0))
 
 
 def test_build_fmu_design_only_writes_design_json(tmp_path):
@@ -206,8 +268,8 @@ def test_build_fmu_bad_spec_exit_code_and_message(tmp_path):
 
 
 def test_filter_scale_multiplies_l_tilde_and_certifies_at_a_lower_rho(pendulum_spec):
-    base = design_observer(dataclasses.replace(pendulum_spec, filter_scale=1.0))
-    scaled = design_observer(dataclasses.replace(pendulum_spec, filter_scale=2.0))
+    base = design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=1.0))
+    scaled = design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=2.0))
     assert np.allclose(scaled.L_tilde, 2.0 * base.L_tilde)
     assert np.array_equal(scaled.L, base.L)
     assert pendulum_spec.gamma / 2 < scaled.rho < base.rho == pendulum_spec.rho

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fhobs.design import design_observer
-from fhobs.disturbance import extended_model, model_perturbation_matrix
-from fhobs.plant import LTIPlant
+from fhobs.core.disturbance import extended_model, model_perturbation_matrix
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver
+from fhobs.design import design_for_spec
 from fhobs.reference import K_PAPER, X0_PAPER
-from fhobs.runtime import FilteringObserver
 from fhobs.scenarios_zoo import state_feedback
 from fhobs.spec import spec_from_dict
 
@@ -56,7 +56,7 @@ def test_disturbance_models_of_every_order_design_on_the_pendulum(order):
     data = tomllib.loads((EXAMPLES / "pendulum.toml").read_text())
     data = {k: v for k, v in data.items() if k in ("A", "B", "C", "E")}
     data["observer"] = {"disturbance_order": order, "rho": 6.0, "gamma": 6.0}
-    g = design_observer(spec_from_dict(data, f"pendulum, order {order}"))
+    g = design_for_spec(spec_from_dict(data, f"pendulum, order {order}"))
     assert g.n_model == 4 + order and g.certificate["checks"]["lmi_filtering"] < 0
     dt, coefficients = 1e-3, [0.3, -0.2, 0.1][:order]
     plant = LTIPlant(g.A, g.B, g.C, g.E, x0=X0_PAPER)

@@ -22,7 +22,7 @@ import fmpy
 import fmu_fixtures
 import numpy as np
 import pytest
-from fhobs.runtime import SCHEMES, FilteringObserver
+from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import names

@@ -14,11 +14,12 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
+import fhobs
 import fmu_fixtures
 import numpy as np
 import pytest
-from fhobs.plant import LTIPlant
-from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names, random_walk
@@ -396,23 +397,76 @@ def test_instances_and_designs_are_independent(open_fmu, tuned_gains, chain_gain
 
 # -- what the FMU ships and imports ----------------------------------------------------------
 def test_shipped_code_imports_numpy_only(pendulum_fmus):
-    allowed = {"numpy", "pythonfmu", "__future__"} | set(sys.stdlib_module_names)
-    with zipfile.ZipFile(pendulum_fmus["observer"]) as z:
-        sources = {n: z.read(n) for n in z.namelist()
-                   if n.endswith(".py") and not n.startswith("resources/pythonfmu/")}
-    packages = {n.split("/")[1] for n in sources if n.count("/") > 1}
-    assert len(packages) == 1 and re.fullmatch(r"fhobs_[0-9a-f]{12}", packages.pop())
-    assert {"runtime.py", "certificate.py", "gains.py"} <= {Path(n).name for n in sources}
-    for name, source in sources.items():
-        for node in ast.walk(ast.parse(source)):
-            if isinstance(node, ast.Import):
-                tops = [a.name.split(".")[0] for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0:
-                tops = [node.module.split(".")[0]]
-            else:
-                continue
-            for top in tops:
-                assert top in allowed or re.fullmatch(r"fhobs_[0-9a-f]{12}", top), (name, top)
+    """Each FMU ships fhobs.core and fhobs.fmu whole under its own package name; the core
+    imports only itself (relatively), numpy and the standard library, the slaves also pythonfmu."""
+    stdlib = {"__future__"} | set(sys.stdlib_module_names)
+    for kind, path in pendulum_fmus.items():
+        with zipfile.ZipFile(path) as z:
+            sources = {n: z.read(n) for n in z.namelist()
+                       if n.endswith(".py") and not n.startswith("resources/pythonfmu/")}
+        packages = {n.split("/")[1] for n in sources if n.count("/") > 1}
+        assert len(packages) == 1, packages
+        package = packages.pop()
+        assert re.fullmatch(rf"fhobs_{kind}_[0-9a-f]{{12}}", package), package
+        shipped = {n.split("/", 2)[2] for n in sources if n.count("/") > 1}
+        source_tree = Path(fhobs.__file__).parent
+        assert shipped == {"__init__.py"} | {
+            p.relative_to(source_tree).as_posix()
+            for sub in ("core", "fmu") for p in (source_tree / sub).rglob("*.py")}
+        for name, source in sources.items():
+            layer = name.split("/")[2] if name.count("/") > 1 else "script"
+            allowed = stdlib | {"numpy"} | ({"pythonfmu"} if layer != "core" else set())
+            for top in absolute_imports(source):
+                assert top in allowed or (layer == "script" and top == package), (name, top)
+
+
+def absolute_imports(source: str | bytes) -> list[str]:
+    """Top-level names of a source's absolute imports."""
+    tops = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            tops += [a.name.split(".")[0] for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            tops.append(node.module.split(".")[0])
+    return tops
+
+
+def test_core_imports_only_itself_numpy_and_the_standard_library():
+    core = Path(fhobs.__file__).parent / "core"
+    allowed = {"numpy", "__future__"} | set(sys.stdlib_module_names)
+    for path in core.rglob("*.py"):
+        assert set(absolute_imports(path.read_text())) <= allowed, path.name
+
+
+@pytest.mark.parametrize("first, second", [("luenberger", "observer"), ("observer", "luenberger")])
+def test_fmus_of_one_design_do_not_share_modules(pendulum_fmus, tmp_path, first, second):
+    """One FMU is run and its unpack folder deleted; another FMU of the same design then runs in
+    the same process from its own shipped package (the observer needs a module the Luenberger
+    slave does not import), with the results of a run in a fresh process."""
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import shutil, sys\n"
+        "import numpy as np\n"
+        "from fmpy import extract, simulate_fmu\n"
+        "paths, out = sys.argv[1:-1], sys.argv[-1]\n"
+        "t = np.linspace(0.0, 0.02, 21)\n"
+        "signal = np.array(list(zip(t, np.sin(50 * t), np.cos(30 * t))),\n"
+        "                  dtype=[('time', float), ('y[1]', float), ('y[2]', float)])\n"
+        "for path in paths:\n"
+        "    folder = extract(path)\n"
+        "    result = simulate_fmu(folder, stop_time=0.02, output_interval=0.001, input=signal)\n"
+        "    shutil.rmtree(folder)\n"
+        "np.save(out, np.array(result.tolist()))\n"
+    )
+    paths = [str(pendulum_fmus[first]), str(pendulum_fmus[second])]
+    both, alone = tmp_path / "both.npy", tmp_path / "alone.npy"
+    for args in ([*paths, both], [paths[1], alone]):
+        done = subprocess.run([sys.executable, str(script), *map(str, args)],
+                              capture_output=True, text=True, check=False)
+        assert done.returncode == 0, done.stderr[-2000:]
+    after, fresh = np.load(both), np.load(alone)
+    assert np.abs(fresh[:, 1:]).max() > 0.0
+    np.testing.assert_array_equal(after, fresh)
 
 
 def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_gains, tmp_path):

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import fmu_fixtures
 import numpy as np
-from fhobs.plant import LTIPlant
-from fhobs.runtime import SCHEMES, FilteringObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus

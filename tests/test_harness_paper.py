@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fhobs.gains import ObserverGains
+from engines import run_fmpy_ssp, run_libcosim
+from fhobs.core.gains import ObserverGains
 from fhobs.reference import simulate
 from test_harness_plantfmu import build_vendor_plant
 
 from harness import master
 from harness.cli import build_paper_fmus, load_scenario, main
-from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains

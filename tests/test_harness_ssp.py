@@ -14,10 +14,10 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
+from engines import run_fmpy_ssp, run_libcosim
 from fmpy.ssp.ssd import read_ssd
 from test_harness_plantfmu import SYSTEM, build_vendor_plant
 
-from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import run_system
 from harness.ssp import export_ssp, lower_gains
 from harness.system import build_blocks, load_system, resolve_system

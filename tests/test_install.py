@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -24,10 +25,13 @@ def run(args: list[str], cwd: Path, env: dict[str, str], timeout: float = 600
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
-    """``pip install --no-deps --target`` of the clone; an environment that imports it."""
-    target = tmp_path_factory.mktemp("site")
+    """``pip install --no-deps --target`` of a copy of the clone (pip builds in the source
+    folder); an environment that imports the installed package."""
+    target, source = tmp_path_factory.mktemp("site"), tmp_path_factory.mktemp("clone") / "src"
+    shutil.copytree(REPO, source, symlinks=True, ignore=shutil.ignore_patterns(
+        ".git", "build", "results", "*.egg-info", "__pycache__", ".*_cache"))
     done = run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
-                str(target), str(REPO)], cwd=target, env=dict(os.environ))
+                str(target), str(source)], cwd=target, env=dict(os.environ))
     assert done.returncode == 0, done.stderr
     env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
     env["PYTHONPATH"] = str(target)
@@ -40,6 +44,9 @@ def test_modules_and_package_data_come_from_the_install(installed, tmp_path):
                 "import fhobs, harness, fhobs.paper as p; print(fhobs.__file__); "
                 "print(harness.__file__); print(p.PENDULUM_SPEC.is_file(), "
                 "len(list(p.EXAMPLES.glob('zoo/*.toml'))))"], cwd=tmp_path, env=env)
+    sources = [target / name for name in ("fhobs/core/kernel.c", "harness/step_loop.c",
+                                          "fhobs/fmu/status_wrapper.c", "fhobs/native/noise.c")]
+    assert all(path.is_file() for path in sources), [p for p in sources if not p.is_file()]
     assert done.returncode == 0, done.stderr
     fhobs_file, harness_file, data = done.stdout.splitlines()
     assert Path(fhobs_file).is_relative_to(target) and Path(harness_file).is_relative_to(target)

@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 from fhobs.build import build_fmus
-from fhobs.disturbance import extended_model
-from fhobs.gains import ObserverGains
-from fhobs.kalman import KalmanDesignError, design_kalman, van_loan, with_kalman
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.plant import LTIPlant
+from fhobs.core.disturbance import extended_model
+from fhobs.core.gains import ObserverGains
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.errors import KalmanDesignError, SpecError
+from fhobs.kalman import design_kalman, van_loan, with_kalman
 from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, replay, simulate
-from fhobs.spec import SpecError, spec_from_dict
+from fhobs.spec import spec_from_dict
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FmuDriver, random_walk

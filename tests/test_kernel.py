@@ -1,4 +1,4 @@
-"""The compiled step kernel (fhobs.kernel) against the numpy runtime, its reference.
+"""The compiled step kernel (fhobs.core.kernel) against the numpy runtime, its reference.
 
 The kernel's arithmetic is numpy's formula by formula but its matrix-vector sums are added in
 another order than numpy's BLAS, so the two agree to round-off, not bit for bit: every
@@ -15,13 +15,14 @@ import zipfile
 import fhobs.reference as reference
 import numpy as np
 import pytest
-from fhobs import kernel
-from fhobs.build import BuildError, build_fmus
-from fhobs.design import design_observer
+from fhobs.build import build_fmus
+from fhobs.core import kernel
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.design import design_for_spec
+from fhobs.errors import BuildError
 from fhobs.kalman import with_kalman
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.plant import LTIPlant
-from fhobs.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.spec import NoiseSpec, spec_from_dict
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
@@ -51,7 +52,7 @@ def random_design(seed: int, n: int, k: int, order: int):
     if order:
         data["E"] = rng.standard_normal((n, 1)).tolist()
         data["observer"]["disturbance_order"] = order
-    return design_observer(spec_from_dict(data, source=f"random seed {seed}"))
+    return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
 
 
 def plant_measurements(gains, seed: int, steps: int, dt: float, scale: float = 1.0):

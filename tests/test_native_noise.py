@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fhobs.kernel import compile_source
-from fhobs.plant import NOISE_BLOCK, uniform_noise
+from fhobs.core.kernel import compile_source
+from fhobs.core.plant import NOISE_BLOCK, uniform_noise
 
 NOISE_SOURCE = Path(__file__).resolve().parents[1] / "fmu_src" / "fhobs" / "native" / "noise.c"
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from fhobs.plant import LTIPlant, uniform_noise
+from fhobs.core.plant import LTIPlant, uniform_noise
 from scipy.integrate import solve_ivp
 
 A = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0],

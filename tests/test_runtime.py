@@ -1,4 +1,4 @@
-"""Maths of the discrete-time observers (fhobs.runtime) against independent scipy computations."""
+"""Maths of the discrete-time observers (fhobs.core.runtime) against independent scipy."""
 
 import subprocess
 import sys
@@ -6,10 +6,8 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg as sl
-from fhobs.design import design_observer
-from fhobs.plant import LTIPlant
-from fhobs.reference import K_PAPER, X0_PAPER
-from fhobs.runtime import (
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import (
     AMPLIFICATION_LIMIT,
     SCHEMES,
     FilteringObserver,
@@ -17,12 +15,14 @@ from fhobs.runtime import (
     PrescribedTimeObserver,
     spectral_radius,
 )
+from fhobs.design import design_for_spec
+from fhobs.reference import K_PAPER, X0_PAPER
 from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from scipy.integrate import solve_ivp
 
 
 def d_scipy(G, s):
-    """d(s) = expm(s G) by scipy (independent of fhobs.dilation)."""
+    """d(s) = expm(s G) by scipy (independent of fhobs.core.dilation)."""
     return sl.expm(s * G)
 
 
@@ -37,7 +37,7 @@ def augmented(g):
 
 
 def test_numpy_only_modules_do_not_import_scipy():
-    code = ("import sys, fhobs.runtime, fhobs.plant; "
+    code = ("import sys, fhobs.core.runtime, fhobs.core.plant; "
             "bad = [m for m in ('scipy', 'cvxpy', 'matplotlib') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
@@ -319,7 +319,7 @@ def test_unknown_scheme_is_rejected(paper_design):
 
 def zoo_design(name):
     """The default design of a zoo plant."""
-    return design_observer(load_zoo_spec(zoo_spec_paths()[name]))
+    return design_for_spec(load_zoo_spec(zoo_spec_paths()[name]))
 
 
 def test_step_without_a_contractive_gain_level_is_refused():

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 import scipy.linalg as sl
-from fhobs.dilation import Dilation
-from fhobs.injection import InjectionFlow
-from fhobs.linalg import ExpmFamily, expm, phi1, zoh_blocks
+from fhobs.core.dilation import Dilation
+from fhobs.core.injection import InjectionFlow
+from fhobs.core.linalg import ExpmFamily, expm, phi1, zoh_blocks
 
 
 @pytest.mark.parametrize("scale", [1e-6, 0.1, 1.0, 30.0, 80.0])

@@ -2,12 +2,15 @@
 
 import copy
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import EXAMPLES
-from fhobs.spec import SpecError, load_spec, spec_from_dict
+from fhobs.errors import SpecError
+from fhobs.spec import load_spec, spec_from_dict
 
 GOOD = {
     "A": [[0.0, 1.0], [-2.0, -3.0]],
@@ -153,3 +156,12 @@ def test_numpy_arrays_are_accepted_as_matrices():
         np.testing.assert_array_equal(getattr(from_arrays, name), getattr(from_lists, name))
     with pytest.raises(SpecError, match="C must be a non-empty list of rows"):
         spec_from_dict(arrays | {"C": np.array([1.0, 0.0])})
+
+
+def test_loading_a_spec_imports_no_solver():
+    """Reading and validating a spec (no design) imports neither cvxpy nor scipy."""
+    code = ("import sys, fhobs.spec; "
+            f"fhobs.spec.load_spec({str(EXAMPLES / 'pendulum.toml')!r}); "
+            "loaded = [m for m in ('cvxpy', 'clarabel', 'scipy') if m in sys.modules]; "
+            "assert not loaded, loaded")
+    subprocess.run([sys.executable, "-c", code], check=True)

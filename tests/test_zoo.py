@@ -1,5 +1,5 @@
 """The zoo of example plants with the default design: certificate, continuous-time convergence
-of the certified error system (integrated here with scipy, independently of fhobs.runtime) and
+of the certified error system (integrated here with scipy, independently of fhobs.core.runtime) and
 the runtime's noise-free floor in the closed loop of :func:`fhobs.scenarios_zoo.closed_loop`."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import functools
 import numpy as np
 import pytest
 import scipy.linalg
-from fhobs.design import design_observer
-from fhobs.gains import ObserverGains
+from fhobs.core.gains import ObserverGains
+from fhobs.design import design_for_spec
 from fhobs.scenarios_zoo import (
     CONVERGED,
     closed_loop,
@@ -48,7 +48,7 @@ def test_zoo_has_its_thirteen_plants():
 @functools.cache
 def default_design(name: str) -> ObserverGains:
     """The plant's design with every tuning parameter at its default."""
-    return design_observer(load_zoo_spec(ZOO[name]))
+    return design_for_spec(load_zoo_spec(ZOO[name]))
 
 
 @pytest.mark.slow

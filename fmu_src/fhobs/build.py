@@ -3,18 +3,20 @@ filter, ``kalman.fmu`` from an :class:`ObserverGains`.
 
 Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
-- ``fhobs_<tag>/``: the numpy-only fhobs modules the slave needs (``gains``,
-  ``certificate``, ``runtime``, ``plant``, their fhobs imports, ``fmu/slave_base``), with
-  every ``fhobs`` import renamed to ``fhobs_<tag>``; ``<tag>`` is a hash of the code and
-  the design, so FMUs of different designs loaded in one process never share a module
-  (pythonfmu shares ``sys.modules`` between the FMUs of a process, PythonFMU#228);
-- ``fhobs_<kind>_<tag>.py``: the slave script, its class renamed ``Fhobs<Kind>_<tag>``;
+- ``fhobs_<kind>_<tag>/``: a copy of :mod:`fhobs.core` (the numpy-only maths) and of
+  :mod:`fhobs.fmu` (the slave classes), taken whole: both import only relatively, numpy,
+  pythonfmu and the standard library. ``<tag>`` is a hash of that code, the design and the
+  options, and ``<kind>`` the FMU's kind, so two FMUs loaded in one process never share a module
+  (pythonfmu shares ``sys.modules`` between the FMUs of a process, PythonFMU#228), not even the
+  FMUs of one design;
+- ``slave_<kind>_<tag>.py``: the slave script, a subclass ``Fhobs<Kind>_<tag>`` of the slave
+  class in ``fhobs_<kind>_<tag>.fmu``;
 - ``design.json`` and ``fmu_config.json``: read by each instance from its own resources.
 
 On linux64 a small C wrapper (``fmu/status_wrapper.c``, compiled here with the system C
 compiler) is placed in front of pythonfmu's binary so that rejected inputs and rejected
 parameters are answered with ``fmi2Error`` (see :mod:`fhobs.fmu.slave_base`), and the runtime's
-step kernel (``kernel.c``, :mod:`fhobs.kernel`) is compiled into the vendored package as
+step kernel (``core/kernel.c``, :mod:`fhobs.core.kernel`) is compiled into the shipped core as
 ``kernel_linux64.so``: the models step in C inside the FMU. Without it (no compiler, another
 platform, ``kernel=False``) the FMU runs the numpy runtime alone, with the same results to
 round-off.
@@ -22,10 +24,8 @@ round-off.
 
 from __future__ import annotations
 
-import ast
 import hashlib
 import json
-import re
 import shutil
 import subprocess
 import sys
@@ -36,25 +36,25 @@ from pathlib import Path
 
 import numpy as np
 
-from .certificate import certify
-from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE, STATUS_VALUE_REFERENCE
-from .gains import ObserverGains
-from .kernel import SHIPPED, SOURCE, compile_library
-from .plant import PLANT_SCHEMES
-from .runtime import SCHEMES
+from .core.certificate import certify
+from .core.gains import ObserverGains
+from .core.kernel import SHIPPED, SOURCE, compile_library
+from .core.plant import PLANT_SCHEMES
+from .core.runtime import SCHEMES
+from .errors import BuildError
+from .fmu.modes import STATUS_VALUE_REFERENCE
+from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-SLAVE_SCRIPTS = {"observer": "observer.py", "luenberger": "luenberger.py", "plant": "plant.py",
-                 "kalman": "kalman.py"}
+SLAVE_CLASSES = {"observer": "FhobsObserver", "luenberger": "FhobsLuenberger",
+                 "plant": "FhobsPlant", "kalman": "FhobsKalman"}
+"""The slave class of each FMU kind, defined in ``fhobs.fmu.<kind>``."""
+SHIPPED_PACKAGES = ("core", "fmu")
+"""The subpackages of fhobs copied whole into each FMU."""
 DEFAULT_KINDS = ("observer", "luenberger", "plant")
 """Built by default; ``kalman`` too when the design has a Kalman filter."""
-ALLOWED_THIRD_PARTY = {"numpy", "pythonfmu"}
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
-
-
-class BuildError(RuntimeError):
-    """The FMUs cannot be built (forbidden import, missing tool...)."""
 
 
 def build_fmus(
@@ -97,7 +97,7 @@ def build_fmus(
     noise_amplitude, noise_seed : float, int
         Start values of the plant's measurement noise.
     plant_scheme : str
-        Start value of the plant's step scheme (``fhobs.plant.PLANT_SCHEMES``).
+        Start value of the plant's step scheme (``fhobs.core.plant.PLANT_SCHEMES``).
     input_bound : float
         Start value of every FMU's ``input_bound`` (larger inputs are rejected).
     status_wrapper : bool, optional
@@ -111,13 +111,23 @@ def build_fmus(
     Returns
     -------
     dict of str to Path
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> built = build_fmus(gains, tempfile.mkdtemp(), kinds=("observer", "plant"),
+    ...                    x0=[1.0, 0.0], status_wrapper=False, kernel=False)
+    >>> sorted(path.name for path in built.values())
+    ['observer.fmu', 'plant.fmu']
     """
     if kinds is None:
         kinds = DEFAULT_KINDS + (("kalman",) if gains.kalman is not None else ())
     kinds = tuple(kinds)
-    unknown = set(kinds) - set(SLAVE_SCRIPTS)
+    unknown = set(kinds) - set(SLAVE_CLASSES)
     if unknown:
-        raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(SLAVE_SCRIPTS)}")
+        raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(SLAVE_CLASSES)}")
     if "kalman" in kinds and gains.kalman is None:
         raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
                          "give the spec a [noise] table)")
@@ -155,15 +165,14 @@ def build_fmus(
         stage = Path(tmp)
         design_json = json.dumps(gains.to_dict(), indent=1)
         tag = build_tag(design_json + json.dumps(config, sort_keys=True))
-        package = stage / f"fhobs_{tag}"
-        vendor_modules(package, tag)
-        if kernel:
-            _compile_kernel(package, compiler)
+        library = _compile_kernel(stage, compiler) if kernel else None
         (stage / DESIGN_FILE).write_text(design_json)
         (stage / CONFIG_FILE).write_text(json.dumps(config, indent=1))
         wrapper = _compile_wrapper(stage, compiler) if status_wrapper else None
         built = {}
         for kind in kinds:
+            package = stage / package_name(kind, tag)
+            ship_package(package, library)
             script = _write_script(stage, kind, tag)
             built[kind] = _build_one(script, stage, package, out_dir / f"{kind}.fmu")
             if wrapper is not None:
@@ -183,100 +192,53 @@ def _vector(value: Iterable[float] | None, size: int) -> list[float]:
 def build_tag(extra: str) -> str:
     """Hash of the code shipped in the FMUs and of ``extra`` (design + options), 12 hex digits."""
     digest = hashlib.sha256(extra.encode())
-    for path in sorted(PACKAGE_DIR.rglob("*.py")) + [PACKAGE_DIR / "fmu" / "status_wrapper.c",
-                                                     SOURCE]:
+    for path in sorted(_shipped_files()) + [PACKAGE_DIR / "fmu" / "status_wrapper.c", SOURCE]:
         digest.update(path.relative_to(PACKAGE_DIR).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
 
 
-def fhobs_imports(path: Path) -> set[str]:
-    """Module files (relative to the package) that a source file imports from fhobs.
-
-    Raises
-    ------
-    BuildError
-        If the file imports anything but the standard library, numpy, pythonfmu and fhobs.
-    """
-    tree = ast.parse(path.read_text(), filename=str(path))
-    here = path.parent.relative_to(PACKAGE_DIR).parts
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names = [(alias.name, ()) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            names = [_absolute(node, here, alias.name) for alias in node.names]
-        else:
-            continue
-        for module, fromlist in names:
-            top = module.split(".")[0]
-            if top == "fhobs":
-                found |= _module_files(module, fromlist)
-            elif top not in ALLOWED_THIRD_PARTY and top not in sys.stdlib_module_names:
-                raise BuildError(f"{path.name} imports {module!r}: FMU code must be numpy-only")
-    return found
+def _shipped_files() -> list[Path]:
+    """The Python files copied into each FMU (those of ``SHIPPED_PACKAGES``)."""
+    return [path for sub in SHIPPED_PACKAGES for path in (PACKAGE_DIR / sub).rglob("*.py")]
 
 
-def _absolute(node: ast.ImportFrom, here: tuple[str, ...], name: str) -> tuple[str, tuple]:
-    """(absolute module, (imported name,)) of one ``from X import name``."""
-    if node.level == 0:
-        return node.module, (name,)
-    base = ("fhobs",) + here[: len(here) - node.level + 1]
-    return ".".join(base + ((node.module,) if node.module else ())), (name,)
+def package_name(kind: str, tag: str) -> str:
+    """Name of the package shipped in the ``kind`` FMU of build ``tag``: ``fhobs_<kind>_<tag>``."""
+    return f"fhobs_{kind}_{tag}"
 
 
-def _module_files(module: str, fromlist: tuple) -> set[str]:
-    """Existing package files for ``module`` and for ``module.name`` submodules."""
-    files = set()
-    for dotted in [module] + [f"{module}.{name}" for name in fromlist]:
-        parts = dotted.split(".")[1:]
-        if not parts:
-            continue
-        for candidate in (Path(*parts).with_suffix(".py"), Path(*parts, "__init__.py")):
-            if (PACKAGE_DIR / candidate).is_file():
-                files.add(candidate.as_posix())
-    return files
-
-
-def vendored_files() -> list[str]:
-    """Package files the slave scripts need, found by following their fhobs imports."""
-    todo = [f"fmu/{script}" for script in SLAVE_SCRIPTS.values()]
-    seen: set[str] = set()
-    while todo:
-        rel = todo.pop()
-        if rel in seen:
-            continue
-        seen.add(rel)
-        todo.extend(fhobs_imports(PACKAGE_DIR / rel) - seen)
-    scripts = {f"fmu/{script}" for script in SLAVE_SCRIPTS.values()}
-    return sorted((seen - scripts) | {"fmu/__init__.py"})
-
-
-def _rename_fhobs(source: str, tag: str) -> str:
-    """Rewrite ``import fhobs...`` / ``from fhobs... import`` to the vendored package name."""
-    return re.sub(r"^(\s*)(from|import)(\s+)fhobs\b", rf"\1\2\3fhobs_{tag}", source, flags=re.M)
-
-
-def vendor_modules(package: Path, tag: str) -> None:
-    """Copy the numpy-only modules into ``package`` (named ``fhobs_<tag>``), imports renamed."""
+def ship_package(package: Path, kernel_library: Path | None) -> None:
+    """Copy :mod:`fhobs.core` and :mod:`fhobs.fmu` whole into ``package`` (their imports are
+    relative), with the compiled step kernel ``kernel_library`` (if any) beside the core."""
     package.mkdir()
     (package / "__init__.py").write_text(
-        '"""numpy-only fhobs modules vendored into this FMU by fhobs.build."""\n'
+        '"""fhobs.core and fhobs.fmu, shipped in this FMU by fhobs.build."""\n'
     )
-    for rel in vendored_files():
-        target = package / rel
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(_rename_fhobs((PACKAGE_DIR / rel).read_text(), tag))
+    for sub in SHIPPED_PACKAGES:
+        shutil.copytree(PACKAGE_DIR / sub, package / sub,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so", "*.c"))
+    if kernel_library is not None:
+        shutil.copy2(kernel_library, package / "core" / SHIPPED.name)
 
 
 def _write_script(stage: Path, kind: str, tag: str) -> Path:
-    """The slave script with fhobs imports renamed and its class made build-unique."""
-    source = _rename_fhobs((PACKAGE_DIR / "fmu" / SLAVE_SCRIPTS[kind]).read_text(), tag)
-    source, count = re.subn(r"^class (Fhobs\w+)\(", rf"class \1_{tag}(", source, flags=re.M)
-    if count != 1:
-        raise BuildError(f"expected one slave class in {SLAVE_SCRIPTS[kind]}, found {count}")
-    script = stage / f"fhobs_{kind}_{tag}.py"
-    script.write_text(source)
+    """The slave script: a build-unique subclass of the kind's slave class in the package.
+
+    pythonfmu 0.7.0 runs the script a second time, in the module's namespace, at every
+    instantiation and releases one reference to that namespace too many; the functions the
+    script defines hold references to it, so the subclass defines one (``__init__``).
+    """
+    base = SLAVE_CLASSES[kind]
+    script = stage / f"slave_{kind}_{tag}.py"
+    script.write_text(
+        f'"""The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`."""\n\n'
+        f"from {package_name(kind, tag)}.fmu.{kind} import {base}\n\n\n"
+        f"class {base}_{tag}({base}):\n"
+        f'    """{base} under a class name unique to this build."""\n\n'
+        f"    def __init__(self, **kwargs):\n"
+        f"        super().__init__(**kwargs)\n"
+    )
     return script
 
 
@@ -311,13 +273,16 @@ def _compile_wrapper(stage: Path, compiler: str) -> Path:
     return library
 
 
-def _compile_kernel(package: Path, compiler: str) -> None:
-    """Compile ``kernel.c`` into the vendored package, where its ``fhobs.kernel`` finds it."""
+def _compile_kernel(stage: Path, compiler: str) -> Path:
+    """Compile ``core/kernel.c`` into ``stage``, to be shipped where :mod:`fhobs.core.kernel`
+    finds it."""
+    library = stage / SHIPPED.name
     try:
-        compile_library(package / SHIPPED.name, compiler)
+        compile_library(library, compiler)
     except (OSError, subprocess.SubprocessError) as err:
         detail = getattr(err, "stderr", None) or err
         raise BuildError(f"compiling the step kernel failed:\n{detail}") from err
+    return library
 
 
 def _install_wrapper(fmu: Path, wrapper: Path) -> None:

@@ -11,13 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .certificate import CertificateError, augmented_matrices
-from .design import design_observer
-from .gains import ObserverGains
-from .kalman import KalmanDesignError, with_kalman
+from .core.gains import ObserverGains
+from .design import augmented_system, design_for_spec
+from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from .kalman import with_kalman
 from .limits import check_design_limits
-from .lmi import OBJECTIVES, LMIError
-from .spec import PlantSpec, SpecError, load_spec
+from .spec import OBJECTIVES, PlantSpec, load_spec
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -99,7 +98,7 @@ def design_summary(gains: ObserverGains) -> list[str]:
 def slowest_mode(gains: ObserverGains) -> float:
     """max Re eig(bar_A0 + bar_L bar_C): the slowest mode of the observer's linear part at
     sigma = 1 (its error decays like exp(that rate * sigma^nu t) at a frozen level sigma)."""
-    bar_A0, _, bar_C = augmented_matrices(gains)
+    bar_A0, _, bar_C = augmented_system(gains.A0, gains.model[2], gains.G_d)
     bar_L = np.vstack([gains.L_tilde, gains.L])
     return float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
 
@@ -143,8 +142,8 @@ def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverG
 
     Raises
     ------
-    fhobs.lmi.LMIError, fhobs.certificate.CertificateError, fhobs.kalman.KalmanDesignError
-        As :func:`fhobs.design.design_observer` and :func:`fhobs.kalman.with_kalman`.
+    fhobs.errors.LMIError, fhobs.errors.CertificateError, fhobs.errors.KalmanDesignError
+        As :func:`fhobs.design.design_for_spec` and :func:`fhobs.kalman.with_kalman`.
 
     Examples
     --------
@@ -154,7 +153,7 @@ def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverG
     >>> gains.rho, gains.kalman is None
     (2.0, True)
     """
-    gains = design_observer(spec, objective=objective)
+    gains = design_for_spec(spec, objective=objective)
     return gains if spec.noise is None else with_kalman(gains, spec.noise)
 
 

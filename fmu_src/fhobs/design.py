@@ -1,14 +1,18 @@
 """Observer design: from a plant spec to certified gains (Theorems 1 and 2 of the paper).
 
-The steps, in the shape of python-control's design functions (``design_observer(spec)`` returns
-everything a user needs):
+:func:`design_observer` takes the plant as arrays (or a python-control ``StateSpace``) and the
+tuning as keywords, in the manner of python-control's design functions, validates them
+(:func:`fhobs.spec.plant_spec`) and returns the certified design; :func:`design_for_spec` does
+the same for a validated :class:`~fhobs.spec.PlantSpec` (a spec file's,
+:func:`fhobs.spec.load_spec`).
+The steps:
 
 1. homogenisation (:mod:`fhobs.homogenisation`): n_tilde, G0, L0, G_d;
 2. Theorem 2's LMI for the filtering observer: (L_tilde; L) and P_bar;
 3. Theorem 1's LMI for the prescribed-time observer: L_pt and P_pt;
 4. the Luenberger baseline L_lin (given in the spec, or an LMI with decay equal to the
    filtering observer's slowest linear mode, so both observers are compared at equal speed);
-5. the numpy certificate (:mod:`fhobs.certificate`), which must pass.
+5. the numpy certificate (:mod:`fhobs.core.certificate`), which must pass.
 
 Fast output filter (``[observer] filter_scale = c``, default 1). After step 2, L_tilde is
 multiplied by c (L unchanged) and P_bar is found again for the fixed gain by
@@ -30,25 +34,32 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 
-from .certificate import CertificateError, augmented_matrices, certify
-from .disturbance import extended_model, model_perturbation_matrix
-from .gains import ObserverGains
+from .core.certificate import certify
+from .core.disturbance import extended_model, model_perturbation_matrix
+from .core.gains import ObserverGains
+from .core.linalg import diagonal_congruence, diagonal_similarity
+from .errors import CertificateError, LMIError, SpecError
 from .homogenisation import Homogenisation, dilation_basis, homogenise
-from .linalg import diagonal_congruence, diagonal_similarity
 from .lmi import (
     DEFAULT_MARGIN,
-    LMIError,
     certify_gain_lmi,
     chain_basis,
     solve_gain_lmi,
 )
 from .paper import PAPER_REFERENCE
 from .settling import ErrorResponse, error_response
-from .spec import PlantSpec, spec_from_dict
+from .spec import (
+    DEFAULT_OBJECTIVE,
+    DEFAULT_SETTLING_TIME,
+    PlantSpec,
+    plant_spec,
+    spec_from_dict,
+)
 
 RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0)
 """Values of rho tried, in this order, when the spec leaves rho to the design."""
@@ -84,6 +95,19 @@ def matched_perturbation_residual(G_d: np.ndarray, E: np.ndarray, n_tilde: int) 
     return float(np.linalg.norm((n_tilde + 1) * G_d @ E - E) / max(np.linalg.norm(E), 1e-300))
 
 
+def augmented_system(
+    A0: np.ndarray, C_model: np.ndarray, G_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (psi, z) system of Theorem 2 that the design solves for: bar_A0 = [[0, C], [0, A0]],
+    bar_G = diag(I_k, G_d), bar_C = [I_k, 0] (the certificate builds its own,
+    :func:`fhobs.core.certificate.augmented_matrices`)."""
+    k, n = C_model.shape
+    bar_A0 = np.block([[np.zeros((k, k)), C_model], [np.zeros((n, k)), A0]])
+    bar_G = scipy.linalg.block_diag(np.eye(k), G_d)
+    bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
+    return bar_A0, bar_G, bar_C
+
+
 def _chain_levels(
     A: np.ndarray, C: np.ndarray, nu: float, hom: Homogenisation
 ) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -94,17 +118,20 @@ def _chain_levels(
     return A + hom.L0 @ C, levels
 
 
-def _luenberger_gain(spec: PlantSpec, decay: float, objective: str, margin: float) -> np.ndarray:
-    """The spec's L_lin, or the plant's Luenberger LMI at ``decay`` (in the chain basis of the
-    plant's balanced coordinates, mapped back)."""
+def _luenberger_gain(
+    spec: PlantSpec, decay: float, objective: str, margin: float
+) -> tuple[np.ndarray, str | None]:
+    """The spec's L_lin (status None), or the plant's Luenberger LMI at ``decay`` (in the chain
+    basis of the plant's balanced coordinates, mapped back) and the solver's status."""
     if spec.L_lin is not None:
-        return spec.L_lin
+        return spec.L_lin, None
     n = spec.A.shape[0]
     d = _balancing(spec.A)
     A_b, C_b = diagonal_similarity(spec.A, d), spec.C * d[None, :]
     A0, levels = _chain_levels(A_b, C_b, spec.nu, homogenise(A_b, C_b, spec.nu))
     basis = chain_basis(A0, levels)
-    return solve_gain_lmi(A_b, np.eye(n), C_b, decay, basis, objective, margin).gain * d[:, None]
+    solution = solve_gain_lmi(A_b, np.eye(n), C_b, decay, basis, objective, margin)
+    return solution.gain * d[:, None], solution.status
 
 
 def _balancing(A: np.ndarray) -> np.ndarray:
@@ -113,17 +140,118 @@ def _balancing(A: np.ndarray) -> np.ndarray:
 
 
 def design_observer(
+    A: Any,
+    B: Any = None,
+    C: Any = None,
+    *,
+    E: Any = None,
+    L_lin: Any = None,
+    disturbance_order: int = 0,
+    nu: float | None = None,
+    rho: float | None = None,
+    gamma: float | None = None,
+    settling_time: float = DEFAULT_SETTLING_TIME,
+    state_scale: Any = 1.0,
+    filter_scale: float = 1.0,
+    objective: str = DEFAULT_OBJECTIVE,
+    margin: float = DEFAULT_MARGIN,
+) -> ObserverGains:
+    """Design and certify the filtering homogeneous observer of ``dx/dt = A x + B u + E q``,
+    ``y = C x``.
+
+    Parameters
+    ----------
+    A, B, C : array_like
+        Plant matrices (n x n, n x m, k x n). ``A`` may instead be a continuous-time
+        python-control ``StateSpace`` (then B and C are not given, and its D must be zero).
+    E : array_like, optional
+        Perturbation input matrix (n x r).
+    L_lin : array_like, optional
+        The Luenberger baseline's gain (n x k); default: designed by LMI at the filtering
+        observer's slowest linear decay.
+    disturbance_order : int
+        Model q as a polynomial of degree ``disturbance_order - 1`` (0..3; > 0 needs E) and
+        estimate it (:mod:`fhobs.core.disturbance`).
+    nu : float, optional
+        Homogeneity degree in [-1/(n_tilde+1), 0); default -1/(n_tilde+1).
+    rho, gamma : float, optional
+        LMI decay parameter and xi-equation gain (0 < gamma < 2 rho); default: the smallest
+        rho of ``RHO_LADDER`` that meets ``settling_time``, gamma = rho.
+    settling_time : float
+        Seconds for an initial error of the size of ``state_scale`` to fall to 1e-3 of itself
+        (used when rho is not given).
+    state_scale : float or array_like
+        Typical size of each state (one number for all, or n).
+    filter_scale : float
+        >= 1: L_tilde is multiplied by it after the LMI (module docstring).
+    objective : {"min_cond", "min_gain"}
+        LMI objective (:data:`fhobs.spec.OBJECTIVES`).
+    margin : float
+        Margin imposed on the strict LMI inequalities.
+
+    Returns
+    -------
+    ObserverGains
+        The gains of the three observers, the Lyapunov matrices and ``certificate`` holding
+        the checked figures.
+
+    Raises
+    ------
+    fhobs.errors.SpecError
+        If an argument is invalid (the message names it).
+    fhobs.errors.LMIError, fhobs.errors.CertificateError
+        As :func:`design_for_spec`.
+
+    Examples
+    --------
+    A double integrator measured in position:
+
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> gains.n, gains.k, gains.n_tilde, gains.rho
+    (2, 1, 2, 2.0)
+    >>> bool(gains.certificate["checks"]["hurwitz_luenberger"] < 0)
+    True
+    """
+    if B is None and C is None and not isinstance(A, np.ndarray | list | tuple):
+        A, B, C = _state_space_matrices(A)
+    elif B is None or C is None:
+        raise SpecError("design_observer: give A, B and C, or a python-control StateSpace alone")
+    spec = plant_spec(
+        A, B, C, E=E, L_lin=L_lin, disturbance_order=disturbance_order, nu=nu, rho=rho,
+        gamma=gamma, settling_time=settling_time, state_scale=state_scale,
+        filter_scale=filter_scale, objective=objective,
+    )
+    return design_for_spec(spec, margin=margin)
+
+
+def _state_space_matrices(system: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A, B, C of a continuous-time python-control ``StateSpace`` whose D is zero."""
+    if not all(hasattr(system, name) for name in ("A", "B", "C", "D")):
+        raise SpecError(
+            f"design_observer: A must be a matrix or a StateSpace, got {type(system).__name__}"
+        )
+    if getattr(system, "dt", 0) not in (0, None):
+        raise SpecError(f"design_observer: the system is discrete-time (dt = {system.dt}); "
+                        "the observer needs a continuous-time plant")
+    D = np.asarray(system.D, dtype=float)
+    if D.size and np.any(D != 0.0):
+        raise SpecError("design_observer: the system's D must be zero (the observer's plant "
+                        "has no direct feedthrough from u to y)")
+    return np.asarray(system.A), np.asarray(system.B), np.asarray(system.C)
+
+
+def design_for_spec(
     spec: PlantSpec,
     objective: str | None = None,
     margin: float = DEFAULT_MARGIN,
     filter_scale: float | None = None,
 ) -> ObserverGains:
-    """Design and certify the filtering homogeneous observer for a plant spec.
+    """Design and certify the filtering homogeneous observer for a validated plant spec.
 
     Parameters
     ----------
     spec : PlantSpec
-        Validated plant and tuning (nu, rho, gamma).
+        Validated plant and tuning (:func:`fhobs.spec.load_spec`, :func:`fhobs.spec.plant_spec`).
     objective : str, optional
         LMI objective (see :mod:`fhobs.lmi`); defaults to the spec's.
     margin : float
@@ -138,14 +266,22 @@ def design_observer(
 
     Raises
     ------
-    fhobs.lmi.LMIError
+    fhobs.errors.LMIError
         If an LMI solve fails.
-    fhobs.certificate.CertificateError
+    fhobs.errors.CertificateError
         If the solver's result does not pass the numpy certificate, also after solving the
         LMIs again with the margin the failed checks asked for (``MARGIN_ATTEMPTS`` solves in
         all: the certificate allows for the rounding error of its own figures, which grows
         with cond(P) and the gains, so a margin that is too thin for a plant with large
         entries is widened rather than reported as a failure).
+
+    Examples
+    --------
+    >>> from fhobs.spec import spec_from_dict
+    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+    ...                        "observer": {"rho": 2.0, "gamma": 3.0}})
+    >>> design_for_spec(spec).gamma
+    3.0
     """
     objective = objective or spec.objective
     if spec.rho is None:
@@ -182,7 +318,7 @@ def _design_for_settling_time(
         if stalled >= LADDER_PATIENCE:
             break
         try:
-            gains = design_observer(replace(spec, rho=rho, gamma=gamma), objective, margin,
+            gains = design_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
                                     filter_scale)
         except (LMIError, CertificateError) as exc:
             last_error, stalled = exc, stalled + 1
@@ -226,9 +362,7 @@ def _design_at_margin(
     hom = homogenise(A_b, C_b, spec.nu)
     n, k = A_model.shape[0], spec.C.shape[0]
     A0, levels = _chain_levels(A_b, C_b, spec.nu, hom)
-    bar_A0 = np.block([[np.zeros((k, k)), C_b], [np.zeros((n, k)), A0]])
-    bar_G = scipy.linalg.block_diag(np.eye(k), hom.G_d)
-    bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
+    bar_A0, bar_G, bar_C = augmented_system(A0, C_b, hom.G_d)
     filtering = solve_gain_lmi(
         bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C_b), objective, margin
     )
@@ -241,16 +375,19 @@ def _design_at_margin(
         rho, P_bar = _max_certified_rho(bar_A0 + bar_L @ bar_C, bar_G, spec, margin)
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
     d_bar = np.concatenate([np.ones(k), d])
+    L_lin, luenberger_status = _luenberger_gain(spec, decay, objective, margin)
+    solver_status = {"filtering": filtering.status, "prescribed_time": pt.status}
+    if luenberger_status is not None:
+        solver_status["luenberger"] = luenberger_status
     base = dict(
         A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=rho, gamma=spec.gamma,
         n_tilde=hom.n_tilde, G0=diagonal_similarity(hom.G0, 1.0 / d), L0=hom.L0 * d[:, None],
         G_d=diagonal_similarity(hom.G_d, 1.0 / d), L_tilde=bar_L[:k], L=bar_L[k:] * d[:, None],
         P_bar=diagonal_congruence(P_bar, 1.0 / d_bar), L_pt=pt.gain * d[:, None],
         P_pt=diagonal_congruence(pt.P, 1.0 / d),
-        L_lin=_luenberger_gain(spec, decay, objective, margin),
-        disturbance_order=spec.disturbance_order,
+        L_lin=L_lin, disturbance_order=spec.disturbance_order,
     )
-    return _certified(base, objective, margin)
+    return _certified(base, objective, margin, solver_status)
 
 
 def _max_certified_rho(
@@ -277,8 +414,12 @@ def _max_certified_rho(
     return float(lo), P
 
 
-def _certified(base: dict, objective: str, margin: float) -> ObserverGains:
-    """Run the numpy certificate on a candidate and attach its figures."""
+def _certified(
+    base: dict, objective: str, margin: float, solver_status: dict[str, str] | None = None
+) -> ObserverGains:
+    """Run the numpy certificate on a candidate and attach its figures, with the status of
+    each LMI solve behind it (``"optimal_inaccurate"`` ones are kept when they pass the
+    certificate, which is the judge)."""
     values = certify(ObserverGains(**base))
     E, order = base["E"], base["disturbance_order"]
     if E is not None and order:  # the model's unknown input is q^(order)
@@ -287,6 +428,7 @@ def _certified(base: dict, objective: str, margin: float) -> ObserverGains:
         "checks": values,
         "objective": objective,
         "lmi_margin": margin,
+        "solver_status": dict(solver_status or {}),
         "matched_perturbation_residual": (
             None if E is None else matched_perturbation_residual(base["G_d"], E, base["n_tilde"])
         ),
@@ -322,10 +464,10 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
         },
         source=str(reference),
     )
-    tuned = design_observer(spec)
+    tuned = design_for_spec(spec)
     base = {f: getattr(tuned, f) for f in tuned.__dataclass_fields__ if f != "certificate"}
     base |= dict(L_tilde=np.array(published["L_tilde"]), L=np.array(published["L"]))
-    bar_A0, bar_G, bar_C = augmented_matrices(ObserverGains(**base))
+    bar_A0, bar_G, bar_C = augmented_system(tuned.A0, tuned.model[2], tuned.G_d)
     bar_L = np.vstack([base["L_tilde"], base["L"]])
     base["P_bar"] = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
     return _certified(base, "published", DEFAULT_MARGIN)

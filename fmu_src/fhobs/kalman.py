@@ -1,9 +1,9 @@
 """Design of the steady-state discrete Kalman filter baseline (scipy; the filter itself runs in
-:mod:`fhobs.kalman_filter`, numpy only).
+:mod:`fhobs.core.kalman_filter`, numpy only).
 
 Model. The plant dx/dt = A x + B u + E q, y = C x + eta, with q modelled as in
-:mod:`fhobs.disturbance`: for order r >= 1, ``q^(r) = w`` (the extended model, w entering the last
-q block), for r = 0 ``q = w`` itself (through E). w is continuous white noise of intensity W
+:mod:`fhobs.core.disturbance`: for order r >= 1, ``q^(r) = w`` (the extended model, w entering the
+last q block), for r = 0 ``q = w`` itself (through E). w is continuous white noise of intensity W
 (``process_intensity``, power spectral density per component of q), eta is white with standard
 deviation ``measurement_std`` per output (uniform noise of amplitude a: std a / sqrt(3)).
 
@@ -24,17 +24,13 @@ import dataclasses
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from .disturbance import extended_model, model_perturbation_matrix
-from .gains import KalmanGains, ObserverGains
+from .core.disturbance import extended_model, model_perturbation_matrix
+from .core.gains import KalmanGains, ObserverGains
+from .errors import KalmanDesignError
 from .spec import NoiseSpec
 
 RICCATI_TOLERANCE = 1e-8
 """Largest accepted relative residual of the Riccati equation (and negative eigenvalue of P)."""
-
-
-class KalmanDesignError(ValueError):
-    """The Kalman filter cannot be designed (bad argument, no accurate stabilising Riccati
-    solution)."""
 
 
 def riccati_residual(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray,
@@ -122,7 +118,7 @@ def design_kalman(
     E : numpy.ndarray or None
         Perturbation input matrix (n x p); required (the process noise enters through it).
     order : int
-        Disturbance-model order r in 0..3 (:func:`fhobs.disturbance.extended_model`).
+        Disturbance-model order r in 0..3 (:func:`fhobs.core.disturbance.extended_model`).
     measurement_std : array_like
         (k,) standard deviation of the measurement noise per output (> 0).
     process_intensity : float
@@ -203,7 +199,15 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
 
     Examples
     --------
-    >>> gains = with_kalman(design_observer(spec), spec.noise)   # doctest: +SKIP
+    >>> from fhobs.design import design_for_spec
+    >>> from fhobs.spec import spec_from_dict
+    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+    ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
+    ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,
+    ...                                  "process_intensity": 1.0}})
+    >>> gains = with_kalman(design_for_spec(spec), spec.noise)
+    >>> gains.kalman.gain.shape, gains.kalman.sample_time
+    ((2, 1), 0.01)
     """
     kalman = design_kalman(gains.A, gains.B, gains.C, gains.E, noise.disturbance_order,
                            noise.measurement_std, noise.process_intensity, noise.sample_time,

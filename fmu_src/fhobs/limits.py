@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spec import PlantSpec, SpecError
+from .errors import SpecError
+from .spec import PlantSpec
 
 MAX_CHAIN = 11
 MAX_STATES = 600
@@ -52,7 +53,7 @@ def check_design_limits(spec: PlantSpec) -> None:
     >>> check_design_limits(spec)
     Traceback (most recent call last):
     ...
-    fhobs.spec.SpecError: <dict>: observer.rho = 1e+300 is beyond the design's range ...
+    fhobs.errors.SpecError: <dict>: observer.rho = 1e+300 is beyond the design's range ...
     """
     _check_size(spec)
     for name in ("A", "B", "C", "E", "L_lin"):

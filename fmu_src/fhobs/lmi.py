@@ -69,17 +69,15 @@ import cvxpy as cp
 import numpy as np
 import scipy.linalg
 
-OBJECTIVES = ("min_cond", "min_gain")
+from .errors import LMIError
+from .spec import OBJECTIVES
+
 GAIN_STAGE_KAPPA = 10.0
 DEFAULT_MARGIN = 1e-2
 STRUCTURE_RTOL = 1e-8
 # A relative duality gap of 1e-7 on kappa (or ||Y~||) is plenty; at Clarabel's default 1e-8 some
 # reduced LMIs stop one step short with status "optimal_inaccurate".
 SOLVER_OPTIONS = {"tol_gap_rel": 1e-7}
-
-
-class LMIError(RuntimeError):
-    """The solver found no solution (infeasible, or numerical failure)."""
 
 
 @dataclass(frozen=True)
@@ -95,7 +93,8 @@ class LMISolution:
     gain : numpy.ndarray
         P^-1 Y.
     status : str
-        cvxpy's status.
+        cvxpy's status: ``"optimal"``, or ``"optimal_inaccurate"`` if any of the solves behind
+        the solution stopped short of the solver's tolerances.
     solve_time : float
         Solver time in seconds (as reported by cvxpy).
     """
@@ -237,21 +236,21 @@ def solve_gain_lmi(
         if np.linalg.norm(M - M_s) > STRUCTURE_RTOL * max(np.linalg.norm(M), 1.0):
             raise ValueError("the basis does not have the chain structure of H0, G and Cout")
     try:
-        p, y, solve_time = _solve_chains(blocks, rho, objective, margin, margin)
+        p, y, solve_time, status = _solve_chains(blocks, rho, objective, margin, margin)
     except LMIError:
-        p, y, solve_time = _solve_normalised_chains(blocks, rho, objective, margin)
+        p, y, solve_time, status = _solve_normalised_chains(blocks, rho, objective, margin)
     P_t = scipy.linalg.block_diag(*(p[s] for s in sizes))
     gain_t = scipy.linalg.block_diag(*(np.linalg.solve(p[s], y[s]) for s in sizes)) - X
     gain = T @ np.linalg.solve(C_t[:, heads].T, gain_t.T).T
     T_inv = np.linalg.inv(T)
     P = T_inv.T @ P_t @ T_inv
     P = 0.5 * (P + P.T)
-    return LMISolution(P, P @ gain, gain, "optimal", solve_time)
+    return LMISolution(P, P @ gain, gain, status, solve_time)
 
 
 def _solve_normalised_chains(
     blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float, objective: str, margin: float
-) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float]:
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float, str]:
     """The reduced LMI solved in the chains' normalised coordinates, for when the direct solve
     fails (long chains, large rho, links of very different sizes).
 
@@ -270,20 +269,22 @@ def _solve_normalised_chains(
         if not (np.all(np.isfinite(c)) and np.all(np.isfinite(normalised[s][0]))):
             raise LMIError(f"the chains' links span more than double precision (rho = {rho})")
         scales[s] = c
-    p, y, solve_time = _solve_chains(normalised, 1.0, objective, margin / rho, margin)
+    p, y, solve_time, status = _solve_chains(normalised, 1.0, objective, margin / rho, margin)
     return (
         {s: p[s] / scales[s][:, None] / scales[s][None, :] for s in blocks},
         {s: rho * y[s] / scales[s][:, None] for s in blocks},
         solve_time,
+        status,
     )
 
 
 def _solve_chains(
     blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float, objective: str,
     decay_margin: float, monotone_margin: float,
-) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float]:
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float, str]:
     """The reduced LMI: one block p_s, y_s per chain size s, with the margins of its decay and
-    monotonicity inequalities; returns p, y and the solve time."""
+    monotonicity inequalities; returns p, y, the solve time and the status (:func:`_worse` of
+    the stages')."""
     kappa = cp.Variable()
     p = {s: cp.Variable((s, s), symmetric=True) for s in blocks}
     y = {s: cp.Variable((s, 1)) for s in blocks}
@@ -296,17 +297,20 @@ def _solve_chains(
             p[s] >> np.eye(s),
         ]
     bounds = [p[s] << kappa * np.eye(s) for s in blocks]
-    solve_time = _solve(cp.Problem(cp.Minimize(kappa), constraints + bounds), rho, "min_cond")
+    solve_time, status = _solve(cp.Problem(cp.Minimize(kappa), constraints + bounds), rho,
+                                "min_cond")
     if objective == "min_gain":
         limit = GAIN_STAGE_KAPPA * kappa.value
         t = cp.Variable()
         constraints += [p[s] << limit * np.eye(s) for s in blocks]
         constraints += [cp.norm(y[s]) <= t for s in blocks]
-        solve_time += _solve(cp.Problem(cp.Minimize(t), constraints), rho, objective)
+        stage_time, stage_status = _solve(cp.Problem(cp.Minimize(t), constraints), rho, objective)
+        solve_time, status = solve_time + stage_time, _worse(status, stage_status)
     return (
         {s: 0.5 * (v.value + v.value.T) for s, v in p.items()},
         {s: v.value for s, v in y.items()},
         solve_time,
+        status,
     )
 
 
@@ -314,11 +318,11 @@ def _sym(M: cp.Expression) -> cp.Expression:
     return 0.5 * (M + M.T)
 
 
-def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
-    """Solve with Clarabel; return the solve time or raise LMIError.
+def _solve(problem: cp.Problem, rho: float, objective: str) -> tuple[float, str]:
+    """Solve with Clarabel; return the solve time and cvxpy's status, or raise LMIError.
 
-    An ``optimal_inaccurate`` result is kept (cvxpy's warning about it is silenced): the numpy
-    certificate, not the solver's status, decides whether it is used.
+    An ``optimal_inaccurate`` result is kept (cvxpy's warning about it is silenced) and its
+    status reported: the numpy certificate, not the solver's status, decides whether it is used.
     """
     try:
         with warnings.catch_warnings():
@@ -330,7 +334,12 @@ def _solve(problem: cp.Problem, rho: float, objective: str) -> float:
         raise LMIError(
             f"LMI solver status {problem.status!r} (rho = {rho}, objective {objective})"
         )
-    return float(problem.solver_stats.solve_time or 0.0)
+    return float(problem.solver_stats.solve_time or 0.0), str(problem.status)
+
+
+def _worse(first: str, second: str) -> str:
+    """The less accurate of two accepted statuses (``optimal`` or ``optimal_inaccurate``)."""
+    return cp.OPTIMAL if first == second == cp.OPTIMAL else cp.OPTIMAL_INACCURATE
 
 
 def certify_gain_lmi(

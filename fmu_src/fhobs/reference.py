@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fhobs.gains import ObserverGains
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
-from fhobs.plant import LTIPlant
-from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from .core.gains import ObserverGains
+from .core.kalman_filter import KalmanObserver
+from .core.plant import LTIPlant
+from .core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from .paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 
 FEEDBACKS = ("estimate", "state")
 
@@ -129,7 +129,7 @@ def simulate(
         observer's error then does not act on the plant).
     kernel : bool
         Step the plant and the estimators in the compiled kernel when it is available
-        (:mod:`fhobs.kernel`); False: the numpy runtime only.
+        (:mod:`fhobs.core.kernel`); False: the numpy runtime only.
     """
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")

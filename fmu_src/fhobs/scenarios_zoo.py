@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from .gains import ObserverGains
+from .core.gains import ObserverGains
 from .paper import EXAMPLES
 from .reference import SimulationResult, simulate
 from .spec import PlantSpec, spec_from_dict

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fhobs.gains import ObserverGains
-from fhobs.runtime import FilteringObserver
+from .core.gains import ObserverGains
+from .core.runtime import FilteringObserver
 
 SETTLED = 1e-3
 """An error has settled when it stays below this fraction of its initial size."""

@@ -16,10 +16,10 @@ Format::
     rho = 1.5                 # LMI decay parameter; default: the smallest rho of RHO_LADDER
                               # that meets settling_time (fhobs.design)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default: rho
-    objective = "min_cond"    # LMI objective, see fhobs.lmi.OBJECTIVES
+    objective = "min_cond"    # LMI objective, see fhobs.spec.OBJECTIVES
     filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
-                              # fhobs.disturbance; default 0 (no disturbance model)
+                              # fhobs.core.disturbance; default 0 (no disturbance model)
 
     [noise]                   # optional table: the Kalman filter baseline (fhobs.kalman); needs E
     measurement_amplitude = [1e-3, 1e-3]  # uniform noise amplitude per output (std = a/sqrt(3)),
@@ -35,18 +35,20 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .certificate import tuning_problem
-from .disturbance import extended_model
+from .core.certificate import tuning_problem
+from .core.disturbance import extended_model
+from .errors import SpecError
 from .homogenisation import observability_index
-from .lmi import OBJECTIVES
 
 DEFAULT_SETTLING_TIME = 2.0
+OBJECTIVES = ("min_cond", "min_gain")
+"""The LMI objectives a design accepts (:mod:`fhobs.lmi` implements them)."""
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise")
 OBSERVER_KEYS = (
@@ -56,10 +58,6 @@ OBSERVER_KEYS = (
 NOISE_KEYS = ("measurement_std", "measurement_amplitude", "sample_time", "process_intensity",
               "disturbance_order")
 MAX_DISTURBANCE_ORDER = 3
-
-
-class SpecError(ValueError):
-    """A plant specification is malformed; the message names the field and the reason."""
 
 
 @dataclass(frozen=True)
@@ -105,14 +103,14 @@ class PlantSpec:
     n_tilde : int
         Observability index of the observer's model (``(A, C)`` without a disturbance model).
     objective : str
-        LMI objective (a key of :data:`fhobs.lmi.OBJECTIVES`).
+        LMI objective (one of :data:`OBJECTIVES`).
     source : str
         Where the spec came from (file name), for messages.
     filter_scale : float
         Factor (>= 1) applied to the LMI's L_tilde (fast output filter); see
-        :func:`fhobs.design.design_observer`.
+        :func:`fhobs.design.design_for_spec`.
     disturbance_order : int
-        Order of the disturbance model (0: none), see :mod:`fhobs.disturbance`.
+        Order of the disturbance model (0: none), see :mod:`fhobs.core.disturbance`.
     settling_time : float
         Requested time (s) for an initial error of the size of ``state_scale`` to fall to 1e-3
         of itself.
@@ -159,6 +157,20 @@ def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> Plan
     ------
     SpecError
         If the file is missing, not TOML, or any field is invalid.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "double_integrator.toml"
+    >>> _ = path.write_text("A = [[0, 1], [0, 0]]\\nB = [[0], [1]]\\nC = [[1, 0]]\\n"
+    ...                     "[observer]\\nrho = 2.0\\n")
+    >>> spec = load_spec(path)
+    >>> spec.n_tilde, spec.rho, spec.gamma
+    (2, 2.0, None)
+    >>> load_spec(path, overrides={"rho": -1.0})
+    Traceback (most recent call last):
+    ...
+    fhobs.errors.SpecError: ...observer.rho = -1.0 must be > 0...
     """
     path = Path(path)
     try:
@@ -186,6 +198,9 @@ def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> Plan
 def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     """Validate a spec given as a dict (the parsed TOML).
 
+    The tables are unpacked and handed to :func:`plant_spec`, the validation that
+    :func:`fhobs.design.design_observer` makes of its arguments; then the ``[noise]`` table.
+
     Parameters
     ----------
     data : dict
@@ -207,21 +222,83 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     (2, -0.3333, None)
     """
     _reject_unknown(data, TOP_KEYS, source, "")
-    A = _matrix(data, "A", source)
-    n = _check_square(A, source)
-    B = _matrix(data, "B", source, rows=n)
-    C = _matrix(data, "C", source, cols=n)
-    E = _matrix(data, "E", source, rows=n) if "E" in data else None
-    L_lin = _matrix(data, "L_lin", source, rows=n) if "L_lin" in data else None
-    if L_lin is not None and L_lin.shape[1] != C.shape[0]:
-        raise SpecError(
-            f"{source}: L_lin has {L_lin.shape[1]} columns, but C has {C.shape[0]} rows (k)"
-        )
+    for name in ("A", "B", "C"):
+        if name not in data:
+            raise SpecError(f"{source}: {name} is missing (a matrix given as a list of rows)")
     obs = data.get("observer", {})
     if not isinstance(obs, dict):
         raise SpecError(f"{source}: observer must be a table, got {type(obs).__name__}")
     _reject_unknown(obs, OBSERVER_KEYS, source, "observer.")
-    order = _disturbance_order(obs, E, source)
+    spec = plant_spec(data["A"], data["B"], data["C"], E=data.get("E"), L_lin=data.get("L_lin"),
+                      source=source, prefix="observer.", **obs)
+    if "noise" not in data:
+        return spec
+    return replace(spec, noise=_noise(data, spec.A, spec.B, spec.C, spec.E,
+                                      spec.disturbance_order, source))
+
+
+def plant_spec(
+    A: Any, B: Any, C: Any, *,
+    E: Any = None,
+    L_lin: Any = None,
+    disturbance_order: int = 0,
+    nu: float | None = None,
+    rho: float | None = None,
+    gamma: float | None = None,
+    settling_time: float = DEFAULT_SETTLING_TIME,
+    state_scale: Any = 1.0,
+    filter_scale: float = 1.0,
+    objective: str = DEFAULT_OBJECTIVE,
+    source: str = "design_observer",
+    prefix: str = "",
+) -> PlantSpec:
+    """Validate a plant and the observer's tuning: the checks of every design.
+
+    Parameters
+    ----------
+    A, B, C : array_like
+        Plant matrices (n x n, n x m, k x n).
+    E : array_like, optional
+        Perturbation input matrix (n x r).
+    L_lin : array_like, optional
+        A given Luenberger baseline gain (n x k).
+    disturbance_order, nu, rho, gamma, settling_time, state_scale, filter_scale, objective
+        The tuning (:func:`fhobs.design.design_observer`; ``nu`` None: -1/(n_tilde + 1)).
+    source : str
+        Name used in error messages (the file, or the calling function).
+    prefix : str
+        Prefix of the tuning names in error messages (``"observer."`` for a spec file).
+
+    Returns
+    -------
+    PlantSpec
+
+    Raises
+    ------
+    SpecError
+        Naming the argument and the reason.
+
+    Examples
+    --------
+    >>> spec = plant_spec([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> spec.n_tilde, spec.gamma
+    (2, None)
+    >>> plant_spec([[0, 1], [0, 0]], [[0], [1]], [[1, 0, 0]])
+    Traceback (most recent call last):
+    ...
+    fhobs.errors.SpecError: design_observer: C has 3 columns, expected 2 (the size of A)
+    """
+    A = _matrix(A, "A", source)
+    n = _check_square(A, source)
+    B = _matrix(B, "B", source, rows=n)
+    C = _matrix(C, "C", source, cols=n)
+    E = None if E is None else _matrix(E, "E", source, rows=n)
+    L_lin = None if L_lin is None else _matrix(L_lin, "L_lin", source, rows=n)
+    if L_lin is not None and L_lin.shape[1] != C.shape[0]:
+        raise SpecError(
+            f"{source}: L_lin has {L_lin.shape[1]} columns, but C has {C.shape[0]} rows (k)"
+        )
+    order = _disturbance_order(disturbance_order, E, source, prefix + "disturbance_order")
     A_model, _, C_model = extended_model(A, B, C, E, order)
     n_tilde, rank = observability_index(A_model, C_model)
     if n_tilde is None:
@@ -230,58 +307,58 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
             f"{source}: {what} is not observable: the observability matrix has rank {rank}, "
             f"n = {A_model.shape[0]}"
         )
-    nu = _scalar(obs, "nu", -1.0 / (n_tilde + 1), source)
-    rho = _scalar(obs, "rho", None, source)
-    gamma = _scalar(obs, "gamma", None, source)
-    _check_tuning(nu, rho, gamma, n_tilde, source)
-    settling_time = _scalar(obs, "settling_time", DEFAULT_SETTLING_TIME, source)
+    nu = -1.0 / (n_tilde + 1) if nu is None else _scalar(nu, prefix + "nu", source)
+    rho = None if rho is None else _scalar(rho, prefix + "rho", source)
+    gamma = None if gamma is None else _scalar(gamma, prefix + "gamma", source)
+    _check_tuning(nu, rho, gamma, n_tilde, source, prefix)
+    settling_time = _scalar(settling_time, prefix + "settling_time", source)
     if not settling_time > 0.0:
-        raise SpecError(f"{source}: observer.settling_time = {settling_time!r} must be > 0 (s)")
-    state_scale = _state_scale(obs, n, source)
-    objective = obs.get("objective", DEFAULT_OBJECTIVE)
+        raise SpecError(
+            f"{source}: {prefix}settling_time = {settling_time!r} must be > 0 (s)"
+        )
+    state_scale = _state_scale(state_scale, n, source, prefix + "state_scale")
     if objective not in OBJECTIVES:
         raise SpecError(
-            f"{source}: observer.objective = {objective!r} is not one of {sorted(OBJECTIVES)}"
+            f"{source}: {prefix}objective = {objective!r} is not one of {sorted(OBJECTIVES)}"
         )
-    filter_scale = _scalar(obs, "filter_scale", 1.0, source)
+    filter_scale = _scalar(filter_scale, prefix + "filter_scale", source)
     if filter_scale < 1.0:
-        raise SpecError(f"{source}: observer.filter_scale = {filter_scale!r} must be >= 1")
-    noise = _noise(data, A, B, C, E, order, source) if "noise" in data else None
+        raise SpecError(f"{source}: {prefix}filter_scale = {filter_scale!r} must be >= 1")
     return PlantSpec(
         A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order,
-        settling_time, state_scale, noise,
+        settling_time, state_scale, None,
     )
 
 
-def _state_scale(obs: dict[str, Any], n: int, source: str) -> np.ndarray:
-    """``observer.state_scale``: one positive number, or n of them (default all ones)."""
-    value = obs.get("state_scale", 1.0)
+def _state_scale(value: Any, n: int, source: str, label: str) -> np.ndarray:
+    """``state_scale``: one positive number, or n of them."""
+    if isinstance(value, np.ndarray | tuple):
+        value = np.asarray(value).tolist()
     entries = value if isinstance(value, list) else [value]
     for i, entry in enumerate(entries, start=1):
-        _check_entry(entry, f"observer.state_scale[{i}]", source)
+        _check_entry(entry, f"{label}[{i}]", source)
         if not entry > 0:
-            raise SpecError(f"{source}: observer.state_scale[{i}] = {entry!r} must be > 0")
+            raise SpecError(f"{source}: {label}[{i}] = {entry!r} must be > 0")
     if len(entries) not in (1, n):
         raise SpecError(
-            f"{source}: observer.state_scale has {len(entries)} entries, expected 1 or {n} "
+            f"{source}: {label} has {len(entries)} entries, expected 1 or {n} "
             "(the number of states)"
         )
     return np.broadcast_to(np.array(entries, dtype=float), (n,)).copy()
 
 
-def _disturbance_order(obs: dict[str, Any], E: np.ndarray | None, source: str,
-                       table: str = "observer", default: int = 0) -> int:
-    """``<table>.disturbance_order``: an integer in 0..MAX_DISTURBANCE_ORDER, > 0 only with E."""
-    order = obs.get("disturbance_order", default)
-    if isinstance(order, bool) or not isinstance(order, int):
-        raise SpecError(f"{source}: {table}.disturbance_order = {order!r} is not an integer")
+def _disturbance_order(order: Any, E: np.ndarray | None, source: str, label: str) -> int:
+    """A disturbance-model order: an integer in 0..MAX_DISTURBANCE_ORDER, > 0 only with E."""
+    if isinstance(order, bool) or not isinstance(order, int | np.integer):
+        raise SpecError(f"{source}: {label} = {order!r} is not an integer")
+    order = int(order)
     if not 0 <= order <= MAX_DISTURBANCE_ORDER:
         raise SpecError(
-            f"{source}: {table}.disturbance_order = {order} is outside 0..{MAX_DISTURBANCE_ORDER}"
+            f"{source}: {label} = {order} is outside 0..{MAX_DISTURBANCE_ORDER}"
         )
     if order and E is None:
         raise SpecError(
-            f"{source}: {table}.disturbance_order = {order} needs E (where q enters the plant)"
+            f"{source}: {label} = {order} needs E (where q enters the plant)"
         )
     return order
 
@@ -318,7 +395,8 @@ def _noise(data: dict[str, Any], A: np.ndarray, B: np.ndarray, C: np.ndarray,
         if table[name] <= 0:
             raise SpecError(f"{source}: noise.{name} = {table[name]!r} must be > 0")
         positive[name] = float(table[name])
-    order = _disturbance_order(table, E, source, "noise", observer_order)
+    order = _disturbance_order(table.get("disturbance_order", observer_order), E, source,
+                               "noise.disturbance_order")
     A_model, _, C_model = extended_model(A, B, C, E, order)
     if observability_index(A_model, C_model)[0] is None:
         raise SpecError(f"{source}: noise.disturbance_order = {order}: the Kalman filter's "
@@ -335,15 +413,12 @@ def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str
 
 
 def _matrix(
-    data: dict[str, Any], name: str, source: str, rows: int | None = None, cols: int | None = None
+    value: Any, name: str, source: str, rows: int | None = None, cols: int | None = None
 ) -> np.ndarray:
-    """Parse ``data[name]`` as a finite real matrix given as a list of rows (or a 2-D numpy
-    array, taken as its rows)."""
-    if name not in data:
-        raise SpecError(f"{source}: {name} is missing (a matrix given as a list of rows)")
-    value = data[name]
-    if isinstance(value, np.ndarray) and value.ndim == 2:
-        value = value.tolist()
+    """``value`` as a finite real matrix: a list of rows, or a 2-D array_like (taken as its
+    rows)."""
+    if isinstance(value, np.ndarray | tuple):
+        value = np.asarray(value, dtype=object).tolist()
     if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
         raise SpecError(f"{source}: {name} must be a non-empty list of rows, e.g. [[1, 0], [0, 1]]")
     width = len(value[0])
@@ -369,9 +444,9 @@ def _matrix(
 
 
 def _check_entry(entry: Any, label: str, source: str) -> None:
-    if isinstance(entry, bool) or not isinstance(entry, int | float):
+    if isinstance(entry, bool | np.bool_) or not isinstance(entry, int | float | np.number):
         raise SpecError(f"{source}: {label} = {entry!r} is not a number")
-    if not math.isfinite(entry):
+    if isinstance(entry, complex | np.complexfloating) or not math.isfinite(entry):
         raise SpecError(f"{source}: {label} = {entry!r} is not finite")
 
 
@@ -382,20 +457,16 @@ def _check_square(A: np.ndarray, source: str) -> int:
     return n
 
 
-def _scalar(
-    table: dict[str, Any], name: str, default: float | None, source: str
-) -> float | None:
-    if name not in table:
-        return default
-    _check_entry(table[name], f"observer.{name}", source)
-    return float(table[name])
+def _scalar(value: Any, label: str, source: str) -> float:
+    _check_entry(value, label, source)
+    return float(value)
 
 
 def _check_tuning(
-    nu: float, rho: float | None, gamma: float | None, n_tilde: int, source: str
+    nu: float, rho: float | None, gamma: float | None, n_tilde: int, source: str, prefix: str
 ) -> None:
-    """Enforce Theorem 2's ranges (:func:`fhobs.certificate.tuning_problem`, the check the
+    """Enforce Theorem 2's ranges (:func:`fhobs.core.certificate.tuning_problem`, the check the
     FMUs make too) for the ones given."""
-    problem = tuning_problem(nu, rho, gamma, n_tilde, prefix="observer.")
+    problem = tuning_problem(nu, rho, gamma, n_tilde, prefix=prefix)
     if problem:
         raise SpecError(f"{source}: {problem}")

@@ -17,9 +17,14 @@ from pathlib import Path
 CACHE_ENV = "FHOBS_HARNESS_CACHE"
 
 
+SOURCE = Path(__file__).with_name("slaves.py")
+"""The blocks' slave classes (one self-contained module, copied into every block FMU)."""
+
+
 @dataclass(frozen=True)
 class BlockKind:
-    """A block template: its source module, its class and the names of its dimensions."""
+    """A block template: the name of its FMUs' modules, its class in :data:`SOURCE` and the
+    names of its dimensions."""
 
     module: str
     class_name: str
@@ -27,7 +32,7 @@ class BlockKind:
 
     @property
     def source(self) -> Path:
-        return Path(__file__).with_name(f"{self.module}.py")
+        return SOURCE
 
 
 BLOCK_KINDS: dict[str, BlockKind] = {

@@ -1,9 +1,9 @@
-"""pythonfmu slave script of ``kalman.fmu``: the steady-state discrete Kalman filter baseline.
+"""pythonfmu slave of ``kalman.fmu``: the steady-state discrete Kalman filter baseline.
 
 One cycle per sample time Ts: measurement update with the gain ``kalman_gain``, prediction with
-the exact ZOH of the (extended) model (:mod:`fhobs.kalman_filter`). A communication step must be
-a whole multiple of Ts; any other step is rejected with fmi2Error, the state kept. Copied into
-the FMU by :mod:`fhobs.build` like ``observer.py``.
+the exact ZOH of the (extended) model (:mod:`fhobs.core.kalman_filter`). A communication step must
+be a whole multiple of Ts; any other step is rejected with fmi2Error, the state kept. Shipped
+in the FMU by :mod:`fhobs.build` like ``observer.py``.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import dataclasses
 
 import numpy as np
 
-from fhobs.disturbance import extended_model
-from fhobs.fmu.slave_base import ObserverSlave, positive_parameter
-from fhobs.gains import KalmanGains
-from fhobs.kalman_filter import KalmanObserver
-from fhobs.linalg import expm
+from ..core.disturbance import extended_model
+from ..core.gains import KalmanGains
+from ..core.kalman_filter import KalmanObserver
+from ..core.linalg import expm
+from .slave_base import ObserverSlave, positive_parameter
 
 
 class FhobsKalman(ObserverSlave):

@@ -1,15 +1,14 @@
-"""pythonfmu slave script of ``luenberger.fmu``: the linear baseline observer.
+"""pythonfmu slave of ``luenberger.fmu``: the linear baseline observer.
 
-dz/dt = A z + B u + L_lin (C z - y). Copied into the FMU by :mod:`fhobs.build` like
+dz/dt = A z + B u + L_lin (C z - y). Shipped in the FMU by :mod:`fhobs.build` like
 ``observer.py``.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from fhobs.fmu.slave_base import ObserverSlave
-from fhobs.runtime import LuenbergerObserver
+from ..core.certificate import check_luenberger
+from ..core.runtime import LuenbergerObserver
+from .slave_base import ObserverSlave
 
 
 class FhobsLuenberger(ObserverSlave):
@@ -21,13 +20,7 @@ class FhobsLuenberger(ObserverSlave):
         self.add_array("L_lin", self.design.L_lin, "parameter", "observer gain (n x k)")
 
     def _check_gains(self) -> None:
-        design = self.edited_design()
-        abscissa = float(np.max(np.linalg.eigvals(design.A + design.L_lin @ design.C).real))
-        if not abscissa < 0.0:
-            raise ValueError(
-                f"check hurwitz_luenberger failed: max Re eig(A + L_lin C) = {abscissa:.3e} "
-                "(required < 0)"
-            )
+        check_luenberger(self.edited_design())
 
     def _make_model(self) -> LuenbergerObserver:
         return LuenbergerObserver(

@@ -1,16 +1,16 @@
-"""pythonfmu slave script of ``observer.fmu``: the filtering homogeneous observer (Theorem 2).
+"""pythonfmu slave of ``observer.fmu``: the filtering homogeneous observer (Theorem 2).
 
-Copied into the FMU by :mod:`fhobs.build` with ``fhobs`` renamed to a build-unique package
-and the class renamed, so that FMUs of different designs never share Python modules.
+Shipped in the FMU by :mod:`fhobs.build` (with :mod:`fhobs.core`), which subclasses it under a
+build-unique name.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from fhobs.certificate import certify, check_tuning
-from fhobs.fmu.slave_base import ObserverSlave
-from fhobs.runtime import FilteringObserver
+from ..core.certificate import certify, check_tuning
+from ..core.runtime import FilteringObserver
+from .slave_base import ObserverSlave
 
 
 class FhobsObserver(ObserverSlave):

@@ -1,15 +1,15 @@
-"""pythonfmu slave script of ``plant.fmu``: the LTI plant with reproducible measurement noise.
+"""pythonfmu slave of ``plant.fmu``: the LTI plant with reproducible measurement noise.
 
 dx/dt = A x + B u + E q, y = C x + eta, with eta uniform in [-a, a], a function of
-(noise_seed, step index) only. Copied into the FMU by :mod:`fhobs.build` like ``observer.py``.
+(noise_seed, step index) only. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from fhobs.fmu.slave_base import FhobsSlave, zoh_problem
-from fhobs.plant import PLANT_SCHEMES, LTIPlant
+from ..core.plant import PLANT_SCHEMES, LTIPlant
+from .slave_base import FhobsSlave, zoh_problem
 
 
 class FhobsPlant(FhobsSlave):
@@ -41,15 +41,9 @@ class FhobsPlant(FhobsSlave):
         self.add_array("y", np.zeros(design.k), "output", "measured output C x + noise")
         self.add_array("x", np.zeros(design.n), "output", "true state")
 
-    def _scheme_name(self) -> str:
-        index = self.integer("scheme")
-        if not 0 <= index < len(PLANT_SCHEMES):
-            raise ValueError(f"scheme = {index} is not in 0..{len(PLANT_SCHEMES) - 1}")
-        return PLANT_SCHEMES[index]
-
     def _check_parameters(self) -> None:
         """LTIPlant itself rejects a negative noise amplitude or seed (ValueError)."""
-        self._scheme_name()
+        self.choice("scheme", PLANT_SCHEMES)
 
     def _step_problem(self, step_size: float) -> str:
         """The exact ZOH over the step must be computable to some digits."""
@@ -64,7 +58,7 @@ class FhobsPlant(FhobsSlave):
             x0=self.array("x0"),
             noise_amplitude=float(self.array("noise_amplitude")),
             seed=self.integer("noise_seed"),
-            scheme=self._scheme_name(),
+            scheme=self.choice("scheme", PLANT_SCHEMES),
         )
 
     def _model_step_arguments(self) -> tuple[np.ndarray, np.ndarray | None]:

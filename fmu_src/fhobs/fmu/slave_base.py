@@ -1,27 +1,19 @@
-"""FMI plumbing shared by the observer, Luenberger and plant slaves.
+"""FMI plumbing shared by the observer, Luenberger, Kalman and plant slaves: the lifecycle.
 
-A slave declares array-valued parameters, inputs and outputs; this base class turns each
-array into consecutive, row-major scalar variables (``A[1,1]``, ``A[1,2]``, ..., ``y[1]``),
-re-checks the parameters at ``exitInitializationMode``, validates the inputs of every
+A slave declares array-valued parameters, inputs and outputs (:mod:`.variables`); this base
+class re-checks the parameters at ``exitInitializationMode``, validates the inputs of every
 ``doStep``, keeps the model's state at its last valid value when a call is rejected, and
-captures the complete state (parameters, inputs, the numpy model's internal state) for
-``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``.
+follows the FMI call sequence (:mod:`.modes`). The other concerns are mixins in their own
+modules: the access rules of get/set calls (:mod:`.access`), the status wrapper's callbacks
+(:mod:`.wrapper`) and FMU states (:mod:`.fmu_state`).
 
-Speed. All Real variables live in one flat float buffer (each array variable is a view of its
-slice; the inputs first, then the outputs, then the parameters), so ``fmi2GetReal`` /
-``fmi2SetReal`` are one fancy-indexing operation on it (the index array of a list of value
-references is cached). With the status wrapper (linux64), the slave hands the wrapper the
-buffer's address, the buffer position of each value reference and a ctypes callback of
-``do_step`` when it is created: ``fmi2GetReal`` / ``fmi2SetReal`` of Real variables then never
-enter Python, and ``fmi2DoStep`` skips pythonfmu's C++ layer (see ``status_wrapper.c`` and
-:meth:`FhobsSlave._register_with_wrapper`). A valid ``doStep`` costs little more than the
-model's own step: one comparison accepts the inputs (their ``math.hypot`` against
-``input_bound``), the model steps on views of the input variables (no copies) through its
-``advance``, which does not check them again, the state before the step is kept as a shallow
-copy of the model's attributes, and the outputs are read as one list of floats (in the order
-the model gives them, which is the order of the output arrays in the buffer: no reordering),
-accepted by one sum and written into the buffer in one assignment. Element labels are only
-formatted, and the exact checks only made, to describe a rejected call.
+Speed. A valid ``doStep`` costs little more than the model's own step: one comparison accepts
+the inputs (their ``math.hypot`` against ``input_bound``), the model steps on views of the input
+variables (no copies) through its ``advance``, which does not check them again, the state before
+the step is kept as a shallow copy of the model's attributes, and the outputs are read as one
+list of floats (in the order the model gives them, which is the order of the output arrays in
+the buffer: no reordering), accepted by one sum and written into the buffer in one assignment.
+Element labels are only formatted, and the exact checks only made, to describe a rejected call.
 
 Rejected calls. Python code inside a pythonfmu 0.7.0 FMU cannot itself return ``fmi2Error``:
 an exception is answered with ``fmi2Fatal`` and ``do_step`` returning False with
@@ -48,102 +40,49 @@ pythonfmu, and answers a refusal with ``fmi2Error``. The rules:
   format version, the FMU it was made by, every variable's shape, finiteness, and for a state
   of an initialised instance its parameters pass the initialisation checks again.
 
-Only numpy, the standard library, pythonfmu and numpy-only fhobs modules are imported here.
+Only numpy, the standard library, pythonfmu and :mod:`fhobs.core` are imported here.
 """
 
 from __future__ import annotations
 
-import _ctypes
-import ctypes
 import dataclasses
 import json
 import math
-import os
 import sys
 from abc import abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Protocol
 from xml.etree.ElementTree import Element
 
 import numpy as np
-from pythonfmu import (
-    Boolean,
-    Fmi2Causality,
-    Fmi2Initial,
-    Fmi2Slave,
-    Fmi2Variability,
-    Integer,
-    Real,
-    String,
-)
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from ..gains import ObserverGains
-from ..runtime import SCHEMES
+from ..core.gains import ObserverGains
+from ..core.runtime import SCHEMES
+from .access import AccessRules
+from .fmu_state import FmuStates
+from .modes import (
+    INITIALISATION,
+    INSTANTIATED,
+    STATUS_ERROR,
+    STATUS_OK,
+    STEP_MODE,
+    TERMINATED,
+)
+from .variables import KINDS, Variables, element_names, number
+from .wrapper import WrapperCalls
 
 DESIGN_FILE = "design.json"
 CONFIG_FILE = "fmu_config.json"
-STATUS_VALUE_REFERENCE = 0
-STATUS_OK = int(Fmi2Status.ok)
-STATUS_ERROR = int(Fmi2Status.error)
 
-_KINDS: dict[str, dict[str, Any]] = {
-    "parameter": {"causality": Fmi2Causality.parameter, "variability": Fmi2Variability.fixed},
-    "input": {"causality": Fmi2Causality.input, "variability": Fmi2Variability.continuous},
-    "output": {
-        "causality": Fmi2Causality.output,
-        "variability": Fmi2Variability.continuous,
-        "initial": Fmi2Initial.exact,
-    },
-}
-
-
-_INF = math.inf
 _hypot = math.hypot
-
-WRAPPER_STEP_OK, WRAPPER_STEP_OK_LOGGED, WRAPPER_STEP_REJECTED, WRAPPER_STEP_RAISED = 1, 2, 3, 4
-"""Answers of :meth:`FhobsSlave._step_for_wrapper` (``FHOBS_STEP_*`` in status_wrapper.c)."""
-_WRAPPER_STEP_TYPE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_double)
-_WRAPPER_ACCESS_TYPE = ctypes.CFUNCTYPE(
-    ctypes.c_int, ctypes.c_int, ctypes.POINTER(ctypes.c_uint), ctypes.c_size_t
-)
-_WRAPPER_STATE_TYPE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_size_t)
-
-ACCESS_FUNCTIONS = (
-    ("fmi2GetReal", Real), ("fmi2SetReal", Real), ("fmi2GetInteger", Integer),
-    ("fmi2SetInteger", Integer), ("fmi2GetBoolean", Boolean), ("fmi2SetBoolean", Boolean),
-    ("fmi2GetString", String), ("fmi2SetString", String),
-)
-"""The get/set functions by the code the wrapper passes (``FHOBS_GET_REAL`` ...), with the
-variable type each one serves."""
-
-INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED = (
-    "instantiated", "initialisation mode", "step mode", "terminated",
-)
-MODES = (INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED)
-"""The FMI 2.0 co-simulation states a slave tracks (``fmi2Reset`` creates a new slave)."""
-
-STATE_FORMAT = 2
-"""Version of the FMU state layout of :meth:`FhobsSlave._get_fmu_state`."""
-STATE_KEYS = {"format", "fmu", "mode", "arrays", "integers", "model"}
-"""The entries of a state (:meth:`FhobsSlave._get_fmu_state`)."""
 
 ZOH_CONDITION_LIMIT = 1e9
 """Largest ``step ||A||_1`` for which the exact ZOH ``expm(step A)`` is computed: its condition
 number is at least ``step ||A||``, so at this limit its relative error can already reach
 eps * 1e9 = 2e-7 (entries like 1e300 give finite numbers that mean nothing)."""
-
-INDEX_CACHE_SIZE = 64
-"""Cached index arrays of lists of value references (cleared when it holds this many)."""
-
-
-def _as_slice(index: np.ndarray) -> np.ndarray | slice:
-    """Buffer positions ``index`` as a slice when they are consecutive (indexing with it is a
-    view, cheaper than fancy indexing), else unchanged."""
-    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
-        return slice(int(index[0]), int(index[0]) + index.size)
-    return index
 
 
 class SlaveModel(Protocol):
@@ -151,7 +90,7 @@ class SlaveModel(Protocol):
 
     Its ``advance`` (its ``step`` without the argument checks, which the slave has made) must
     replace the arrays that hold the state, never write into them, and leave them as they were
-    when it raises (as :mod:`fhobs.runtime` and :mod:`fhobs.plant` do):
+    when it raises (as :mod:`fhobs.core.runtime` and :mod:`fhobs.core.plant` do):
     :meth:`FhobsSlave.do_step` keeps the state before a step as the references in the model's
     ``__dict__``. Its array arguments are views of the slave's input variables: ``advance`` may
     read them during the call only, never write into them or keep references to them (the
@@ -167,11 +106,6 @@ class SlaveModel(Protocol):
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state returned by :meth:`get_state`."""
-
-
-def number(value: float) -> str:
-    """A number as a message shows it: ``repr`` of a Python float (never ``np.float64(...)``)."""
-    return repr(float(value))
 
 
 def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
@@ -192,42 +126,7 @@ def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
             "check the entries of A")
 
 
-def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
-    """FMI names of the elements of an array, row-major, 1-based (``A[1,1]``, ``A[1,2]``...).
-
-    Parameters
-    ----------
-    name : str
-        Base name of the array.
-    shape : tuple of int
-        ``()`` for a scalar (the name is returned unchanged), ``(n,)`` or ``(n, m)``.
-
-    Returns
-    -------
-    list of str
-    """
-    if not shape:
-        return [name]
-    return [f"{name}[{','.join(str(i + 1) for i in idx)}]" for idx in np.ndindex(*shape)]
-
-
-def _array_problem(value: Any, shape: tuple[int, ...], name: str, finite: bool = True) -> str:
-    """Why ``value`` (from a parsed state) is not an array of numbers of ``shape`` ('' if it
-    is); with ``finite``, also if an entry is NaN or infinite."""
-    try:
-        array = np.asarray(value)
-    except ValueError:  # ragged nesting
-        return f"{name} is not an array of numbers"
-    if array.dtype.kind not in "fi":
-        return f"{name} is not an array of numbers"
-    if array.shape != shape:
-        return f"{name} has shape {array.shape}, expected {shape}"
-    if finite and not np.isfinite(array).all():
-        return f"{name} has non-finite entries"
-    return ""
-
-
-class FhobsSlave(Fmi2Slave):
+class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     """Common base of the fhobs slaves (abstract: subclasses define the model).
 
     Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`
@@ -250,7 +149,7 @@ class FhobsSlave(Fmi2Slave):
         self._arrays: dict[str, np.ndarray] = {}
         self._first_vr: dict[str, int] = {}
         self._integers: dict[str, int] = {}
-        self._kinds: dict[str, list[str]] = {kind: [] for kind in _KINDS}
+        self._kinds: dict[str, list[str]] = {kind: [] for kind in KINDS}
         self.status = STATUS_OK
         self.register_variable(
             Integer(
@@ -283,296 +182,11 @@ class FhobsSlave(Fmi2Slave):
             unknown.set("dependencies", "")
         return root
 
-    # -- declaration helpers -------------------------------------------------------------
-    def add_array(self, name: str, value: Any, kind: str, description: str) -> None:
-        """Register a float array (or scalar) as consecutive row-major scalar variables.
-
-        Parameters
-        ----------
-        name : str
-            Base name (``A``, ``y``, ``nu``...).
-        value : array_like
-            Start value; its shape fixes the variables.
-        kind : {"parameter", "input", "output"}
-        description : str
-        """
-        array = np.array(value, dtype=float)
-        self._arrays[name] = array
-        self._first_vr[name] = len(self.vars)
-        self._kinds[kind].append(name)
-        labels = element_names(name, array.shape)
-        for index, label in zip(np.ndindex(*array.shape), labels, strict=True):
-            self.register_variable(
-                Real(
-                    label,
-                    description=description,
-                    getter=lambda n=name, i=index: float(self._arrays[n][i]),
-                    setter=lambda v, n=name, i=index: self._arrays[n].__setitem__(i, v),
-                    **_KINDS[kind],
-                )
-            )
-
-    def _pack_arrays(self) -> None:
-        """Move every array variable into one flat buffer (each array becomes a view of it):
-        the inputs in declaration order, the outputs in the order of :meth:`_output_layout`,
-        then the parameters. Precompute the value-reference -> buffer-position map, the views
-        of all inputs and of all outputs, and the model step's arguments."""
-        self._output_names = self._output_layout()
-        if sorted(self._output_names) != sorted(self._kinds["output"]):
-            raise ValueError(f"output layout {self._output_names} is not a permutation of the "
-                             f"outputs {self._kinds['output']}")
-        self._values = np.zeros(sum(a.size for a in self._arrays.values()))
-        self._position: dict[int, int] = {}
-        start = 0
-        for name in (*self._kinds["input"], *self._output_names, *self._kinds["parameter"]):
-            array = self._arrays[name]
-            view = self._values[start:start + array.size].reshape(array.shape)
-            view[...] = array
-            self._arrays[name] = view
-            first = self._first_vr[name]
-            self._position.update({first + i: start + i for i in range(array.size)})
-            start += array.size
-        n_inputs = sum(self._arrays[name].size for name in self._kinds["input"])
-        n_outputs = sum(self._arrays[name].size for name in self._kinds["output"])
-        self._inputs = self._values[:n_inputs]
-        self._outputs = self._values[n_inputs:n_inputs + n_outputs]
-        self._bound = self._arrays["input_bound"]
-        self._step_arguments = self._model_step_arguments()
-        # buffer positions of lists of value references checked for reading / for writing now
-        self._index_cache: dict[tuple[int, ...], np.ndarray | slice] = {}
-        self._write_cache: dict[tuple[int, ...], np.ndarray | slice] = {}
-        size = max(self._position, default=-1) + 1
-        # 1 where fmi2SetReal may write now (kept up to date by _set_mode; read by the wrapper)
-        self._writable = np.zeros(size, dtype=np.uint8)
-        self._input_vrs = [vr for name in self._kinds["input"] for vr in self._vrs(name)]
-        self._parameter_vrs = [vr for name in self._kinds["parameter"] for vr in self._vrs(name)]
-        self._writable[self._input_vrs] = 1
-        self._accepted_step = math.nan  # the step size whose checks passed last (none yet)
-        self._certified: tuple | None = None  # the parameters of the last initialisation
-
-    def _vrs(self, name: str) -> range:
-        """Value references of the elements of array variable ``name``."""
-        return range(self._first_vr[name], self._first_vr[name] + self._arrays[name].size)
-
     def _set_mode(self, mode: str) -> None:
         """Enter FMI state ``mode``: Real parameters are writable before step mode only."""
         self._mode = mode
         self._writable[self._parameter_vrs] = mode in (INSTANTIATED, INITIALISATION)
         self._write_cache.clear()
-
-    def _register_with_wrapper(self) -> bool:
-        """Let the status wrapper serve ``fmi2GetReal`` / ``fmi2SetReal`` from the flat buffer
-        without entering Python (reads of Real variables; writes where ``self._writable`` says
-        so), call :meth:`do_step` through a ctypes callback rather than pythonfmu's C++ layer,
-        and ask :meth:`_access_for_wrapper` / :meth:`_state_bytes_for_wrapper` before handing
-        any other get/set or a state's bytes to pythonfmu (see ``status_wrapper.c``); True if
-        it took them.
-
-        Called from the constructor, which runs inside the wrapper's ``fmi2Instantiate`` (or
-        ``fmi2Reset``): the wrapper library, already loaded by the importer, is looked up
-        without loading it (``RTLD_NOLOAD``), given the buffer's address, the buffer position
-        of every Real value reference and the callback, and released. Without the wrapper, or
-        when the slave is not being created through it, nothing happens and every call goes
-        through pythonfmu. ``self._values`` and ``self._writable`` are never rebound or resized
-        after this (the wrapper keeps their addresses).
-        """
-        if not (self._status_via_wrapper and hasattr(os, "RTLD_NOLOAD")):
-            return False
-        binary = Path(self.resources).parent / "binaries" / "linux64" / f"{type(self).__name__}.so"
-        try:
-            library = ctypes.CDLL(str(binary), mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
-        except OSError:
-            return False
-        try:
-            register = getattr(library, "fhobs_register", None)
-            if register is None:
-                return False
-            positions = np.full(self._writable.size, -1, dtype=np.longlong)
-            positions[list(self._position)] = list(self._position.values())
-            # kept alive with the instance (the wrapper calls them until fmi2FreeInstance/Reset)
-            self._wrapper_callbacks = (
-                _WRAPPER_STEP_TYPE(self._step_for_wrapper),
-                _WRAPPER_ACCESS_TYPE(self._access_for_wrapper),
-                _WRAPPER_STATE_TYPE(self._state_bytes_for_wrapper),
-            )
-            register.restype = ctypes.c_int
-            register.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
-                                 ctypes.c_void_p, ctypes.c_size_t, _WRAPPER_STEP_TYPE,
-                                 _WRAPPER_ACCESS_TYPE, _WRAPPER_STATE_TYPE]
-            return bool(register(self._values.ctypes.data, self._values.size,
-                                 positions.ctypes.data, self._writable.ctypes.data,
-                                 positions.size, *self._wrapper_callbacks))
-        finally:
-            _ctypes.dlclose(library._handle)  # balance the RTLD_NOLOAD reference
-
-    def _step_for_wrapper(self, current_time: float, step_size: float) -> int:
-        """:meth:`do_step` for the wrapper's ``fmi2DoStep`` (a ctypes callback must not raise):
-        its answer as one of the ``WRAPPER_STEP_*`` codes. An exception is kept and raised
-        again by the ``do_step`` that the wrapper then calls through pythonfmu, which answers
-        it with ``fmi2Fatal`` and logs it as for any exception."""
-        try:
-            ok = self.do_step(current_time, step_size)
-        except BaseException as err:  # handed over to pythonfmu
-            pending = err
-
-            def raise_again(current_time: float, step_size: float) -> bool:
-                del self.do_step  # back to the method
-                raise pending
-
-            self.do_step = raise_again
-            return WRAPPER_STEP_RAISED
-        if not ok:
-            return WRAPPER_STEP_REJECTED
-        return WRAPPER_STEP_OK_LOGGED if self.log_queue else WRAPPER_STEP_OK
-
-    def _access_for_wrapper(self, function: int, vrs: Any, count: int) -> int:
-        """The wrapper's question before it hands a get/set call to pythonfmu (a ctypes
-        callback: never raises): 1 if the call may go ahead, else 0 with the reason logged and
-        ``status`` error. ``function`` indexes :data:`ACCESS_FUNCTIONS`."""
-        self.status = STATUS_OK
-        try:
-            name, _ = ACCESS_FUNCTIONS[function]
-            problem = self._access_problem(name, vrs[:count])
-        except BaseException as err:  # noqa: BLE001 (a callback must answer)
-            problem = f"the call could not be checked ({type(err).__name__}: {err})"
-        if problem:
-            self._fail(problem)
-            return 0
-        return 1
-
-    def _access_problem(self, function: str, vrs: Sequence[int]) -> str:
-        """Why ``function`` (``fmi2GetReal``, ``fmi2SetInteger``...) may not be applied to the
-        value references ``vrs`` now ('' if it may): unknown reference, another type, or a
-        write to an output, to ``status`` or to a parameter after initialisation."""
-        kind = dict(ACCESS_FUNCTIONS)[function]
-        for vr in vrs:
-            var = self.vars.get(vr)
-            if var is None:
-                return (f"{function}: value reference {vr} is not a variable of this FMU "
-                        f"(its value references are 0..{len(self.vars) - 1})")
-            label = f"{var.name} (value reference {vr})"
-            if not isinstance(var, kind):
-                return (f"{function}: {label} is of type {type(var).__name__}, "
-                        f"not {kind.__name__}")
-            if not function.startswith("fmi2Set"):
-                continue
-            if var.causality == Fmi2Causality.output:
-                return f"{function}: {label} is an output: the FMU computes it, it cannot be set"
-            if var.causality == Fmi2Causality.local:
-                return f"{function}: {label} is a local variable: it cannot be set"
-            if var.causality == Fmi2Causality.parameter and self._mode not in (
-                INSTANTIATED, INITIALISATION
-            ):
-                return (f"{function}: {label} is a fixed parameter: it can be set only before "
-                        f"fmi2ExitInitializationMode (the instance is in {self._mode}; "
-                        "fmi2Reset returns to the start values)")
-        return ""
-
-    def _checked_access(self, function: str, vrs: Sequence[int]) -> None:
-        """Refuse a get/set call that :meth:`_access_problem` rejects (ValueError, which
-        pythonfmu answers with fmi2Fatal: only reached without the wrapper)."""
-        problem = self._access_problem(function, vrs)
-        if problem:
-            self._fail(problem)
-            raise ValueError(problem)
-
-    def _state_bytes_for_wrapper(self, data: int, size: int) -> int:
-        """The wrapper's question before it hands bytes to pythonfmu's
-        fmi2DeSerializeFMUstate (a ctypes callback: never raises): 1 if they are a state this
-        FMU can restore, else 0 with the reason logged and ``status`` error."""
-        self.status = STATUS_OK
-        try:
-            problem = self._state_bytes_problem(ctypes.string_at(data, size) if size else b"")
-        except BaseException as err:  # noqa: BLE001 (a callback must answer)
-            problem = f"the state could not be checked ({type(err).__name__}: {err})"
-        if problem:
-            self._fail(f"fmi2DeSerializeFMUstate rejected the bytes: {problem}")
-            return 0
-        return 1
-
-    def _state_bytes_problem(self, data: bytes) -> str:
-        """Why ``data`` is not a serialized state of this FMU ('' if it is)."""
-        try:
-            state = self._fmu_state_from_bytes(data)
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
-            return f"they are not a serialized FMU state of this FMU ({err})"
-        return self._state_problem(state)
-
-    def get_real(self, vrs: list[int]) -> list[float]:
-        """Values of the Real variables ``vrs`` (one read of the flat buffer)."""
-        index = self._index_cache.get(tuple(vrs))
-        if index is None:
-            self._checked_access("fmi2GetReal", vrs)
-            index = self._index(self._index_cache, vrs)
-        return self._values[index].tolist()
-
-    def set_real(self, vrs: list[int], values: list[float]) -> None:
-        """Set the Real variables ``vrs`` (one write into the flat buffer)."""
-        index = self._write_cache.get(tuple(vrs))
-        if index is None:
-            self._checked_access("fmi2SetReal", vrs)
-            index = self._index(self._write_cache, vrs)
-        self._values[index] = values
-
-    def get_integer(self, vrs: list[int]) -> list[int]:
-        self._checked_access("fmi2GetInteger", vrs)
-        return super().get_integer(vrs)
-
-    def set_integer(self, vrs: list[int], values: list[int]) -> None:
-        self._checked_access("fmi2SetInteger", vrs)
-        super().set_integer(vrs, values)
-
-    def get_boolean(self, vrs: list[int]) -> list[bool]:
-        self._checked_access("fmi2GetBoolean", vrs)
-        return super().get_boolean(vrs)
-
-    def set_boolean(self, vrs: list[int], values: list[bool]) -> None:
-        self._checked_access("fmi2SetBoolean", vrs)
-        super().set_boolean(vrs, values)
-
-    def get_string(self, vrs: list[int]) -> list[str]:
-        self._checked_access("fmi2GetString", vrs)
-        return super().get_string(vrs)
-
-    def set_string(self, vrs: list[int], values: list[str]) -> None:
-        self._checked_access("fmi2SetString", vrs)
-        super().set_string(vrs, values)
-
-    def _index(self, cache: dict, vrs: list[int]) -> np.ndarray | slice:
-        """Buffer positions of the Real variables ``vrs``, which the caller has checked, kept
-        in ``cache`` (per list of references; a slice when they are consecutive, as a
-        master's inputs and outputs usually are)."""
-        if len(cache) >= INDEX_CACHE_SIZE:
-            cache.clear()
-        positions = np.array([self._position[vr] for vr in vrs], dtype=np.intp)
-        index = cache[tuple(vrs)] = _as_slice(positions)
-        return index
-
-    def add_integer(self, name: str, value: int, description: str) -> None:
-        """Register an Integer parameter."""
-        self._integers[name] = int(value)
-        self.register_variable(
-            Integer(
-                name,
-                description=description,
-                getter=lambda n=name: self._integers[n],
-                setter=lambda v, n=name: self._integers.__setitem__(n, int(v)),
-                **_KINDS["parameter"],
-            )
-        )
-
-    def array(self, name: str) -> np.ndarray:
-        """Current value of an array variable (a copy)."""
-        return self._arrays[name].copy()
-
-    def _elements(self, name: str) -> Iterator[tuple[str, float]]:
-        """(FMI name, value) of each element of an array variable, row-major."""
-        values = self._arrays[name]
-        return zip(element_names(name, values.shape), values.flat, strict=True)
-
-    def integer(self, name: str) -> int:
-        """Current value of an Integer parameter."""
-        return self._integers[name]
 
     def edited_design(self) -> ObserverGains:
         """The design record with every design field replaced by its current parameter value."""
@@ -742,103 +356,6 @@ class FhobsSlave(Fmi2Slave):
         """Copy the model's outputs to the output variables."""
         self._outputs[...] = self._finite_outputs()
 
-    # -- FMU state -----------------------------------------------------------------------
-    def _get_fmu_state(self) -> dict[str, Any]:
-        """Everything needed to continue bit for bit: variables, FMI state, model state; with
-        the layout's version and the FMU's identity (its class name, unique per build)."""
-        return {
-            "format": STATE_FORMAT,
-            "fmu": type(self).__name__,
-            "mode": self._mode,
-            "arrays": {name: value.tolist() for name, value in self._arrays.items()},
-            "integers": dict(self._integers),
-            "model": self.model.get_state().tolist(),
-        }
-
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> Any:
-        """Parse a serialized state (JSON, as pythonfmu writes it; checked by the caller)."""
-        return json.loads(state.decode("utf-8"))
-
-    def _state_problem(self, state: Any) -> str:
-        """Why ``state`` is not a complete, consistent state of this FMU ('' if it is):
-        layout version, FMU identity, FMI state, and every variable's presence, shape and
-        finiteness (inputs may hold any number: doStep checks them)."""
-        if not isinstance(state, dict) or set(state) != STATE_KEYS:
-            return "not an FMU state of this FMU (unexpected layout)"
-        if state["format"] != STATE_FORMAT:
-            return f"state format {state['format']!r} is not {STATE_FORMAT}"
-        if state["fmu"] != type(self).__name__:
-            return f"it is a state of {state['fmu']!r}, not of this FMU ({type(self).__name__})"
-        if state["mode"] not in MODES:
-            return f"unknown FMI state {state['mode']!r}"
-        arrays, integers = state["arrays"], state["integers"]
-        if not isinstance(arrays, dict) or set(arrays) != set(self._arrays):
-            return "its variables are not this FMU's"
-        for name, current in self._arrays.items():
-            problem = _array_problem(arrays[name], current.shape, name,
-                                     finite=name not in self._kinds["input"])
-            if problem:
-                return problem
-        if not isinstance(integers, dict) or set(integers) != set(self._integers):
-            return "its Integer variables are not this FMU's"
-        for name, value in integers.items():
-            if type(value) is not int:
-                return f"Integer variable {name} = {value!r} is not an integer"
-        return _array_problem(state["model"], (self.model.get_state().size,), "model state")
-
-    def _set_fmu_state(self, state: dict[str, Any]) -> None:
-        """Restore a state from :meth:`_get_fmu_state` (possibly of another instance), or
-        refuse it whole (:meth:`_refuse`) without changing anything.
-
-        The state is checked completely first (:meth:`_state_problem`); then its parameters
-        are tried: for a state of an initialised instance they must pass the initialisation
-        checks (unless they are the parameters this instance was initialised with), and the
-        model built from them must accept the model state and give finite outputs. Only then
-        is anything of the instance replaced.
-        """
-        self.status = STATUS_OK
-        problem = self._state_problem(state)
-        if not problem:
-            saved_values, saved_integers = self._values.copy(), dict(self._integers)
-            self._values[...] = np.concatenate([
-                np.ravel(np.asarray(state["arrays"][name], dtype=float))
-                for name in (*self._kinds["input"], *self._output_names,
-                             *self._kinds["parameter"])
-            ])
-            self._integers.update(state["integers"])
-            model, problem = self._model_for_state(state)
-            if problem:
-                self._values[...] = saved_values
-                self._integers.clear()
-                self._integers.update(saved_integers)
-        if problem:
-            self._refuse(f"fmi2SetFMUstate rejected the state: {problem}")
-            return
-        self.model = model
-        self._start_model = None
-        self._accepted_step = math.nan
-        if state["mode"] in (STEP_MODE, TERMINATED):
-            self._certified = self._parameters()
-        self._set_mode(state["mode"])
-
-    def _model_for_state(self, state: dict[str, Any]) -> tuple[SlaveModel | None, str]:
-        """The model of the parameters just written, set to the state's model state, or the
-        reason why there is none."""
-        try:
-            if state["mode"] in (STEP_MODE, TERMINATED) and self._parameters() != self._certified:
-                self._check_all_parameters()
-            model = self._make_model()
-            model.set_state(np.array(state["model"], dtype=float))
-            current, self.model = self.model, model
-            try:
-                self._finite_outputs()
-            finally:
-                self.model = current
-        except ValueError as err:
-            return None, f"its parameters or model state are not usable: {err}"
-        return model, ""
-
     # -- what a slave defines ------------------------------------------------------------
     @abstractmethod
     def _declare(self) -> None:
@@ -886,7 +403,7 @@ class ObserverSlave(FhobsSlave):
     """Base of the observer slaves: plant matrices, z0, timing, inputs y, u, output x_hat.
 
     Subclasses add their gains with :meth:`_declare_gains` and may add outputs. The timing
-    parameters are by default those of :mod:`fhobs.runtime` (internal step ``h`` and
+    parameters are by default those of :mod:`fhobs.core.runtime` (internal step ``h`` and
     ``scheme``); a sampled-data observer replaces them (:meth:`_declare_timing`,
     :meth:`_check_timing`).
     """
@@ -905,10 +422,7 @@ class ObserverSlave(FhobsSlave):
 
     def scheme_name(self) -> str:
         """Name of the selected integration scheme; ValueError if the index is unknown."""
-        index = self.integer("scheme")
-        if not 0 <= index < len(SCHEMES):
-            raise ValueError(f"scheme = {index} is not in 0..{len(SCHEMES) - 1} ({SCHEMES})")
-        return SCHEMES[index]
+        return self.choice("scheme", SCHEMES)
 
     def _declare_timing(self) -> None:
         """Register the internal step ``h`` and the integration ``scheme``."""

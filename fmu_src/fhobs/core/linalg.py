@@ -55,6 +55,10 @@ def expm(M: np.ndarray) -> np.ndarray:
     return E
 
 
+ZOH_CACHE_SIZE = 16
+"""ZOH matrices are cached per step size; the cache is cleared when it holds this many."""
+
+
 def zoh_blocks(A: np.ndarray, inputs: list[np.ndarray], h: float) -> list[np.ndarray]:
     """Exact zero-order-hold discretisation of ``dx/dt = A x + sum_i B_i w_i``.
 

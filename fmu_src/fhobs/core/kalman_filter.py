@@ -1,6 +1,6 @@
 """Steady-state discrete Kalman filter (numpy only): the noise-optimal linear baseline.
 
-The filter runs on the extended model of :mod:`fhobs.disturbance` (order
+The filter runs on the extended model of :mod:`fhobs.core.disturbance` (order
 ``gains.kalman.disturbance_order``) sampled with the exact zero-order hold at the filter's
 sample time Ts: ``Phi = expm(Ts A_model)``, ``Gamma = int_0^Ts expm(t A_model) dt B_model``.
 One cycle with the measurement y_k and the input u_k of the sample t_k:
@@ -8,7 +8,7 @@ One cycle with the measurement y_k and the input u_k of the sample t_k:
     update:   z_k|k    = z_k|k-1 + M (y_k - C_model z_k|k-1)
     predict:  z_k+1|k  = Phi z_k|k + Gamma u_k
 
-with the steady-state gain M of :class:`fhobs.gains.KalmanGains`. The state kept (and ``z``,
+with the steady-state gain M of :class:`fhobs.core.gains.KalmanGains`. The state kept (and ``z``,
 ``x_hat``) is the one-step prediction ``z_k+1|k``: after a communication step from t_k the
 estimate is that of t_k+1 from the measurements up to y_k, the information the Jacobi
 co-simulation gives every observer. Both equations are precomputed as one matrix
@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from fhobs import kernel as compiled
-from fhobs.disturbance import extended_model
-from fhobs.gains import KalmanGains, ObserverGains
-from fhobs.linalg import zoh_blocks
-from fhobs.plant import all_finite, as_finite_vector, check_step_size, floating_point_failure
+from . import kernel as compiled
+from .disturbance import extended_model
+from .gains import KalmanGains, ObserverGains
+from .linalg import zoh_blocks
+from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
 STEP_TOLERANCE = 1e-9
 """Relative tolerance of ``dt = n Ts`` (a master's t_k = k dt rounding stays far below it)."""
@@ -77,14 +77,26 @@ class KalmanObserver:
     kalman : KalmanGains or None
         Use this filter instead of ``gains.kalman`` (an edited FMU parameter set).
     kernel : bool
-        Run the cycles in the compiled kernel when it is available (:mod:`fhobs.kernel`);
+        Run the cycles in the compiled kernel when it is available (:mod:`fhobs.core.kernel`);
         False: numpy only.
 
     Examples
     --------
-    >>> obs = KalmanObserver(gains)                         # doctest: +SKIP
-    >>> obs.step(y, u, gains.kalman.sample_time)            # doctest: +SKIP
-    >>> obs.x_hat                                           # doctest: +SKIP
+    A double integrator at rest at x = (1, 0), the filter started at zero:
+
+    >>> from fhobs.design import design_for_spec
+    >>> from fhobs.kalman import with_kalman
+    >>> from fhobs.spec import spec_from_dict
+    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+    ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
+    ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,
+    ...                                  "process_intensity": 1.0}})
+    >>> gains = with_kalman(design_for_spec(spec), spec.noise)
+    >>> obs = KalmanObserver(gains)
+    >>> for _ in range(500):
+    ...     obs.step(y=[1.0], u=[0.0], dt=gains.kalman.sample_time)
+    >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-9))
+    True
     """
 
     def __init__(self, gains: ObserverGains, z0: np.ndarray | None = None,
@@ -163,7 +175,7 @@ class KalmanObserver:
 
     @property
     def compiled(self) -> bool:
-        """Whether the cycles run in the compiled kernel (:mod:`fhobs.kernel`)."""
+        """Whether the cycles run in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
     def _kernel_plan(self, dt: float) -> None:

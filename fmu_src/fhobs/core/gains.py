@@ -20,11 +20,11 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
 - ``L_lin``: gain of the Luenberger baseline dz/dt = A z + B u + L_lin (C z - y).
 - ``xi``, ``sigma``: the observer's scalar gain state and sigma = sqrt(max(xi, |psi|^2 / 2)).
 - ``disturbance_order``: r >= 0; with r >= 1 the homogeneous observers work on the extended
-  model of :mod:`fhobs.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
+  model of :mod:`fhobs.core.disturbance` (``A_model``, ``B_model``, ``C_model``, ``n_model`` states,
   the plant's first): G0, L0, G_d, L, P_bar, L_pt, P_pt and n_tilde are of that model, while
   A, B, C, E and L_lin (the Luenberger baseline) stay the plant's.
 - ``kalman``: optional :class:`KalmanGains`, the steady-state discrete Kalman filter baseline
-  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.kalman_filter`); its
+  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.core.kalman_filter`); its
   disturbance model is its own (``kalman.disturbance_order``), on the same plant A, B, C, E.
 """
 
@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +59,7 @@ class KalmanGains:
     Attributes
     ----------
     disturbance_order : int
-        r in 0..3 (see :mod:`fhobs.disturbance`).
+        r in 0..3 (see :mod:`fhobs.core.disturbance`).
     sample_time : float
         Ts, the filter's sampling period (s).
     measurement_std : numpy.ndarray
@@ -140,10 +141,11 @@ class ObserverGains:
         """Number of measured outputs."""
         return self.C.shape[0]
 
-    @property
+    @cached_property
     def model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A_model, B_model, C_model)`` of the homogeneous observers (the plant's if
-        ``disturbance_order`` is 0)."""
+        ``disturbance_order`` is 0); built once per record (a frozen record's fields do not
+        change; :func:`dataclasses.replace` makes a new record with its own cache)."""
         return extended_model(self.A, self.B, self.C, self.E, self.disturbance_order)
 
     @property
@@ -151,9 +153,9 @@ class ObserverGains:
         """Number of states of the homogeneous observers' model (n if no disturbance model)."""
         return self.G_d.shape[0]
 
-    @property
+    @cached_property
     def A0(self) -> np.ndarray:
-        """The nilpotent matrix A0 = A_model + L0 C_model."""
+        """The nilpotent matrix A0 = A_model + L0 C_model (computed once per record)."""
         A_model, _, C_model = self.model
         return A_model + self.L0 @ C_model
 

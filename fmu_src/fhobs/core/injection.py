@@ -17,7 +17,7 @@ makes this evaluation once per substep): every power of s is one entry of a sing
 ``exp(ln s * exponents)``, and the two spectral factors ``exp(tau lam)`` and
 ``tau phi1(tau lam) = expm1(tau lam) / lam`` act on one stacked coefficient vector. If either
 eigenvector matrix is ill-conditioned (cond > ``COND_LIMIT``), it uses the expm-based paths of
-:class:`~fhobs.linalg.ExpmFamily` and :class:`~fhobs.dilation.Dilation` instead (also on
+:class:`~fhobs.core.linalg.ExpmFamily` and :class:`~fhobs.core.dilation.Dilation` instead (also on
 request, for tests).
 
 This module is numpy-only: it runs inside the FMUs.
@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from fhobs.dilation import Dilation
-from fhobs.linalg import ExpmFamily
+from .dilation import Dilation
+from .linalg import ExpmFamily
 
 
 class InjectionFlow:
@@ -88,7 +88,7 @@ class InjectionFlow:
                                           np.ones(k), g)).astype(g.dtype)
 
     def kernel_arrays(self) -> dict[str, np.ndarray | float]:
-        """The eigen path's data for the compiled kernel (:mod:`fhobs.kernel`), complex128
+        """The eigen path's data for the compiled kernel (:mod:`fhobs.core.kernel`), complex128
         and C-contiguous: ``V_inv`` (2k x 2k), ``V_k = V[:k]``, ``WL = V_g^-1 L V[:k]``, ``V_g``,
         ``g`` (eigenvalues of G_d), ``lam`` (of R); ``real_lam`` (numpy's spectral factors are
         then real) and ``tiny`` (below this tau the factors use phi1's series where needed).

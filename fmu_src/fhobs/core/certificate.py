@@ -21,11 +21,12 @@ check                         value                                             
 ============================  ===========================================================  =======
 
 The figures are computed in balanced coordinates ``x = diag(d) x_b`` (d powers of two from
-:func:`fhobs.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
+:func:`fhobs.core.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
 P), so every value is that of the original coordinates, with a rounding error that stays small
 for plants whose entries span many decades. The homogeneous observers' figures are of the
-observer's model (``gains.model``: the plant, or
-its extended-state model of :mod:`fhobs.disturbance`); ``hurwitz_luenberger`` is of the plant.
+observer's model (the plant, or its extended-state model, built here by :func:`checked_model`
+independently of the design's :mod:`fhobs.core.disturbance`); ``hurwitz_luenberger`` is of the
+plant.
 sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
 eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
 LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
@@ -38,6 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import CertificateError
 from .gains import ObserverGains
 from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity
 
@@ -46,24 +48,27 @@ DEFAULT_MARGIN = 1e-6
 EPS = float(np.finfo(float).eps)
 
 
-class CertificateError(ValueError):
-    """A design fails a check; the message names the check, the value and the bound.
+def checked_model(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray]:
+    """``(A_model, C_model)``, the observer's model, built here from the plant's A, C, E and
+    ``disturbance_order`` (not by :mod:`fhobs.core.disturbance`, which the design uses, so that
+    one error in building the model cannot pass both the design and its certificate).
 
-    Attributes
-    ----------
-    lmi_margin_needed : float
-        The largest margin (1/s) that a failed LMI check required (its margin plus its
-        rounding allowance), 0 if no LMI check failed: a design may be solved again with a
-        larger margin than that.
+    With r = ``disturbance_order`` and p the columns of E: ``A_model = [[A, E S], [0, J]]``
+    with ``S = [I_p, 0, ..., 0]`` (p x r p) and ``J = kron(shift_r, I_p)``, ``shift_r`` the
+    r x r upper shift; ``C_model = [C, 0]``.
     """
-
-    def __init__(self, message: str, lmi_margin_needed: float = 0.0) -> None:
-        super().__init__(message)
-        self.lmi_margin_needed = lmi_margin_needed
+    A, C, order = gains.A, gains.C, gains.disturbance_order
+    if order == 0:
+        return A, C
+    p = gains.E.shape[1]
+    S = np.kron(np.eye(1, order), np.eye(p))
+    J = np.kron(np.eye(order, k=1), np.eye(p))
+    A_model = np.block([[A, gains.E @ S], [np.zeros((order * p, A.shape[0])), J]])
+    return A_model, np.hstack([C, np.zeros((C.shape[0], order * p))])
 
 
 def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (psi, z) system of Theorem 2: bar_A0, bar_G, bar_C.
+    """The (psi, z) system of Theorem 2: bar_A0, bar_G, bar_C, from :func:`checked_model`.
 
     Parameters
     ----------
@@ -72,15 +77,16 @@ def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np
     Returns
     -------
     bar_A0 : numpy.ndarray
-        [[0, C], [0, A0]], (k+n) x (k+n), of the observer's model (``gains.model``).
+        [[0, C_model], [0, A0]], (k+n) x (k+n), A0 = A_model + L0 C_model.
     bar_G : numpy.ndarray
         diag(I_k, G_d).
     bar_C : numpy.ndarray
         [I_k, 0], k x (k+n).
     """
-    n, k = gains.n_model, gains.k
-    C_model = gains.model[2]
-    bar_A0 = np.block([[np.zeros((k, k)), C_model], [np.zeros((n, k)), gains.A0]])
+    A_model, C_model = checked_model(gains)
+    n, k = A_model.shape[0], C_model.shape[0]
+    A0 = A_model + gains.L0 @ C_model
+    bar_A0 = np.block([[np.zeros((k, k)), C_model], [np.zeros((n, k)), A0]])
     bar_G = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), gains.G_d]])
     bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
     return bar_A0, bar_G, bar_C
@@ -92,12 +98,14 @@ def sym(M: np.ndarray) -> np.ndarray:
 
 
 def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
-    """The four homogeneity figures of the table in the module docstring (in the balanced
-    coordinates of :func:`_balancing`)."""
-    d = _balancing(gains)
-    A0, G_d = diagonal_similarity(gains.A0, d), diagonal_similarity(gains.G_d, d)
-    C, nu = gains.model[2] * d, gains.nu
-    eye = np.eye(gains.n_model)
+    """The four homogeneity figures of the table in the module docstring (in balanced
+    coordinates, :func:`fhobs.core.linalg.balancing_scale` of the model matrix)."""
+    A_model, C_model = checked_model(gains)
+    d = balancing_scale(A_model)
+    A0 = diagonal_similarity(A_model + gains.L0 @ C_model, d)
+    G_d = diagonal_similarity(gains.G_d, d)
+    C, nu = C_model * d, gains.nu
+    eye = np.eye(A0.shape[0])
     a0_norm = max(np.linalg.norm(A0), 1e-300)
     return {
         "homogenisation_residual": float(
@@ -111,13 +119,6 @@ def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
         ),
         "dilation_anti_hurwitz": float(np.min(np.linalg.eigvals(G_d).real)),
     }
-
-
-def _balancing(gains: ObserverGains) -> np.ndarray:
-    """Powers of two d balancing the observer's model matrix (:func:`balancing_scale`): the
-    figures are computed for ``x = diag(d) x_b``, an exact similarity that leaves every check's
-    value unchanged in exact arithmetic and keeps its rounding small for badly scaled plants."""
-    return balancing_scale(gains.model[0])
 
 
 def lmi_values(
@@ -186,21 +187,36 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     """Every figure of the module docstring's table, without judging them."""
     values = homogeneity_values(gains)
     values["gamma_rho"] = gains.rho - gains.gamma / 2
-    d = _balancing(gains)
+    A_model, C_model = checked_model(gains)
+    d = balancing_scale(A_model)
     d_bar = np.concatenate([np.ones(gains.k), d])
     bar_A0, bar_G, bar_C = augmented_matrices(gains)
     bar_L = np.vstack([gains.L_tilde, gains.L])
     values |= lmi_values(diagonal_congruence(gains.P_bar, d_bar),
                          diagonal_similarity(bar_A0 + bar_L @ bar_C, d_bar),
                          diagonal_similarity(bar_G, d_bar), gains.rho, "filtering")
-    G_pt = gains.G_d - gains.nu * np.eye(gains.n_model)
+    G_pt = gains.G_d - gains.nu * np.eye(A_model.shape[0])
     values |= lmi_values(diagonal_congruence(gains.P_pt, d),
-                         diagonal_similarity(gains.A0 + gains.L_pt @ gains.model[2], d),
+                         diagonal_similarity(A_model + (gains.L0 + gains.L_pt) @ C_model, d),
                          diagonal_similarity(G_pt, d), gains.rho, "pt")
-    values["hurwitz_luenberger"] = float(
-        np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real)
-    )
+    values["hurwitz_luenberger"] = luenberger_abscissa(gains)
     return values
+
+
+def luenberger_abscissa(gains: ObserverGains) -> float:
+    """``max Re eig(A + L_lin C)``, the Luenberger baseline's check (< 0: Hurwitz)."""
+    return float(np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real))
+
+
+def check_luenberger(gains: ObserverGains) -> None:
+    """Raise :class:`CertificateError` unless ``A + L_lin C`` is Hurwitz (the Luenberger FMU's
+    check of edited parameters; :func:`certify` makes it with the others)."""
+    abscissa = luenberger_abscissa(gains)
+    if not abscissa < 0.0:
+        raise CertificateError(
+            f"check hurwitz_luenberger failed: max Re eig(A + L_lin C) = {abscissa:.3e} "
+            "(required < 0)"
+        )
 
 
 def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: int,
@@ -242,7 +258,7 @@ def check_tuning(gains: ObserverGains) -> None:
     >>> check_tuning(dataclasses.replace(paper_gains(), gamma=-5.0))
     Traceback (most recent call last):
     ...
-    fhobs.certificate.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
+    fhobs.core.errors.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
     """
     problem = tuning_problem(gains.nu, gains.rho, gains.gamma, gains.n_tilde)
     if problem:
@@ -313,6 +329,18 @@ def certify(
     ------
     CertificateError
         Naming every failed check with its value and bound.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> bool(certify(gains)["lmi_filtering"] < 0)
+    True
+    >>> certify(dataclasses.replace(gains, L_lin=-gains.L_lin))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: ...hurwitz_luenberger...
     """
     values = certificate_values(gains)
     bad = _violations(values, tolerance, margin)

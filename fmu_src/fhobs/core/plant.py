@@ -8,52 +8,17 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from fhobs import kernel as compiled
-from fhobs.linalg import zoh_blocks
+from . import kernel as compiled
+from .linalg import ZOH_CACHE_SIZE, zoh_blocks
+from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
 NOISE_BLOCK = 1024
 """Noise samples are drawn in blocks of this many steps, block b from the seed (seed, b)."""
 
-ZOH_CACHE_SIZE = 16
-"""ZOH matrices are cached per step size; the cache is cleared when it holds this many."""
-
 PLANT_SCHEMES = ("zoh", "euler")
 """``zoh``: exact step (default); ``euler``: explicit Euler, only to reproduce the paper's runs."""
-
-
-def as_finite_vector(value: np.ndarray | float, size: int, name: str) -> np.ndarray:
-    """Return ``value`` as a finite float vector of length ``size``, else raise ValueError."""
-    vec = np.asarray(value, dtype=float).reshape(-1)
-    if vec.size != size:
-        raise ValueError(f"{name} must have {size} entries, got {vec.size}")
-    if not all_finite(vec):
-        raise ValueError(f"{name} must be finite, got {vec}")
-    return vec
-
-
-def all_finite(vec: np.ndarray) -> bool:
-    """Whether every entry of a (small) 1-D float array is finite; faster than
-    ``np.isfinite(vec).all()`` for the few entries of a runtime state."""
-    return all(map(math.isfinite, vec.tolist()))
-
-
-def floating_point_failure(step: str, err: ArithmeticError) -> ValueError:
-    """The ValueError of a ``step`` (its name, e.g. ``"plant"``) that raised an arithmetic
-    error: numpy's under the caller's ``np.errstate(all="raise")``, or Python's math."""
-    return ValueError(f"the {step} step failed with a floating-point error ({err}); "
-                      "state left unchanged")
-
-
-def check_step_size(dt: float) -> float:
-    """Return dt as a float if it is finite and positive, else raise ValueError."""
-    dt = float(dt)
-    if not (dt > 0.0 and math.isfinite(dt)):
-        raise ValueError(f"the step size must be finite and positive, got {dt}")
-    return dt
 
 
 def uniform_noise(seed: int, k: int, amplitude: float, size: int) -> np.ndarray:
@@ -110,7 +75,18 @@ class LTIPlant:
         One of ``PLANT_SCHEMES``.
     kernel : bool
         Make the ``zoh`` step in the compiled kernel when it is available
-        (:mod:`fhobs.kernel`); False: numpy only. The noise is numpy's either way.
+        (:mod:`fhobs.core.kernel`); False: numpy only. The noise is numpy's either way.
+
+    Examples
+    --------
+    A double integrator pushed by u = 1 for 0.1 s from x = (1, 0):
+
+    >>> import numpy as np
+    >>> plant = LTIPlant(np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[0.0], [1.0]]),
+    ...                  np.array([[1.0, 0.0]]), x0=[1.0, 0.0])
+    >>> plant.step(u=[1.0], q=None, dt=0.1)
+    >>> [round(float(v), 12) for v in plant.x]
+    [1.005, 0.1]
     """
 
     def __init__(
@@ -199,7 +175,7 @@ class LTIPlant:
 
     @property
     def compiled(self) -> bool:
-        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
     def _kernel_plan(self, dt: float) -> None:

@@ -1,13 +1,13 @@
 """The compiled step kernel (``kernel.c``) of the runtime, through ctypes.
 
-The numpy runtime (:mod:`fhobs.runtime`, :mod:`fhobs.plant`, :mod:`fhobs.kalman_filter`) is the
-reference implementation; when this kernel is available, the models make their common step in
-C instead: the plant's ZOH step (the noise stays numpy's), the split step and the explicit Euler
-substeps of the Luenberger and the filtering observers, the Kalman filter's cycles. The numpy
-side prepares everything (matrices, eigen-decompositions, gain-level floor and ceiling) once per
-design and step size, in a *plan*, and the kernel only does the per-step arithmetic, to about
-1e-15 relative of the numpy step (the matrix-vector sums may be added in another order than
-numpy's BLAS).
+The numpy runtime (:mod:`fhobs.core.runtime`, :mod:`fhobs.core.plant`,
+:mod:`fhobs.core.kalman_filter`) is the reference implementation; when this kernel is available, the
+models make their common step in C instead: the plant's ZOH step (the noise stays numpy's), the
+split step and the explicit Euler substeps of the Luenberger and the filtering observers, the Kalman
+filter's cycles. The numpy side prepares everything (matrices, eigen-decompositions, gain-level
+floor and ceiling) once per design and step size, in a *plan*, and the kernel only does the per-step
+arithmetic, to about 1e-15 relative of the numpy step (the matrix-vector sums may be added in
+another order than numpy's BLAS).
 
 Where the library comes from (:func:`library`), in this order:
 
@@ -266,7 +266,7 @@ class Stepper:
 
     Examples
     --------
-    As :class:`fhobs.plant.LTIPlant` uses it (``make_plan`` registers a ``PlantPlan``)::
+    As :class:`fhobs.core.plant.LTIPlant` uses it (``make_plan`` registers a ``PlantPlan``)::
 
         stepper = Stepper(library().fhobs_plant_step, (n,), (m, r), make_plan)
         if stepper.run(dt, x, x, u, q) == OK:

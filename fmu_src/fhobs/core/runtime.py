@@ -20,7 +20,7 @@ substeps of size ``<= h``, with one of two schemes:
        the step's start. Because ``C G_d = (1 + nu) C``, the innovation pair ``(psi, v)`` obeys
        ``d/dt (psi/s, v/s^(1+nu)) = s^nu R (psi/s, v/s^(1+nu))`` with the constant
        ``R = [[L_tilde, I], [C L, 0]]``, so one eigen-decomposition of R (done once) gives the
-       exact flow for every sigma (:class:`fhobs.injection.InjectionFlow`);
+       exact flow for every sigma (:class:`fhobs.core.injection.InjectionFlow`);
     2. *prediction*: ``z <- expm(dt A) z + Gamma_B u + Gamma_L0 v`` (exact zero-order hold of
        the model, the innovation held), the very map that the plant applies to x.
 
@@ -73,18 +73,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fhobs import kernel as compiled
-from fhobs.dilation import Dilation
-from fhobs.gains import ObserverGains
-from fhobs.injection import InjectionFlow
-from fhobs.linalg import PHI1_SERIES, ExpmFamily, zoh_blocks
-from fhobs.plant import (
-    ZOH_CACHE_SIZE,
-    all_finite,
-    as_finite_vector,
-    check_step_size,
-    floating_point_failure,
-)
+from . import kernel as compiled
+from .dilation import Dilation
+from .gains import ObserverGains
+from .injection import InjectionFlow
+from .linalg import PHI1_SERIES, ZOH_CACHE_SIZE, ExpmFamily, zoh_blocks
+from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
 
 class Prediction(NamedTuple):
@@ -235,7 +229,7 @@ class _Observer:
 
     @property
     def compiled(self) -> bool:
-        """Whether the step runs in the compiled kernel (:mod:`fhobs.kernel`)."""
+        """Whether the step runs in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
     def _use_kernel(self, split_function: str) -> None:
@@ -487,8 +481,17 @@ class FilteringObserver(_Observer):
         None picks it automatically.
     kernel : bool
         Run the step (split, or the euler substeps) in the compiled kernel when it is
-        available (:mod:`fhobs.kernel`; not with the expm fallbacks of the injection flow or
+        available (:mod:`fhobs.core.kernel`; not with the expm fallbacks of the injection flow or
         of the dilation); False: numpy only.
+
+    Examples
+    --------
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = FilteringObserver(gains, h=1e-3, z0=[0.5, 0.0])
+    >>> obs.step(y=[0.5], u=[0.0], dt=1e-2)
+    >>> obs.x_hat.shape, bool(abs(obs.x_hat[0] - 0.5) < 1e-6)
+    ((2,), True)
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -642,6 +645,21 @@ class PrescribedTimeObserver(_Observer):
         Initial xi (nonzero); the prescribed time is ``T0 = |xi0|^(-nu) / (-nu rho)``.
     tau_max : float or None
         Gain cap ``dt |xi|^nu <= tau_max`` (dt the communication step); None: automatic.
+
+    Examples
+    --------
+    A double integrator moving at speed 0.5 from x = (1, 0.5), the observer started at zero:
+    after the prescribed time T0 the estimate is the state.
+
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = PrescribedTimeObserver(gains, h=1e-3, xi0=1.0)
+    >>> obs.T0
+    1.5
+    >>> for k in range(200):
+    ...     obs.step(y=[1.0 + 0.5 * k * 1e-2], u=[0.0], dt=1e-2)
+    >>> bool(np.allclose(obs.x_hat, [2.0, 0.5], atol=1e-9))
+    True
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
@@ -701,6 +719,17 @@ class LuenbergerObserver(_Observer):
 
     The split scheme is the exact ZOH of the model with the innovation held, i.e. the error
     obeys ``e_{k+1} = (expm(h A) + Gamma_Llin C) e_k`` exactly; ``euler`` is explicit Euler.
+    The parameters are those of :class:`FilteringObserver` (the gain is ``gains.L_lin``).
+
+    Examples
+    --------
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = LuenbergerObserver(gains, h=1e-3)
+    >>> for _ in range(2000):
+    ...     obs.step(y=[1.0], u=[0.0], dt=1e-2)
+    >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-6))
+    True
     """
 
     def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],

@@ -1,5 +1,5 @@
 /*
- * Compiled step kernel of the fhobs runtime (loaded by fhobs.kernel through ctypes).
+ * Compiled step kernel of the fhobs runtime (loaded by fhobs.core.kernel through ctypes).
  *
  * Each function advances one model by one communication step: its one argument, a Call,
  * names the plan, the state to read (`src`, never written), where to write the new state
@@ -24,7 +24,7 @@ typedef struct {
     double re, im;
 } cplx;
 
-/* One call of a step function (fhobs.kernel.Call). */
+/* One call of a step function (fhobs.core.kernel.Call). */
 typedef struct {
     const void *plan;
     const double *src;

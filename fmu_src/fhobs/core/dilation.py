@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from fhobs.linalg import COND_LIMIT, expm
+from .linalg import COND_LIMIT, expm
 
 
 class Dilation:
     """``d(s) = expm(s G)`` from one eigen-decomposition ``G = V diag(g) V^-1``.
 
     ``d(s) M x = V (exp(s g) * (V^-1 M x))`` costs two small matrix-vector products (``V^-1 M``
-    is precomputed). If V is ill-conditioned (cond > ``COND_LIMIT``), :func:`fhobs.linalg.expm`
+    is precomputed). If V is ill-conditioned (cond > ``COND_LIMIT``), :func:`fhobs.core.linalg.expm`
     of ``s G`` is used.
 
     Parameters

@@ -1,0 +1,145 @@
+"""FMU states: the complete state of a slave (parameters, inputs, the model's internal state)
+for ``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``, checked whole before any of it is used."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .modes import MODES, STATUS_OK, STEP_MODE, TERMINATED
+
+if TYPE_CHECKING:
+    from .slave_base import SlaveModel
+
+STATE_FORMAT = 2
+"""Version of the FMU state layout of :meth:`FhobsSlave._get_fmu_state`."""
+STATE_KEYS = {"format", "fmu", "mode", "arrays", "integers", "model"}
+"""The entries of a state (:meth:`FhobsSlave._get_fmu_state`)."""
+
+
+def _array_problem(value: Any, shape: tuple[int, ...], name: str, finite: bool = True) -> str:
+    """Why ``value`` (from a parsed state) is not an array of numbers of ``shape`` ('' if it
+    is); with ``finite``, also if an entry is NaN or infinite."""
+    try:
+        array = np.asarray(value)
+    except ValueError:  # ragged nesting
+        return f"{name} is not an array of numbers"
+    if array.dtype.kind not in "fi":
+        return f"{name} is not an array of numbers"
+    if array.shape != shape:
+        return f"{name} has shape {array.shape}, expected {shape}"
+    if finite and not np.isfinite(array).all():
+        return f"{name} has non-finite entries"
+    return ""
+
+
+class FmuStates:
+    """Get, check and set FMU states (a mixin of :class:`fhobs.fmu.slave_base.FhobsSlave`)."""
+
+    def _state_bytes_problem(self, data: bytes) -> str:
+        """Why ``data`` is not a serialized state of this FMU ('' if it is)."""
+        try:
+            state = self._fmu_state_from_bytes(data)
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+            return f"they are not a serialized FMU state of this FMU ({err})"
+        return self._state_problem(state)
+
+    # -- FMU state -----------------------------------------------------------------------
+    def _get_fmu_state(self) -> dict[str, Any]:
+        """Everything needed to continue bit for bit: variables, FMI state, model state; with
+        the layout's version and the FMU's identity (its class name, unique per build)."""
+        return {
+            "format": STATE_FORMAT,
+            "fmu": type(self).__name__,
+            "mode": self._mode,
+            "arrays": {name: value.tolist() for name, value in self._arrays.items()},
+            "integers": dict(self._integers),
+            "model": self.model.get_state().tolist(),
+        }
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> Any:
+        """Parse a serialized state (JSON, as pythonfmu writes it; checked by the caller)."""
+        return json.loads(state.decode("utf-8"))
+
+    def _state_problem(self, state: Any) -> str:
+        """Why ``state`` is not a complete, consistent state of this FMU ('' if it is):
+        layout version, FMU identity, FMI state, and every variable's presence, shape and
+        finiteness (inputs may hold any number: doStep checks them)."""
+        if not isinstance(state, dict) or set(state) != STATE_KEYS:
+            return "not an FMU state of this FMU (unexpected layout)"
+        if state["format"] != STATE_FORMAT:
+            return f"state format {state['format']!r} is not {STATE_FORMAT}"
+        if state["fmu"] != type(self).__name__:
+            return f"it is a state of {state['fmu']!r}, not of this FMU ({type(self).__name__})"
+        if state["mode"] not in MODES:
+            return f"unknown FMI state {state['mode']!r}"
+        arrays, integers = state["arrays"], state["integers"]
+        if not isinstance(arrays, dict) or set(arrays) != set(self._arrays):
+            return "its variables are not this FMU's"
+        for name, current in self._arrays.items():
+            problem = _array_problem(arrays[name], current.shape, name,
+                                     finite=name not in self._kinds["input"])
+            if problem:
+                return problem
+        if not isinstance(integers, dict) or set(integers) != set(self._integers):
+            return "its Integer variables are not this FMU's"
+        for name, value in integers.items():
+            if type(value) is not int:
+                return f"Integer variable {name} = {value!r} is not an integer"
+        return _array_problem(state["model"], (self.model.get_state().size,), "model state")
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        """Restore a state from :meth:`_get_fmu_state` (possibly of another instance), or
+        refuse it whole (:meth:`_refuse`) without changing anything.
+
+        The state is checked completely first (:meth:`_state_problem`); then its parameters
+        are tried: for a state of an initialised instance they must pass the initialisation
+        checks (unless they are the parameters this instance was initialised with), and the
+        model built from them must accept the model state and give finite outputs. Only then
+        is anything of the instance replaced.
+        """
+        self.status = STATUS_OK
+        problem = self._state_problem(state)
+        if not problem:
+            saved_values, saved_integers = self._values.copy(), dict(self._integers)
+            self._values[...] = np.concatenate([
+                np.ravel(np.asarray(state["arrays"][name], dtype=float))
+                for name in (*self._kinds["input"], *self._output_names,
+                             *self._kinds["parameter"])
+            ])
+            self._integers.update(state["integers"])
+            model, problem = self._model_for_state(state)
+            if problem:
+                self._values[...] = saved_values
+                self._integers.clear()
+                self._integers.update(saved_integers)
+        if problem:
+            self._refuse(f"fmi2SetFMUstate rejected the state: {problem}")
+            return
+        self.model = model
+        self._start_model = None
+        self._accepted_step = math.nan
+        if state["mode"] in (STEP_MODE, TERMINATED):
+            self._certified = self._parameters()
+        self._set_mode(state["mode"])
+
+    def _model_for_state(self, state: dict[str, Any]) -> tuple[SlaveModel | None, str]:
+        """The model of the parameters just written, set to the state's model state, or the
+        reason why there is none."""
+        try:
+            if state["mode"] in (STEP_MODE, TERMINATED) and self._parameters() != self._certified:
+                self._check_all_parameters()
+            model = self._make_model()
+            model.set_state(np.array(state["model"], dtype=float))
+            current, self.model = self.model, model
+            try:
+                self._finite_outputs()
+            finally:
+                self.model = current
+        except ValueError as err:
+            return None, f"its parameters or model state are not usable: {err}"
+        return model, ""
