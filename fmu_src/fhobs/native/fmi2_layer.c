@@ -731,10 +731,9 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
     char identity[IDENTITY_FIELD] = {0}, expected[IDENTITY_FIELD] = {0};
     strncpy(expected, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
     const unsigned char *p = (const unsigned char *)serializedState;
-    if (!state || !serializedState || size != SERIALIZED_SIZE || memcmp(p, STATE_HEADER, 8)) {
+    if (!state || !serializedState || size < 8 + 4 + IDENTITY_FIELD || memcmp(p, STATE_HEADER, 8))
         return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are not a serialized "
-                       "FMU state of this FMU (size or header)");
-    }
+                       "FMU state of this FMU (its header is missing)");
     uint32_t format;
     int32_t mode;
     Values values;
@@ -743,6 +742,9 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
     if (format != STATE_FORMAT || memcmp(identity, expected, IDENTITY_FIELD))
         return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are a state of another "
                        "FMU or format (its GUID differs)");
+    if (size != SERIALIZED_SIZE)
+        return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are not a serialized "
+                       "FMU state of this FMU (wrong size)");
     p = get(p, &mode, 4);
     values.mode = mode;
     p = get(p, values.real, sizeof values.real);
