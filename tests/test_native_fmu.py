@@ -21,12 +21,17 @@ import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.build import BuildError
+from fhobs.cli import main as cli_main
 from fhobs.kalman import with_kalman
 from fhobs.native.build import DEFAULT_STEPS, build_native_fmus
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, H, random_walk
+
+from harness.cli import load_scenario
+from harness.master import run_system
+from harness.system import resolve_system
 
 pytestmark = pytest.mark.skipif(
     sys.platform != "linux" or shutil.which("cc") is None,
@@ -347,3 +352,54 @@ def test_wrong_call_sequence_and_bad_parameters(native_fmus):
 def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_gains, tmp_path):
     with pytest.raises(BuildError, match="--native-step 0.5"):
         build_native_fmus(tuned_gains, tmp_path, steps=[0.5], kinds=["observer"])
+
+
+# -- build_fmu.py --native, the harness, fmpy's compile of sources/ -------------------------------
+@pytest.fixture(scope="module")
+def cli_folders(tmp_path_factory) -> Path:
+    """``python build_fmu.py examples/pendulum.toml --out DIR --native``: DIR holds the
+    pythonfmu FMUs, DIR/native the native ones."""
+    out = tmp_path_factory.mktemp("cli")
+    assert cli_main([str(fmu_fixtures.EXAMPLES / "pendulum.toml"), "--out", str(out),
+                     "--native"]) == 0
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["pendulum_nominal", "pendulum_perturbed", "pendulum_noisy"])
+def test_paper_scenarios_give_the_same_results_with_either_folder(cli_folders, name, tmp_path):
+    """The bundled scenario, full length, through the harness with the pythonfmu FMUs and with
+    the native ones (plant included): every recorded estimate and the plant's state agree to
+    1e-12 relative per signal (max |difference| / max |pythonfmu value|)."""
+    results = []
+    for folder in (cli_folders, cli_folders / "native"):
+        spec = load_scenario(name, folder, tmp_path / "blocks").with_seed(3)
+        results.append(run_system(resolve_system(spec), progress=False))
+    python, native = results
+    assert native.values.shape == python.values.shape
+    for signal in ("plant.x", "observer.x_hat", "linear.x_hat", "kalman.x_hat"):
+        assert relative(native.vector(signal), python.vector(signal)) <= RTOL, signal
+
+
+@pytest.mark.slow
+def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, open_pair, tmp_path):
+    """The shipped binary removed, fmpy's build_platform_binary (CMake, the modelDescription's
+    SourceFiles) compiles sources/ into a library that runs as the shipped one."""
+    if shutil.which("cmake") is None:
+        pytest.skip("fmpy's build_platform_binary needs cmake")
+    from fmpy.build import build_platform_binary
+
+    folder = tmp_path / "compiled"
+    with zipfile.ZipFile(native_fmus["observer"]) as archive:
+        archive.extractall(folder)
+    (binary,) = (folder / "binaries" / "linux64").iterdir()
+    binary.unlink()
+    build_platform_binary(str(folder.resolve()))
+    assert binary.exists()
+    compiled = FmuDriver(native_fmus["observer"], str(folder), "compiled")
+    compiled.start()
+    python, _ = open_pair("observer")
+    signals = inputs("observer", 200, seed=9)
+    assert relative(run(compiled, "observer", signals, 5e-5),
+                    run(python, "observer", signals, 5e-5)) <= RTOL
+    compiled.fmu.freeInstance()
