@@ -30,7 +30,9 @@ from typing import Any
 import numpy as np
 from fhobs.certificate import CertificateError
 from fhobs.cli import check_output_folder
+from fhobs.kalman import KalmanDesignError
 from fhobs.lmi import LMIError
+from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import SpecError
 
 from harness.master import CoSimResult, MasterError, run_system
@@ -39,15 +41,13 @@ from harness.results import summary, write_csv, write_summary
 from harness.system import (
     DescriptionError,
     SystemSpec,
+    build_blocks,
     check_timing,
     load_system,
     resolve_system,
 )
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
-REPO = Path(__file__).resolve().parents[1]
-PENDULUM_SPEC = REPO / "examples" / "pendulum.toml"
-PAPER_REFERENCE = REPO / "examples" / "pendulum-paper.json"
 PAPER_SCENARIOS = ("pendulum_nominal", "pendulum_perturbed", "pendulum_noisy")
 PAPER_SEEDS = {"pendulum_noisy": 5}
 PAPER_CSV_EVERY = 20
@@ -144,9 +144,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def load_scenario(name: str, fmu_dir: Path | None, block_cache: Path | None) -> SystemSpec:
-    """Load a scenario with an optional ``${fmu_dir}``."""
+    """Load a scenario with an optional ``${fmu_dir}`` and build its harness blocks."""
     variables = {} if fmu_dir is None else {"fmu_dir": str(Path(fmu_dir).resolve())}
-    return load_system(scenario_path(name), variables, block_cache)
+    return build_blocks(load_system(scenario_path(name), variables), block_cache)
 
 
 def _run_one(spec: SystemSpec, stop_time: float | None) -> CoSimResult:
@@ -279,27 +279,25 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         Ship the compiled step kernel in the FMUs (:func:`fhobs.build.build_fmus`; default:
         when it can be compiled); False: the FMUs run the numpy runtime alone.
     """
-    if design == "spec":
-        from fhobs.cli import main as build_main
-
-        if build_main([str(spec), "--out", str(out)] + (["--no-kernel"] if kernel is False
-                                                          else [])) != 0:
-            raise RuntimeError(f"designing and building the FMUs from {spec} failed")
-        return out
-    if design != "paper":
-        raise ValueError(f"design must be 'paper' or 'spec', not {design!r}")
     from fhobs.build import build_fmus
+    from fhobs.cli import design_from_spec, design_summary
     from fhobs.design import paper_gains
     from fhobs.kalman import with_kalman
-    from fhobs.spec import SpecError, load_spec
+    from fhobs.limits import check_design_limits
+    from fhobs.spec import load_spec
 
-    gains = paper_gains(PAPER_REFERENCE)
-    try:
-        noise = load_spec(spec).noise
-    except SpecError as err:
-        raise DescriptionError(str(err)) from err
-    if noise is not None:
-        gains = with_kalman(gains, noise)
+    if design not in DESIGN_LABELS:
+        raise ValueError(f"design must be one of {sorted(DESIGN_LABELS)}, not {design!r}")
+    plant = load_spec(spec)
+    if design == "spec":
+        check_design_limits(plant)
+        gains = design_from_spec(plant)
+        for line in design_summary(gains):
+            print(line)
+    else:
+        gains = paper_gains()
+        if plant.noise is not None:
+            gains = with_kalman(gains, plant.noise)
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
     build_fmus(gains, out, kernel=kernel)
@@ -422,7 +420,8 @@ def main(argv: list[str] | None = None) -> int:
                 "export-ssp": _cmd_export}
     try:
         return commands[args.command](args)
-    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError) as err:
+    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,
+            KalmanDesignError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "

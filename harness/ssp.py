@@ -27,12 +27,12 @@ from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.blocks import block_fmu
 from harness.system import (
     ConnectionSpec,
     FmuSpec,
     ResolvedSystem,
     SystemSpec,
+    build_blocks,
     resolve_system,
     split_signal,
 )
@@ -47,7 +47,7 @@ NS = {
 FMU_MIME = "application/x-fmu-sharedlibrary"
 
 
-def lower_gains(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec:
+def lower_gains(spec: SystemSpec) -> SystemSpec:
     """The same system with every connection gain replaced by a matrix-gain block FMU.
 
     A connection ``from -> to`` with gain ``K`` (p x m) becomes ``from -> gain_i.u`` and
@@ -64,7 +64,7 @@ def lower_gains(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec
             raise ValueError(f"cannot lower gains: the system already has an FMU {name!r}")
         p, m = conn.gain.shape
         start = {f"K[{r + 1},{c + 1}]": float(conn.gain[r, c]) for r in range(p) for c in range(m)}
-        fmus[name] = FmuSpec(name, block_fmu("gain", (p, m), block_cache), start, ("gain", (p, m)))
+        fmus[name] = FmuSpec(name, None, start, ("gain", (p, m)))
         connections += [
             ConnectionSpec(conn.source, f"{name}.u"),
             ConnectionSpec(f"{name}.y", conn.target),
@@ -89,7 +89,7 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     Path
         ``path``.
     """
-    system = resolve_system(lower_gains(spec, block_cache))
+    system = resolve_system(build_blocks(lower_gains(spec), block_cache))
     resources = _resource_names(system)
     root = _ssd(system, resources)
     path = Path(path)

@@ -1,13 +1,17 @@
 """Declarative system description (TOML): FMUs, start values, connections, run settings.
 
 A description is loaded with :func:`load_system` into a :class:`SystemSpec` (plain data, paths
-resolved) and checked against the FMUs' model descriptions with :func:`resolve_system`, which
+resolved, nothing built), its harness blocks are built with :func:`build_blocks`, and it is
+checked against the FMUs' model descriptions with :func:`resolve_system`, which
 returns a :class:`ResolvedSystem`: every variable looked up once, every connection as a pair of
 scalar variable lists with its gain matrix. All problems raise :class:`DescriptionError` with a
 message naming the FMU, the variable and what was expected.
 
 File format (all keys except ``fmus`` optional)::
 
+    extends = "pendulum_perturbed.toml"   # optional: start from that file (relative to this
+                                          # one) and change it: tables merge key by key,
+                                          # [[connections]] are appended, other values replace
     name = "pendulum_nominal"
     [variables]                      # ${NAME} placeholders in FMU paths; overridable by callers
     fmu_dir = "../../build/pendulum"
@@ -64,7 +68,7 @@ from fmpy.model_description import ModelDescription, ScalarVariable
 from harness.blocks import BLOCK_KINDS, block_fmu
 
 StartValue = float | int | bool
-TOP_KEYS = ("name", "variables", "run", "fmus", "connections", "evaluation", "plots")
+TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evaluation", "plots")
 RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
 CONNECTION_KEYS = ("from", "to", "gain")
 EVALUATION_KEYS = ("at", "windows", "errors")
@@ -77,10 +81,11 @@ class DescriptionError(ValueError):
 
 @dataclass(frozen=True)
 class FmuSpec:
-    """One FMU of the system: its file and its start values (scalar variable names)."""
+    """One FMU of the system: its file (None for a harness block not built yet, see
+    :func:`build_blocks`) and its start values (scalar variable names)."""
 
     name: str
-    path: Path
+    path: Path | None
     start: dict[str, StartValue] = field(default_factory=dict)
     block: tuple[str, tuple[int, ...]] | None = None
     shapes: dict[str, tuple[int, ...]] = field(default_factory=dict)
@@ -218,9 +223,7 @@ def expand_start(name: str, value: Any) -> dict[str, StartValue]:
     return {name: value}
 
 
-def load_system(
-    path: str | Path, variables: dict[str, str] | None = None, block_cache: Path | None = None
-) -> SystemSpec:
+def load_system(path: str | Path, variables: dict[str, str] | None = None) -> SystemSpec:
     """Load a system description TOML file.
 
     Parameters
@@ -229,21 +232,13 @@ def load_system(
         The TOML file; relative FMU paths are relative to its directory.
     variables
         Values for ``${NAME}`` placeholders in FMU paths, overriding ``[variables]``.
-    block_cache
-        Where harness blocks are built (see :func:`harness.blocks.block_fmu`).
 
     Returns
     -------
     SystemSpec
     """
     path = Path(path)
-    if not path.is_file():
-        raise DescriptionError(f"system description {path} does not exist")
-    try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as err:
-        raise DescriptionError(f"{path}: invalid TOML: {err}") from None
+    data = _read_description(path, ())
     where = str(path)
     _reject_unknown(data, TOP_KEYS, where)
     subst = {**_strings(data, "variables", where), **(variables or {})}
@@ -251,8 +246,7 @@ def load_system(
     _reject_unknown(run, RUN_KEYS, f"{where}: [run]")
     fmu_tables = _table(data, "fmus", where)
     fmus = {
-        name: _fmu_spec(name, _table(fmu_tables, name, f"{where}: [fmus]"), path.parent, subst,
-                        block_cache)
+        name: _fmu_spec(name, _table(fmu_tables, name, f"{where}: [fmus]"), path.parent, subst)
         for name in fmu_tables
     }
     if not fmus:
@@ -282,6 +276,63 @@ def load_system(
         figure=_figure_spec(_table(data, "plots", where), f"{where}: [plots]"),
         source=path,
     )
+
+
+def _read_description(path: Path, extending: tuple[Path, ...]) -> dict[str, Any]:
+    """The TOML data of ``path``, merged onto the description it ``extends`` (recursively);
+    ``extending`` are the files that extend this one (a cycle is an error)."""
+    if not path.is_file():
+        raise DescriptionError(f"system description {path} does not exist"
+                               + (f" (extended by {extending[-1]})" if extending else ""))
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as err:
+        raise DescriptionError(f"{path}: invalid TOML: {err}") from None
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise DescriptionError(f"{path}: extends = {base!r} must name a description file")
+    base_path = (path.parent / base).resolve()
+    if base_path in (*extending, path.resolve()):
+        raise DescriptionError(f"{path}: extends {base} which extends it again (a cycle)")
+    return _merged(_read_description(base_path, (*extending, path.resolve())), data, str(path))
+
+
+def _merged(base: dict[str, Any], changes: dict[str, Any], where: str) -> dict[str, Any]:
+    """``base`` changed by ``changes``: tables merged key by key, connections appended, any
+    other value replaced."""
+    merged = dict(base)
+    for key, value in changes.items():
+        if key == "connections":
+            merged[key] = [*_list(base, key, where), *_list(changes, key, where)]
+        elif isinstance(value, dict) and isinstance(base.get(key), dict):
+            merged[key] = _merged(base[key], value, where)
+        else:
+            merged[key] = value
+    return merged
+
+
+def build_blocks(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec:
+    """Copy of ``spec`` whose harness blocks have their FMU files (built on first use).
+
+    Parameters
+    ----------
+    spec : SystemSpec
+        A loaded description.
+    block_cache : Path or None
+        Where the blocks are built (default: :func:`harness.blocks.default_cache_dir`).
+
+    Returns
+    -------
+    SystemSpec
+        Every FMU with a path.
+    """
+    fmus = {name: fs if fs.block is None or fs.path is not None
+            else replace(fs, path=block_fmu(*fs.block, block_cache))
+            for name, fs in spec.fmus.items()}
+    return replace(spec, fmus=fmus)
 
 
 def check_timing(step: float, start_time: float, stop_time: float, where: str) -> int:
@@ -390,9 +441,7 @@ def _figure_spec(entry: dict[str, Any], where: str) -> FigureSpec | None:
     )
 
 
-def _fmu_spec(
-    name: str, entry: dict[str, Any], base: Path, subst: dict[str, str], block_cache: Path | None
-) -> FmuSpec:
+def _fmu_spec(name: str, entry: dict[str, Any], base: Path, subst: dict[str, str]) -> FmuSpec:
     where = f"FMU {name!r}"
     start: dict[str, StartValue] = {}
     shapes: dict[str, tuple[int, ...]] = {}
@@ -408,7 +457,7 @@ def _fmu_spec(
         keys = tuple(d.removeprefix("n_") for d in BLOCK_KINDS[kind].dimensions)
         _reject_unknown(entry, ("block", "start", *keys), where)
         dims = tuple(_dimension(entry, key, where) for key in keys)
-        return FmuSpec(name, block_fmu(kind, dims, block_cache), start, (kind, dims), shapes)
+        return FmuSpec(name, None, start, (kind, dims), shapes)
     _reject_unknown(entry, ("path", "start"), where)
     if "path" not in entry:
         raise DescriptionError(f"FMU {name!r}: needs 'path' or 'block'")
@@ -491,7 +540,8 @@ def vector_names(variables: dict[str, ScalarVariable], name: str) -> list[str]:
 
 
 def resolve_system(spec: SystemSpec) -> ResolvedSystem:
-    """Check ``spec`` against the FMUs' model descriptions and look every variable up.
+    """Check ``spec`` against the FMUs' model descriptions and look every variable up (harness
+    blocks not built yet are built into the default cache, see :func:`build_blocks`).
 
     Raises
     ------
@@ -499,6 +549,7 @@ def resolve_system(spec: SystemSpec) -> ResolvedSystem:
         Unknown FMU file or variable, wrong causality or type, size mismatch, an input
         connected twice or neither connected nor given a start value, an algebraic loop.
     """
+    spec = build_blocks(spec)
     fmus = {name: _resolve_fmu(fs) for name, fs in spec.fmus.items()}
     connections = tuple(_resolve_connection(c, fmus) for c in spec.connections)
     _check_inputs(fmus, connections)

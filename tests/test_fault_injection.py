@@ -502,7 +502,7 @@ def test_loop_of_two_gain_blocks_is_rejected_the_papers_loop_accepted(
     the SSP export, is still accepted: the FMUs' outputs depend on no input."""
     from harness.blocks import block_fmu
     from harness.ssp import lower_gains
-    from harness.system import DescriptionError, load_system, resolve_system
+    from harness.system import DescriptionError, build_blocks, load_system, resolve_system
 
     cache = tmp_path / "blocks"
     description = read_model_description(str(block_fmu("gain", (2, 3), cache)))
@@ -512,12 +512,12 @@ def test_loop_of_two_gain_blocks_is_rejected_the_papers_loop_accepted(
     path = tmp_path / "loop.toml"
     path.write_text(GAIN_LOOP.format(k=1.0))
     with pytest.raises(DescriptionError, match=r"algebraic loop.*a\.y\[1\] -> b\.u\[1\]"):
-        resolve_system(load_system(path, block_cache=cache))
+        resolve_system(build_blocks(load_system(path), cache))
     path.write_text(GAIN_LOOP.format(k=0.0))
-    resolve_system(load_system(path, block_cache=cache))
+    resolve_system(build_blocks(load_system(path), cache))
     scenario = Path(__file__).resolve().parents[1] / "harness" / "scenarios"
     spec = load_system(scenario / "pendulum_perturbed.toml",
-                       {"fmu_dir": str(pendulum_fmus["observer"].parent)}, cache)
-    lowered = lower_gains(spec, cache)
+                       {"fmu_dir": str(pendulum_fmus["observer"].parent)})
+    lowered = build_blocks(lower_gains(spec), cache)
     assert any(fmu.block and fmu.block[0] == "gain" for fmu in lowered.fmus.values())
     assert set(resolve_system(lowered).fmus) >= {"plant", "observer"}

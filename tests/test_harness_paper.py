@@ -19,7 +19,7 @@ from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
-from harness.system import load_system, resolve_system
+from harness.system import build_blocks, load_system, resolve_system
 
 pytestmark = pytest.mark.slow  # full-length co-simulations of the paper through the FMUs
 
@@ -218,7 +218,7 @@ def test_paper_scenario_ssp_in_fmpy_and_libcosim(tmp_path, fmu_dir, block_cache)
     """The perturbed scenario exported as SSP (sine source and three gain blocks as FMUs)."""
     spec = replace(_scenario("pendulum_perturbed", fmu_dir, block_cache), stop_time=0.02)
     ssp = export_ssp(spec, tmp_path / "perturbed.ssp", block_cache)
-    lowered = resolve_system(lower_gains(spec, block_cache))
+    lowered = resolve_system(build_blocks(lower_gains(spec), block_cache))
     signals = [f"plant.x[{i}]" for i in range(1, 5)] + [f"observer.x_hat[{i}]" for i in range(1, 5)]
 
     def table(result):
@@ -240,7 +240,8 @@ def test_fmu_error_status_stops_the_run(fmu_dir, block_cache, loop, monkeypatch)
         monkeypatch.setattr(master, "step_library", lambda: None)
     elif master.step_library() is None:
         pytest.skip("no C compiler: the master steps from Python")
-    spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start({"plant.q[1]": 1e9})
+    spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start(
+        {"perturbation.offset[1]": 1e9})
     with pytest.raises(MasterError, match=r"plant: fmi2DoStep at t = 0\.0 returned 3 \(error\)"):
         run_system(resolve_system(spec), stop_time=0.01, progress=False)
 

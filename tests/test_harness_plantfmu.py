@@ -17,7 +17,7 @@ import pytest
 import scipy.linalg
 
 from harness.master import run_system
-from harness.system import load_system, resolve_system
+from harness.system import build_blocks, load_system, resolve_system
 
 A = np.array([[0, 0, 1, 0], [0, 0, 0, 1],
               [0, 152.0057, -12.2542, -0.5005], [0, 264.3080, -12.1117, -0.8702]])
@@ -123,7 +123,7 @@ def vendor_system(tmp_path_factory, block_cache):
     plant = build_vendor_plant(d)
     path = d / "system.toml"
     path.write_text(SYSTEM.format(plant=plant))
-    return load_system(path, block_cache=block_cache)
+    return build_blocks(load_system(path), block_cache)
 
 
 def test_master_matches_numpy_jacobi_loop(vendor_system):

@@ -20,7 +20,7 @@ from test_harness_plantfmu import SYSTEM, build_vendor_plant
 from harness.engines import run_fmpy_ssp, run_libcosim
 from harness.master import run_system
 from harness.ssp import export_ssp, lower_gains
-from harness.system import load_system, resolve_system
+from harness.system import build_blocks, load_system, resolve_system
 
 STATE = [f"plant.state[{i}]" for i in range(1, 5)]
 NS = {
@@ -35,7 +35,7 @@ def exported(tmp_path_factory):
     d = tmp_path_factory.mktemp("ssp")
     cache = d / "blocks"
     (d / "system.toml").write_text(SYSTEM.format(plant=build_vendor_plant(d)))
-    spec = load_system(d / "system.toml", block_cache=cache)
+    spec = build_blocks(load_system(d / "system.toml"), cache)
     return spec, export_ssp(spec, d / "system.ssp", block_cache=cache), cache
 
 
@@ -70,7 +70,7 @@ def _state(result, names=STATE):
 
 def test_libcosim_equals_harness(exported):
     spec, ssp, cache = exported
-    harness = run_system(resolve_system(lower_gains(spec, cache)), progress=False)
+    harness = run_system(resolve_system(build_blocks(lower_gains(spec), cache)), progress=False)
     engine = run_libcosim(ssp, spec.step, spec.stop_time, STATE)
     np.testing.assert_allclose(engine.time, harness.time[1:], rtol=0, atol=1e-12)
     assert np.max(np.abs(_state(engine) - harness.vector("plant.state")[1:])) < 1e-12
@@ -78,7 +78,7 @@ def test_libcosim_equals_harness(exported):
 
 def test_fmpy_ssp_equals_harness(exported):
     spec, ssp, cache = exported
-    lowered = resolve_system(lower_gains(spec, cache))
+    lowered = resolve_system(build_blocks(lower_gains(spec), cache))
     harness = run_system(lowered, progress=False, first_inputs="zero")
     engine = run_fmpy_ssp(ssp, spec.step, spec.stop_time)
     assert len(engine.time) == harness.steps
@@ -91,7 +91,7 @@ def test_fmpy_ssp_equals_harness(exported):
 def test_lowered_gain_block_lags_one_step(exported):
     """The gain block's output at t_k is K x_{k-1} (K x_0 needs one exchange to get there)."""
     spec, _, cache = exported
-    lowered = replace(lower_gains(spec, cache), record=("gain_1.y[1]",))
+    lowered = replace(build_blocks(lower_gains(spec), cache), record=("gain_1.y[1]",))
     result = run_system(resolve_system(lowered), stop_time=0.01, progress=False)
     u, x = result.signal("gain_1.y[1]"), result.vector("plant.state")
     assert u[0] == 0.0

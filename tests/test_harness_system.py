@@ -14,6 +14,7 @@ from harness.results import error_figures, time_key
 from harness.system import (
     DescriptionError,
     Evaluation,
+    build_blocks,
     expand_start,
     load_system,
     resolve_system,
@@ -45,7 +46,7 @@ def block_cache(tmp_path_factory) -> Path:
 def _load(tmp_path, block_cache, extra=WIRED, gain=GAIN, variables=None):
     path = tmp_path / "system.toml"
     path.write_text(BASE.format(gain=gain, extra=extra))
-    return load_system(path, variables, block_cache)
+    return build_blocks(load_system(path, variables), block_cache)
 
 
 def _resolve(*args, **kwargs):

@@ -46,6 +46,7 @@ from .lmi import (
     chain_basis,
     solve_gain_lmi,
 )
+from .paper import PAPER_REFERENCE
 from .settling import ErrorResponse, error_response
 from .spec import PlantSpec, spec_from_dict
 
@@ -61,7 +62,6 @@ MARGIN_GROWTH = 2.0
 check needed times this factor, up to MARGIN_ATTEMPTS solves."""
 RHO_BISECTION_TOL = 2e-2
 """Relative tolerance of the certified rho found for a design with filter_scale != 1."""
-PAPER_REFERENCE = Path(__file__).resolve().parents[2] / "examples" / "pendulum-paper.json"
 
 
 def matched_perturbation_residual(G_d: np.ndarray, E: np.ndarray, n_tilde: int) -> float:

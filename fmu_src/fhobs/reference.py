@@ -1,9 +1,10 @@
 """In-process reference simulation of the paper's closed loop (the ground truth for co-simulation).
 
 Plant + filtering homogeneous observer + Luenberger observer (+ the Kalman filter when the design
-has one), control ``u = K z`` with z the filtering observer's estimate, ``x(0) = (2, 2, 1, 2)``,
-observers at zero. Jacobi convention of docs/architecture.md: fixed communication step dt,
-``t_k = k dt``; at t_k ``y_k = C x_k + eta_k``, ``u_k = K z_k``, ``q_k = q_amplitude sin(5 t_k)``;
+has one), control ``u = K z`` with z the filtering observer's estimate, the paper's set-up
+(:mod:`fhobs.paper`: K, x(0), perturbation and noise), observers at zero. Jacobi convention of
+docs/architecture.md: fixed communication step dt, ``t_k = k dt``; at t_k
+``y_k = C x_k + eta_k``, ``u_k = K z_k``, ``q_k = q_amplitude sin(q_frequency t_k)``;
 then the plant and every observer advance by dt with these inputs held. The loop is closed
 through the homogeneous observer only, so the data (x, y, u) are the same for every estimator:
 the others run open-loop on the recorded (y, u) (:func:`replay` runs any further estimator on
@@ -19,29 +20,11 @@ import numpy as np
 
 from fhobs.gains import ObserverGains
 from fhobs.kalman_filter import KalmanObserver
+from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.plant import LTIPlant
 from fhobs.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
 
-K_PAPER = np.array([[2.0, -35.0, 1.5, -3.0]])
-X0_PAPER = np.array([2.0, 2.0, 1.0, 2.0])
-H_PAPER = 5e-5
-Q_FREQUENCY = 5.0
 FEEDBACKS = ("estimate", "state")
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """Perturbation ``q_amplitude sin(5 t)`` through E and uniform noise ``noise_amplitude``."""
-
-    q_amplitude: float
-    noise_amplitude: float
-
-
-SCENARIOS = {
-    "nominal": Scenario(0.0, 0.0),
-    "perturbed": Scenario(0.1, 0.0),
-    "perturbed_noisy": Scenario(0.1, 1e-3),
-}
 
 
 @dataclass(frozen=True)
@@ -122,7 +105,7 @@ def simulate(
     gains : ObserverGains
         Observer design (E is used for the perturbation; B if E is None).
     scenario : str
-        Key of ``SCENARIOS``.
+        Key of :data:`fhobs.paper.PAPER_SCENARIOS`.
     t_end : float
         Final time; ``N = round(t_end / dt)`` communication steps.
     dt : float
@@ -150,7 +133,7 @@ def simulate(
     """
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")
-    spec = SCENARIOS[scenario]
+    spec = PAPER_SCENARIOS[scenario]
     E = gains.B if gains.E is None else gains.E
     plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=x0,
                      noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme,
@@ -175,7 +158,7 @@ def simulate(
         t_k = step * dt
         y = ys[step] = plant.y
         u = us[step] = K @ (obs.x_hat if feedback == "estimate" else plant.x)
-        q = np.full(E.shape[1], spec.q_amplitude * np.sin(Q_FREQUENCY * t_k))
+        q = np.full(E.shape[1], spec.q_amplitude * np.sin(spec.q_frequency * t_k))
         plant.step(u, q, dt)
         obs.step(y, u, dt)
         for other in others:

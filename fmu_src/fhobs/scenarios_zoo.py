@@ -20,10 +20,10 @@ import numpy as np
 import scipy.linalg
 
 from .gains import ObserverGains
+from .paper import EXAMPLES
 from .reference import SimulationResult, simulate
 from .spec import PlantSpec, spec_from_dict
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 ZOO_EXTRAS = ("pendulum", "mass_chain", "triple_integrator")
 """Plants of ``examples/`` (outside ``examples/zoo/``) that belong to the zoo."""
 PLANT_KEYS = ("state_scale", "settling_time")

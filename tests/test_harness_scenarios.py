@@ -1,0 +1,85 @@
+"""The bundled scenario files: the paper's set-up as :mod:`fhobs.paper` states it, and the
+``extends`` mechanism that keeps the three of them one description plus two changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
+
+from harness.cli import SCENARIO_DIR
+from harness.system import DescriptionError, load_system
+
+FILES = {"nominal": "pendulum_nominal", "perturbed": "pendulum_perturbed",
+         "perturbed_noisy": "pendulum_noisy"}
+
+
+@pytest.mark.parametrize("scenario", sorted(FILES))
+def test_bundled_scenario_is_the_papers_set_up(scenario):
+    spec = load_system(SCENARIO_DIR / f"{FILES[scenario]}.toml")
+    paper = PAPER_SCENARIOS[scenario]
+    plant = spec.fmus["plant"].start
+    assert [plant[f"x0[{i}]"] for i in range(1, 5)] == X0_PAPER.tolist()
+    assert plant["noise_amplitude"] == paper.noise_amplitude
+    sine = spec.fmus["perturbation"].start
+    assert (sine["amplitude[1]"], sine["omega[1]"]) == (paper.q_amplitude, paper.q_frequency)
+    assert (sine["phase[1]"], sine["offset[1]"]) == (0.0, 0.0)
+    gains = [c.gain for c in spec.connections if c.gain is not None]
+    assert len(gains) == 4 and all(np.array_equal(g, K_PAPER) for g in gains)
+    assert spec.step == H_PAPER and spec.name == FILES[scenario]
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+BASE = """
+name = "base"
+[run]
+step = 0.5
+stop_time = 2.0
+record = ["a.y"]
+[fmus.a]
+path = "a.fmu"
+start = { x0 = [1.0, 2.0], gain = 3.0 }
+[[connections]]
+from = "a.y"
+to = "b.u"
+"""
+
+
+def test_extends_merges_tables_appends_connections_and_replaces_values(tmp_path):
+    _write(tmp_path / "base.toml", BASE)
+    child = _write(tmp_path / "child.toml", """
+extends = "base.toml"
+name = "child"
+[run]
+stop_time = 4.0
+[fmus.a]
+start = { gain = 5.0 }
+[fmus.b]
+path = "b.fmu"
+[[connections]]
+from = "b.y"
+to = "a.u"
+""")
+    spec = load_system(child)
+    assert spec.name == "child" and (spec.step, spec.stop_time) == (0.5, 4.0)
+    assert spec.fmus["a"].start == {"x0[1]": 1.0, "x0[2]": 2.0, "gain": 5.0}
+    assert spec.fmus["a"].path == (tmp_path / "a.fmu").resolve()
+    assert set(spec.fmus) == {"a", "b"}
+    assert [(c.source, c.target) for c in spec.connections] == [("a.y", "b.u"), ("b.y", "a.u")]
+
+
+def test_extends_errors_name_the_files(tmp_path):
+    missing = _write(tmp_path / "missing.toml", 'extends = "nowhere.toml"\n')
+    with pytest.raises(DescriptionError, match=r"nowhere.toml does not exist \(extended by"):
+        load_system(missing)
+    _write(tmp_path / "one.toml", 'extends = "two.toml"\n')
+    two = _write(tmp_path / "two.toml", 'extends = "one.toml"\n')
+    with pytest.raises(DescriptionError, match="a cycle"):
+        load_system(two)
+    number = _write(tmp_path / "number.toml", "extends = 3\n")
+    with pytest.raises(DescriptionError, match="extends = 3 must name a description file"):
+        load_system(number)
