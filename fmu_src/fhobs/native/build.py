@@ -72,6 +72,8 @@ LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", 
 """Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
 C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "models.c", "fmi2_layer.c")
 """Sources of every native FMU (with the generated model_data.c; the plant adds noise.c)."""
+NOISE_SOURCES = ("noise.c", "noise.h")
+"""The plant's measurement noise (numpy's generator in C)."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SCRATCH_FIELDS = {"factors", "last_tau", "work"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
@@ -113,7 +115,7 @@ def build_native_fmus(
     Raises
     ------
     BuildError
-        Without a C compiler, the compiled kernel or ``noise.c``, for a design the native
+        Without a C compiler or the compiled kernel, for a design the native
         observer cannot run (no eigen path of its injection flow), or for a step size of
         ``steps`` without a plan.
 
@@ -375,10 +377,7 @@ def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
     sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
     sources["kernel.c"] = kernel.SOURCE.read_text()
     if kind == "plant":
-        noise = HERE / "noise.c"
-        if not noise.exists():
-            raise BuildError(f"{noise} is missing: the native plant needs its noise generator")
-        sources["noise.c"] = noise.read_text()
+        sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
     digest = hashlib.sha256(data.encode())
     for name in sorted(sources):
         digest.update(name.encode() + sources[name].encode())

@@ -1,7 +1,7 @@
 /*
  * Types shared by the generated data (model_data.c), the model steps (models.c) and the FMI
  * layer (fmi2_layer.c) of a native fhobs FMU. The FMU is compiled as one translation unit,
- * fhobs_fmu.c, plus noise.c for the plant.
+ * fhobs_fmu.c, plus noise.c (with noise.h) for the plant.
  */
 #ifndef FHOBS_NATIVE_H
 #define FHOBS_NATIVE_H
@@ -31,8 +31,5 @@ typedef struct {
     int type, role;
     double start; /* exact start value (Integer variables: an exact integer) */
 } FhobsVariable;
-
-/* numpy's default_rng([seed, block]).uniform(-1.0, 1.0, size=count), bit for bit (noise.c) */
-void fhobs_noise_block(uint32_t seed, uint32_t block, size_t count, double *out);
 
 #endif

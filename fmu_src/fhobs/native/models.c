@@ -221,6 +221,7 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 #elif FHOBS_KIND == FHOBS_KIND_PLANT
 /* ---------------------------------------------------------------------------------------- */
 /* Plant: ZOH plans per step size, explicit Euler from A, B, E; noise from (seed, step)     */
+#include "noise.h"
 
 typedef struct {
     double noise[FHOBS_NOISE_BLOCK * FHOBS_K]; /* draws of the block `block` of `seed` */
