@@ -18,6 +18,7 @@ import zipfile
 from pathlib import Path
 
 import fmu_fixtures
+import host_runner
 import numpy as np
 import pytest
 from fhobs.build import BuildError
@@ -28,6 +29,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, H, random_walk
+from host_runner import read_outputs, run_host, write_inputs
 
 from harness.cli import load_scenario
 from harness.master import run_system
@@ -39,6 +41,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
+native_host = host_runner.native_host
 KINDS = ("observer", "luenberger", "kalman", "plant")
 OBSERVERS = ("observer", "luenberger", "kalman")
 RTOL = 1e-12
@@ -403,3 +406,35 @@ def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, open_pair,
     assert relative(run(compiled, "observer", signals, 5e-5),
                     run(python, "observer", signals, 5e-5)) <= RTOL
     compiled.fmu.freeInstance()
+
+
+# -- a native host with an empty environment -------------------------------------------------------
+@pytest.mark.parametrize("kind", ["observer", "plant"])
+def test_c_host_with_an_empty_environment_gives_the_pythonfmu_results(
+        native_host, native_fmus, open_pair, kind, tmp_path):
+    """tests/native_host.c (no Python in its process, ``env -i``) runs the native FMU from a
+    CSV of inputs; its outputs equal the pythonfmu FMU's under fmpy (plant: with its noise)."""
+    folder = tmp_path / "fmu"
+    with zipfile.ZipFile(native_fmus[kind]) as archive:
+        archive.extractall(folder)
+    signals = inputs(kind, 201, seed=10)
+    names = [label for name, values in signals.items()
+             for label in fmu_fixtures.names(name, values.shape[1:])]
+    dt = 5e-5
+    times = dt * np.arange(201)
+    write_inputs(tmp_path / "in.csv", names, times, np.hstack(list(signals.values())))
+    done = run_host(native_host, folder, tmp_path / "in.csv", tmp_path / "out.csv", dt)
+    assert done.returncode == 0, done.stderr
+    columns, rows = read_outputs(tmp_path / "out.csv")
+    python, _ = open_pair(kind)
+    variables = [v for v in python.description.modelVariables if v.causality == "output"]
+    assert columns == [v.name for v in variables]
+    refs = [v.valueReference for v in variables]
+    expected = [python.fmu.getReal(refs)]
+    for k in range(200):
+        for name, values in signals.items():
+            python.set(name, values[k])
+        python.fmu.doStep(times[k], dt)
+        expected.append(python.fmu.getReal(refs))
+    assert np.array_equal(rows[:, 0], times)
+    assert relative(rows[:, 1:], np.array(expected)) <= RTOL
