@@ -438,3 +438,18 @@ def test_c_host_with_an_empty_environment_gives_the_pythonfmu_results(
         expected.append(python.fmu.getReal(refs))
     assert np.array_equal(rows[:, 0], times)
     assert relative(rows[:, 1:], np.array(expected)) <= RTOL
+
+
+@pytest.mark.parametrize(("options", "words"), [
+    (["--native", "--native-step", "0"], "--native-step 0.0: a communication step size must be"),
+    (["--native", "--native-step", "inf"], "--native-step inf"),
+    (["--native-step", "1e-3"], "add --native"),
+    (["--native", "--design-only"], "drop --design-only"),
+])
+def test_native_options_are_checked_before_any_work(options, words, tmp_path, capsys):
+    """Exit 2 with one paragraph naming the option; nothing written."""
+    spec = fmu_fixtures.EXAMPLES / "pendulum.toml"
+    assert cli_main([str(spec), "--out", str(tmp_path / "out"), *options]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("error: ") and words in error and "Traceback" not in error
+    assert not (tmp_path / "out").exists()
