@@ -299,8 +299,8 @@ def test_caller_mistakes_are_errors_with_the_state_kept(open_pair, pendulum_fmus
     fmu.freeFMUstate(state)
     luenberger = FmuDriver(native_fmus["luenberger"], extract(str(native_fmus["luenberger"])))
     luenberger.start()
-    foreign_native = bytes(luenberger.fmu.serializeFMUstate(luenberger.fmu.getFMUstate()))
-    luenberger.fmu.freeInstance()
+    foreign_state = luenberger.fmu.getFMUstate()
+    foreign_native = bytes(luenberger.fmu.serializeFMUstate(foreign_state))
     foreign_python = bytes(python.fmu.serializeFMUstate(python.fmu.getFMUstate()))
     tampered = bytearray(own)
     tampered[80:88] = np.float64(123.0).tobytes()  # a compiled-in parameter's value
@@ -320,9 +320,13 @@ def test_caller_mistakes_are_errors_with_the_state_kept(open_pair, pendulum_fmus
         (fmu.deSerializeFMUstate, (foreign_python,), "not a serialized FMU state"),
         (fmu.deSerializeFMUstate, (own[:-8],), "not a serialized FMU state"),
         (fmu.deSerializeFMUstate, (bytes(tampered),), "not the value compiled into this FMU"),
+        (fmu.setFMUstate, (foreign_state,), "not an FMU state of this FMU"),
     ]
-    for call, args, words in cases:
-        assert_error(native, call, *args, words=words)
+    for _ in range(3):  # repeated mistakes: the same answers, the host unharmed
+        for call, args, words in cases:
+            assert_error(native, call, *args, words=words)
+    luenberger.fmu.freeFMUstate(foreign_state)
+    luenberger.fmu.freeInstance()
     for value, words in ((math.nan, "is not finite"), (math.inf, "is not finite"),
                          (2e8, "exceeds input_bound")):
         native.set("y", np.array([value, 0.0]))

@@ -59,7 +59,8 @@ typedef struct {
 
 typedef struct {
     uint32_t magic;
-    const char *identity;
+    char identity[IDENTITY_FIELD]; /* the GUID of the FMU that made it (kept inline: a state
+                                      may outlive the library of another FMU) */
     Values values;
 } Snapshot;
 
@@ -636,7 +637,10 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component component,
 static Snapshot *snapshot(fmi2FMUstate state)
 {
     Snapshot *s = state;
-    return s && s->magic == SNAPSHOT_MAGIC && strcmp(s->identity, FHOBS_IDENTITY) == 0 ? s : NULL;
+    return s && s->magic == SNAPSHOT_MAGIC &&
+                   strncmp(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD) == 0
+               ? s
+               : NULL;
 }
 
 fmi2Status fmi2GetFMUstate(fmi2Component component, fmi2FMUstate *state)
@@ -649,7 +653,8 @@ fmi2Status fmi2GetFMUstate(fmi2Component component, fmi2FMUstate *state)
         return fail(c, *state ? "fmi2GetFMUstate: the state to overwrite is not one of this FMU"
                               : "fmi2GetFMUstate: out of memory");
     s->magic = SNAPSHOT_MAGIC;
-    s->identity = FHOBS_IDENTITY;
+    memset(s->identity, 0, IDENTITY_FIELD);
+    strncpy(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
     s->values = c->values;
     *state = s;
     return ok(c);
@@ -759,7 +764,8 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
         return fail(c, "fmi2DeSerializeFMUstate: the state to overwrite is not one of this FMU, "
                        "or out of memory");
     s->magic = SNAPSHOT_MAGIC;
-    s->identity = FHOBS_IDENTITY;
+    memset(s->identity, 0, IDENTITY_FIELD);
+    strncpy(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
     s->values = values;
     *state = s;
     return ok(c);
