@@ -457,3 +457,17 @@ def test_native_options_are_checked_before_any_work(options, words, tmp_path, ca
     error = capsys.readouterr().err
     assert error.startswith("error: ") and words in error and "Traceback" not in error
     assert not (tmp_path / "out").exists()
+
+
+def test_fmpys_simulate_fmu_runs_the_native_plant_as_the_pythonfmu_one(pendulum_fmus,
+                                                                        native_fmus):
+    """fmpy's own master (its DefaultExperiment step, steps formed as t_k+1 - t_k, so
+    5.000000000000001e-05 among them) gives the pythonfmu plant's results."""
+    from fmpy import simulate_fmu
+
+    results = [simulate_fmu(str(folder["plant"]), stop_time=0.02, output_interval=5e-5,
+                            start_values={"u[1]": 0.5, "q[1]": -0.1})
+               for folder in (native_fmus, pendulum_fmus)]
+    native, python = (np.column_stack([r[name] for name in r.dtype.names]) for r in results)
+    assert native.shape == python.shape == (401, 7)
+    assert relative(native, python) <= RTOL

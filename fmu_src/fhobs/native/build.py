@@ -9,8 +9,9 @@ exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's st
 ``model_data.c``: the design and, for every communication step size of ``steps``, the step's
 plan exactly as the numpy runtime prepares it for its kernel (ZOH matrices, the filtering
 observer's gain-level floor and ceiling and the injection flow's eigen data). A step size
-outside that table is refused with fmi2Error (the Kalman filter takes any whole multiple of its
-sample time; the observers' euler scheme any step). ``sources/`` holds every C file and the
+within 1e-9 relative of a built one runs that one's plan (a master's t_k+1 - t_k rounding); any
+other is refused with fmi2Error (the Kalman filter takes any whole multiple of its sample time;
+the observers' euler scheme any step). ``sources/`` holds every C file and the
 FMI headers, listed in the modelDescription's ``<SourceFiles>``, so an importer can compile the
 FMU for another platform.
 
@@ -485,8 +486,9 @@ def _documentation(kind: str, variables: list[dict[str, Any]], plans: dict[str, 
     compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "compiled"})
     settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "settable"})
     if plans["steps"]:
-        steps = ("Communication step sizes (their plans are compiled in; any other step is "
-                 f"refused with fmi2Error): {', '.join(repr(dt) for dt in plans['steps'])}.")
+        steps = ("Communication step sizes (their plans are compiled in; a step within 1e-9 "
+                 "relative of one of them runs its plan, any other step is refused with "
+                 f"fmi2Error): {', '.join(repr(dt) for dt in plans['steps'])}.")
         if plans.get("euler") is not None:
             steps += " The euler scheme (scheme = 1) takes any step size."
     else:

@@ -33,12 +33,14 @@ static const char *number(double x, char *buf, size_t len)
 }
 
 #if FHOBS_KIND != FHOBS_KIND_KALMAN
-/* The index of dt in the built step sizes; -1 with the message when it is not one of them. */
+/* The index of the built step size that dt is (within FHOBS_STEP_TOLERANCE relative: a master
+ * that forms t_k+1 - t_k, as fmpy does, passes 5.000000000000001e-05 for 5e-05); -1 with the
+ * message when it is none of them. */
 static int step_index(double dt, char *msg, size_t len)
 {
     char a[32], b[32];
     for (int i = 0; i < FHOBS_N_STEPS; i++)
-        if (STEP_SIZES[i] == dt)
+        if (fabs(dt - STEP_SIZES[i]) <= FHOBS_STEP_TOLERANCE * STEP_SIZES[i])
             return i;
     size_t used = (size_t)snprintf(
         msg, len, "the communication step size %s is not one this native FMU was built for (",
