@@ -41,6 +41,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
+chain_gains = fmu_fixtures.chain_gains
 native_host = host_runner.native_host
 KINDS = ("observer", "luenberger", "kalman", "plant")
 OBSERVERS = ("observer", "luenberger", "kalman")
@@ -471,3 +472,35 @@ def test_fmpys_simulate_fmu_runs_the_native_plant_as_the_pythonfmu_one(pendulum_
     native, python = (np.column_stack([r[name] for name in r.dtype.names]) for r in results)
     assert native.shape == python.shape == (401, 7)
     assert relative(native, python) <= RTOL
+
+
+@pytest.mark.slow
+def test_another_design_complex_spectrum_no_perturbation_input(chain_gains, tmp_path):
+    """The triple integrator (k = 1, complex eigenvalues of the injection flow, no E, no
+    disturbance model): native observer, Luenberger observer and plant against the pythonfmu
+    ones at every built step size and with the euler schemes (3e-4, not a built size)."""
+    from fhobs.build import build_fmus
+
+    kinds = ("observer", "luenberger", "plant")
+    pairs = {"pythonfmu": build_fmus(chain_gains, tmp_path / "py", kinds=kinds, x0=[1, -1, 2]),
+             "native": build_native_fmus(chain_gains, tmp_path / "native", kinds=kinds,
+                                         x0=[1, -1, 2])}
+    for kind in kinds:
+        for dt, scheme in [*((dt, 0) for dt in DEFAULT_STEPS), (3e-4, 1)]:
+            runs = []
+            for label, built in pairs.items():
+                driver = FmuDriver(built[kind], extract(str(built[kind])), label)
+                variables = driver.description.modelVariables
+                ins = [v.valueReference for v in variables if v.causality == "input"]
+                outs = [v.valueReference for v in variables if v.causality == "output"]
+                driver.fmu.setInteger([driver.vr["scheme"]], [scheme])
+                driver.start()
+                values = random_walk(11, 150, len(ins), 0.2)
+                rows = []
+                for k, row in enumerate(values):
+                    driver.fmu.setReal(ins, row.tolist())
+                    driver.fmu.doStep(k * dt, dt)
+                    rows.append(driver.fmu.getReal(outs))
+                driver.fmu.freeInstance()
+                runs.append(np.array(rows))
+            assert relative(runs[1], runs[0]) <= RTOL, (kind, dt, scheme)
