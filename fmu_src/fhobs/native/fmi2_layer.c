@@ -514,8 +514,8 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     INSTANCE_OR_ERROR(component);
     Values *v = &c->values;
     double dt = communicationStepSize;
-    number(currentCommunicationPoint, t, sizeof t);
     if (v->mode != STEP_MODE) {
+        number(currentCommunicationPoint, t, sizeof t);
         if (v->mode == TERMINATED)
             snprintf(msg, sizeof msg, "doStep at t = %s refused: the instance was terminated "
                      "(fmi2Terminate); fmi2Reset to start again", t);
@@ -536,7 +536,8 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
               model_step(&c->work, v->real, v->integer, v->state, next, dt, reason,
                          sizeof reason);
     if (problem) {
-        snprintf(msg, sizeof msg, "doStep at t = %s rejected: %s", t, reason);
+        snprintf(msg, sizeof msg, "doStep at t = %s rejected: %s",
+                 number(currentCommunicationPoint, t, sizeof t), reason);
         return fail(c, msg);
     }
     memcpy(v->state, next, sizeof next);
