@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from fhobs import kernel
-from fhobs.build import DEFAULT_INPUT_BOUND, BuildError, build_fmus
+from fhobs.build import BuildError, build_fmus
 from fhobs.certificate import certify
 from fhobs.gains import ObserverGains
 from fhobs.kalman_filter import KalmanObserver
@@ -138,7 +138,6 @@ def build_native_fmus(
     for dt in steps:
         if not (np.isfinite(dt) and dt > 0.0):
             raise BuildError(f"native step size {dt!r} is not a positive finite number")
-    options.setdefault("input_bound", DEFAULT_INPUT_BOUND)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     built = {}
@@ -147,15 +146,15 @@ def build_native_fmus(
         reference = build_fmus(gains, stage / "pythonfmu", kinds=kinds, status_wrapper=False,
                                kernel=False, **options)
         for kind in kinds:
-            interface = read_interface(reference[kind], stage / f"{kind}_unzipped")
-            plans = step_plans(kind, gains, steps, explicit, float(options.get("h", 5e-5)))
+            interface = _read_interface(reference[kind], stage / f"{kind}_unzipped")
+            plans = _step_plans(kind, gains, steps, explicit, float(options.get("h", 5e-5)))
             built[kind] = _build_one(kind, interface, plans, _sizes(kind, gains, plans),
                                      stage / kind, compiler, out_dir / f"{kind}.fmu")
     return built
 
 
 # -- the interface of the pythonfmu FMU -------------------------------------------------------
-def read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
+def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
     """The modelDescription of a pythonfmu FMU (an ElementTree) and the exact start value of
     every variable, read from an instance of it (``{"xml": tree, "start": {vr: value}}``)."""
     from fmpy import extract, read_model_description
@@ -181,14 +180,14 @@ def read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
 
 
 # -- the step plans of the numpy runtime ----------------------------------------------------------
-def step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explicit: bool,
+def _step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explicit: bool,
                h: float) -> dict[str, Any]:
     """The kernel plans of ``kind`` as the numpy runtime makes them: ``{"steps": (dt, ...),
     "split": [plan per dt], "euler": plan or None, "kalman": plan, "Ts": float}`` (what the
-    kind needs), each plan a dict of its fields (:func:`captured_plan`)."""
+    kind needs), each plan a dict of its fields (:func:`_captured_plan`)."""
     if kind == "kalman":
         observer = KalmanObserver(gains)
-        return {"kalman": captured_plan(observer, gains.kalman.sample_time),
+        return {"kalman": _captured_plan(observer, gains.kalman.sample_time),
                 "Ts": float(gains.kalman.sample_time), "steps": ()}
     if kind == "plant":
         make = lambda: LTIPlant(gains.A, gains.B, gains.C, E=gains.E)  # noqa: E731
@@ -204,7 +203,7 @@ def step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explic
     plans, kept = [], []
     for dt in steps:
         try:
-            plans.append(captured_plan(model, dt))
+            plans.append(_captured_plan(model, dt))
             kept.append(dt)
         except ValueError as err:
             if explicit:
@@ -217,11 +216,11 @@ def step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explic
     else:
         euler = make("euler")
         if euler.compiled:
-            result["euler"] = captured_plan(euler, kept[0])
+            result["euler"] = _captured_plan(euler, kept[0])
     return result
 
 
-def captured_plan(model: Any, dt: float) -> dict[str, Any]:
+def _captured_plan(model: Any, dt: float) -> dict[str, Any]:
     """The fields of the kernel plan that ``model`` (a runtime model with a kernel stepper)
     registers for the step size dt: numbers as Python numbers, pointers as the arrays they
     point into (None for a NULL pointer).
@@ -249,7 +248,13 @@ def captured_plan(model: Any, dt: float) -> dict[str, Any]:
 
 # -- the generated C data -----------------------------------------------------------------------
 def c_number(value: float) -> str:
-    """A double as a C literal that reads back exactly (hexadecimal, or INFINITY)."""
+    """A double as a C literal that reads back exactly (hexadecimal, or INFINITY).
+
+    Examples
+    --------
+    >>> c_number(0.1), c_number(float("inf"))
+    ('0x1.999999999999ap-4', 'INFINITY')
+    """
     value = float(value)
     if np.isinf(value):
         return "INFINITY" if value > 0 else "-INFINITY"
@@ -296,7 +301,7 @@ def _plan_initializer(plan: dict[str, Any], arrays: _Arrays) -> str:
     return "{" + ", ".join(items) + "}"
 
 
-def model_data(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any],
+def _model_data(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any],
                sizes: dict[str, int]) -> str:
     """The text of model_data.c (without its identity line): sizes, value references, the
     variable table, the step sizes and the plans."""
@@ -374,7 +379,7 @@ def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
     """Generate the sources of one native FMU, compile them, write its modelDescription and
     documentation and zip it into ``dest``."""
     variables = _variables(kind, interface)
-    data = model_data(kind, variables, plans, sizes)
+    data = _model_data(kind, variables, plans, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
     sources["kernel.c"] = kernel.SOURCE.read_text()
     if kind == "plant":
