@@ -390,9 +390,12 @@ def test_paper_scenarios_give_the_same_results_with_either_folder(cli_folders, n
 
 
 @pytest.mark.slow
-def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, open_pair, tmp_path):
+def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, native_host, open_pair,
+                                                         tmp_path):
     """The shipped binary removed, fmpy's build_platform_binary (CMake, the modelDescription's
-    SourceFiles) compiles sources/ into a library that runs as the shipped one."""
+    SourceFiles; libm added, which its CMake project does not link) compiles sources/ into a
+    library that runs as the shipped one, in fmpy and in the C host with an empty
+    environment."""
     if shutil.which("cmake") is None:
         pytest.skip("fmpy's build_platform_binary needs cmake")
     from fmpy.build import build_platform_binary
@@ -402,7 +405,8 @@ def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, open_pair,
         archive.extractall(folder)
     (binary,) = (folder / "binaries" / "linux64").iterdir()
     binary.unlink()
-    build_platform_binary(str(folder.resolve()))
+    build_platform_binary(str(folder.resolve()),
+                          cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm"})
     assert binary.exists()
     compiled = FmuDriver(native_fmus["observer"], str(folder), "compiled")
     compiled.start()
@@ -411,9 +415,38 @@ def test_fmpy_compiles_the_sources_into_a_working_binary(native_fmus, open_pair,
     assert relative(run(compiled, "observer", signals, 5e-5),
                     run(python, "observer", signals, 5e-5)) <= RTOL
     compiled.fmu.freeInstance()
+    python, _ = open_pair("observer")
+    assert relative(*host_and_fmpy_rows(native_host, folder, python, signals, tmp_path)) <= RTOL
 
 
 # -- a native host with an empty environment -------------------------------------------------------
+def host_and_fmpy_rows(host: Path, folder: Path, python: FmuDriver,
+                       signals: dict[str, np.ndarray], tmp_path: Path,
+                       dt: float = 5e-5) -> tuple[np.ndarray, np.ndarray]:
+    """The outputs of the extracted FMU in ``folder`` run by the C host with an empty
+    environment (a row after initialisation and after each step) and those of the started
+    pythonfmu FMU ``python`` under fmpy with the same inputs."""
+    names = [label for name, values in signals.items()
+             for label in fmu_fixtures.names(name, values.shape[1:])]
+    steps = len(next(iter(signals.values()))) - 1
+    times = dt * np.arange(steps + 1)
+    write_inputs(tmp_path / "in.csv", names, times, np.hstack(list(signals.values())))
+    done = run_host(host, folder, tmp_path / "in.csv", tmp_path / "out.csv", dt)
+    assert done.returncode == 0, done.stderr
+    columns, rows = read_outputs(tmp_path / "out.csv")
+    variables = [v for v in python.description.modelVariables if v.causality == "output"]
+    assert columns == [v.name for v in variables]
+    assert np.array_equal(rows[:, 0], times)
+    refs = [v.valueReference for v in variables]
+    expected = [python.fmu.getReal(refs)]
+    for k in range(steps):
+        for name, values in signals.items():
+            python.set(name, values[k])
+        python.fmu.doStep(times[k], dt)
+        expected.append(python.fmu.getReal(refs))
+    return rows[:, 1:], np.array(expected)
+
+
 @pytest.mark.parametrize("kind", ["observer", "plant"])
 def test_c_host_with_an_empty_environment_gives_the_pythonfmu_results(
         native_host, native_fmus, open_pair, kind, tmp_path):
@@ -422,27 +455,10 @@ def test_c_host_with_an_empty_environment_gives_the_pythonfmu_results(
     folder = tmp_path / "fmu"
     with zipfile.ZipFile(native_fmus[kind]) as archive:
         archive.extractall(folder)
-    signals = inputs(kind, 201, seed=10)
-    names = [label for name, values in signals.items()
-             for label in fmu_fixtures.names(name, values.shape[1:])]
-    dt = 5e-5
-    times = dt * np.arange(201)
-    write_inputs(tmp_path / "in.csv", names, times, np.hstack(list(signals.values())))
-    done = run_host(native_host, folder, tmp_path / "in.csv", tmp_path / "out.csv", dt)
-    assert done.returncode == 0, done.stderr
-    columns, rows = read_outputs(tmp_path / "out.csv")
     python, _ = open_pair(kind)
-    variables = [v for v in python.description.modelVariables if v.causality == "output"]
-    assert columns == [v.name for v in variables]
-    refs = [v.valueReference for v in variables]
-    expected = [python.fmu.getReal(refs)]
-    for k in range(200):
-        for name, values in signals.items():
-            python.set(name, values[k])
-        python.fmu.doStep(times[k], dt)
-        expected.append(python.fmu.getReal(refs))
-    assert np.array_equal(rows[:, 0], times)
-    assert relative(rows[:, 1:], np.array(expected)) <= RTOL
+    rows, expected = host_and_fmpy_rows(native_host, folder, python, inputs(kind, 201, seed=10),
+                                        tmp_path)
+    assert relative(rows, expected) <= RTOL
 
 
 @pytest.mark.parametrize(("options", "words"), [
