@@ -47,6 +47,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--no-kernel", action="store_true",
         help="do not compile the step kernel into the FMUs (they run the numpy runtime alone)",
     )
+    parser.add_argument(
+        "--native", action="store_true",
+        help="also write OUT/native/ with native FMUs (compiled C, no Python needed to run them)",
+    )
+    parser.add_argument(
+        "--native-step", type=float, action="append", default=None, metavar="DT",
+        help="a communication step size the native FMUs are built for (repeatable; default "
+        "5e-05, 1e-4 and 1e-3)",
+    )
     return parser.parse_args(argv)
 
 
@@ -157,6 +166,26 @@ def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverG
     return gains if spec.noise is None else with_kalman(gains, spec.noise)
 
 
+def check_native_options(args: argparse.Namespace) -> None:
+    """Raise SpecError naming the option when ``--native`` / ``--native-step`` cannot be used.
+
+    Examples
+    --------
+    >>> check_native_options(parse_args(["spec.toml", "--native-step", "0"]))
+    Traceback (most recent call last):
+    ...
+    fhobs.spec.SpecError: --native-step 0.0: a communication step size must be positive and finite
+    """
+    for dt in args.native_step or ():
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise SpecError(f"--native-step {dt!r}: a communication step size must be positive "
+                            "and finite")
+    if args.native_step and not args.native:
+        raise SpecError("--native-step is for the native FMUs: add --native")
+    if args.native and args.design_only:
+        raise SpecError("--native builds FMUs: drop --design-only")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command; return the process exit code (0 ok, 2 any failure).
 
@@ -174,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         check_output_folder(args.out)
         if not (math.isfinite(args.h) and args.h > 0.0):
             raise SpecError(f"--h = {args.h!r}: the internal step must be positive and finite")
+        check_native_options(args)
     except (SpecError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -206,6 +236,18 @@ def main(argv: list[str] | None = None) -> int:
             kernel = False if args.no_kernel else None
             for name, fmu in build_fmus(gains, args.out, h=args.h, kernel=kernel).items():
                 print(f"{name}: {fmu}")
+        if args.native:
+            from .build import BuildError
+            from .native.build import build_native_fmus
+
+            try:
+                native = build_native_fmus(gains, args.out / "native", steps=args.native_step,
+                                           h=args.h)
+            except BuildError as exc:
+                print(f"error: native FMUs: {exc}", file=sys.stderr)
+                return 2
+            for name, fmu in native.items():
+                print(f"native {name}: {fmu}")
     except OSError as exc:
         print(f"error: --out {args.out}: cannot write ({exc})", file=sys.stderr)
         return 2

@@ -10,15 +10,15 @@
  * operation (same formulas, complex products and quotients as numpy forms them); only the
  * summation order of the matrix-vector products may differ from numpy's BLAS.
  *
- * Return codes: FHOBS_OK, FHOBS_FALLBACK (the numpy runtime must make this step: the
- * filtering observer's self-consistent level search), FHOBS_NONFINITE (dst is not finite).
+ * Return codes: FHOBS_OK, FHOBS_NONFINITE (dst is not finite).
  */
 #include <math.h>
 #include <stddef.h>
 
 #define FHOBS_OK 0
-#define FHOBS_FALLBACK 1
 #define FHOBS_NONFINITE 2
+#define FHOBS_BISECTION_STEPS 40 /* fhobs.runtime.BISECTION_STEPS */
+#define FHOBS_BISECTION_TOL 0.05 /* fhobs.runtime.BISECTION_TOL */
 
 typedef struct {
     double re, im;
@@ -352,11 +352,68 @@ static void correct(const FilterPlan *p, const double *psi, double xi, const dou
     *xi_new = signed_power_decay(w, p->gamma, p->p, p->dt) + half_new;
 }
 
-/* One split step over dt: state (z, psi, xi), inputs (y, u). The level is sigma between the
- * floor and the ceiling; when sigma after the correction exceeds `mismatch` times it, the
- * self-consistent level is searched (FilteringObserver._correct_own_level): at the ceiling
- * that search ends at once with the correction at exp(log(ceiling)), made here; below it,
- * the numpy runtime makes the step (FHOBS_FALLBACK). */
+/* Python's min(a, b): a unless b < a (so a NaN first argument is kept, as numpy's step does) */
+static double py_min(double a, double b)
+{
+    return b < a ? b : a;
+}
+
+/* The correction at the level exp(log_level) (FilteringObserver._correct takes the level and
+ * forms its logarithm again) into psi_new, xi_new, dz; whether its sigma is at most that
+ * level. */
+static int correct_at(const FilterPlan *p, const double *psi, double xi, const double *v,
+                      double log_level, double *psi_new, double *xi_new, double *dz)
+{
+    double level = exp(log_level);
+    correct(p, psi, xi, v, log(level), psi_new, xi_new, dz);
+    return sigma_of(psi_new, p->k, *xi_new) <= level;
+}
+
+/* The correction at the filtering observer's own level (FilteringObserver._correct_own_level):
+ * sigma between the floor and the ceiling; when sigma after the correction exceeds `mismatch`
+ * times that level, the self-consistent level s, sigma_after(s) = s, is searched in ln s
+ * (bracket expansion by 2 up to the ceiling, then bisection to BISECTION_TOL), the decisions
+ * and the levels tried as in the numpy runtime. Writes psi_new, xi_new (consecutive) and dz. */
+static void correct_own_level(const FilterPlan *p, const double *psi, double xi,
+                              const double *v, double *psi_new, double *xi_new, double *dz)
+{
+    const int n = p->n, k = p->k;
+    double level = sigma_of(psi, k, xi);
+    if (p->floor_level > level)
+        level = p->floor_level;
+    if (p->ceiling < level)
+        level = p->ceiling;
+    correct(p, psi, xi, v, log(level), psi_new, xi_new, dz);
+    double after = sigma_of(psi_new, k, *xi_new);
+    if (after <= p->mismatch * level)
+        return;
+    const double log_ceiling = log(p->ceiling);
+    double lo = log(level), hi = py_min(log(after), log_ceiling);
+    for (int i = 0; i < FHOBS_BISECTION_STEPS; i++) {
+        if (correct_at(p, psi, xi, v, hi, psi_new, xi_new, dz))
+            break;
+        if (hi >= log_ceiling)
+            return;
+        lo = hi;
+        hi = py_min(hi + 2.0, log_ceiling);
+    }
+    double trial[k + 1], trial_dz[n];
+    while (hi - lo > FHOBS_BISECTION_TOL) {
+        double mid = 0.5 * (lo + hi);
+        if (correct_at(p, psi, xi, v, mid, trial, trial + k, trial_dz)) {
+            hi = mid;
+            for (int i = 0; i <= k; i++)
+                psi_new[i] = trial[i];
+            for (int i = 0; i < n; i++)
+                dz[i] = trial_dz[i];
+        } else {
+            lo = mid;
+        }
+    }
+}
+
+/* One split step over dt: state (z, psi, xi), inputs (y, u): the correction at the
+ * observer's own level, then the prediction. */
 int fhobs_filter_step(const Call *call)
 {
     const FilterPlan *p = call->plan;
@@ -364,25 +421,12 @@ int fhobs_filter_step(const Call *call)
     double *dst = call->dst;
     const int n = p->n, k = p->k;
     const double *z = src, *psi = src + n, *y = inputs, *u = inputs + k;
-    const double xi = src[n + k];
     double v[k], dz[n];
 
     matvec(p->C, z, k, n, v);
     for (int i = 0; i < k; i++)
         v[i] -= y[i];
-
-    double level = sigma_of(psi, k, xi);
-    if (p->floor_level > level)
-        level = p->floor_level;
-    if (p->ceiling < level)
-        level = p->ceiling;
-    correct(p, psi, xi, v, log(level), dst + n, dst + n + k, dz);
-    double after = sigma_of(dst + n, k, dst[n + k]);
-    if (!(after <= p->mismatch * level)) {
-        if (level != p->ceiling || isnan(after))
-            return FHOBS_FALLBACK;
-        correct(p, psi, xi, v, log(exp(log(level))), dst + n, dst + n + k, dz);
-    }
+    correct_own_level(p, psi, src[n + k], v, dst + n, dst + n + k, dz);
 
     /* prediction: z+ = M (z, u, v) + F dz */
     matvec3(p->M, n, z, n, u, p->m, v, k, dst);

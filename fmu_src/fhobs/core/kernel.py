@@ -52,7 +52,7 @@ SHIPPED = Path(__file__).resolve().with_name("kernel_linux64.so")
 DISABLE_ENV = "FHOBS_NO_KERNEL"
 COMPILE_FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off")
 """No contraction into fused multiply-adds: each product is rounded, as in numpy."""
-OK, FALLBACK, NONFINITE = 0, 1, 2
+OK, NONFINITE = 0, 2
 """Return codes of the kernel's step functions (``kernel.c``)."""
 PLAN_CACHE_SIZE = 16
 """Plans are cached per step size; the cache is cleared when it holds this many."""

@@ -1,0 +1,104 @@
+"""Cost of one doStep through fmpy: native FMUs against the pythonfmu FMUs.
+
+Usage: ``python bench/bench_native.py [--steps N] [--dt DT]``. Builds the pendulum FMUs (our
+design of examples/pendulum.toml, with its Kalman filter) both ways in a temporary directory,
+then times per communication step, for every kind, ``doStep`` alone and the whole exchange
+(setReal of the inputs + doStep + getReal of the outputs) through fmpy's ``FMU2Slave``, and
+``fmi2DoStep`` called through ctypes without fmpy's wrapper (as the harness's master calls
+it), with seeded random-walk inputs. Prints a table in microseconds per step and the build times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from fhobs.build import build_fmus
+from fhobs.cli import design_from_spec
+from fhobs.native.build import build_native_fmus
+from fhobs.spec import load_spec
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+SPEC = Path(__file__).resolve().parents[1] / "examples" / "pendulum.toml"
+KINDS = ("observer", "luenberger", "kalman", "plant")
+
+
+def time_kind(path: Path, steps: int, dt: float) -> tuple[float, float, float]:
+    """Seconds per doStep alone through fmpy, per (setReal inputs + doStep + getReal outputs)
+    through fmpy, and per doStep called through ctypes without fmpy's wrapper (as the harness
+    calls it)."""
+    md = read_model_description(str(path))
+    inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    values = 0.1 + np.cumsum(np.random.default_rng(0).normal(scale=0.01,
+                                                              size=(steps, len(inputs))), axis=0)
+    fmu.setReal(inputs, values[0].tolist())
+    initial = fmu.getFMUstate()  # each timing starts here (the open-loop plant diverges)
+    start = time.perf_counter()
+    for k in range(steps):
+        fmu.doStep(k * dt, dt)
+    alone = (time.perf_counter() - start) / steps
+    rows = values.tolist()
+    fmu.setFMUstate(initial)
+    start = time.perf_counter()
+    for k, row in enumerate(rows):
+        fmu.setReal(inputs, row)
+        fmu.doStep(k * dt, dt)
+        fmu.getReal(outputs)
+    exchange = (time.perf_counter() - start) / steps
+    do_step = fmu.dll.fmi2DoStep
+    do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+    do_step.restype = ctypes.c_int
+    component = fmu.component
+    fmu.setFMUstate(initial)
+    fmu.setReal(inputs, values[0].tolist())
+    start = time.perf_counter()
+    for k in range(steps):
+        do_step(component, k * dt, dt, 1)
+    raw = (time.perf_counter() - start) / steps
+    fmu.freeFMUstate(initial)
+    fmu.terminate()
+    fmu.freeInstance()
+    return alone, exchange, raw
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=5000)
+    parser.add_argument("--dt", type=float, default=1e-3,
+                        help="communication step (one the native FMUs are built for)")
+    args = parser.parse_args()
+    gains = design_from_spec(load_spec(SPEC))
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        python = build_fmus(gains, Path(tmp) / "pythonfmu", kinds=KINDS)
+        built_python = time.perf_counter() - start
+        start = time.perf_counter()
+        native = build_native_fmus(gains, Path(tmp) / "native", kinds=KINDS)
+        built_native = time.perf_counter() - start
+        print(f"build: pythonfmu {built_python:.1f} s, native {built_native:.1f} s "
+              "(the native build builds the pythonfmu FMUs for their interface)")
+        print(f"\nus per communication step of {args.dt:g} s through fmpy ({args.steps} steps)")
+        print("| FMU | doStep pythonfmu | doStep native | set + doStep + get pythonfmu | "
+              "set + doStep + get native | raw doStep pythonfmu | raw doStep native |")
+        print("|---|---|---|---|---|---|---|")
+        for kind in KINDS:
+            a = time_kind(python[kind], args.steps, args.dt)
+            b = time_kind(native[kind], args.steps, args.dt)
+            print(f"| {kind} | " + " | ".join(f"{x * 1e6:.2f}" for pair in zip(a, b, strict=True)
+                                             for x in pair) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

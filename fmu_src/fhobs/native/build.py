@@ -1,0 +1,522 @@
+"""Build native FMUs: FMI 2.0 co-simulation FMUs of compiled C, no Python at run time.
+
+Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.fmu``) has the
+interface of the pythonfmu FMU of the same kind (:mod:`fhobs.build`): the same variable names,
+value references, causalities, variabilities and start values, taken from the pythonfmu FMU
+built for the same design and options (its start values read from an instance, so they are
+exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
+(``kernel.c``) with an FMI layer (``fmi2_layer.c``, ``models.c``) and the generated
+``model_data.c``: the design and, for every communication step size of ``steps``, the step's
+plan exactly as the numpy runtime prepares it for its kernel (ZOH matrices, the filtering
+observer's gain-level floor and ceiling and the injection flow's eigen data). A step size
+within 1e-9 relative of a built one runs that one's plan (a master's t_k+1 - t_k rounding); any
+other is refused with fmi2Error (the Kalman filter takes any whole multiple of its sample time;
+the observers' euler scheme any step). ``sources/`` holds every C file and the
+FMI headers, listed in the modelDescription's ``<SourceFiles>``, so an importer can compile the
+FMU for another platform.
+
+Design parameters (the plant matrices, the gains, nu, gamma, rho, Ts...) are compiled in: they
+keep their names and value references, and writing a value bit-equal to the built one is
+accepted (importers write start values), any other value is refused with fmi2Error. The
+per-instance values (initial states, ``h``, ``scheme``, ``input_bound``, the plant's noise
+amplitude and seed) are parameters as in the pythonfmu FMUs (:data:`SETTABLE`). The design is
+certified here, before anything is built; since it cannot change, the FMU does not re-check it.
+
+Examples
+--------
+>>> built = build_native_fmus(gains, Path("build/native"))  # doctest: +SKIP
+>>> sorted(built)                                          # doctest: +SKIP
+['kalman', 'luenberger', 'observer', 'plant']
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import shutil
+import subprocess
+import sys
+import tempfile
+import uuid
+import xml.etree.ElementTree as ET
+import zipfile
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..build import build_fmus
+from ..core import kernel
+from ..core.certificate import certify
+from ..core.gains import ObserverGains
+from ..core.kalman_filter import KalmanObserver
+from ..core.plant import LTIPlant
+from ..core.runtime import FilteringObserver, LuenbergerObserver
+from ..errors import BuildError
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_STEPS = (5e-5, 1e-4, 1e-3)
+"""Communication step sizes built by default: the paper's scenarios (5e-5) and the zoo bench's
+(1e-4, 1e-3)."""
+KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4}
+"""``FHOBS_KIND_*`` of fhobs_native.h."""
+SETTABLE = {
+    "observer": {"z0", "psi0", "xi0", "h", "scheme", "input_bound"},
+    "luenberger": {"z0", "h", "scheme", "input_bound"},
+    "plant": {"x0", "noise_amplitude", "noise_seed", "scheme", "input_bound"},
+    "kalman": {"z0", "input_bound"},
+}
+"""Parameters that stay per-instance values (settable until fmi2ExitInitializationMode); every
+other parameter is design data, compiled in."""
+LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", "z0", "psi0",
+          "xi0", "x0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
+"""Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
+C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "models.c", "fmi2_layer.c")
+"""Sources of every native FMU (with the generated model_data.c; the plant adds noise.c)."""
+NOISE_SOURCES = ("noise.c", "noise.h")
+"""The plant's measurement noise (numpy's generator in C)."""
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+SCRATCH_FIELDS = {"factors", "last_tau", "work"}
+"""Plan fields that point to per-instance scratch memory (set by each instance)."""
+COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=gnu11")
+
+
+def build_native_fmus(
+    gains: ObserverGains,
+    out_dir: Path,
+    *,
+    steps: Iterable[float] | None = None,
+    kinds: Iterable[str] | None = None,
+    **options: Any,
+) -> dict[str, Path]:
+    """Build native FMUs into ``out_dir`` and return ``{kind: path}``.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design; certified here first.
+    out_dir : Path
+        Created if missing; the FMUs are written as ``<kind>.fmu``.
+    steps : iterable of float, optional
+        Communication step sizes to build the step plans for. Default :data:`DEFAULT_STEPS`,
+        of which those for which the filtering observer has no contractive gain level are left
+        out; a step size given here that cannot be built raises :class:`BuildError`.
+    kinds : iterable of str, optional
+        As for :func:`fhobs.build.build_fmus` (default: observer, luenberger, plant, and kalman
+        when the design has a Kalman filter).
+    **options
+        Start values as for :func:`fhobs.build.build_fmus` (``h``, ``scheme``, ``z0``,
+        ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``, ``noise_seed``, ``plant_scheme``,
+        ``input_bound``).
+
+    Returns
+    -------
+    dict of str to Path
+
+    Raises
+    ------
+    BuildError
+        Without a C compiler or the compiled kernel, for a design the native
+        observer cannot run (no eigen path of its injection flow), or for a step size of
+        ``steps`` without a plan.
+
+    Examples
+    --------
+    >>> build_native_fmus(gains, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
+    {'observer': PosixPath('out/observer.fmu')}
+    """
+    if kinds is None:
+        kinds = ("observer", "luenberger", "plant") + (("kalman",) if gains.kalman else ())
+    kinds = tuple(kinds)
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None or sys.platform != "linux" or kernel.library() is None:
+        raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
+                         "compiled step kernel (FHOBS_NO_KERNEL unset)")
+    certify(gains)
+    explicit = steps is not None
+    steps = tuple(float(dt) for dt in (DEFAULT_STEPS if steps is None else steps))
+    for dt in steps:
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise BuildError(f"native step size {dt!r} is not a positive finite number")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    built = {}
+    with tempfile.TemporaryDirectory(prefix="fhobs_native_") as tmp:
+        stage = Path(tmp)
+        reference = build_fmus(gains, stage / "pythonfmu", kinds=kinds, status_wrapper=False,
+                               kernel=False, **options)
+        for kind in kinds:
+            interface = _read_interface(reference[kind], stage / f"{kind}_unzipped")
+            plans = _step_plans(kind, gains, steps, explicit, float(options.get("h", 5e-5)))
+            built[kind] = _build_one(kind, interface, plans, _sizes(kind, gains, plans),
+                                     stage / kind, compiler, out_dir / f"{kind}.fmu")
+    return built
+
+
+# -- the interface of the pythonfmu FMU -------------------------------------------------------
+def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
+    """The modelDescription of a pythonfmu FMU (an ElementTree) and the exact start value of
+    every variable, read from an instance of it (``{"xml": tree, "start": {vr: value}}``)."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    description = read_model_description(str(fmu))
+    extract(str(fmu), str(unzip_dir))
+    slave = FMU2Slave(guid=description.guid, unzipDirectory=str(unzip_dir),
+                      modelIdentifier=description.coSimulation.modelIdentifier,
+                      instanceName="interface")
+    slave.instantiate()
+    try:
+        start = {}
+        for variable in description.modelVariables:
+            vr = variable.valueReference
+            if variable.type == "Real":
+                start[vr] = float(slave.getReal([vr])[0])
+            else:
+                start[vr] = int(slave.getInteger([vr])[0])
+    finally:
+        slave.freeInstance()
+    return {"xml": ET.parse(unzip_dir / "modelDescription.xml"), "start": start}
+
+
+# -- the step plans of the numpy runtime ----------------------------------------------------------
+def _step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explicit: bool,
+               h: float) -> dict[str, Any]:
+    """The kernel plans of ``kind`` as the numpy runtime makes them: ``{"steps": (dt, ...),
+    "split": [plan per dt], "euler": plan or None, "kalman": plan, "Ts": float}`` (what the
+    kind needs), each plan a dict of its fields (:func:`_captured_plan`)."""
+    if kind == "kalman":
+        observer = KalmanObserver(gains)
+        return {"kalman": _captured_plan(observer, gains.kalman.sample_time),
+                "Ts": float(gains.kalman.sample_time), "steps": ()}
+    if kind == "plant":
+        make = lambda: LTIPlant(gains.A, gains.B, gains.C, E=gains.E)  # noqa: E731
+        matrices = {"A": gains.A, "B": gains.B, "C": gains.C,
+                    "E": np.zeros((gains.n, 0)) if gains.E is None else gains.E}
+    else:
+        cls = FilteringObserver if kind == "observer" else LuenbergerObserver
+        make = lambda scheme="split": cls(gains, h=h, scheme=scheme)  # noqa: E731
+    model = make()
+    if not model.compiled:
+        raise BuildError(f"the {kind}'s split step does not run in the compiled kernel for this "
+                         "design (the injection flow has no eigen path): no native FMU")
+    plans, kept = [], []
+    for dt in steps:
+        try:
+            plans.append(_captured_plan(model, dt))
+            kept.append(dt)
+        except ValueError as err:
+            if explicit:
+                raise BuildError(f"--native-step {dt!r}: {err}") from err
+    if not kept:
+        raise BuildError(f"no step size of {steps} has a plan for the {kind}")
+    result = {"steps": tuple(kept), "split": plans, "euler": None}
+    if kind == "plant":
+        result.update(matrices)
+    else:
+        euler = make("euler")
+        if euler.compiled:
+            result["euler"] = _captured_plan(euler, kept[0])
+    return result
+
+
+def _captured_plan(model: Any, dt: float) -> dict[str, Any]:
+    """The fields of the kernel plan that ``model`` (a runtime model with a kernel stepper)
+    registers for the step size dt: numbers as Python numbers, pointers as the arrays they
+    point into (None for a NULL pointer).
+
+    Raises
+    ------
+    ValueError
+        If the runtime refuses the step size (as its step would).
+    """
+    stepper = model._stepper  # the plan as fhobs.kernel.Stepper.add_plan keeps it
+    if dt not in stepper._kept:
+        stepper._make_plan(dt)
+    plan, arrays, _ = stepper._kept[dt]
+    by_address = {array.ctypes.data: array for array in arrays}
+    fields: dict[str, Any] = {}
+    for name, ctype in plan._fields_:
+        value = getattr(plan, name)
+        if issubclass(ctype, ctypes._Pointer):
+            address = ctypes.cast(value, ctypes.c_void_p).value
+            fields[name] = None if address is None else by_address[address]
+        else:
+            fields[name] = value
+    return fields
+
+
+# -- the generated C data -----------------------------------------------------------------------
+def c_number(value: float) -> str:
+    """A double as a C literal that reads back exactly (hexadecimal, or INFINITY).
+
+    Examples
+    --------
+    >>> c_number(0.1), c_number(float("inf"))
+    ('0x1.999999999999ap-4', 'INFINITY')
+    """
+    value = float(value)
+    if np.isinf(value):
+        return "INFINITY" if value > 0 else "-INFINITY"
+    if np.isnan(value):
+        raise BuildError("a NaN in the data of a native FMU")
+    return value.hex()
+
+
+class _Arrays:
+    """The constant arrays of model_data.c, each distinct one written once."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self._names: dict[tuple[str, bytes], str] = {}
+
+    def name(self, array: np.ndarray) -> str:
+        """The C name of ``array`` (a float64 or complex128 array), defined at first use."""
+        array = np.ascontiguousarray(array)
+        key = (array.dtype.str, array.tobytes())
+        if key not in self._names:
+            name = self._names[key] = f"DATA_{len(self._names)}"
+            if np.iscomplexobj(array):
+                items = [f"{{{c_number(v.real)}, {c_number(v.imag)}}}" for v in array.ravel()]
+                ctype = "cplx"
+            else:
+                items = [c_number(v) for v in array.ravel()] or ["0.0"]
+                ctype = "double"
+            self.lines.append(f"static const {ctype} {name}[] = {{{', '.join(items)}}};")
+        return self._names[key]
+
+
+def _plan_initializer(plan: dict[str, Any], arrays: _Arrays) -> str:
+    """A C designated initializer of a kernel plan (scratch pointers left NULL)."""
+    items = []
+    for field, value in plan.items():
+        if field in SCRATCH_FIELDS or value is None:
+            continue
+        if isinstance(value, np.ndarray):
+            items.append(f".{field} = {arrays.name(value)}")
+        elif isinstance(value, int):
+            items.append(f".{field} = {value}")
+        else:
+            items.append(f".{field} = {c_number(value)}")
+    return "{" + ", ".join(items) + "}"
+
+
+def _model_data(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any],
+               sizes: dict[str, int]) -> str:
+    """The text of model_data.c (without its identity line): sizes, value references, the
+    variable table, the step sizes and the plans."""
+    arrays = _Arrays()
+    first_vr = {}
+    for var in variables:
+        first_vr.setdefault(var["name"].split("[")[0], var["vr"])
+    lines = [f"#define FHOBS_KIND {KIND_NUMBERS[kind]}",
+             f"#define FHOBS_N_VARIABLES {len(variables)}"]
+    lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]
+    lines += [f"#define VR_{name.upper()} {first_vr.get(name, -1)}" for name in LAYOUT]
+    rows = [f'    {{"{var["name"]}", FHOBS_{var["type"].upper()}, FHOBS_{var["role"].upper()}, '
+            f'{c_number(var["start"])}}},' for var in variables]
+    table = ["static const FhobsVariable VARIABLES[FHOBS_N_VARIABLES] = {", *rows, "};"]
+    body = []
+    if kind == "kalman":
+        body.append(f"static const LinearPlan KALMAN_PLAN = "
+                    f"{_plan_initializer(plans['kalman'], arrays)};")
+        body.append(f"static const double KALMAN_TS = {c_number(plans['Ts'])};")
+    else:
+        steps = plans["steps"]
+        body.append(f"#define FHOBS_N_STEPS {len(steps)}")
+        body.append(f"static const double STEP_SIZES[FHOBS_N_STEPS] = "
+                    f"{{{', '.join(c_number(dt) for dt in steps)}}};")
+        plan_type = {"observer": "FilterPlan", "luenberger": "LinearPlan",
+                     "plant": "PlantPlan"}[kind]
+        table_name = "ZOH_PLANS" if kind == "plant" else "SPLIT_PLANS"
+        body.append(f"static const {plan_type} {table_name}[FHOBS_N_STEPS] = {{")
+        body += [f"    {_plan_initializer(plan, arrays)}," for plan in plans["split"]]
+        body.append("};")
+        if kind == "plant":
+            for name in ("A", "B", "E", "C"):
+                body.append(f"#define PLANT_{name} {arrays.name(plans[name])}")
+        else:
+            body.append(f"#define FHOBS_HAS_EULER {int(plans['euler'] is not None)}")
+            if plans["euler"] is not None:
+                body.append(f"static const EulerPlan EULER_PLAN = "
+                            f"{_plan_initializer(plans['euler'], arrays)};")
+    return "\n".join([*lines, "", *table, "", *arrays.lines, "", *body, ""])
+
+
+# -- one FMU ------------------------------------------------------------------------------------
+def _variables(kind: str, interface: dict[str, Any]) -> list[dict[str, Any]]:
+    """Name, value reference, type, role and exact start of every variable, by reference."""
+    variables = []
+    for element in interface["xml"].getroot().iterfind("ModelVariables/ScalarVariable"):
+        vr = int(element.get("valueReference"))
+        causality = element.get("causality")
+        if causality == "parameter":
+            base = element.get("name").split("[")[0]
+            role = "settable" if base in SETTABLE[kind] else "compiled"
+        else:
+            role = causality
+        typ = "real" if element.find("Real") is not None else "integer"
+        variables.append({"name": element.get("name"), "vr": vr, "type": typ, "role": role,
+                          "start": interface["start"][vr]})
+    variables.sort(key=lambda var: var["vr"])
+    if [var["vr"] for var in variables] != list(range(len(variables))):
+        raise BuildError("the pythonfmu FMU's value references are not 0..N-1")
+    return variables
+
+
+def _sizes(kind: str, gains: ObserverGains, plans: dict[str, Any]) -> dict[str, int]:
+    """The sizes model_data.c defines (``FHOBS_<NAME>``): the plant's states n, the model's
+    states (the plan's n), outputs k, inputs m, perturbations r, the state kept."""
+    n_model = (plans["kalman"] if kind == "kalman" else plans["split"][0])["n"]
+    r = 0 if gains.E is None else gains.E.shape[1]
+    state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1}.get(kind, n_model)
+    return {"n": gains.n, "n_model": n_model, "k": gains.k, "m": gains.m, "r": r,
+            "state_size": state}
+
+
+def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
+               sizes: dict[str, int], stage: Path, compiler: str, dest: Path) -> Path:
+    """Generate the sources of one native FMU, compile them, write its modelDescription and
+    documentation and zip it into ``dest``."""
+    variables = _variables(kind, interface)
+    data = _model_data(kind, variables, plans, sizes)
+    sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
+    sources["kernel.c"] = kernel.SOURCE.read_text()
+    if kind == "plant":
+        sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
+    digest = hashlib.sha256(data.encode())
+    for name in sorted(sources):
+        digest.update(name.encode() + sources[name].encode())
+    guid = str(uuid.UUID(bytes=digest.digest()[:16]))
+    identifier = f"fhobs_{kind}_{digest.hexdigest()[:12]}"
+    sources["model_data.c"] = (
+        f"/* Generated by fhobs.native.build for a {kind} FMU: its design data and the step\n"
+        " * plans of the numpy runtime, doubles in hexadecimal (exact). Included by fhobs_fmu.c;"
+        "\n * do not edit (rebuild with build_fmu.py --native). */\n"
+        f'#define FHOBS_IDENTITY "{guid}"\n' + data)
+    root = stage / "fmu"
+    (root / "sources").mkdir(parents=True)
+    for name, text in sources.items():
+        (root / "sources" / name).write_text(text)
+    for name in FMI_HEADERS:
+        shutil.copy(_fmi_headers() / name, root / "sources" / name)
+    binary = root / "binaries" / "linux64" / f"{identifier}.so"
+    compile_binary(root / "sources", binary, compiler)
+    compiled_files = ["fhobs_fmu.c"] + (["noise.c"] if kind == "plant" else [])
+    tree = _model_description(interface["xml"], variables, identifier, guid, plans,
+                              compiled_files)
+    tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
+    (root / "documentation").mkdir()
+    (root / "documentation" / "index.html").write_text(_documentation(kind, variables, plans))
+    dest.unlink(missing_ok=True)
+    with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in sorted(root.rglob("*")):
+            if path.is_file():
+                archive.write(path, path.relative_to(root).as_posix())
+    return dest
+
+
+def _fmi_headers() -> Path:
+    """The FMI 2.0 headers (fmpy's copy)."""
+    import fmpy
+
+    return Path(fmpy.__file__).parent / "c-code"
+
+
+def compile_binary(sources: Path, target: Path, compiler: str) -> None:
+    """Compile the sources of a native FMU (``fhobs_fmu.c``, and ``noise.c`` when present)
+    into the shared library ``target``.
+
+    Raises
+    ------
+    BuildError
+        If the compiler fails.
+
+    Examples
+    --------
+    >>> compile_binary(Path("sources"), Path("binaries/linux64/id.so"), "cc")  # doctest: +SKIP
+    """
+    target.parent.mkdir(parents=True, exist_ok=True)
+    files = [str(sources / name) for name in ("fhobs_fmu.c", "noise.c")
+             if (sources / name).exists()]
+    command = [compiler, *COMPILE_FLAGS, f"-I{sources}", "-o", str(target), *files, "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True, check=False, timeout=300)
+    if result.returncode != 0:
+        raise BuildError(f"compiling the native FMU failed:\n{result.stderr}")
+
+
+def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]],
+                       identifier: str, guid: str, plans: dict[str, Any],
+                       compiled_files: list[str]) -> ET.ElementTree:
+    """The pythonfmu FMU's modelDescription with this FMU's identity, capabilities, exact
+    start values and source files."""
+    tree = ET.ElementTree(ET.fromstring(ET.tostring(reference.getroot())))
+    root = tree.getroot()
+    steps = ", ".join(repr(dt) for dt in plans["steps"])
+    root.set("modelName", identifier)
+    root.set("guid", guid)
+    root.set("generationTool", "fhobs.native.build (compiled C, no Python at run time)")
+    root.set("description", root.get("description", "") + (
+        f" -- native FMU, communication step sizes {steps}" if steps else " -- native FMU"))
+    cosim = root.find("CoSimulation")
+    for name, value in (("modelIdentifier", identifier), ("needsExecutionTool", "false"),
+                        ("canHandleVariableCommunicationStepSize",
+                         "false" if steps else "true"),
+                        ("canInterpolateInputs", "false"),
+                        ("canBeInstantiatedOnlyOncePerProcess", "false"),
+                        ("canNotUseMemoryManagementFunctions", "false"),
+                        ("canGetAndSetFMUstate", "true"), ("canSerializeFMUstate", "true"),
+                        ("providesDirectionalDerivative", "false")):
+        cosim.set(name, value)
+    for child in list(cosim):
+        cosim.remove(child)
+    files = ET.SubElement(cosim, "SourceFiles")
+    for name in compiled_files:
+        ET.SubElement(files, "File", name=name)
+    if steps:
+        experiment = ET.Element("DefaultExperiment", stepSize=repr(plans["steps"][0]))
+        position = list(root).index(root.find("ModelVariables"))
+        root.insert(position, experiment)
+    for element, var in zip(root.iterfind("ModelVariables/ScalarVariable"), variables,
+                            strict=True):
+        value = element.find("Real" if var["type"] == "real" else "Integer")
+        value.set("start", repr(float(var["start"])) if var["type"] == "real"
+                  else str(int(var["start"])))
+    ET.indent(tree, "\t")
+    return tree
+
+
+def _documentation(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any]) -> str:
+    """documentation/index.html: what the FMU runs, its step sizes and its parameters."""
+    compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "compiled"})
+    settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "settable"})
+    if plans["steps"]:
+        steps = ("Communication step sizes (their plans are compiled in; a step within 1e-9 "
+                 "relative of one of them runs its plan, any other step is refused with "
+                 f"fmi2Error): {', '.join(repr(dt) for dt in plans['steps'])}.")
+        if plans.get("euler") is not None:
+            steps += " The euler scheme (scheme = 1) takes any step size."
+    else:
+        steps = (f"Any communication step that is a whole multiple of Ts = {plans['Ts']!r} "
+                 "(the filter's cycles).")
+    return f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>fhobs native {kind} FMU</title></head><body>
+<h1>fhobs native {kind} FMU</h1>
+<p>FMI 2.0 co-simulation FMU of compiled C (the fhobs step kernel and an FMI layer); no Python
+is needed to run it. It has the interface of the pythonfmu {kind}.fmu built from the same
+design (names, value references, causalities, start values).</p>
+<p>{steps}</p>
+<p>Parameters compiled in (writing their built value is accepted, any other value is refused
+with fmi2Error: rebuild with <code>python build_fmu.py SPEC --native</code> to change them):
+{", ".join(compiled) or "none"}.</p>
+<p>Per-instance parameters (settable until fmi2ExitInitializationMode): {", ".join(settable)}.</p>
+<p>The design was certified when the FMU was built; it cannot change, so it is not checked
+again at run time. Caller mistakes (unknown value references, wrong types, non-finite or
+too large inputs, calls out of sequence, foreign FMU states) are answered with fmi2Error and a
+log message, the instance unchanged.</p>
+<p>sources/ holds every C file and the FMI headers; the modelDescription lists the files to
+compile (SourceFiles), e.g. <code>cc -O2 -shared -fPIC -ffp-contract=off -Isources -o
+binaries/linux64/&lt;modelIdentifier&gt;.so sources/fhobs_fmu.c [sources/noise.c] -lm</code>.</p>
+</body></html>
+"""

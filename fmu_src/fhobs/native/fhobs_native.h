@@ -1,0 +1,35 @@
+/*
+ * Types shared by the generated data (model_data.c), the model steps (models.c) and the FMI
+ * layer (fmi2_layer.c) of a native fhobs FMU. The FMU is compiled as one translation unit,
+ * fhobs_fmu.c, plus noise.c (with noise.h) for the plant.
+ */
+#ifndef FHOBS_NATIVE_H
+#define FHOBS_NATIVE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+/* FMU kinds (FHOBS_KIND of model_data.c) */
+#define FHOBS_KIND_OBSERVER 1
+#define FHOBS_KIND_LUENBERGER 2
+#define FHOBS_KIND_PLANT 3
+#define FHOBS_KIND_KALMAN 4
+
+/* variable types */
+#define FHOBS_REAL 0
+#define FHOBS_INTEGER 1
+
+/* variable roles */
+#define FHOBS_LOCAL 0     /* status: written by the FMU only */
+#define FHOBS_INPUT 1
+#define FHOBS_OUTPUT 2
+#define FHOBS_COMPILED 3  /* design parameter compiled into the binary: only its value accepted */
+#define FHOBS_SETTABLE 4  /* per-instance parameter: settable until fmi2ExitInitializationMode */
+
+typedef struct {
+    const char *name;
+    int type, role;
+    double start; /* exact start value (Integer variables: an exact integer) */
+} FhobsVariable;
+
+#endif

@@ -1,0 +1,773 @@
+/*
+ * FMI 2.0 co-simulation interface of a native fhobs FMU: instances, the call sequence, the
+ * get/set rules, doStep with its checks, FMU states (in memory and serialized).
+ *
+ * It behaves as the pythonfmu FMUs with the status wrapper (fmu/slave_base.py): a caller
+ * mistake is answered with fmi2Error and a log message, the instance unchanged and usable
+ * (never fmi2Fatal); the Integer variable `status` holds the status of the last call (0 ok,
+ * 3 error). Rules:
+ *   - fmi2EnterInitializationMode once after fmi2Instantiate (or fmi2Reset), then
+ *     fmi2ExitInitializationMode, which checks the parameters and sets the initial state;
+ *     fmi2DoStep between it and fmi2Terminate;
+ *   - unknown value references, variables of another type, writes to outputs and `status`,
+ *     and writes to parameters after fmi2ExitInitializationMode are refused; a parameter
+ *     compiled into the binary (the design) accepts only its built value, bit for bit;
+ *   - doStep refuses a step size that is not positive and finite or not one of the built
+ *     ones, and inputs that are not finite or exceed input_bound;
+ *   - an FMU state (in memory or serialized) carries the FMU's identity (its GUID) and is
+ *     checked completely before any of it is used.
+ * Every instance owns all its data (no globals but constant ones): many instances of one or
+ * several native FMUs run in one process.
+ *
+ * Part of the translation unit fhobs_fmu.c (after models.c).
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+
+#define INSTANCE_MAGIC 0x6668696eu /* "fhin" */
+#define SNAPSHOT_MAGIC 0x66687374u /* "fhst" */
+#define STATE_HEADER "FHOBSNAT"
+#define STATE_FORMAT 1u
+#define IDENTITY_FIELD 48
+#define MESSAGE_SIZE 1024
+#define STATUS_OK 0
+#define STATUS_ERROR 3
+
+enum { INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED, MODE_COUNT };
+static const char *const MODE_NAMES[MODE_COUNT] = {
+    "instantiated", "initialisation mode", "step mode", "terminated"};
+static const char *const TYPE_NAMES[] = {"Real", "Integer", "Boolean", "String"};
+#define TYPE_BOOLEAN 2
+#define TYPE_STRING 3
+
+typedef struct {
+    int mode;
+    double real[FHOBS_N_VARIABLES]; /* by value reference (Integer variables: unused) */
+    int integer[FHOBS_N_VARIABLES]; /* by value reference (Real variables: unused) */
+    double state[FHOBS_STATE_SIZE]; /* the model's state */
+} Values;
+
+typedef struct {
+    uint32_t magic;
+    fmi2CallbackFunctions callbacks;
+    char *name;
+    Values values;
+    Work work;
+} Instance;
+
+typedef struct {
+    uint32_t magic;
+    char identity[IDENTITY_FIELD]; /* the GUID of the FMU that made it (kept inline: a state
+                                      may outlive the library of another FMU) */
+    Values values;
+} Snapshot;
+
+/* serialized: header, format, identity, then the Values' fields */
+#define SERIALIZED_SIZE                                                                        \
+    (8 + 4 + IDENTITY_FIELD + 4 + 8 * FHOBS_N_VARIABLES + 4 * FHOBS_N_VARIABLES +              \
+     8 * FHOBS_STATE_SIZE)
+
+/* -- memory and messages ------------------------------------------------------------------ */
+
+static void *allocate(const fmi2CallbackFunctions *f, size_t size)
+{
+    return f->allocateMemory ? f->allocateMemory(1, size) : calloc(1, size);
+}
+
+static void release(const fmi2CallbackFunctions *f, void *p)
+{
+    if (!p)
+        return;
+    if (f->freeMemory)
+        f->freeMemory(p);
+    else
+        free(p);
+}
+
+static void log_message(const Instance *c, fmi2Status status, const char *category,
+                        const char *message)
+{
+    if (c->callbacks.logger)
+        c->callbacks.logger(c->callbacks.componentEnvironment, c->name, status, category,
+                            message);
+}
+
+static fmi2Status ok(Instance *c)
+{
+    c->values.integer[VR_STATUS] = STATUS_OK;
+    return fmi2OK;
+}
+
+static fmi2Status fail(Instance *c, const char *message)
+{
+    c->values.integer[VR_STATUS] = STATUS_ERROR;
+    log_message(c, fmi2Error, "logStatusError", message);
+    return fmi2Error;
+}
+
+/* The instance behind a component, or NULL when it is not one of this FMU's. */
+static Instance *instance(fmi2Component component)
+{
+    Instance *c = component;
+    return c && c->magic == INSTANCE_MAGIC ? c : NULL;
+}
+
+#define INSTANCE_OR_ERROR(component)                                                           \
+    Instance *c = instance(component);                                                         \
+    if (!c)                                                                                    \
+        return fmi2Error;
+
+/* -- the model's values -------------------------------------------------------------------- */
+
+static void publish(Instance *c)
+{
+    model_outputs(&c->work, c->values.real, c->values.integer, c->values.state);
+}
+
+/* The start values, the initial state of the start parameters and its outputs. */
+static void start_values(Instance *c)
+{
+    char msg[MESSAGE_SIZE];
+    Values *v = &c->values;
+    v->mode = INSTANTIATED;
+    for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
+        v->real[i] = VARIABLES[i].type == FHOBS_REAL ? VARIABLES[i].start : 0.0;
+        v->integer[i] = VARIABLES[i].type == FHOBS_INTEGER ? (int)VARIABLES[i].start : 0;
+    }
+    model_initial_state(v->real, v->state, msg, sizeof msg); /* the built starts are valid */
+    publish(c);
+}
+
+/* Why the parameters of `v` cannot start a run (1, message) or 0: a non-finite parameter,
+ * input_bound <= 0, or what the model refuses. */
+static int parameters_problem(const Values *v, char *msg, size_t len)
+{
+    char a[32];
+    for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
+        if (VARIABLES[i].role == FHOBS_SETTABLE && VARIABLES[i].type == FHOBS_REAL &&
+            !isfinite(v->real[i])) {
+            snprintf(msg, len, "parameter %s = %s is not finite", VARIABLES[i].name,
+                     number(v->real[i], a, sizeof a));
+            return 1;
+        }
+    }
+    if (!(v->real[VR_INPUT_BOUND] > 0.0)) {
+        snprintf(msg, len, "parameter input_bound = %s must be > 0",
+                 number(v->real[VR_INPUT_BOUND], a, sizeof a));
+        return 1;
+    }
+    return model_parameters_problem(v->real, v->integer, msg, len);
+}
+
+/* Why `v` is not a state of this FMU an instance can take ('' / 0 if it is): compiled
+ * parameters with their built values, finite values (inputs may hold anything: doStep checks
+ * them), a known mode, and for an initialised state parameters that pass the initialisation
+ * checks. */
+static int values_problem(const Values *v, char *msg, size_t len)
+{
+    char a[32];
+    if (v->mode < 0 || v->mode >= MODE_COUNT) {
+        snprintf(msg, len, "unknown FMI state %d", v->mode);
+        return 1;
+    }
+    for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
+        const FhobsVariable *var = &VARIABLES[i];
+        if (var->type != FHOBS_REAL)
+            continue;
+        if (var->role == FHOBS_COMPILED && memcmp(&v->real[i], &var->start, sizeof(double))) {
+            snprintf(msg, len, "its parameter %s = %s is not the value compiled into this FMU",
+                     var->name, number(v->real[i], a, sizeof a));
+            return 1;
+        }
+        if (var->role == FHOBS_OUTPUT && !isfinite(v->real[i])) {
+            snprintf(msg, len, "its output %s is not finite", var->name);
+            return 1;
+        }
+    }
+    if (!all_finite(v->state, FHOBS_STATE_SIZE)) {
+        snprintf(msg, len, "its model state is not finite");
+        return 1;
+    }
+    if (v->mode == STEP_MODE || v->mode == TERMINATED)
+        return parameters_problem(v, msg, len);
+    return 0;
+}
+
+/* -- instances ----------------------------------------------------------------------------- */
+
+const char *fmi2GetTypesPlatform(void)
+{
+    return fmi2TypesPlatform;
+}
+
+const char *fmi2GetVersion(void)
+{
+    return fmi2Version;
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation,
+                              const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                              fmi2Boolean loggingOn)
+{
+    (void)fmuResourceLocation;
+    (void)visible;
+    (void)loggingOn;
+    if (!functions)
+        return NULL;
+    Instance probe = {.callbacks = *functions, .name = (char *)(instanceName ? instanceName : "")};
+    if (fmuType != fmi2CoSimulation) {
+        log_message(&probe, fmi2Error, "logStatusError",
+                    "fmi2Instantiate: this FMU supports co-simulation only");
+        return NULL;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, FHOBS_IDENTITY) != 0) {
+        log_message(&probe, fmi2Error, "logStatusError",
+                    "fmi2Instantiate: the GUID is not this FMU's (modelDescription.xml and "
+                    "binary of different builds)");
+        return NULL;
+    }
+    Instance *c = allocate(functions, sizeof(Instance));
+    if (!c)
+        return NULL;
+    memset(c, 0, sizeof *c);
+    c->callbacks = *functions;
+    size_t length = strlen(probe.name) + 1;
+    c->name = allocate(functions, length);
+    if (!c->name) {
+        release(functions, c);
+        return NULL;
+    }
+    memcpy(c->name, probe.name, length);
+    c->magic = INSTANCE_MAGIC;
+    work_init(&c->work);
+    start_values(c);
+    return c;
+}
+
+void fmi2FreeInstance(fmi2Component component)
+{
+    Instance *c = instance(component);
+    if (!c)
+        return;
+    fmi2CallbackFunctions callbacks = c->callbacks;
+    c->magic = 0;
+    release(&callbacks, c->name);
+    release(&callbacks, c);
+}
+
+fmi2Status fmi2SetDebugLogging(fmi2Component component, fmi2Boolean loggingOn,
+                               size_t nCategories, const fmi2String categories[])
+{
+    (void)loggingOn;
+    (void)nCategories;
+    (void)categories;
+    INSTANCE_OR_ERROR(component);
+    return ok(c); /* errors are always logged; there are no other messages */
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean toleranceDefined,
+                               fmi2Real tolerance, fmi2Real startTime,
+                               fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    (void)toleranceDefined;
+    (void)tolerance;
+    (void)startTime;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    INSTANCE_OR_ERROR(component);
+    if (c->values.mode != INSTANTIATED)
+        return fail(c, "fmi2SetupExperiment: only before fmi2EnterInitializationMode");
+    return ok(c);
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component component)
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    if (c->values.mode != INSTANTIATED) {
+        snprintf(msg, sizeof msg, "fmi2EnterInitializationMode called in %s: an instance is "
+                 "initialised once (fmi2Reset first to start again)",
+                 MODE_NAMES[c->values.mode]);
+        return fail(c, msg);
+    }
+    c->values.mode = INITIALISATION;
+    return ok(c);
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component component)
+{
+    char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64];
+    INSTANCE_OR_ERROR(component);
+    Values *v = &c->values;
+    if (v->mode != INITIALISATION) {
+        snprintf(msg, sizeof msg, "fmi2ExitInitializationMode called in %s: it must follow "
+                 "fmi2EnterInitializationMode", MODE_NAMES[v->mode]);
+        return fail(c, msg);
+    }
+    double state[FHOBS_STATE_SIZE];
+    if (parameters_problem(v, reason, sizeof reason) ||
+        model_initial_state(v->real, state, reason, sizeof reason)) {
+        snprintf(msg, sizeof msg, "initialisation rejected the parameters: %s", reason);
+        return fail(c, msg);
+    }
+    memcpy(v->state, state, sizeof state);
+    publish(c);
+    v->mode = STEP_MODE;
+    return ok(c);
+}
+
+fmi2Status fmi2Terminate(fmi2Component component)
+{
+    INSTANCE_OR_ERROR(component);
+    c->values.mode = TERMINATED;
+    return ok(c);
+}
+
+fmi2Status fmi2Reset(fmi2Component component)
+{
+    INSTANCE_OR_ERROR(component);
+    work_init(&c->work);
+    start_values(c);
+    return ok(c);
+}
+
+/* -- get and set ----------------------------------------------------------------------------- */
+
+/* Why `function` may not access `vr` (type `type`; `write`: a set of `values`) now: 1 and
+ * the message, or 0. */
+static int access_problem(const Instance *c, const char *function, const fmi2ValueReference vr[],
+                          size_t nvr, int type, int write, const double *values, char *msg,
+                          size_t len)
+{
+    char a[32], b[32];
+    if (nvr && (!vr || !values)) {
+        snprintf(msg, len, "%s: NULL value reference or value array", function);
+        return 1;
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        if (vr[i] >= FHOBS_N_VARIABLES) {
+            snprintf(msg, len, "%s: value reference %u is not a variable of this FMU (its value "
+                     "references are 0..%d)", function, vr[i], FHOBS_N_VARIABLES - 1);
+            return 1;
+        }
+        const FhobsVariable *var = &VARIABLES[vr[i]];
+        if (var->type != type) {
+            snprintf(msg, len, "%s: %s (value reference %u) is of type %s, not %s", function,
+                     var->name, vr[i], TYPE_NAMES[var->type], TYPE_NAMES[type]);
+            return 1;
+        }
+        if (!write)
+            continue;
+        if (var->role == FHOBS_OUTPUT) {
+            snprintf(msg, len, "%s: %s (value reference %u) is an output: the FMU computes it, "
+                     "it cannot be set", function, var->name, vr[i]);
+            return 1;
+        }
+        if (var->role == FHOBS_LOCAL) {
+            snprintf(msg, len, "%s: %s (value reference %u) is a local variable: it cannot be "
+                     "set", function, var->name, vr[i]);
+            return 1;
+        }
+        int parameter = var->role == FHOBS_COMPILED || var->role == FHOBS_SETTABLE;
+        if (parameter && c->values.mode != INSTANTIATED && c->values.mode != INITIALISATION) {
+            snprintf(msg, len, "%s: %s (value reference %u) is a fixed parameter: it can be set "
+                     "only before fmi2ExitInitializationMode (the instance is in %s; fmi2Reset "
+                     "returns to the start values)", function, var->name, vr[i],
+                     MODE_NAMES[c->values.mode]);
+            return 1;
+        }
+        if (var->role == FHOBS_COMPILED && memcmp(&values[i], &var->start, sizeof(double))) {
+            snprintf(msg, len, "%s: parameter %s = %s is compiled into the native FMU (its value "
+                     "is %s); rebuild with build_fmu.py to change it", function, var->name,
+                     number(values[i], a, sizeof a), number(var->start, b, sizeof b));
+            return 1;
+        }
+    }
+    return 0;
+}
+
+fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real value[])
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    if (access_problem(c, "fmi2GetReal", vr, nvr, FHOBS_REAL, 0, value, msg, sizeof msg))
+        return fail(c, msg);
+    for (size_t i = 0; i < nvr; i++)
+        value[i] = c->values.real[vr[i]];
+    return ok(c);
+}
+
+fmi2Status fmi2SetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                       const fmi2Real value[])
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    if (access_problem(c, "fmi2SetReal", vr, nvr, FHOBS_REAL, 1, value, msg, sizeof msg))
+        return fail(c, msg);
+    for (size_t i = 0; i < nvr; i++)
+        c->values.real[vr[i]] = value[i];
+    return ok(c);
+}
+
+fmi2Status fmi2GetInteger(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Integer value[])
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    static const double any = 0.0;
+    if (access_problem(c, "fmi2GetInteger", vr, nvr, FHOBS_INTEGER, 0, value ? &any : NULL, msg,
+                       sizeof msg))
+        return fail(c, msg);
+    int status = c->values.integer[VR_STATUS];
+    ok(c);
+    for (size_t i = 0; i < nvr; i++) /* `status`: the status of the call before this one */
+        value[i] = vr[i] == VR_STATUS ? status : c->values.integer[vr[i]];
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Integer value[])
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    static const double any = 0.0;
+    if (access_problem(c, "fmi2SetInteger", vr, nvr, FHOBS_INTEGER, 1, value ? &any : NULL, msg,
+                       sizeof msg))
+        return fail(c, msg);
+    for (size_t i = 0; i < nvr; i++)
+        c->values.integer[vr[i]] = value[i];
+    return ok(c);
+}
+
+/* No Boolean or String variables: any reference is unknown or of another type. */
+static fmi2Status no_variables_of_type(fmi2Component component, const char *function,
+                                       const fmi2ValueReference vr[], size_t nvr, int type,
+                                       const void *value)
+{
+    char msg[MESSAGE_SIZE];
+    INSTANCE_OR_ERROR(component);
+    static const double any = 0.0;
+    if (access_problem(c, function, vr, nvr, type, 0, value ? &any : NULL, msg, sizeof msg))
+        return fail(c, msg);
+    return ok(c);
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Boolean value[])
+{
+    return no_variables_of_type(c, "fmi2GetBoolean", vr, nvr, TYPE_BOOLEAN, value);
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Boolean value[])
+{
+    return no_variables_of_type(c, "fmi2SetBoolean", vr, nvr, TYPE_BOOLEAN, value);
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                         fmi2String value[])
+{
+    return no_variables_of_type(c, "fmi2GetString", vr, nvr, TYPE_STRING, value);
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                         const fmi2String value[])
+{
+    return no_variables_of_type(c, "fmi2SetString", vr, nvr, TYPE_STRING, value);
+}
+
+/* -- stepping ------------------------------------------------------------------------------- */
+
+/* Why the inputs cannot be stepped with (1 and the message) or 0. */
+static int input_problem(const Instance *c, char *msg, size_t len)
+{
+    char a[32], b[32];
+    double bound = c->values.real[VR_INPUT_BOUND];
+    for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
+        if (VARIABLES[i].role != FHOBS_INPUT)
+            continue;
+        double value = c->values.real[i];
+        if (!isfinite(value)) {
+            snprintf(msg, len, "input %s = %s is not finite", VARIABLES[i].name,
+                     number(value, a, sizeof a));
+            return 1;
+        }
+        if (fabs(value) > bound) {
+            snprintf(msg, len, "input %s = %s exceeds input_bound = %s", VARIABLES[i].name,
+                     number(value, a, sizeof a), number(bound, b, sizeof b));
+            return 1;
+        }
+    }
+    return 0;
+}
+
+fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoint,
+                      fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentCommunicationPoint)
+{
+    (void)noSetFMUStatePriorToCurrentCommunicationPoint;
+    char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64], t[32];
+    INSTANCE_OR_ERROR(component);
+    Values *v = &c->values;
+    double dt = communicationStepSize;
+    if (v->mode != STEP_MODE) {
+        number(currentCommunicationPoint, t, sizeof t);
+        if (v->mode == TERMINATED)
+            snprintf(msg, sizeof msg, "doStep at t = %s refused: the instance was terminated "
+                     "(fmi2Terminate); fmi2Reset to start again", t);
+        else
+            snprintf(msg, sizeof msg, "doStep at t = %s refused: the instance is in %s; doStep "
+                     "needs a successful initialisation", t, MODE_NAMES[v->mode]);
+        return fail(c, msg);
+    }
+    double next[FHOBS_STATE_SIZE];
+    int problem = 0;
+    if (!(isfinite(dt) && dt > 0.0)) {
+        char a[32];
+        snprintf(reason, sizeof reason, "communication step size %s is not a positive finite "
+                 "number", number(dt, a, sizeof a));
+        problem = 1;
+    }
+    problem = problem || input_problem(c, reason, sizeof reason) ||
+              model_step(&c->work, v->real, v->integer, v->state, next, dt, reason,
+                         sizeof reason);
+    if (problem) {
+        snprintf(msg, sizeof msg, "doStep at t = %s rejected: %s",
+                 number(currentCommunicationPoint, t, sizeof t), reason);
+        return fail(c, msg);
+    }
+    memcpy(v->state, next, sizeof next);
+    publish(c);
+    return ok(c);
+}
+
+fmi2Status fmi2CancelStep(fmi2Component component)
+{
+    INSTANCE_OR_ERROR(component);
+    return fail(c, "fmi2CancelStep: doStep never runs asynchronously here");
+}
+
+static fmi2Status no_status(fmi2Component component)
+{
+    INSTANCE_OR_ERROR(component);
+    return fail(c, "fmi2Get*Status: doStep never runs asynchronously here, there is no status "
+                   "to report");
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c);
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c);
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c);
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c);
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
+{
+    (void)s;
+    (void)value;
+    return no_status(c);
+}
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component component, const fmi2ValueReference vr[],
+                                       size_t nvr, const fmi2Integer order[],
+                                       const fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    INSTANCE_OR_ERROR(component);
+    return fail(c, "fmi2SetRealInputDerivatives: the inputs are held over a step "
+                   "(canInterpolateInputs=false)");
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component component, const fmi2ValueReference vr[],
+                                        size_t nvr, const fmi2Integer order[], fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    INSTANCE_OR_ERROR(component);
+    return fail(c, "fmi2GetRealOutputDerivatives: not provided (maxOutputDerivativeOrder=0)");
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component component,
+                                        const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
+                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[])
+{
+    (void)vUnknown_ref;
+    (void)nUnknown;
+    (void)vKnown_ref;
+    (void)nKnown;
+    (void)dvKnown;
+    (void)dvUnknown;
+    INSTANCE_OR_ERROR(component);
+    return fail(c, "fmi2GetDirectionalDerivative: not provided "
+                   "(providesDirectionalDerivative=false)");
+}
+
+/* -- FMU states ------------------------------------------------------------------------------ */
+
+static Snapshot *snapshot(fmi2FMUstate state)
+{
+    Snapshot *s = state;
+    return s && s->magic == SNAPSHOT_MAGIC &&
+                   strncmp(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD) == 0
+               ? s
+               : NULL;
+}
+
+fmi2Status fmi2GetFMUstate(fmi2Component component, fmi2FMUstate *state)
+{
+    INSTANCE_OR_ERROR(component);
+    if (!state)
+        return fail(c, "fmi2GetFMUstate: NULL state pointer");
+    Snapshot *s = *state ? snapshot(*state) : allocate(&c->callbacks, sizeof(Snapshot));
+    if (!s)
+        return fail(c, *state ? "fmi2GetFMUstate: the state to overwrite is not one of this FMU"
+                              : "fmi2GetFMUstate: out of memory");
+    s->magic = SNAPSHOT_MAGIC;
+    memset(s->identity, 0, IDENTITY_FIELD);
+    strncpy(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
+    s->values = c->values;
+    *state = s;
+    return ok(c);
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component component, fmi2FMUstate state)
+{
+    INSTANCE_OR_ERROR(component);
+    Snapshot *s = snapshot(state);
+    if (!s)
+        return fail(c, "fmi2SetFMUstate rejected the state: not an FMU state of this FMU");
+    c->values = s->values;
+    return ok(c);
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component component, fmi2FMUstate *state)
+{
+    INSTANCE_OR_ERROR(component);
+    if (!state || !*state)
+        return ok(c);
+    Snapshot *s = snapshot(*state);
+    if (!s)
+        return fail(c, "fmi2FreeFMUstate: not an FMU state of this FMU");
+    s->magic = 0;
+    release(&c->callbacks, s);
+    *state = NULL;
+    return ok(c);
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component component, fmi2FMUstate state, size_t *size)
+{
+    INSTANCE_OR_ERROR(component);
+    if (!snapshot(state) || !size)
+        return fail(c, "fmi2SerializedFMUstateSize: not an FMU state of this FMU");
+    *size = SERIALIZED_SIZE;
+    return ok(c);
+}
+
+static unsigned char *put(unsigned char *p, const void *data, size_t size)
+{
+    memcpy(p, data, size);
+    return p + size;
+}
+
+static const unsigned char *get(const unsigned char *p, void *data, size_t size)
+{
+    memcpy(data, p, size);
+    return p + size;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component component, fmi2FMUstate state,
+                                 fmi2Byte serializedState[], size_t size)
+{
+    INSTANCE_OR_ERROR(component);
+    Snapshot *s = snapshot(state);
+    if (!s || !serializedState || size != SERIALIZED_SIZE)
+        return fail(c, "fmi2SerializeFMUstate: not an FMU state of this FMU, or a buffer of "
+                       "another size than fmi2SerializedFMUstateSize's");
+    char identity[IDENTITY_FIELD] = {0};
+    strncpy(identity, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
+    uint32_t format = STATE_FORMAT;
+    int32_t mode = s->values.mode;
+    unsigned char *p = (unsigned char *)serializedState;
+    p = put(p, STATE_HEADER, 8);
+    p = put(p, &format, 4);
+    p = put(p, identity, IDENTITY_FIELD);
+    p = put(p, &mode, 4);
+    p = put(p, s->values.real, sizeof s->values.real);
+    p = put(p, s->values.integer, sizeof s->values.integer);
+    put(p, s->values.state, sizeof s->values.state);
+    return ok(c);
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte serializedState[],
+                                   size_t size, fmi2FMUstate *state)
+{
+    char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64];
+    INSTANCE_OR_ERROR(component);
+    char identity[IDENTITY_FIELD] = {0}, expected[IDENTITY_FIELD] = {0};
+    strncpy(expected, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
+    const unsigned char *p = (const unsigned char *)serializedState;
+    if (!state || !serializedState || size < 8 + 4 + IDENTITY_FIELD || memcmp(p, STATE_HEADER, 8))
+        return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are not a serialized "
+                       "FMU state of this FMU (its header is missing)");
+    uint32_t format;
+    int32_t mode;
+    Values values;
+    p = get(p + 8, &format, 4);
+    p = get(p, identity, IDENTITY_FIELD);
+    if (format != STATE_FORMAT || memcmp(identity, expected, IDENTITY_FIELD))
+        return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are a state of another "
+                       "FMU or format (its GUID differs)");
+    if (size != SERIALIZED_SIZE)
+        return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are not a serialized "
+                       "FMU state of this FMU (wrong size)");
+    p = get(p, &mode, 4);
+    values.mode = mode;
+    p = get(p, values.real, sizeof values.real);
+    p = get(p, values.integer, sizeof values.integer);
+    get(p, values.state, sizeof values.state);
+    if (values_problem(&values, reason, sizeof reason)) {
+        snprintf(msg, sizeof msg, "fmi2DeSerializeFMUstate rejected the bytes: %s", reason);
+        return fail(c, msg);
+    }
+    Snapshot *s = *state ? snapshot(*state) : allocate(&c->callbacks, sizeof(Snapshot));
+    if (!s)
+        return fail(c, "fmi2DeSerializeFMUstate: the state to overwrite is not one of this FMU, "
+                       "or out of memory");
+    s->magic = SNAPSHOT_MAGIC;
+    memset(s->identity, 0, IDENTITY_FIELD);
+    strncpy(s->identity, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
+    s->values = values;
+    *state = s;
+    return ok(c);
+}

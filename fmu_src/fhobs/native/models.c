@@ -1,0 +1,415 @@
+/*
+ * The model of a native fhobs FMU for the kind its generated data names (FHOBS_KIND): the
+ * state it keeps, the initial state from the per-instance parameters, the checks of those
+ * parameters, the step and the outputs. The steps are the compiled kernel's (kernel.c); the
+ * plans of every built communication step size were prepared at build time by the numpy
+ * runtime and are compiled in (model_data.c), so nothing here depends on numpy.
+ *
+ * Part of the translation unit fhobs_fmu.c (after kernel.c and model_data.c).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.runtime.MAX_SUBSTEPS */
+#define FHOBS_MAX_CYCLES 1000000   /* fhobs.kalman_filter.MAX_CYCLES */
+#define FHOBS_STEP_TOLERANCE 1e-9  /* fhobs.kalman_filter.STEP_TOLERANCE */
+#define FHOBS_NOISE_BLOCK 1024     /* fhobs.plant.NOISE_BLOCK */
+#define FHOBS_SCHEME_EULER 1       /* index of "euler" in fhobs.runtime.SCHEMES and PLANT_SCHEMES */
+
+/* A number as the pythonfmu FMUs' messages show it (Python's repr, for most numbers): the
+ * shortest %g that reads back as the same double. */
+static const char *number(double x, char *buf, size_t len)
+{
+    for (int digits = 1; digits <= 17; digits++) {
+        snprintf(buf, len, "%.*g", digits, x);
+        if (!isfinite(x) || strtod(buf, NULL) == x)
+            break;
+    }
+    if (isfinite(x) && !strpbrk(buf, ".e"))
+        strncat(buf, ".0", len - strlen(buf) - 1);
+    return buf;
+}
+
+#if FHOBS_KIND != FHOBS_KIND_KALMAN
+/* The index of the built step size that dt is (within FHOBS_STEP_TOLERANCE relative: a master
+ * that forms t_k+1 - t_k, as fmpy does, passes 5.000000000000001e-05 for 5e-05); -1 with the
+ * message when it is none of them. */
+static int step_index(double dt, char *msg, size_t len)
+{
+    char a[32], b[32];
+    for (int i = 0; i < FHOBS_N_STEPS; i++)
+        if (fabs(dt - STEP_SIZES[i]) <= FHOBS_STEP_TOLERANCE * STEP_SIZES[i])
+            return i;
+    size_t used = (size_t)snprintf(
+        msg, len, "the communication step size %s is not one this native FMU was built for (",
+        number(dt, a, sizeof a));
+    for (int i = 0; i < FHOBS_N_STEPS && used < len; i++)
+        used += (size_t)snprintf(msg + used, len - used, "%s%s", i ? ", " : "",
+                                 number(STEP_SIZES[i], b, sizeof b));
+    if (used < len)
+        snprintf(msg + used, len - used,
+                 "): the plans of its step are compiled in; rebuild with build_fmu.py --native "
+                 "--native-step %s (repeatable), or use the pythonfmu FMU; state left unchanged", a);
+    return -1;
+}
+#endif
+
+/* Copy n reals from the variables starting at value reference vr. */
+static void read_vector(const double *real, int vr, int n, double *out)
+{
+    for (int i = 0; i < n; i++)
+        out[i] = real[vr + i];
+}
+
+/* The first non-finite entry of the n variables from vr: its index, or -1. */
+static int non_finite_entry(const double *real, int vr, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (!isfinite(real[vr + i]))
+            return i;
+    return -1;
+}
+
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER
+/* ---------------------------------------------------------------------------------------- */
+/* Observers (filtering homogeneous, Luenberger): split plans per step size, euler plan     */
+
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+typedef FilterPlan SplitPlan;
+#define SPLIT_STEP fhobs_filter_step
+#else
+typedef LinearPlan SplitPlan;
+#define SPLIT_STEP fhobs_luenberger_step
+#endif
+
+typedef struct {
+    SplitPlan split[FHOBS_N_STEPS];
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+    cplx factors[FHOBS_N_STEPS][4 * FHOBS_K]; /* spectral-factor caches of the split plans */
+    double last_tau[FHOBS_N_STEPS];
+#endif
+#if FHOBS_HAS_EULER
+    EulerPlan euler;
+    double euler_work[2 * FHOBS_STATE_SIZE];
+#endif
+} Work;
+
+static void work_init(Work *w)
+{
+    for (int i = 0; i < FHOBS_N_STEPS; i++) {
+        w->split[i] = SPLIT_PLANS[i];
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+        w->split[i].factors = w->factors[i];
+        w->last_tau[i] = NAN;
+        w->split[i].last_tau = &w->last_tau[i];
+#endif
+    }
+#if FHOBS_HAS_EULER
+    w->euler = EULER_PLAN;
+    w->euler.work = w->euler_work;
+#endif
+}
+
+static int model_parameters_problem(const double *real, const int *integer, char *msg,
+                                    size_t len)
+{
+    char a[32];
+    double h = real[VR_H];
+    int scheme = integer[VR_SCHEME];
+    if (!(isfinite(h) && h > 0.0)) {
+        snprintf(msg, len, "internal step h = %s is not a positive finite number",
+                 number(h, a, sizeof a));
+        return 1;
+    }
+    if (scheme < 0 || scheme > 1) {
+        snprintf(msg, len, "scheme = %d is not in 0..1 (('split', 'euler'))", scheme);
+        return 1;
+    }
+    if (scheme == FHOBS_SCHEME_EULER && !FHOBS_HAS_EULER) {
+        snprintf(msg, len, "scheme = 1 (euler): this native FMU runs the split scheme only "
+                           "(this design's euler scheme needs the numpy runtime's expm path; "
+                           "use the pythonfmu FMU for it)");
+        return 1;
+    }
+    return 0;
+}
+
+static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    int bad = non_finite_entry(real, VR_Z0, FHOBS_N);
+    if (bad >= 0) {
+        snprintf(msg, len, "z0 must be finite (z0[%d] is not)", bad + 1);
+        return 1;
+    }
+    read_vector(real, VR_Z0, FHOBS_N, state);
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        state[i] = 0.0;
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+    bad = non_finite_entry(real, VR_PSI0, FHOBS_K);
+    if (bad >= 0 || !isfinite(real[VR_XI0])) {
+        snprintf(msg, len, "psi0 and xi0 must be finite");
+        return 1;
+    }
+    read_vector(real, VR_PSI0, FHOBS_K, state + FHOBS_N_MODEL);
+    state[FHOBS_N_MODEL + FHOBS_K] = real[VR_XI0];
+#endif
+    return 0;
+}
+
+static int model_step(Work *w, const double *real, const int *integer, const double *src,
+                      double *dst, double dt, char *msg, size_t len)
+{
+    char a[32], b[32];
+    double inputs[FHOBS_K + FHOBS_M];
+    double h = real[VR_H];
+    double n_sub = ceil(dt / h * (1.0 - 1e-12));
+    if (n_sub < 1.0)
+        n_sub = 1.0;
+    if (n_sub > FHOBS_MAX_SUBSTEPS) {
+        snprintf(msg, len, "the step size %s is more than %d internal steps of h = %s; state "
+                 "left unchanged", number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
+                 number(h, b, sizeof b));
+        return 1;
+    }
+    read_vector(real, VR_Y, FHOBS_K, inputs);
+    read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
+    int code;
+    const char *scheme = "split";
+#if FHOBS_HAS_EULER
+    if (integer[VR_SCHEME] == FHOBS_SCHEME_EULER) {
+        w->euler.n_sub = (int)n_sub;
+        w->euler.hs = dt / n_sub;
+        Call call = {&w->euler, src, dst, inputs};
+        code = fhobs_euler_step(&call);
+        scheme = "euler";
+    } else
+#else
+    (void)integer;
+#endif
+    {
+        int index = step_index(dt, msg, len);
+        if (index < 0)
+            return 1;
+        Call call = {&w->split[index], src, dst, inputs};
+        code = SPLIT_STEP(&call);
+    }
+    if (code != FHOBS_OK) {
+        snprintf(msg, len, "the %s step diverged (non-finite state); state left unchanged",
+                 scheme);
+        return 1;
+    }
+    return 0;
+}
+
+static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+{
+    (void)w;
+    (void)integer;
+    for (int i = 0; i < FHOBS_N; i++)
+        real[VR_X_HAT + i] = state[i];
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        real[VR_Q_HAT + i - FHOBS_N] = state[i];
+    const double *psi = state + FHOBS_N_MODEL, xi = state[FHOBS_N_MODEL + FHOBS_K];
+    for (int i = 0; i < FHOBS_K; i++)
+        real[VR_PSI + i] = psi[i];
+    real[VR_XI] = xi;
+    real[VR_SIGMA] = sigma_of(psi, FHOBS_K, xi);
+#endif
+}
+
+#elif FHOBS_KIND == FHOBS_KIND_PLANT
+/* ---------------------------------------------------------------------------------------- */
+/* Plant: ZOH plans per step size, explicit Euler from A, B, E; noise from (seed, step)     */
+#include "noise.h"
+
+typedef struct {
+    double noise[FHOBS_NOISE_BLOCK * FHOBS_K]; /* draws of the block `block` of `seed` */
+    long long block;                           /* -1: none drawn */
+    int seed;
+} Work;
+
+static void work_init(Work *w)
+{
+    w->block = -1;
+    w->seed = -1;
+}
+
+static int model_parameters_problem(const double *real, const int *integer, char *msg,
+                                    size_t len)
+{
+    char a[32];
+    double amplitude = real[VR_NOISE_AMPLITUDE];
+    int scheme = integer[VR_SCHEME];
+    if (scheme < 0 || scheme > 1) {
+        snprintf(msg, len, "scheme = %d is not in 0..1", scheme);
+        return 1;
+    }
+    if (!(amplitude >= 0.0 && isfinite(amplitude))) {
+        snprintf(msg, len, "noise_amplitude must be finite and >= 0, got %s",
+                 number(amplitude, a, sizeof a));
+        return 1;
+    }
+    if (integer[VR_NOISE_SEED] < 0) {
+        snprintf(msg, len, "seed must be >= 0, got %d", integer[VR_NOISE_SEED]);
+        return 1;
+    }
+    return 0;
+}
+
+static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    int bad = non_finite_entry(real, VR_X0, FHOBS_N);
+    if (bad >= 0) {
+        snprintf(msg, len, "x0 must be finite (x0[%d] is not)", bad + 1);
+        return 1;
+    }
+    read_vector(real, VR_X0, FHOBS_N, state);
+    state[FHOBS_N] = 0.0; /* the step index k */
+    return 0;
+}
+
+static int model_step(Work *w, const double *real, const int *integer, const double *src,
+                      double *dst, double dt, char *msg, size_t len)
+{
+    (void)w;
+    double u[FHOBS_M + FHOBS_R + 1];
+    read_vector(real, VR_U, FHOBS_M, u);
+    read_vector(real, VR_Q, FHOBS_R, u + FHOBS_M);
+    if (integer[VR_SCHEME] == FHOBS_SCHEME_EULER) { /* x + dt ((A x + B u) + E q) */
+        for (int i = 0; i < FHOBS_N; i++) {
+            double s = 0.0, t = 0.0, e = 0.0;
+            for (int j = 0; j < FHOBS_N; j++)
+                s += PLANT_A[i * FHOBS_N + j] * src[j];
+            for (int j = 0; j < FHOBS_M; j++)
+                t += PLANT_B[i * FHOBS_M + j] * u[j];
+            for (int j = 0; j < FHOBS_R; j++)
+                e += PLANT_E[i * FHOBS_R + j] * u[FHOBS_M + j];
+            dst[i] = src[i] + dt * ((s + t) + e);
+        }
+    } else {
+        int index = step_index(dt, msg, len);
+        if (index < 0)
+            return 1;
+        Call call = {&ZOH_PLANS[index], src, dst, u};
+        fhobs_plant_step(&call);
+    }
+    if (!all_finite(dst, FHOBS_N)) {
+        snprintf(msg, len, "the plant state overflowed; state left unchanged");
+        return 1;
+    }
+    dst[FHOBS_N] = src[FHOBS_N] + 1.0;
+    return 0;
+}
+
+/* y = C x + eta_k, eta_k = noise_amplitude * draws[k mod NOISE_BLOCK] of block k / NOISE_BLOCK
+ * (fhobs.plant.uniform_noise); x */
+static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+{
+    double amplitude = real[VR_NOISE_AMPLITUDE];
+    long long k = (long long)state[FHOBS_N];
+    const double *eta = NULL;
+    if (amplitude != 0.0) {
+        int seed = integer[VR_NOISE_SEED];
+        long long block = k / FHOBS_NOISE_BLOCK;
+        if (block != w->block || seed != w->seed) {
+            fhobs_noise_block((uint32_t)seed, (uint32_t)block,
+                              (size_t)FHOBS_NOISE_BLOCK * FHOBS_K, w->noise);
+            w->block = block;
+            w->seed = seed;
+        }
+        eta = w->noise + (size_t)(k % FHOBS_NOISE_BLOCK) * FHOBS_K;
+    }
+    for (int i = 0; i < FHOBS_K; i++) {
+        double s = 0.0;
+        for (int j = 0; j < FHOBS_N; j++)
+            s += PLANT_C[i * FHOBS_N + j] * state[j];
+        real[VR_Y + i] = eta ? s + amplitude * eta[i] : s;
+    }
+    for (int i = 0; i < FHOBS_N; i++)
+        real[VR_X + i] = state[i];
+}
+
+#elif FHOBS_KIND == FHOBS_KIND_KALMAN
+/* ---------------------------------------------------------------------------------------- */
+/* Kalman filter: the cycle matrix; dt / Ts cycles per communication step                    */
+
+typedef struct {
+    LinearPlan plan;
+    double work[2 * FHOBS_N_MODEL];
+} Work;
+
+static void work_init(Work *w)
+{
+    w->plan = KALMAN_PLAN;
+    w->plan.work = w->work;
+}
+
+static int model_parameters_problem(const double *real, const int *integer, char *msg,
+                                    size_t len)
+{
+    (void)real;
+    (void)integer;
+    (void)msg;
+    (void)len;
+    return 0;
+}
+
+static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    int bad = non_finite_entry(real, VR_Z0, FHOBS_N);
+    if (bad >= 0) {
+        snprintf(msg, len, "z0 must be finite (z0[%d] is not)", bad + 1);
+        return 1;
+    }
+    read_vector(real, VR_Z0, FHOBS_N, state);
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        state[i] = 0.0;
+    return 0;
+}
+
+/* fhobs.kalman_filter.cycles_per_step: n = round(dt / Ts) (ties to even, as Python's round) */
+static int model_step(Work *w, const double *real, const int *integer, const double *src,
+                      double *dst, double dt, char *msg, size_t len)
+{
+    (void)integer;
+    char a[32], b[32];
+    double inputs[FHOBS_K + FHOBS_M];
+    double n = nearbyint(dt / KALMAN_TS);
+    if (n < 1.0 || fabs(dt - n * KALMAN_TS) > FHOBS_STEP_TOLERANCE * dt) {
+        snprintf(msg, len, "the step size %s is not a whole multiple of the Kalman filter's "
+                 "sample time Ts = %s; state left unchanged", number(dt, a, sizeof a),
+                 number(KALMAN_TS, b, sizeof b));
+        return 1;
+    }
+    if (n > FHOBS_MAX_CYCLES) {
+        snprintf(msg, len, "the step size %s needs %.0f cycles of Ts = %s, more than %d; state "
+                 "left unchanged", number(dt, a, sizeof a), n, number(KALMAN_TS, b, sizeof b),
+                 FHOBS_MAX_CYCLES);
+        return 1;
+    }
+    read_vector(real, VR_Y, FHOBS_K, inputs);
+    read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
+    w->plan.cycles = (int)n;
+    Call call = {&w->plan, src, dst, inputs};
+    if (fhobs_kalman_step(&call) != FHOBS_OK) {
+        snprintf(msg, len, "the Kalman step diverged (non-finite state); state left unchanged");
+        return 1;
+    }
+    return 0;
+}
+
+static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+{
+    (void)w;
+    (void)integer;
+    for (int i = 0; i < FHOBS_N; i++)
+        real[VR_X_HAT + i] = state[i];
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        real[VR_Q_HAT + i - FHOBS_N] = state[i];
+}
+#else
+#error "model_data.c names no known FHOBS_KIND"
+#endif
