@@ -14,14 +14,12 @@ from __future__ import annotations
 import argparse
 import time
 import tomllib
-from pathlib import Path
 
 import numpy as np
 from fhobs.design import design_for_spec
 from fhobs.homogenisation import homogenise
+from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import spec_from_dict
-
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def random_plant(n: int, k: int, seed: int) -> dict:
@@ -49,7 +47,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
-    pendulum = tomllib.loads((EXAMPLES / "pendulum.toml").read_text())
+    pendulum = tomllib.loads(PENDULUM_SPEC.read_text())
     automatic = {k: v for k, v in pendulum.items() if k not in ("observer", "noise")}
     cases = [("pendulum", pendulum, automatic)] + [
         (f"random n={n}", data | {"observer": {"rho": 1.5, "gamma": 2.75}}, data)

@@ -20,7 +20,6 @@ from fhobs.design import paper_gains
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pendulum-paper.json"
 DT, H = 1e-3, 5e-5
 
 
@@ -62,7 +61,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
     args = parser.parse_args()
-    gains = paper_gains(EXAMPLE)
+    gains = paper_gains()
     rng = np.random.default_rng(0)
     ys = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.k)), axis=0)
     us = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.m)), axis=0)

@@ -39,7 +39,8 @@ from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.linalg import zoh_blocks
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
-from fhobs.reference import H_PAPER, K_PAPER, X0_PAPER, simulate
+from fhobs.paper import H_PAPER, K_PAPER, X0_PAPER
+from fhobs.reference import simulate
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 

@@ -20,11 +20,11 @@ import numpy as np
 from fhobs.build import build_fmus
 from fhobs.cli import design_from_spec
 from fhobs.native.build import build_native_fmus
+from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-SPEC = Path(__file__).resolve().parents[1] / "examples" / "pendulum.toml"
 KINDS = ("observer", "luenberger", "kalman", "plant")
 
 
@@ -79,7 +79,7 @@ def main() -> None:
     parser.add_argument("--dt", type=float, default=1e-3,
                         help="communication step (one the native FMUs are built for)")
     args = parser.parse_args()
-    gains = design_from_spec(load_spec(SPEC))
+    gains = design_from_spec(load_spec(PENDULUM_SPEC))
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         python = build_fmus(gains, Path(tmp) / "pythonfmu", kinds=KINDS)

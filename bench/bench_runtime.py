@@ -28,18 +28,18 @@ from fhobs.core.runtime import (
     PrescribedTimeObserver,
 )
 from fhobs.design import design_for_spec, paper_gains
-from fhobs.reference import H_PAPER, accuracy_metrics, simulate
+from fhobs.paper import H_PAPER, PENDULUM_SPEC
+from fhobs.reference import accuracy_metrics, simulate
 from fhobs.spec import load_spec
 
-REPO = Path(__file__).resolve().parents[1]
 T_END = {"nominal": 1.5, "perturbed": 3.0, "perturbed_noisy": 3.0}
 
 
 def load_gains(name: str):
     """The paper's published design or our tuned design of examples/pendulum.toml."""
     if name == "paper":
-        return paper_gains(REPO / "examples" / "pendulum-paper.json")
-    return design_for_spec(load_spec(REPO / "examples" / "pendulum.toml"))
+        return paper_gains()
+    return design_for_spec(load_spec(PENDULUM_SPEC))
 
 
 def run_case(case: tuple) -> tuple:

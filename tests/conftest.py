@@ -1,20 +1,31 @@
-"""Shared fixtures: the bundled pendulum example, its tuned design and the paper's design."""
+"""Shared fixtures (the bundled pendulum example, its tuned design and the paper's design)
+and the layer markers: every test is marked with its folder (unit, fmu, harness, engines,
+cli), so ``pytest -m fmu`` runs one layer; ``slow`` marks the long runs."""
 
 from pathlib import Path
 
 import pytest
 from fhobs.core.gains import ObserverGains
 from fhobs.design import design_for_spec, paper_gains
+from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec, load_spec
 
-REPO = Path(__file__).resolve().parents[1]
-EXAMPLES = REPO / "examples"
+LAYERS = ("unit", "fmu", "harness", "engines", "cli")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark each test with its layer, the folder under tests/ that holds it."""
+    root = Path(__file__).resolve().parent
+    for item in items:
+        layer = Path(item.fspath).resolve().relative_to(root).parts[0]
+        if layer in LAYERS:
+            item.add_marker(getattr(pytest.mark, layer))
 
 
 @pytest.fixture(scope="session")
 def pendulum_spec() -> PlantSpec:
     """The paper's pendulum, as shipped in examples/pendulum.toml."""
-    return load_spec(EXAMPLES / "pendulum.toml")
+    return load_spec(PENDULUM_SPEC)
 
 
 @pytest.fixture(scope="session")
@@ -26,4 +37,4 @@ def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
 @pytest.fixture(scope="session")
 def paper_design() -> ObserverGains:
     """The paper's published gains, certified."""
-    return paper_gains(EXAMPLES / "pendulum-paper.json")
+    return paper_gains()

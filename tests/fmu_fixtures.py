@@ -14,6 +14,7 @@ from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverGains
 from fhobs.design import design_for_spec
 from fhobs.kalman import with_kalman
+from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import (
@@ -26,11 +27,10 @@ from fmpy.fmi2 import (
     free,
 )
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-PENDULUM_X0 = (2.0, 2.0, 1.0, 2.0)
-NOISE_AMPLITUDE = 1e-3
+PENDULUM_X0 = tuple(X0_PAPER.tolist())
+NOISE_AMPLITUDE = PAPER_SCENARIOS["perturbed_noisy"].noise_amplitude
 NOISE_SEED = 7
-H = 5e-5
+H = H_PAPER
 
 
 def names(base: str, shape: tuple[int, ...]) -> list[str]:

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
+from fhobs.paper import EXAMPLES
 
 from harness.cli import main
-
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def test_own_plant_converges_through_its_fmus(tmp_path, capsys):

@@ -17,7 +17,8 @@ from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.errors import KalmanDesignError, SpecError
 from fhobs.kalman import design_kalman, van_loan, with_kalman
-from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, replay, simulate
+from fhobs.paper import K_PAPER, X0_PAPER
+from fhobs.reference import accuracy_metrics, replay, simulate
 from fhobs.spec import spec_from_dict
 from fmpy import extract
 from fmpy.fmi1 import FMICallException

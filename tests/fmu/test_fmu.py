@@ -1,4 +1,4 @@
-"""observer.fmu, luenberger.fmu and plant.fmu through fmpy's FMU2Slave (issue 4).
+"""observer.fmu, luenberger.fmu and plant.fmu through fmpy's FMU2Slave.
 
 Every FMU result is compared with an independent computation: the in-process numpy runtime
 stepped the same way, a second run of the FMU, or the modelDescription parsed here.

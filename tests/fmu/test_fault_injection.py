@@ -135,7 +135,7 @@ CHILD_EXPECTED = {
 def child_run(pendulum_fmus, unzipped):
     """Run every crash-class mistake REPEAT times in a child process; its exit and results."""
     code = CHILD.format(
-        tests=str(Path(__file__).parent),
+        tests=str(Path(__file__).resolve().parents[1]),
         paths=json.dumps({k: str(v) for k, v in pendulum_fmus.items()}),
         dirs=json.dumps({k: str(v) for k, v in unzipped.items()}), dt=DT, repeat=REPEAT,
     )
@@ -515,7 +515,8 @@ def test_loop_of_two_gain_blocks_is_rejected_the_papers_loop_accepted(
         resolve_system(build_blocks(load_system(path), cache))
     path.write_text(GAIN_LOOP.format(k=0.0))
     resolve_system(build_blocks(load_system(path), cache))
-    scenario = Path(__file__).resolve().parents[1] / "harness" / "scenarios"
+    from harness.cli import SCENARIO_DIR as scenario
+
     spec = load_system(scenario / "pendulum_perturbed.toml",
                        {"fmu_dir": str(pendulum_fmus["observer"].parent)})
     lowered = build_blocks(lower_gains(spec), cache)

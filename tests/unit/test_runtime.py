@@ -16,7 +16,7 @@ from fhobs.core.runtime import (
     spectral_radius,
 )
 from fhobs.design import design_for_spec
-from fhobs.reference import K_PAPER, X0_PAPER
+from fhobs.paper import K_PAPER, X0_PAPER
 from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from scipy.integrate import solve_ivp
 

@@ -13,6 +13,7 @@ import fmu_fixtures
 import numpy as np
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import SCHEMES, FilteringObserver
+from fhobs.paper import K_PAPER
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
@@ -21,7 +22,7 @@ chain_observer = fmu_fixtures.chain_observer
 chain_gains = fmu_fixtures.chain_gains
 open_fmu = fmu_fixtures.open_fmu
 
-K = np.array([[2.0, -35.0, 1.5, -3.0]])
+K = K_PAPER
 DT = 1e-3
 STEPS = 300
 Q_AMPLITUDE, Q_OMEGA = 0.1, 5.0

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from engines import run_fmpy_ssp, run_libcosim
 from fhobs.core.gains import ObserverGains
+from fhobs.paper import K_PAPER, X0_PAPER
 from fhobs.reference import simulate
-from test_harness_plantfmu import build_vendor_plant
+from third_party import run_fmpy_ssp, run_libcosim
+from vendor_plant import build_vendor_plant
 
 from harness import master
 from harness.cli import build_paper_fmus, load_scenario, main
@@ -119,7 +120,7 @@ stop_time = 0.1
 record = ["plant.state", "observer.x_hat", "linear.x_hat"]
 [fmus.plant]
 path = "{plant}"
-start = {{ initial_state = [2.0, 2.0, 1.0, 2.0], disturbance = 0.0 }}
+start = {{ initial_state = {x0}, disturbance = 0.0 }}
 [fmus.observer]
 path = "{fmu_dir}/observer.fmu"
 [fmus.linear]
@@ -133,22 +134,23 @@ to = "linear.y"
 [[connections]]
 from = "observer.x_hat"
 to = "plant.torque"
-gain = [[2.0, -35.0, 1.5, -3.0]]
+gain = {K}
 [[connections]]
 from = "observer.x_hat"
 to = "observer.u"
-gain = [[2.0, -35.0, 1.5, -3.0]]
+gain = {K}
 [[connections]]
 from = "observer.x_hat"
 to = "linear.u"
-gain = [[2.0, -35.0, 1.5, -3.0]]
+gain = {K}
 """
 
 
 def test_third_party_plant_in_the_paper_loop(tmp_path, fmu_dir, gains):
     """A plant FMU the harness did not build, its names mapped in the description."""
     path = tmp_path / "vendor.toml"
-    path.write_text(VENDOR_LOOP.format(plant=build_vendor_plant(tmp_path), fmu_dir=fmu_dir))
+    path.write_text(VENDOR_LOOP.format(plant=build_vendor_plant(tmp_path), fmu_dir=fmu_dir,
+                                       x0=X0_PAPER.tolist(), K=K_PAPER.tolist()))
     result = run_system(resolve_system(load_system(path)), progress=False)
     ref = simulate(gains, "nominal", t_end=0.1)
     for signal, expected in [

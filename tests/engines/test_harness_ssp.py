@@ -14,9 +14,10 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
-from engines import run_fmpy_ssp, run_libcosim
+from fhobs.paper import K_PAPER
 from fmpy.ssp.ssd import read_ssd
-from test_harness_plantfmu import SYSTEM, build_vendor_plant
+from third_party import run_fmpy_ssp, run_libcosim
+from vendor_plant import SYSTEM, build_vendor_plant
 
 from harness.master import run_system
 from harness.ssp import export_ssp, lower_gains
@@ -49,7 +50,7 @@ def test_ssp_is_schema_valid_and_carries_everything(exported):
     assert all(c.source in names for c in components.values())
     bound = {p.name: float(p.value) for p in
              components["gain_1"].parameterBindings[0].parameterValues[0].parameters}
-    assert [bound[f"K[1,{j}]"] for j in range(1, 5)] == [2, -35, 1.5, -3]
+    assert [bound[f"K[1,{j}]"] for j in range(1, 5)] == K_PAPER[0].tolist()
     assert len(ssd.system.connections) == 4 + 1 + 1
 
 
@@ -95,7 +96,7 @@ def test_lowered_gain_block_lags_one_step(exported):
     result = run_system(resolve_system(lowered), stop_time=0.01, progress=False)
     u, x = result.signal("gain_1.y[1]"), result.vector("plant.state")
     assert u[0] == 0.0
-    np.testing.assert_allclose(u[1:], x[:-1] @ [2, -35, 1.5, -3], rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(u[1:], x[:-1] @ K_PAPER[0], rtol=1e-13, atol=1e-13)
     assert np.ptp(u[1:]) > 1e-3
 
 

@@ -13,8 +13,9 @@ from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
 from fhobs.design import design_for_spec
 from fhobs.kalman import with_kalman
+from fhobs.paper import K_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.plots import plot_errors
-from fhobs.reference import K_PAPER, X0_PAPER, accuracy_metrics, simulate
+from fhobs.reference import accuracy_metrics, simulate
 
 pytestmark = pytest.mark.slow  # full-length closed loops of the paper (5 seeds)
 
@@ -50,11 +51,12 @@ def test_jacobi_sequence(paper_design):
     """simulate() is exactly: y_k, u_k = K z_k, q_k from t_k = k dt; then every block steps."""
     g, dt, steps = paper_design, 1e-3, 30
     result = simulate(g, "perturbed_noisy", t_end=steps * dt, dt=dt, seed=3)
-    plant = LTIPlant(g.A, g.B, g.C, g.B, x0=X0_PAPER, noise_amplitude=1e-3, seed=3)
+    q = PAPER_SCENARIOS["perturbed_noisy"]
+    plant = LTIPlant(g.A, g.B, g.C, g.B, x0=X0_PAPER, noise_amplitude=q.noise_amplitude, seed=3)
     obs, lin = FilteringObserver(g, h=dt), LuenbergerObserver(g, h=dt)
     for k in range(steps):
         y, u = plant.y, K_PAPER @ obs.z
-        plant.step(u, [0.1 * np.sin(5.0 * k * dt)], dt)
+        plant.step(u, [q.q_amplitude * np.sin(q.q_frequency * k * dt)], dt)
         obs.step(y, u, dt)
         lin.step(y, u, dt)
     assert np.array_equal(result.x[-1], plant.x)
@@ -146,7 +148,8 @@ def test_disturbance_estimate_tracks_the_perturbation(tuned_runs):
     noise (measured 8.8e-5), rms error < 20 % of the amplitude with noise (measured 12 %)."""
     r = tuned_runs["perturbed"][0]
     mask = r.window(1.0, 3.0)
-    q = 0.1 * np.sin(5.0 * r.t[mask])
+    perturbation = PAPER_SCENARIOS["perturbed"]
+    q = perturbation.q_amplitude * np.sin(perturbation.q_frequency * r.t[mask])
     assert np.max(np.abs(r.q_hat[mask, 0] - q)) < 1e-3
     noisy = tuned_runs["perturbed_noisy"][0]
     assert np.sqrt(np.mean((noisy.q_hat[mask, 0] - q) ** 2)) < 0.02

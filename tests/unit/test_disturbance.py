@@ -2,7 +2,6 @@
 of a constant perturbation, which the model describes exactly."""
 
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,11 +9,9 @@ from fhobs.core.disturbance import extended_model, model_perturbation_matrix
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver
 from fhobs.design import design_for_spec
-from fhobs.reference import K_PAPER, X0_PAPER
+from fhobs.paper import EXAMPLES, K_PAPER, X0_PAPER
 from fhobs.scenarios_zoo import state_feedback
 from fhobs.spec import spec_from_dict
-
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def test_extended_model_blocks():

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EXAMPLES
 from fhobs.errors import SpecError
+from fhobs.paper import EXAMPLES
 from fhobs.spec import load_spec, spec_from_dict
 
 GOOD = {

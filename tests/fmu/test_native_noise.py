@@ -11,12 +11,13 @@ import ctypes
 import shutil
 from pathlib import Path
 
+import fhobs.native
 import numpy as np
 import pytest
 from fhobs.core.kernel import compile_source
 from fhobs.core.plant import NOISE_BLOCK, uniform_noise
 
-NOISE_SOURCE = Path(__file__).resolve().parents[1] / "fmu_src" / "fhobs" / "native" / "noise.c"
+NOISE_SOURCE = Path(fhobs.native.__file__).with_name("noise.c")
 
 pytestmark = pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
 

@@ -27,7 +27,7 @@ from fhobs.spec import load_spec, spec_from_dict
 
 from harness.cli import main as harness_main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
 DOUBLE_INTEGRATOR = "A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n"
 

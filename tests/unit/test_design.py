@@ -6,22 +6,24 @@ import json
 import subprocess
 import sys
 import tomllib
+from pathlib import Path
 from types import SimpleNamespace
 
 import fhobs.design
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import EXAMPLES, REPO
 from fhobs.core.certificate import augmented_matrices, certify, checked_model
 from fhobs.core.disturbance import extended_model
 from fhobs.design import augmented_system, design_for_spec, matched_perturbation_residual
 from fhobs.errors import CertificateError
 from fhobs.homogenisation import homogenise, observability_index
 from fhobs.lmi import LMISolution
+from fhobs.paper import EXAMPLES, published
 from fhobs.spec import spec_from_dict
 
-PAPER = json.loads((EXAMPLES / "pendulum-paper.json").read_text())
+REPO = Path(__file__).resolve().parents[2]
+PAPER = published()
 
 
 def printed_tolerance(value: float) -> float:
