@@ -203,13 +203,11 @@ class _Observer:
         euler steps, or a step size without a contractive gain cap still raises ValueError,
         the state unchanged."""
         stepper = self._stepper
-        if stepper is not None:  # the kernel, unless its code asks for the numpy step
-            code = stepper.run(dt, self._z, self._aux, y, u)
-            if code == compiled.OK:
-                self._z, self._aux = stepper.state
-                return
-            if code == compiled.NONFINITE:
+        if stepper is not None:  # the compiled step: OK or NONFINITE
+            if stepper.run(dt, self._z, self._aux, y, u) != compiled.OK:
                 raise self._diverged()
+            self._z, self._aux = stepper.state
+            return
         n_sub = self._substeps(dt)
         try:  # the schemes never write into their arguments: the state stays as it was
             if self.scheme == "split":
