@@ -9,10 +9,12 @@ message naming the FMU, the variable and what was expected.
 
 File format (all keys except ``fmus`` optional)::
 
-    extends = "pendulum_perturbed.toml"   # optional: start from that file (relative to this
+    extends = "pendulum_nominal.toml"     # optional: start from that file (relative to this
                                           # one) and change it: tables merge key by key,
-                                          # [[connections]] are appended, other values replace
-    name = "pendulum_nominal"
+                                          # [[connections]] are appended (an input they connect
+                                          # loses the start value the base gave it), other
+                                          # values replace
+    name = "pendulum_perturbed"
     [variables]                      # ${NAME} placeholders in FMU paths; overridable by callers
     fmu_dir = "../../build/pendulum"
     [run]
@@ -297,7 +299,30 @@ def _read_description(path: Path, extending: tuple[Path, ...]) -> dict[str, Any]
     base_path = (path.parent / base).resolve()
     if base_path in (*extending, path.resolve()):
         raise DescriptionError(f"{path}: extends {base} which extends it again (a cycle)")
-    return _merged(_read_description(base_path, (*extending, path.resolve())), data, str(path))
+    base_data = _read_description(base_path, (*extending, path.resolve()))
+    return _merged(_without_connected_starts(base_data, data, str(path)), data, str(path))
+
+
+def _without_connected_starts(base: dict[str, Any], changes: dict[str, Any],
+                              where: str) -> dict[str, Any]:
+    """``base`` without the start values of the inputs that ``changes`` connects: a constant
+    input of the base becomes a connected one (within one file, both stay an error)."""
+    fmus = dict(_table(base, "fmus", where))
+    for entry in _list(changes, "connections", where):
+        target = entry.get("to") if isinstance(entry, dict) else None
+        if not isinstance(target, str) or "." not in target:
+            continue  # reported when the connection is read
+        fmu, var = split_signal(target)
+        table = fmus.get(fmu)
+        if isinstance(table, dict) and isinstance(table.get("start"), dict):
+            fmus[fmu] = {**table, "start": {key: value for key, value in table["start"].items()
+                                            if not _same_input(key, var)}}
+    return {**base, "fmus": fmus}
+
+
+def _same_input(a: str, b: str) -> bool:
+    """Whether two names of a description (``q``, ``q[1]``) denote a common scalar."""
+    return a == b or a.startswith(b + "[") or b.startswith(a + "[")
 
 
 def _merged(base: dict[str, Any], changes: dict[str, Any], where: str) -> dict[str, Any]:

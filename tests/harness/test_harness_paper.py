@@ -242,8 +242,7 @@ def test_fmu_error_status_stops_the_run(fmu_dir, block_cache, loop, monkeypatch)
         monkeypatch.setattr(master, "step_library", lambda: None)
     elif master.step_library() is None:
         pytest.skip("no C compiler: the master steps from Python")
-    spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start(
-        {"perturbation.offset[1]": 1e9})
+    spec = _scenario("pendulum_nominal", fmu_dir, block_cache).with_start({"plant.q[1]": 1e9})
     with pytest.raises(MasterError, match=r"plant: fmi2DoStep at t = 0\.0 returned 3 \(error\)"):
         run_system(resolve_system(spec), stop_time=0.01, progress=False)
 

@@ -21,9 +21,14 @@ def test_bundled_scenario_is_the_papers_set_up(scenario):
     plant = spec.fmus["plant"].start
     assert [plant[f"x0[{i}]"] for i in range(1, 5)] == X0_PAPER.tolist()
     assert plant["noise_amplitude"] == paper.noise_amplitude
-    sine = spec.fmus["perturbation"].start
-    assert (sine["amplitude[1]"], sine["omega[1]"]) == (paper.q_amplitude, paper.q_frequency)
-    assert (sine["phase[1]"], sine["offset[1]"]) == (0.0, 0.0)
+    if paper.q_amplitude == 0.0:  # no perturbation: q a constant input of value 0
+        assert "perturbation" not in spec.fmus and plant["q[1]"] == 0.0
+    else:
+        sine = spec.fmus["perturbation"].start
+        assert (sine["amplitude[1]"], sine["omega[1]"]) == (paper.q_amplitude,
+                                                              paper.q_frequency)
+        assert (sine["phase[1]"], sine["offset[1]"]) == (0.0, 0.0)
+        assert "q[1]" not in plant
     gains = [c.gain for c in spec.connections if c.gain is not None]
     assert len(gains) == 4 and all(np.array_equal(g, K_PAPER) for g in gains)
     assert spec.step == H_PAPER and spec.name == FILES[scenario]
@@ -70,6 +75,26 @@ to = "a.u"
     assert spec.fmus["a"].path == (tmp_path / "a.fmu").resolve()
     assert set(spec.fmus) == {"a", "b"}
     assert [(c.source, c.target) for c in spec.connections] == [("a.y", "b.u"), ("b.y", "a.u")]
+
+
+def test_a_connection_of_the_extending_file_replaces_the_bases_constant_input(tmp_path):
+    """The base gives a.u[1] (and, as a vector, a.w) start values; the extending file connects
+    them: the start values go, the base's other start values stay. Within one file both are
+    still an error (resolve_system)."""
+    _write(tmp_path / "base.toml", BASE.replace("gain = 3.0 }", 'gain = 3.0, "u[1]" = 0.5, '
+                                                               "w = [1.0, 2.0] }"))
+    child = _write(tmp_path / "child.toml", """
+extends = "base.toml"
+[[connections]]
+from = "b.y"
+to = "a.u[1]"
+[[connections]]
+from = "b.v"
+to = "a.w"
+""")
+    start = load_system(child).fmus["a"].start
+    assert start == {"x0[1]": 1.0, "x0[2]": 2.0, "gain": 3.0}
+    assert load_system(tmp_path / "base.toml").fmus["a"].start["u[1]"] == 0.5
 
 
 def test_extends_errors_name_the_files(tmp_path):
