@@ -368,9 +368,11 @@ def _cmd_plant(args: argparse.Namespace) -> int:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
-    for path in sorted(SCENARIO_DIR.glob("*.toml")):
+    paths = sorted(SCENARIO_DIR.glob("*.toml"))
+    width = max(len(path.stem) for path in paths)
+    for path in paths:
         first = path.read_text().splitlines()[0].lstrip("# ")
-        print(f"{path.stem:<22} {first}")
+        print(f"{path.stem:<{width}} {first}")
     return 0
 
 

@@ -1,5 +1,5 @@
-"""Build ``observer.fmu``, ``luenberger.fmu``, ``plant.fmu`` and, when the design has a Kalman
-filter, ``kalman.fmu`` from an :class:`ObserverGains`.
+"""Build ``observer.fmu``, ``luenberger.fmu``, ``prescribed_time.fmu``, ``plant.fmu`` and, when
+the design has a Kalman filter, ``kalman.fmu`` from an :class:`ObserverGains`.
 
 Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
@@ -40,18 +40,19 @@ from .core.certificate import certify
 from .core.gains import ObserverGains
 from .core.kernel import SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
-from .core.runtime import SCHEMES
+from .core.runtime import SCHEMES, prescribed_xi0
 from .errors import BuildError
 from .fmu.modes import STATUS_VALUE_REFERENCE
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SLAVE_CLASSES = {"observer": "FhobsObserver", "luenberger": "FhobsLuenberger",
-                 "plant": "FhobsPlant", "kalman": "FhobsKalman"}
+                 "prescribed_time": "FhobsPrescribedTime", "plant": "FhobsPlant",
+                 "kalman": "FhobsKalman"}
 """The slave class of each FMU kind, defined in ``fhobs.fmu.<kind>``."""
 SHIPPED_PACKAGES = ("core", "fmu")
 """The subpackages of fhobs copied whole into each FMU."""
-DEFAULT_KINDS = ("observer", "luenberger", "plant")
+DEFAULT_KINDS = ("observer", "luenberger", "prescribed_time", "plant")
 """Built by default; ``kalman`` too when the design has a Kalman filter."""
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
@@ -67,6 +68,7 @@ def build_fmus(
     z0: Iterable[float] | None = None,
     psi0: Iterable[float] | None = None,
     xi0: float = 0.0,
+    T0: float = 1.0,
     x0: Iterable[float] | None = None,
     noise_amplitude: float = 0.0,
     noise_seed: int = 0,
@@ -83,7 +85,8 @@ def build_fmus(
         The certified design; it is re-certified here (numpy-only check) before building.
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
-    kinds : iterable of {"observer", "luenberger", "plant", "kalman"}, optional
+    kinds : iterable of str, optional
+        Among ``SLAVE_CLASSES``: observer, luenberger, prescribed_time, plant, kalman.
         Default: ``DEFAULT_KINDS``, plus ``kalman`` when ``gains.kalman`` is set.
     h : float
         Start value of the observers' internal step.
@@ -92,6 +95,9 @@ def build_fmus(
     z0, psi0, xi0 : optional
         Start values of the observers' initial state (default zero; the Kalman filter's
         disturbance states start at zero).
+    T0 : float
+        Start value of the prescribed-time observer's convergence time (s), from which it
+        derives its initial xi.
     x0 : iterable of float, optional
         Start value of the plant's initial state (default zero).
     noise_amplitude, noise_seed : float, int
@@ -132,6 +138,8 @@ def build_fmus(
         raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
                          "give the spec a [noise] table)")
     certify(gains)
+    if "prescribed_time" in kinds:
+        prescribed_xi0(T0, gains.nu, gains.rho)  # ValueError naming T0 if it gives no xi0
     compiler = shutil.which("cc") or shutil.which("gcc")
     if status_wrapper is None:
         status_wrapper = compiler is not None
@@ -150,6 +158,7 @@ def build_fmus(
         "z0": _vector(z0, gains.n),
         "psi0": _vector(psi0, gains.k),
         "xi0": float(xi0),
+        "T0": float(T0),
         "x0": _vector(x0, gains.n),
         "noise_amplitude": float(noise_amplitude),
         "noise_seed": int(noise_seed),

@@ -24,8 +24,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="build_fmu.py",
         description="Design the filtering homogeneous observer for a plant spec (TOML) and "
-        "write design.json and the FMUs (observer.fmu, luenberger.fmu, plant.fmu, and "
-        "kalman.fmu when the spec has a [noise] table).",
+        "write design.json and the FMUs (observer.fmu, luenberger.fmu, prescribed_time.fmu, "
+        "plant.fmu, and kalman.fmu when the spec has a [noise] table).",
     )
     parser.add_argument("spec", type=Path, help="plant spec TOML file (see examples/)")
     parser.add_argument("--out", type=Path, default=Path("build"), help="output folder")

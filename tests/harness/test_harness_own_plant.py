@@ -24,7 +24,7 @@ def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     assert summary["homogeneous"]["max_error_2_4"] <= 1e-9
     assert {"homogeneous", "linear"} <= set(summary)
     assert sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu")) == [
-        "luenberger.fmu", "observer.fmu", "plant.fmu"]
+        "luenberger.fmu", "observer.fmu", "plant.fmu", "prescribed_time.fmu"]
 
 @pytest.mark.slow
 

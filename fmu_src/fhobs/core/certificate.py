@@ -195,11 +195,49 @@ def certificate_values(gains: ObserverGains) -> dict[str, float]:
     values |= lmi_values(diagonal_congruence(gains.P_bar, d_bar),
                          diagonal_similarity(bar_A0 + bar_L @ bar_C, d_bar),
                          diagonal_similarity(bar_G, d_bar), gains.rho, "filtering")
-    G_pt = gains.G_d - gains.nu * np.eye(A_model.shape[0])
-    values |= lmi_values(diagonal_congruence(gains.P_pt, d),
-                         diagonal_similarity(A_model + (gains.L0 + gains.L_pt) @ C_model, d),
-                         diagonal_similarity(G_pt, d), gains.rho, "pt")
+    values |= prescribed_time_lmi_values(gains)
     values["hurwitz_luenberger"] = luenberger_abscissa(gains)
+    return values
+
+
+def prescribed_time_lmi_values(gains: ObserverGains) -> dict[str, float]:
+    """The four Theorem 1 figures (``P_pt_positive``, ``P_pt_monotone``, ``lmi_pt``,
+    ``hurwitz_pt``, with ``P_pt_rounding``): the LMI with P_pt, ``H = A0 + L_pt C_model`` and
+    ``G = G_d - nu I``, in balanced coordinates."""
+    A_model, C_model = checked_model(gains)
+    d = balancing_scale(A_model)
+    G_pt = gains.G_d - gains.nu * np.eye(A_model.shape[0])
+    return lmi_values(diagonal_congruence(gains.P_pt, d),
+                      diagonal_similarity(A_model + (gains.L0 + gains.L_pt) @ C_model, d),
+                      diagonal_similarity(G_pt, d), gains.rho, "pt")
+
+
+def certify_prescribed_time(
+    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = DEFAULT_MARGIN
+) -> dict[str, float]:
+    """The part of :func:`certify` that covers Theorem 1, the prescribed-time observer: nu and
+    rho in range (:func:`tuning_problem`, gamma not used), the homogeneity identities and the
+    LMI with P_pt. The prescribed-time FMU's check of edited parameters.
+
+    Parameters and Raises as for :func:`certify`; returns the figures checked.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from fhobs.design import design_observer
+    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> bool(certify_prescribed_time(gains)["lmi_pt"] < 0)
+    True
+    >>> certify_prescribed_time(dataclasses.replace(gains, L_pt=-gains.L_pt))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: ...lmi_pt...
+    """
+    problem = tuning_problem(gains.nu, gains.rho, None, gains.n_tilde)
+    if problem:
+        raise CertificateError(problem)
+    values = homogeneity_values(gains) | prescribed_time_lmi_values(gains)
+    _judge(values, tolerance, margin)
     return values
 
 
@@ -343,6 +381,12 @@ def certify(
     fhobs.core.errors.CertificateError: ...hurwitz_luenberger...
     """
     values = certificate_values(gains)
+    _judge(values, tolerance, margin)
+    return values
+
+
+def _judge(values: dict[str, float], tolerance: float, margin: float) -> None:
+    """Raise :class:`CertificateError` naming every figure of ``values`` out of its bound."""
     bad = _violations(values, tolerance, margin)
     if bad:
         detail = "; ".join(
@@ -353,4 +397,3 @@ def certify(
         needed = max((margin + values.get(_rounding_key(name), 0.0)
                       for name, _, _ in bad if name.startswith("lmi_")), default=0.0)
         raise CertificateError(f"design fails {len(bad)} check(s): {detail}", needed)
-    return values

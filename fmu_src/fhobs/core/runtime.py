@@ -69,6 +69,7 @@ This module is numpy-only: it runs inside the FMUs.
 from __future__ import annotations
 
 import math
+import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -625,6 +626,36 @@ class FilteringObserver(_Observer):
             dz_gain, dpsi = np.zeros(self._z.size), v
         dxi = abs(psi @ dpsi) - g.gamma * signed_power(xi - 0.5 * psi @ psi, self._p)
         return np.append(dpsi, dxi), dz_gain
+
+
+def prescribed_xi0(T0: float, nu: float, rho: float) -> float:
+    """The initial xi for which the prescribed-time observer converges at ``T0``: the inverse
+    of ``T0 = xi0^(-nu) / (-nu rho)``, i.e. ``xi0 = (-nu rho T0)^(-1/nu)`` (positive).
+
+    Raises
+    ------
+    ValueError
+        If T0, -nu or rho is not a positive finite number, or xi0 is outside the normal
+        floats (T0 so small or so large that xi0 overflows or underflows).
+
+    Examples
+    --------
+    >>> prescribed_xi0(1.0, -0.5, 2.0)  # (0.5 * 2 * 1)^2
+    1.0
+    >>> round(prescribed_xi0(0.5, -0.25, 4.0), 12)  # (0.25 * 4 * 0.5)^4
+    0.0625
+    """
+    for name, value in (("T0", T0), ("-nu", -nu), ("rho", rho)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} = {float(value)!r} is not a positive finite number")
+    try:
+        xi0 = (-nu * rho * T0) ** (-1.0 / nu)
+    except OverflowError:
+        xi0 = math.inf
+    if not (math.isfinite(xi0) and xi0 >= sys.float_info.min):
+        raise ValueError(f"T0 = {float(T0)!r} s gives xi0 = (-nu rho T0)^(-1/nu) = {xi0!r}, "
+                         "outside the normal floating-point numbers")
+    return xi0
 
 
 class PrescribedTimeObserver(_Observer):

@@ -1,4 +1,5 @@
-"""FMI plumbing shared by the observer, Luenberger, Kalman and plant slaves: the lifecycle.
+"""FMI plumbing shared by the observer, prescribed-time, Luenberger, Kalman and plant slaves:
+the lifecycle.
 
 A slave declares array-valued parameters, inputs and outputs (:mod:`.variables`); this base
 class re-checks the parameters at ``exitInitializationMode``, validates the inputs of every
