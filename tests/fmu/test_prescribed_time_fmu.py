@@ -17,7 +17,7 @@ import pytest
 import scipy.linalg
 from fhobs.build import build_fmus
 from fhobs.core.runtime import SCHEMES, PrescribedTimeObserver
-from fhobs.paper import K_PAPER
+from fhobs.paper import K_PAPER, X0_PAPER
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 from harness.cli import PAPER_SCENARIOS, SCENARIO_DIR
 from harness.system import load_system
 
-X0 = np.array([2.0, 2.0, 1.0, 2.0])
+X0 = X0_PAPER
 K = K_PAPER
 DT = 1e-3
 FMI_ERROR = 3
