@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from fhobs.cli import check_output_folder
-from fhobs.errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from fhobs.errors import BuildError, CertificateError, KalmanDesignError, LMIError, SpecError
 from fhobs.paper import PENDULUM_SPEC
 
 from harness.master import CoSimResult, MasterError, run_system
@@ -121,6 +121,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
+    paper.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    paper.add_argument("--native", action="store_true",
+                       help="also build the native FMUs (fmus/native) and run the scenarios "
+                            "with them")
     plant = sub.add_parser(
         "plant", parents=[common],
         help="design and build the FMUs of your own plant spec and run its default scenario",
@@ -258,7 +262,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPEC,
-                     kernel: bool | None = None) -> Path:
+                     kernel: bool | None = None, native: bool = False) -> Path:
     """Build the pendulum FMUs (and design.json) into ``out`` with build_fmu.py's machinery.
 
     Parameters
@@ -275,6 +279,13 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     kernel
         Ship the compiled step kernel in the FMUs (:func:`fhobs.build.build_fmus`; default:
         when it can be compiled); False: the FMUs run the numpy runtime alone.
+    native
+        Also build the native FMUs into ``out/native`` (:mod:`fhobs.native`).
+
+    Returns
+    -------
+    Path
+        The folder of the FMUs to run: ``out``, or ``out/native`` with ``native``.
     """
     from fhobs.build import build_fmus
     from fhobs.cli import design_from_spec, design_summary
@@ -298,7 +309,12 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
     build_fmus(gains, out, kernel=kernel)
-    return out
+    if not native:
+        return out
+    from fhobs.native.build import build_native_fmus
+
+    build_native_fmus(gains, out / "native")
+    return out / "native"
 
 
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
@@ -319,7 +335,8 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     table, folders = {}, {}
     for design in designs:
         label = DESIGN_LABELS[design]
-        fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec)
+        fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec,
+                                   native=args.native)
         _check_kalman_fmu(fmu_dir, args.spec)
         for name in PAPER_SCENARIOS:
             spec = load_scenario(name, fmu_dir, args.block_cache)
@@ -329,7 +346,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
             key = f"{label} {name}"
             folders[key] = args.out / label / name
             table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs,
-                                      csv_every=csv_every(args, PAPER_CSV_EVERY))
+                                      not args.no_plots, csv_every(args, PAPER_CSV_EVERY))
     print(format_table(table))
     for key, data in table.items():
         print(f"{key}: {folders[key]} (plots: {', '.join(data.get('plots', []))})")
@@ -356,7 +373,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     stop_time = step * round(stop_time / step)
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
     fmus = build_fmus(gains, args.out / "fmus", x0=spec.state_scale, noise_amplitude=noise,
-                      h=step)
+                      h=step, T0=spec.settling_time)
     system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise)
     data = run_scenario(system, args.out, None, [args.seed] if noise else None, 1,
                         not args.no_plots, csv_every(args, 1))
@@ -420,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return commands[args.command](args)
     except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,
-            KalmanDesignError) as err:
+            KalmanDesignError, BuildError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "

@@ -362,6 +362,13 @@ def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_gains, tmp_pat
         build_native_fmus(tuned_gains, tmp_path, steps=[0.5], kinds=["observer"])
 
 
+def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_gains, tmp_path):
+    with pytest.raises(BuildError, match="no native FMU of kind prescribed_time: native FMUs "
+                                         "are built for observer, luenberger, plant, kalman"):
+        build_native_fmus(tuned_gains, tmp_path, kinds=["observer", "prescribed_time"])
+    assert not any(tmp_path.iterdir())
+
+
 # -- build_fmu.py --native, the harness, fmpy's compile of sources/ -------------------------------
 @pytest.fixture(scope="module")
 def cli_folders(tmp_path_factory) -> Path:

@@ -12,8 +12,9 @@ from harness.cli import main
 
 def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     """The DC motor spec (defaults only): designed, built, run for 4 s through the FMUs; the
-    homogeneous observer's error over the last half is at the noise-free floor, far below the
-    error it started from (the plant starts at state_scale = ones, the observers at zero)."""
+    homogeneous and prescribed-time observers' errors over the last half are at the noise-free
+    floor, far below the error they started from (the plant starts at state_scale = ones, the
+    observers at zero)."""
     code = main(["plant", str(EXAMPLES / "zoo" / "dc_motor.toml"), "--out", str(tmp_path),
                  "--stop-time", "4", "--no-plots"])
     out = capsys.readouterr().out
@@ -25,9 +26,13 @@ def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     assert {"homogeneous", "linear"} <= set(summary)
     assert sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu")) == [
         "luenberger.fmu", "observer.fmu", "plant.fmu", "prescribed_time.fmu"]
+    # the prescribed-time observer, T0 = the requested settling time (2 s): 1e-5 at T0 (from
+    # 1.7; the sampled gain is capped), round-off within 0.1 s after it
+    prescribed = summary["prescribed_time"]
+    assert prescribed["max_error_2_4"] <= 1e-4 and prescribed["rms_error_2_4"] <= 1e-6
+
 
 @pytest.mark.slow
-
 def test_own_plant_with_noise_runs_the_kalman_filter_at_its_sample_time(tmp_path, capsys):
     """A spec with a [noise] table: kalman.fmu is built and run, the step is its sample time,
     the plant's measurement is noisy, and states.png shows the estimates."""

@@ -16,7 +16,7 @@ from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import build_vendor_plant
 
 from harness import master
-from harness.cli import build_paper_fmus, load_scenario, main
+from harness.cli import PAPER_SCENARIOS, build_paper_fmus, load_scenario, main
 from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
@@ -256,3 +256,16 @@ def test_native_and_python_step_loops_are_identical(fmu_dir, block_cache, monkey
     monkeypatch.setattr(master, "step_library", lambda: None)
     python = run_system(system, stop_time=0.05, progress=False)
     assert native.values.tobytes() == python.values.tobytes()
+
+
+def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
+    """``harness paper --native`` builds fmus/native and runs the scenarios with it: the same
+    results.csv, bit for bit, as the pythonfmu FMUs of the same design."""
+    common = ["paper", "--design", "spec", "--stop-time", "0.05", "--no-plots"]
+    assert main([*common, "--out", str(tmp_path / "python")]) == 0
+    assert main([*common, "--out", str(tmp_path / "native"), "--native"]) == 0
+    assert (tmp_path / "native" / "ours" / "fmus" / "native" / "observer.fmu").is_file()
+    for scenario in PAPER_SCENARIOS:
+        python, native = (tmp_path / run / "ours" / scenario / "results.csv"
+                          for run in ("python", "native"))
+        assert python.read_text() == native.read_text(), scenario

@@ -129,6 +129,10 @@ def build_native_fmus(
     if kinds is None:
         kinds = ("observer", "luenberger", "plant") + (("kalman",) if gains.kalman else ())
     kinds = tuple(kinds)
+    unknown = sorted(set(kinds) - set(KIND_NUMBERS))
+    if unknown:
+        raise BuildError(f"no native FMU of kind {', '.join(unknown)}: native FMUs are built for "
+                         f"{', '.join(KIND_NUMBERS)}")
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None or sys.platform != "linux" or kernel.library() is None:
         raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
