@@ -56,15 +56,15 @@ from fhobs.core.runtime import FilteringObserver
 from fhobs.design import design_for_spec
 from fhobs.errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from fhobs.kalman import design_kalman
+from fhobs.paper import H_PAPER, PAPER_SCENARIOS, PENDULUM_SPEC
 from fhobs.reference import SimulationResult, replay, simulate
 from fhobs.spec import spec_from_dict
 
-REPO = Path(__file__).resolve().parents[1]
-SPEC = REPO / "examples" / "pendulum.toml"
+SPEC = PENDULUM_SPEC
 EVAL_SEEDS = (0, 1, 2, 3, 4)
 TUNING_SEED = 10
-NOISE_AMPLITUDE = 1e-3
-SAMPLE_TIME = 5e-5
+NOISE_AMPLITUDE = PAPER_SCENARIOS["perturbed_noisy"].noise_amplitude
+SAMPLE_TIME = H_PAPER
 WINDOW = (1.0, 3.0)
 INTENSITIES = 10.0 ** np.arange(-6.0, 12.5, 0.5)
 FASTEST_TOLERANCE = 1.01

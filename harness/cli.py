@@ -45,7 +45,9 @@ from harness.system import (
 )
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
-PAPER_SCENARIOS = ("pendulum_nominal", "pendulum_perturbed", "pendulum_noisy")
+PAPER_SCENARIO_FILES = {"nominal": "pendulum_nominal", "perturbed": "pendulum_perturbed",
+                        "perturbed_noisy": "pendulum_noisy"}
+"""The bundled scenario of each of the paper's scenarios (keys of fhobs.paper.PAPER_SCENARIOS)."""
 PAPER_SEEDS = {"pendulum_noisy": 5}
 PAPER_CSV_EVERY = 20
 """The main job writes every 20th point (1 ms at the paper's step) of its 60,000-step runs."""
@@ -80,7 +82,10 @@ def parse_assignment(text: str) -> tuple[str, Any]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m harness", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m harness",
+        description="Co-simulate FMUs with fmpy: the paper's scenarios, your own plant, any "
+                    "system description.")
     sub = parser.add_subparsers(dest="command", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--fmu-dir", type=Path, help="value of ${fmu_dir} in FMU paths")
@@ -338,7 +343,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec,
                                    native=args.native)
         _check_kalman_fmu(fmu_dir, args.spec)
-        for name in PAPER_SCENARIOS:
+        for name in PAPER_SCENARIO_FILES.values():
             spec = load_scenario(name, fmu_dir, args.block_cache)
             n = PAPER_SEEDS.get(name)
             seeds = list(range(n)) if n else None

@@ -10,7 +10,7 @@ What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6)
   the same way (``resolve_system(lower_gains(spec))``).
 - start values: written as component ``ParameterBindings`` with inline ``ssv:ParameterSet``
   values (libcosim applies them; fmpy's ``simulate_ssp`` parses but does not apply them, so
-  the tests' ``engines`` helper hands them over as its ``parameter_set``).
+  a caller hands them over as its ``parameter_set``).
 - signal sources: carried as :mod:`harness.blocks` sine FMUs (the systems already use them).
 
 The default experiment (start, stop) is written; the step size goes into two vendor

@@ -43,6 +43,12 @@ File format (all keys except ``fmus`` optional)::
     [plots.signals]                  # fhobs.reference.SimulationResult field -> signal
     x = "plant.x"                    # likewise z, z_lin, psi, xi, sigma
 
+A value written as the string ``"${paper.NAME}"`` (anywhere but in FMU paths) is the paper's
+number of that name from :mod:`fhobs.paper` (``PAPER_VALUES``): ``paper.K``, ``paper.x0``,
+``paper.step``, and ``paper.SCENARIO.q_amplitude`` / ``q_frequency`` / ``noise_amplitude``
+for the scenarios ``nominal``, ``perturbed``, ``perturbed_noisy``; the bundled scenarios take
+the paper's set-up from there.
+
 Inputs must each be connected exactly once or given a start value (a constant input). Start
 values go to parameters, inputs and locals with ``initial`` exact or approx, never outputs.
 Connections carry Real signals only. Algebraic loops: under the Jacobi exchange no loop passes
@@ -64,12 +70,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
 
 StartValue = float | int | bool
+PAPER_VALUES: dict[str, Any] = {
+    "paper.K": K_PAPER.tolist(), "paper.x0": X0_PAPER.tolist(), "paper.step": H_PAPER,
+    **{f"paper.{name}.{field}": getattr(scenario, field)
+       for name, scenario in PAPER_SCENARIOS.items()
+       for field in ("q_amplitude", "q_frequency", "noise_amplitude")},
+}
+"""The paper's set-up by name, for ``"${paper.NAME}"`` values (module docstring)."""
+_PAPER_VALUE = re.compile(r"\$\{(paper\.[A-Za-z0-9_.]+)\}")
 TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evaluation", "plots")
 RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
 CONNECTION_KEYS = ("from", "to", "gain")
@@ -240,8 +255,8 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
     SystemSpec
     """
     path = Path(path)
-    data = _read_description(path, ())
     where = str(path)
+    data = _with_paper_values(_read_description(path, ()), where)
     _reject_unknown(data, TOP_KEYS, where)
     subst = {**_strings(data, "variables", where), **(variables or {})}
     run = _table(data, "run", where)
@@ -301,6 +316,21 @@ def _read_description(path: Path, extending: tuple[Path, ...]) -> dict[str, Any]
         raise DescriptionError(f"{path}: extends {base} which extends it again (a cycle)")
     base_data = _read_description(base_path, (*extending, path.resolve()))
     return _merged(_without_connected_starts(base_data, data, str(path)), data, str(path))
+
+
+def _with_paper_values(value: Any, where: str) -> Any:
+    """``value`` with every string ``"${paper.NAME}"`` in it replaced by ``PAPER_VALUES``."""
+    if isinstance(value, dict):
+        return {key: _with_paper_values(item, where) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_with_paper_values(item, where) for item in value]
+    match = _PAPER_VALUE.fullmatch(value) if isinstance(value, str) else None
+    if match is None:
+        return value
+    if match.group(1) not in PAPER_VALUES:
+        raise DescriptionError(f"{where}: {value} is not one of the paper's values "
+                               f"({', '.join(sorted(PAPER_VALUES))})")
+    return PAPER_VALUES[match.group(1)]
 
 
 def _without_connected_starts(base: dict[str, Any], changes: dict[str, Any],

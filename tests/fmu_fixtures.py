@@ -1,6 +1,5 @@
-"""Helpers of the FMU tests: FMUs built once per session and a small fmpy FMU2Slave driver.
-
-Imported by ``tests/test_fmu*.py`` (not a conftest: the lead owns ``tests/conftest.py``).
+"""Shared FMU test fixtures: the FMUs built once per session and a small fmpy FMU2Slave
+driver (imported by the FMU, kernel and Kalman tests).
 Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
 """
 

@@ -47,9 +47,7 @@ takes well under a second instead of minutes. The solution maps back exactly:
 P = T^-T P_t T^-1, gain = T (P_t^-1 Y~ - X) K^-1. The numpy certificate re-checks it in the
 original coordinates.
 
-Objectives (``OBJECTIVES``), in the basis T (before this basis, the LMIs were solved densely in
-the eigenbasis orthonormal within each eigenspace, and the Luenberger LMI in the original
-coordinates; the objectives are the same functions of P_t and Y~, measured in T instead):
+Objectives (``OBJECTIVES``), functions of P_t and Y~ measured in the basis T:
 
 - ``"min_cond"`` (default): minimise kappa, the condition number bound of P_t: the
   best-conditioned certificate, whose gains are moderate because a large gain needs an

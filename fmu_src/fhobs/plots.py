@@ -10,12 +10,16 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from fhobs.paper import PAPER_SCENARIOS  # noqa: E402
 from fhobs.reference import SimulationResult  # noqa: E402
 
+_PERTURBED, _NOISY = PAPER_SCENARIOS["perturbed"], PAPER_SCENARIOS["perturbed_noisy"]
 FIGURE_TITLES = {
     "nominal": "Figure 1: nominal case",
-    "perturbed": "Figure 2: perturbation 0.1 B sin(5t)",
-    "perturbed_noisy": "Figure 3: perturbation and noise of magnitude 0.001",
+    "perturbed": f"Figure 2: perturbation {_PERTURBED.q_amplitude:g} B "
+                 f"sin({_PERTURBED.q_frequency:g}t)",
+    "perturbed_noisy": f"Figure 3: perturbation and noise of magnitude "
+                       f"{_NOISY.noise_amplitude:g}",
 }
 
 

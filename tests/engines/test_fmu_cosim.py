@@ -13,7 +13,7 @@ import fmu_fixtures
 import numpy as np
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import SCHEMES, FilteringObserver
-from fhobs.paper import K_PAPER
+from fhobs.paper import K_PAPER, PAPER_SCENARIOS
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
@@ -25,7 +25,8 @@ open_fmu = fmu_fixtures.open_fmu
 K = K_PAPER
 DT = 1e-3
 STEPS = 300
-Q_AMPLITUDE, Q_OMEGA = 0.1, 5.0
+Q_AMPLITUDE = PAPER_SCENARIOS["perturbed"].q_amplitude
+Q_OMEGA = PAPER_SCENARIOS["perturbed"].q_frequency
 
 
 def in_process_loop(gains) -> tuple[np.ndarray, np.ndarray]:

@@ -196,7 +196,7 @@ def test_native_host_without_libpython_gets_null_and_the_loaders_message(
 ):
     """A C host (no libpython in the process) cannot load pythonfmu's library: the wrapper's
     fmi2Instantiate returns NULL with the loader's message to the host's logger, other calls
-    return fmi2Error, and the host exits normally (it was killed by abort() before)."""
+    return fmi2Error, and the host exits normally (no abort())."""
     source = tmp_path / "host.c"
     source.write_text(NATIVE_HOST)
     host = tmp_path / "host"
@@ -378,8 +378,8 @@ def test_plant_whose_zoh_has_no_correct_digit_is_an_error(open_fmu, entry):
 
 
 def test_internal_step_larger_than_the_communication_step_is_the_step(open_fmu, tuned_gains):
-    """h = 0.1 at dt = 1e-3 used to change the result silently; the runtime now steps by
-    min(h, dt), so it gives exactly what h = dt gives (and the runtime's step)."""
+    """h = 0.1 at dt = 1e-3: the runtime steps by min(h, dt), so it gives exactly what h = dt
+    gives (and the runtime's step)."""
     y, u = np.array([0.3, -0.2]), np.array([0.1])
     runs = []
     for name, h in (("large", 0.1), ("equal", DT)):

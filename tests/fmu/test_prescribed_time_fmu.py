@@ -24,7 +24,7 @@ from fmpy.validation import validate_fmu
 from fmu_fixtures import EXAMPLES, FmuDriver, names
 from scipy.integrate import solve_ivp
 
-from harness.cli import PAPER_SCENARIOS, SCENARIO_DIR
+from harness.cli import PAPER_SCENARIO_FILES, SCENARIO_DIR
 from harness.system import load_system
 
 X0 = X0_PAPER
@@ -227,7 +227,7 @@ def test_scenario_is_the_nominal_loop_with_the_prescribed_time_observer():
         np.testing.assert_array_equal(into[f"{observer}.u"].gain, K)
     assert spec.evaluation.errors["prescribed_time"] == ("plant.x", "prescribed_time.x_hat")
     assert T0 / 2 in spec.evaluation.at and max(spec.evaluation.at) >= T0
-    assert "pendulum_prescribed_time" not in PAPER_SCENARIOS
+    assert "pendulum_prescribed_time" not in PAPER_SCENARIO_FILES.values()
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import build_vendor_plant
 
 from harness import master
-from harness.cli import PAPER_SCENARIOS, build_paper_fmus, load_scenario, main
+from harness.cli import PAPER_SCENARIO_FILES, build_paper_fmus, load_scenario, main
 from harness.master import MasterError, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
@@ -265,7 +265,7 @@ def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
     assert main([*common, "--out", str(tmp_path / "python")]) == 0
     assert main([*common, "--out", str(tmp_path / "native"), "--native"]) == 0
     assert (tmp_path / "native" / "ours" / "fmus" / "native" / "observer.fmu").is_file()
-    for scenario in PAPER_SCENARIOS:
+    for scenario in PAPER_SCENARIO_FILES.values():
         python, native = (tmp_path / run / "ours" / scenario / "results.csv"
                           for run in ("python", "native"))
         assert python.read_text() == native.read_text(), scenario

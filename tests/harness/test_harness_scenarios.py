@@ -7,11 +7,9 @@ import numpy as np
 import pytest
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 
+from harness.cli import PAPER_SCENARIO_FILES as FILES
 from harness.cli import SCENARIO_DIR
 from harness.system import DescriptionError, load_system
-
-FILES = {"nominal": "pendulum_nominal", "perturbed": "pendulum_perturbed",
-         "perturbed_noisy": "pendulum_noisy"}
 
 
 @pytest.mark.parametrize("scenario", sorted(FILES))
@@ -108,3 +106,15 @@ def test_extends_errors_name_the_files(tmp_path):
     number = _write(tmp_path / "number.toml", "extends = 3\n")
     with pytest.raises(DescriptionError, match="extends = 3 must name a description file"):
         load_system(number)
+
+
+def test_paper_values_are_substituted_and_unknown_names_refused(tmp_path):
+    path = _write(tmp_path / "paper.toml", BASE.replace("gain = 3.0", 'gain = "${paper.step}", '
+                                                        'k = "${paper.K}"'))
+    start = load_system(path).fmus["a"].start
+    assert start["gain"] == H_PAPER
+    assert [start[f"k[1,{j}]"] for j in range(1, 5)] == K_PAPER[0].tolist()
+    _write(path, BASE.replace("gain = 3.0", 'gain = "${paper.gain}"'))
+    with pytest.raises(DescriptionError, match=r"\$\{paper.gain\} is not one of the paper's "
+                                               r"values \(paper.K, "):
+        load_system(path)
