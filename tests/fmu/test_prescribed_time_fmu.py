@@ -3,7 +3,7 @@
 The in-process :class:`PrescribedTimeObserver` is the reference implementation of the FMU; the
 prescribed-time property is checked against the plant (a scipy ZOH of the pendulum, independent
 of :mod:`fhobs.core.plant`) and against a fine-step scipy integration of the continuous-time
-error dynamics of Theorem 1. Caller mistakes follow tests/test_fault_injection.py.
+error dynamics of Theorem 1. Caller mistakes follow tests/fmu/test_fault_injection.py.
 """
 
 from __future__ import annotations

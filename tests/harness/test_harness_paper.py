@@ -1,5 +1,5 @@
 """The paper's scenarios through the FMUs: equal to the in-process reference, accurate, and
-working with a third-party plant FMU (tests/test_harness_plantfmu.py) in place of ours."""
+working with a third-party plant FMU (tests/vendor_plant.py) in place of ours."""
 
 from __future__ import annotations
 
