@@ -95,6 +95,9 @@ class Prediction(NamedTuple):
 
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
+DEFAULT_H = 5e-5
+"""Default internal step h (s) of the observers: a communication step dt is run in
+``ceil(dt / h)`` equal substeps (the paper's step; the observer FMUs' start value of h)."""
 
 TAU_GRID = np.geomspace(1e-7, 3.0, 76)
 """Values of tau, in increasing order, scanned for each communication step size (gain cap and
@@ -110,7 +113,7 @@ CAP_CACHE_SIZE = 16
 MAX_SUBSTEPS = 1_000_000
 """A communication step longer than this many internal steps h is rejected (ValueError) rather
 than run for minutes (euler) or through an overflowing exponential (split): a step size of hours
-with h = 5e-5 is a mistake, not a request."""
+with h = DEFAULT_H is a mistake, not a request."""
 
 LEVEL_MISMATCH = 2.0
 """Split scheme: the frozen level is made self-consistent when sigma would exceed it by this."""
@@ -493,7 +496,7 @@ class FilteringObserver(_Observer):
     ((2,), True)
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
                  xi0: float = 0.0, tau_max: float | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
@@ -691,7 +694,7 @@ class PrescribedTimeObserver(_Observer):
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, xi0: float = 1.0,
                  tau_max: float | None = None) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
@@ -761,7 +764,7 @@ class LuenbergerObserver(_Observer):
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
         self._aux = np.zeros(0)
