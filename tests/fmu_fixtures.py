@@ -6,7 +6,9 @@ Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from fhobs.kalman import with_kalman
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     FMU2Slave,
     calloc,
@@ -24,6 +27,7 @@ from fmpy.fmi2 import (
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2Error,
     free,
 )
 
@@ -31,6 +35,9 @@ PENDULUM_X0 = tuple(X0_PAPER.tolist())
 NOISE_AMPLITUDE = PAPER_SCENARIOS["perturbed_noisy"].noise_amplitude
 NOISE_SEED = 7
 H = H_PAPER
+FMI_ERROR = fmi2Error
+UNREADABLE = ("np.float64", "nan (required", "(required > nan)", "(required < nan)")
+"""Fragments that make an FMU's error message unreadable (numpy reprs, NaN comparisons)."""
 
 
 def names(base: str, shape: tuple[int, ...]) -> list[str]:
@@ -148,3 +155,29 @@ def random_walk(seed: int, steps: int, size: int, scale: float) -> np.ndarray:
     """A seeded input sequence: a Gaussian random walk, ``steps`` x ``size``."""
     rng = np.random.default_rng(seed)
     return np.cumsum(rng.normal(scale=scale, size=(steps, size)), axis=0)
+
+
+def assert_error(driver: FmuDriver, call, *args, words: str) -> str:  # noqa: ANN001
+    """``call(*args)`` answers fmi2Error and logs a readable message containing ``words``;
+    return that message."""
+    with pytest.raises(FMICallException) as err:
+        call(*args)
+    assert err.value.status == FMI_ERROR
+    status, message = driver.messages[-1]
+    assert status == FMI_ERROR and words in message, message
+    assert not any(word in message for word in UNREADABLE), message
+    return message
+
+
+def steps_until_error(driver: FmuDriver, step_size: float, before: Callable[[], Any],
+                      limit: int = 100) -> tuple[int, Any]:
+    """Step ``driver`` by ``step_size`` until a doStep answers fmi2Error (with a logged error);
+    return that step's index and what ``before()`` gave just before it."""
+    for k in range(limit):
+        saved = before()
+        try:
+            driver.fmu.doStep(k * step_size, step_size)
+        except FMICallException as err:
+            assert err.status == FMI_ERROR and driver.messages[-1][0] == FMI_ERROR
+            return k, saved
+    pytest.fail(f"none of {limit} steps was an error")
