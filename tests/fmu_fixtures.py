@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverGains
+from fhobs.core.plant import LTIPlant
 from fhobs.design import design_for_spec
-from fhobs.kalman import with_kalman
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
@@ -100,12 +100,11 @@ class FmuDriver:
 
 
 @pytest.fixture(scope="session")
-def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: ObserverGains,
-                  pendulum_spec):
+def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: ObserverGains):
     """observer.fmu, luenberger.fmu, kalman.fmu and plant.fmu of the pendulum design (the
     Kalman filter of its [noise] table), built once."""
     return build_fmus(
-        with_kalman(tuned_gains, pendulum_spec.noise),
+        kalman_gains,
         tmp_path_factory.mktemp("pendulum_fmus"),
         x0=PENDULUM_X0,
         noise_amplitude=NOISE_AMPLITUDE,
@@ -155,6 +154,21 @@ def random_walk(seed: int, steps: int, size: int, scale: float) -> np.ndarray:
     """A seeded input sequence: a Gaussian random walk, ``steps`` x ``size``."""
     rng = np.random.default_rng(seed)
     return np.cumsum(rng.normal(scale=scale, size=(steps, size)), axis=0)
+
+
+def plant_measurements(gains: ObserverGains, seed: int, steps: int, dt: float,
+                       scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(ys, us): a seeded random run of the design's plant (numpy, noise 1e-3 relative) under
+    random-walk inputs, the observers' inputs."""
+    rng = np.random.default_rng(seed)
+    plant = LTIPlant(gains.A, gains.B, gains.C, x0=scale * rng.standard_normal(gains.n),
+                     noise_amplitude=1e-3 * scale, seed=seed, kernel=False)
+    us = scale * random_walk(seed, steps, gains.m, 0.3)
+    ys = []
+    for u in us:
+        ys.append(plant.y)
+        plant.step(u, None, dt)
+    return np.array(ys), us
 
 
 def assert_error(driver: FmuDriver, call, *args, words: str) -> str:  # noqa: ANN001

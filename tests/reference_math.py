@@ -13,3 +13,8 @@ def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
     n, m = B.shape
     block = scipy.linalg.expm(dt * np.block([[A, B], [np.zeros((m, n + m))]]))
     return block[:n, :n], block[:n, n:]
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> float:
+    """``max |a - b| / max |b|``: the largest difference relative to the reference b."""
+    return float(np.max(np.abs(np.asarray(a) - b)) / np.max(np.abs(b)))

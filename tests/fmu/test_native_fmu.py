@@ -38,6 +38,7 @@ from fmu_fixtures import (
     random_walk,
 )
 from host_runner import read_outputs, run_host, write_inputs
+from reference_math import relative
 
 from harness.cli import load_scenario
 from harness.master import run_system
@@ -117,11 +118,6 @@ def run(driver: FmuDriver, kind: str, signals: dict[str, np.ndarray], dt: float,
         driver.fmu.doStep((first + k) * dt, dt)
         rows.append(outputs(driver, kind))
     return np.array(rows)
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> float:
-    """``max |a - b| / max |b|`` (b the pythonfmu FMU's)."""
-    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
 
 
 # -- interface -------------------------------------------------------------------------------
