@@ -477,5 +477,17 @@ def run_system(
     progress: bool | None = None,
     first_inputs: str = "outputs",
 ) -> CoSimResult:
-    """Shorthand for ``Master(system, first_inputs).run(stop_time, progress)``."""
+    """Shorthand for ``Master(system, first_inputs).run(stop_time, progress)``.
+
+    Examples
+    --------
+    With the pendulum's FMUs built into ``build/pendulum`` (see :func:`resolve_system`):
+
+    >>> from harness.cli import SCENARIO_DIR
+    >>> from harness.system import load_system, resolve_system
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_nominal.toml", {"fmu_dir": "build/pendulum"})
+    >>> result = run_system(resolve_system(spec), stop_time=0.1)  # doctest: +SKIP
+    >>> result.steps, result.vector("observer.x_hat").shape  # doctest: +SKIP
+    (2000, (2001, 4))
+    """
     return Master(system, first_inputs).run(stop_time, progress)

@@ -88,6 +88,17 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     -------
     Path
         ``path``.
+
+    Examples
+    --------
+    With the pendulum's FMUs built into ``build/pendulum`` (see
+    :func:`harness.system.resolve_system`):
+
+    >>> from harness.cli import SCENARIO_DIR
+    >>> from harness.system import load_system
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_perturbed.toml", {"fmu_dir": "build/pendulum"})
+    >>> export_ssp(spec, "out/pendulum_perturbed.ssp")  # doctest: +SKIP
+    PosixPath('out/pendulum_perturbed.ssp')
     """
     system = resolve_system(build_blocks(lower_gains(spec), block_cache))
     resources = _resource_names(system)

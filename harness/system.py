@@ -253,6 +253,15 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
     Returns
     -------
     SystemSpec
+
+    Examples
+    --------
+    >>> from harness.cli import SCENARIO_DIR
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_perturbed.toml", {"fmu_dir": "/opt/fmus"})
+    >>> spec.name, sorted(spec.fmus), spec.step
+    ('pendulum_perturbed', ['kalman', 'linear', 'observer', 'perturbation', 'plant'], 5e-05)
+    >>> str(spec.fmus["plant"].path), spec.fmus["perturbation"].block
+    ('/opt/fmus/plant.fmu', ('sine', (1,)))
     """
     path = Path(path)
     where = str(path)
@@ -383,6 +392,16 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpe
     -------
     SystemSpec
         Every FMU with a path.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from harness.cli import SCENARIO_DIR
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_perturbed.toml")
+    >>> with tempfile.TemporaryDirectory() as cache:
+    ...     built = build_blocks(spec, Path(cache))
+    ...     print(spec.fmus["perturbation"].path, built.fmus["perturbation"].path.suffix)
+    None .fmu
     """
     fmus = {name: fs if fs.block is None or fs.path is not None
             else replace(fs, path=block_fmu(*fs.block, block_cache))
@@ -603,6 +622,25 @@ def resolve_system(spec: SystemSpec) -> ResolvedSystem:
     DescriptionError
         Unknown FMU file or variable, wrong causality or type, size mismatch, an input
         connected twice or neither connected nor given a start value, an algebraic loop.
+
+    Examples
+    --------
+    With the pendulum's FMUs built into ``build/pendulum`` (``python build_fmu.py
+    examples/pendulum.toml --out build/pendulum``):
+
+    >>> from harness.cli import SCENARIO_DIR
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_nominal.toml", {"fmu_dir": "build/pendulum"})
+    >>> system = resolve_system(spec)  # doctest: +SKIP
+    >>> sorted(system.fmus), [v.name for _, v in system.connections[0].sources]  # doctest: +SKIP
+    (['kalman', 'linear', 'observer', 'plant'], ['y[1]', 'y[2]'])
+
+    A missing FMU is reported by name:
+
+    >>> resolve_system(load_system(SCENARIO_DIR / "pendulum_nominal.toml",
+    ...                            {"fmu_dir": "/nonexistent"}))
+    Traceback (most recent call last):
+    ...
+    harness.system.DescriptionError: FMU 'plant': file /nonexistent/plant.fmu does not exist
     """
     spec = build_blocks(spec)
     fmus = {name: _resolve_fmu(fs) for name, fs in spec.fmus.items()}

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from fhobs.core.gains import ObserverGains
 from fhobs.design import design_for_spec, paper_gains
+from fhobs.kalman import with_kalman
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec, load_spec
 
@@ -32,6 +33,12 @@ def pendulum_spec() -> PlantSpec:
 def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
     """Our design for the pendulum (default objective)."""
     return design_for_spec(pendulum_spec)
+
+
+@pytest.fixture(scope="session")
+def kalman_gains(tuned_gains: ObserverGains, pendulum_spec: PlantSpec) -> ObserverGains:
+    """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
+    return with_kalman(tuned_gains, pendulum_spec.noise)
 
 
 @pytest.fixture(scope="session")

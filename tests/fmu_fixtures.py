@@ -5,17 +5,20 @@ Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverGains
+from fhobs.core.plant import LTIPlant
 from fhobs.design import design_for_spec
-from fhobs.kalman import with_kalman
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     FMU2Slave,
     calloc,
@@ -23,6 +26,7 @@ from fmpy.fmi2 import (
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2Error,
     free,
 )
 
@@ -30,6 +34,9 @@ PENDULUM_X0 = tuple(X0_PAPER.tolist())
 NOISE_AMPLITUDE = PAPER_SCENARIOS["perturbed_noisy"].noise_amplitude
 NOISE_SEED = 7
 H = H_PAPER
+FMI_ERROR = fmi2Error
+UNREADABLE = ("np.float64", "nan (required", "(required > nan)", "(required < nan)")
+"""Fragments that make an FMU's error message unreadable (numpy reprs, NaN comparisons)."""
 
 
 def names(base: str, shape: tuple[int, ...]) -> list[str]:
@@ -92,12 +99,11 @@ class FmuDriver:
 
 
 @pytest.fixture(scope="session")
-def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, tuned_gains: ObserverGains,
-                  pendulum_spec):
+def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: ObserverGains):
     """observer.fmu, luenberger.fmu, kalman.fmu and plant.fmu of the pendulum design (the
     Kalman filter of its [noise] table), built once."""
     return build_fmus(
-        with_kalman(tuned_gains, pendulum_spec.noise),
+        kalman_gains,
         tmp_path_factory.mktemp("pendulum_fmus"),
         x0=PENDULUM_X0,
         noise_amplitude=NOISE_AMPLITUDE,
@@ -147,3 +153,44 @@ def random_walk(seed: int, steps: int, size: int, scale: float) -> np.ndarray:
     """A seeded input sequence: a Gaussian random walk, ``steps`` x ``size``."""
     rng = np.random.default_rng(seed)
     return np.cumsum(rng.normal(scale=scale, size=(steps, size)), axis=0)
+
+
+def plant_measurements(gains: ObserverGains, seed: int, steps: int, dt: float,
+                       scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(ys, us): a seeded random run of the design's plant (numpy, noise 1e-3 relative) under
+    random-walk inputs, the observers' inputs."""
+    rng = np.random.default_rng(seed)
+    plant = LTIPlant(gains.A, gains.B, gains.C, x0=scale * rng.standard_normal(gains.n),
+                     noise_amplitude=1e-3 * scale, seed=seed, kernel=False)
+    us = scale * random_walk(seed, steps, gains.m, 0.3)
+    ys = []
+    for u in us:
+        ys.append(plant.y)
+        plant.step(u, None, dt)
+    return np.array(ys), us
+
+
+def assert_error(driver: FmuDriver, call, *args, words: str) -> str:  # noqa: ANN001
+    """``call(*args)`` answers fmi2Error and logs a readable message containing ``words``;
+    return that message."""
+    with pytest.raises(FMICallException) as err:
+        call(*args)
+    assert err.value.status == FMI_ERROR
+    status, message = driver.messages[-1]
+    assert status == FMI_ERROR and words in message, message
+    assert not any(word in message for word in UNREADABLE), message
+    return message
+
+
+def steps_until_error(driver: FmuDriver, step_size: float, before: Callable[[], Any],
+                      limit: int = 100) -> tuple[int, Any]:
+    """Step ``driver`` by ``step_size`` until a doStep answers fmi2Error (with a logged error);
+    return that step's index and what ``before()`` gave just before it."""
+    for k in range(limit):
+        saved = before()
+        try:
+            driver.fmu.doStep(k * step_size, step_size)
+        except FMICallException as err:
+            assert err.status == FMI_ERROR and driver.messages[-1][0] == FMI_ERROR
+            return k, saved
+    pytest.fail(f"none of {limit} steps was an error")

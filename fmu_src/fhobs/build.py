@@ -40,7 +40,7 @@ from .core.certificate import certify
 from .core.gains import ObserverGains
 from .core.kernel import SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
-from .core.runtime import SCHEMES, prescribed_xi0
+from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
 from .fmu.modes import STATUS_VALUE_REFERENCE
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
@@ -63,7 +63,7 @@ def build_fmus(
     out_dir: Path,
     *,
     kinds: Iterable[str] | None = None,
-    h: float = 5e-5,
+    h: float = DEFAULT_H,
     scheme: str | None = None,
     z0: Iterable[float] | None = None,
     psi0: Iterable[float] | None = None,

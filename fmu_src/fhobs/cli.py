@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.gains import ObserverGains
+from .core.runtime import DEFAULT_H
 from .design import augmented_system, design_for_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .kalman import with_kalman
@@ -66,7 +67,6 @@ OVERRIDES = {
     "nu": "homogeneity degree nu",
 }
 """The spec's [observer] keys that the command line can set."""
-DEFAULT_H = 5e-5
 
 
 def design_summary(gains: ObserverGains) -> list[str]:

@@ -453,6 +453,14 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
     Returns
     -------
     ObserverGains
+
+    Examples
+    --------
+    >>> gains = paper_gains()
+    >>> gains.n, gains.k, gains.L.shape
+    (4, 2, (4, 2))
+    >>> gains.certificate["lmi_margin"] > 0
+    True
     """
     ref = json.loads(Path(reference).read_text())
     plant, published = ref["plant"], ref["design"]

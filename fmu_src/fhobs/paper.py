@@ -40,7 +40,16 @@ class PaperScenario:
 
 
 def published() -> dict[str, Any]:
-    """The published numbers (the parsed JSON file ``PAPER_REFERENCE``)."""
+    """The published numbers (the parsed JSON file ``PAPER_REFERENCE``).
+
+    Examples
+    --------
+    >>> numbers = published()
+    >>> sorted(numbers["design"])
+    ['G_d', 'L', 'L0', 'L_tilde', 'gamma', 'nu', 'rho']
+    >>> numbers["simulation"]["x0"]
+    [2, 2, 1, 2]
+    """
     return json.loads(PAPER_REFERENCE.read_text())
 
 

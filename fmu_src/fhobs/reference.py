@@ -130,6 +130,19 @@ def simulate(
     kernel : bool
         Step the plant and the estimators in the compiled kernel when it is available
         (:mod:`fhobs.core.kernel`); False: the numpy runtime only.
+
+    Returns
+    -------
+    SimulationResult
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> result = simulate(paper_gains(), "nominal", t_end=0.1)
+    >>> float(result.t[-1]), result.x.shape
+    (0.1, (2001, 4))
+    >>> bool(result.error[-1] < result.error[0])
+    True
     """
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")

@@ -77,6 +77,13 @@ def error_response(gains: ObserverGains, state_scale: np.ndarray,
     Returns
     -------
     ErrorResponse
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> response = error_response(paper_gains(), np.ones(4), settling_time=2.0)
+    >>> bool(response.settling_time < 2.0), bool(response.peaking >= 1.0)
+    (True, True)
     """
     dt = settling_time / STEPS_PER_SETTLING_TIME
     steps = int(round(HORIZON * STEPS_PER_SETTLING_TIME))

@@ -25,7 +25,7 @@ import pytest
 from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
-from fmu_fixtures import names
+from fmu_fixtures import FMI_ERROR, UNREADABLE, assert_error, names
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
 chain_gains = fmu_fixtures.chain_gains
@@ -33,10 +33,8 @@ chain_observer = fmu_fixtures.chain_observer
 unzipped = fmu_fixtures.unzipped
 open_fmu = fmu_fixtures.open_fmu
 
-FMI_ERROR = 3
 DT = 1e-3
 REPEAT = 5
-UNREADABLE = ("np.float64", "nan (required", "(required > nan)", "(required < nan)")
 
 pytestmark = pytest.mark.skipif(
     sys.platform != "linux" or shutil.which("cc") is None,
@@ -227,16 +225,6 @@ def run_steps(driver, steps: int = 3) -> list[float]:
         driver.set("u", np.array([0.1]))
         driver.fmu.doStep(k * DT, DT)
     return driver.get("x_hat", (4,)).tolist()
-
-
-def assert_error(driver, call, *args, words: str) -> None:
-    """``call(*args)`` answers fmi2Error and logs a message containing ``words``."""
-    with pytest.raises(FMICallException) as err:
-        call(*args)
-    assert err.value.status == FMI_ERROR
-    status, message = driver.messages[-1]
-    assert status == FMI_ERROR and words in message, message
-    assert not any(word in message for word in UNREADABLE), message
 
 
 def serialized(driver) -> bytes:

@@ -26,10 +26,19 @@ from fhobs.errors import BuildError
 from fhobs.kalman import with_kalman
 from fhobs.native.build import DEFAULT_STEPS, build_native_fmus
 from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, H, random_walk
+from fmu_fixtures import (
+    FMI_ERROR,
+    NOISE_AMPLITUDE,
+    NOISE_SEED,
+    PENDULUM_X0,
+    FmuDriver,
+    H,
+    assert_error,
+    random_walk,
+)
 from host_runner import read_outputs, run_host, write_inputs
+from reference_math import relative
 
 from harness.cli import load_scenario
 from harness.master import run_system
@@ -46,7 +55,6 @@ native_host = host_runner.native_host
 KINDS = ("observer", "luenberger", "kalman", "plant")
 OBSERVERS = ("observer", "luenberger", "kalman")
 RTOL = 1e-12
-FMI_ERROR = 3
 
 
 @pytest.fixture(scope="module")
@@ -110,20 +118,6 @@ def run(driver: FmuDriver, kind: str, signals: dict[str, np.ndarray], dt: float,
         driver.fmu.doStep((first + k) * dt, dt)
         rows.append(outputs(driver, kind))
     return np.array(rows)
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> float:
-    """``max |a - b| / max |b|`` (b the pythonfmu FMU's)."""
-    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
-
-
-def assert_error(driver: FmuDriver, call, *args, words: str) -> None:
-    """``call(*args)`` answers fmi2Error and logs a message containing ``words``."""
-    with pytest.raises(FMICallException) as err:
-        call(*args)
-    assert err.value.status == FMI_ERROR
-    status, message = driver.messages[-1]
-    assert status == FMI_ERROR and words in message, message
 
 
 # -- interface -------------------------------------------------------------------------------

@@ -19,9 +19,9 @@ from fhobs.build import build_fmus
 from fhobs.core.runtime import SCHEMES, PrescribedTimeObserver
 from fhobs.paper import K_PAPER, X0_PAPER
 from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from fmu_fixtures import EXAMPLES, FmuDriver, names
+from fmu_fixtures import EXAMPLES, FmuDriver, assert_error, names
+from reference_math import zoh
 from scipy.integrate import solve_ivp
 
 from harness.cli import PAPER_SCENARIO_FILES, SCENARIO_DIR
@@ -30,7 +30,6 @@ from harness.system import load_system
 X0 = X0_PAPER
 K = K_PAPER
 DT = 1e-3
-FMI_ERROR = 3
 
 needs_wrapper = pytest.mark.skipif(
     sys.platform != "linux" or shutil.which("cc") is None,
@@ -41,13 +40,6 @@ needs_wrapper = pytest.mark.skipif(
 def xi0_of(gains, T0: float) -> float:
     """xi0 with ``T0 = xi0^(-nu) / (-nu rho)``, solved here by hand."""
     return (-gains.nu * gains.rho * T0) ** (-1.0 / gains.nu)
-
-
-def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order hold of ``dx/dt = A x + B u`` (scipy's expm of the block matrix)."""
-    n, m = B.shape
-    block = scipy.linalg.expm(dt * np.block([[A, B], [np.zeros((m, n + m))]]))
-    return block[:n, :n], block[:n, n:]
 
 
 def closed_loop(gains, dt: float, t_end: float, T0: float = 1.0, scheme: str = SCHEMES[0],
@@ -253,15 +245,6 @@ def test_scenario_runs_with_the_fmus_of_build_fmu(tmp_path, capsys):
 
 
 # -- (d) caller mistakes ------------------------------------------------------------------------
-def assert_error(driver, call, *args, words: str) -> None:
-    """``call(*args)`` answers fmi2Error and logs a message containing ``words``."""
-    with pytest.raises(FMICallException) as err:
-        call(*args)
-    assert err.value.status == FMI_ERROR
-    status, message = driver.messages[-1]
-    assert status == FMI_ERROR and words in message, message
-
-
 def steps(driver, count: int, first: int = 0) -> np.ndarray:
     """``count`` steps with fixed inputs from step ``first``; x_hat and xi after them."""
     for k in range(first, first + count):

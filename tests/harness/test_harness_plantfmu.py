@@ -13,18 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.linalg
+from reference_math import zoh
 from vendor_plant import SYSTEM, A, B, K, build_vendor_plant
 
 from harness.master import run_system
 from harness.system import build_blocks, load_system, resolve_system
-
-
-def zoh(h: float) -> np.ndarray:
-    """Exact ZOH transition [Ad, Bd, Ed] of the pendulum with E = B."""
-    aug = np.zeros((6, 6))
-    aug[:4, :4], aug[:4, 4:5], aug[:4, 5:6] = A, B, B
-    return scipy.linalg.expm(aug * h)[:4]
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +38,7 @@ def test_master_matches_numpy_jacobi_loop(vendor_system):
     """x_{k+1} = Phi [x_k; K x_k; q(t_k)], q = 0.1 sin(5 t + 0.3): the Jacobi convention."""
     result = run_system(resolve_system(vendor_system), progress=False)
     h, steps = 0.001, 500
-    phi = zoh(h)
+    phi = np.hstack(zoh(A, np.hstack([B, B]), h))  # [Ad, Bd, Ed] with E = B
     x = np.array([0.2, -0.1, 0.3, 0.0])
     expected = [x]
     for k in range(steps):

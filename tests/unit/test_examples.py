@@ -8,7 +8,9 @@ import pytest
 PUBLIC_MODULES = (
     "fhobs", "fhobs.design", "fhobs.spec", "fhobs.errors", "fhobs.limits", "fhobs.build",
     "fhobs.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
-    "fhobs.core.kalman_filter", "fhobs.core.linalg",
+    "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "fhobs.reference",
+    "fhobs.settling", "fhobs.core.disturbance", "fhobs.native.build",
+    "harness.system", "harness.master", "harness.ssp",
 )
 
 
@@ -23,6 +25,7 @@ def test_docstring_examples(name):
 def test_public_functions_have_examples():
     from fhobs.build import build_fmus
     from fhobs.core.certificate import certify
+    from fhobs.core.disturbance import extended_model
     from fhobs.core.kalman_filter import KalmanObserver
     from fhobs.core.plant import LTIPlant
     from fhobs.core.runtime import (
@@ -30,11 +33,21 @@ def test_public_functions_have_examples():
         LuenbergerObserver,
         PrescribedTimeObserver,
     )
-    from fhobs.design import design_for_spec, design_observer
+    from fhobs.design import design_for_spec, design_observer, paper_gains
+    from fhobs.native.build import build_native_fmus
+    from fhobs.paper import published
+    from fhobs.reference import simulate
+    from fhobs.settling import error_response
     from fhobs.spec import load_spec, plant_spec
+
+    from harness.master import run_system
+    from harness.ssp import export_ssp
+    from harness.system import build_blocks, load_system, resolve_system
 
     for item in (build_fmus, certify, LTIPlant, FilteringObserver, LuenbergerObserver,
                  PrescribedTimeObserver, KalmanObserver,
-                 design_for_spec, design_observer, load_spec, plant_spec):
-        assert "Examples\n    --------\n    >>>" in item.__doc__ or (
-            "Examples\n    --------\n    A " in item.__doc__), item.__qualname__
+                 design_for_spec, design_observer, load_spec, plant_spec, paper_gains,
+                 published, simulate, error_response, extended_model, load_system,
+                 resolve_system, build_blocks, run_system, export_ssp, build_native_fmus):
+        _, heading, examples = item.__doc__.partition("\n    Examples\n    --------\n")
+        assert heading and ">>> " in examples, item.__qualname__

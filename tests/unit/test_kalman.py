@@ -1,6 +1,6 @@
 """The steady-state Kalman filter baseline: design against python-control and a Riccati iteration,
-the numpy runtime against the filter's equations written out here, kalman.fmu through fmpy
-against the runtime, and the filter's behaviour on the paper's scenarios."""
+the numpy runtime against the filter's equations written out here, and the filter's behaviour on
+the paper's scenarios (kalman.fmu: tests/fmu/test_kalman_fmu.py)."""
 
 from __future__ import annotations
 
@@ -10,24 +10,21 @@ import control
 import numpy as np
 import pytest
 import scipy.linalg as sl
-from fhobs.build import build_fmus
 from fhobs.core.disturbance import extended_model
 from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.errors import KalmanDesignError, SpecError
-from fhobs.kalman import design_kalman, van_loan, with_kalman
+from fhobs.kalman import design_kalman, van_loan
 from fhobs.paper import K_PAPER, X0_PAPER
 from fhobs.reference import accuracy_metrics, replay, simulate
 from fhobs.spec import spec_from_dict
-from fmpy import extract
-from fmpy.fmi1 import FMICallException
-from fmu_fixtures import FmuDriver, random_walk
+from fmu_fixtures import random_walk
+from reference_math import zoh
 from scipy.integrate import quad_vec
 
 STD = np.full(2, 1e-3 / np.sqrt(3.0))
 TS = 5e-5
-FMI_ERROR = 3
 
 
 def model(gains, order):
@@ -39,21 +36,6 @@ def model(gains, order):
     else:
         G[-1, 0] = 1.0
     return A, B, C, G
-
-
-def zoh(A, B, Ts):
-    """Exact ZOH with scipy: (Phi, Gamma)."""
-    n = A.shape[0]
-    aug = np.zeros((n + B.shape[1], n + B.shape[1]))
-    aug[:n, :n], aug[:n, n:] = A, B
-    E = sl.expm(aug * Ts)
-    return E[:n, :n], E[:n, n:]
-
-
-@pytest.fixture(scope="module")
-def kalman_gains(tuned_gains, pendulum_spec) -> ObserverGains:
-    """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
-    return with_kalman(tuned_gains, pendulum_spec.noise)
 
 
 # -- design ------------------------------------------------------------------------------------
@@ -224,84 +206,6 @@ def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_gains):
     metrics = accuracy_metrics([r], "perturbed_noisy")  # the window [1, 3] cut at 1.2
     tail = r.error_kalman[r.window(1.0, 3.0)]
     assert metrics["rms_1_3_kalman"] == pytest.approx(np.sqrt(np.mean(tail**2)), rel=1e-12)
-
-
-# -- FMU ---------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def kalman_fmu(tmp_path_factory, kalman_gains):
-    built = build_fmus(kalman_gains, tmp_path_factory.mktemp("kalman_fmu"), kinds=("kalman",))
-    path = built["kalman"]
-    return path, extract(str(path))
-
-
-@pytest.fixture
-def open_kalman(kalman_fmu):
-    opened = []
-
-    def factory(name="instance"):
-        driver = FmuDriver(kalman_fmu[0], kalman_fmu[1], name)
-        opened.append(driver)
-        return driver
-
-    yield factory
-    for driver in opened:
-        driver.fmu.freeInstance()
-
-
-def run_fmu(driver, g, ys, us, dt):
-    rows = []
-    for k, (y, u) in enumerate(zip(ys, us, strict=True)):
-        driver.set("y", y)
-        driver.set("u", u)
-        driver.fmu.doStep(k * dt, dt)
-        rows.append(np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))]))
-    return np.array(rows)
-
-
-@pytest.mark.parametrize("cycles", [1, 4])
-def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
-    g = kalman_gains
-    ys, us = random_walk(3, 100, g.k, 0.05), random_walk(4, 100, g.m, 0.1)
-    driver = open_kalman()
-    driver.start()
-    rows = run_fmu(driver, g, ys, us, cycles * TS)
-    obs = KalmanObserver(g)
-    expected = []
-    for y, u in zip(ys, us, strict=True):
-        obs.step(y, u, cycles * TS)
-        expected.append(obs.z)
-    np.testing.assert_allclose(rows, np.array(expected), rtol=0, atol=1e-12)
-
-
-def test_fmu_rejects_a_step_not_a_multiple_of_ts(open_kalman, kalman_gains):
-    g = kalman_gains
-    driver = open_kalman()
-    driver.start()
-    ys, us = random_walk(3, 5, g.k, 0.05), random_walk(4, 5, g.m, 0.1)
-    before = run_fmu(driver, g, ys, us, TS)[-1]
-    with pytest.raises(FMICallException) as err:
-        driver.fmu.doStep(5 * TS, 1.5 * TS)
-    assert err.value.status == FMI_ERROR
-    status, message = driver.messages[-1]
-    assert status == FMI_ERROR and "whole multiple" in message
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[:g.n])
-    driver.fmu.doStep(5 * TS, TS)  # still usable
-
-
-def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):
-    driver = open_kalman()
-    driver.fmu.setupExperiment(startTime=0.0)
-    driver.set("kalman_gain", -kalman_gains.kalman.gain)
-    driver.fmu.enterInitializationMode()
-    with pytest.raises(FMICallException) as err:
-        driver.fmu.exitInitializationMode()
-    assert err.value.status == FMI_ERROR
-    assert "schur_kalman" in driver.messages[-1][1]
-
-
-def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
-    with pytest.raises(ValueError, match="Kalman"):
-        build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
 
 
 # -- the spec's [noise] table ------------------------------------------------------------------

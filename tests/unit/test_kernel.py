@@ -3,14 +3,12 @@
 The kernel's arithmetic is numpy's formula by formula but its matrix-vector sums are added in
 another order than numpy's BLAS, so the two agree to round-off, not bit for bit: every
 comparison here is relative, ``max |kernel - numpy| / max |numpy|`` over the compared run.
-The FMUs built without the kernel (the numpy fallback) are checked on a representative part of
-test_fmu's behaviour.
+The FMUs built with and without the kernel: tests/fmu/test_kernel_fmu.py.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import zipfile
 
 import fhobs.reference as reference
 import numpy as np
@@ -24,21 +22,17 @@ from fhobs.design import design_for_spec
 from fhobs.errors import BuildError
 from fhobs.kalman import with_kalman
 from fhobs.spec import NoiseSpec, spec_from_dict
-from fmpy import extract
-from fmpy.fmi1 import FMICallException
-from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, random_walk
+from fmu_fixtures import (
+    plant_measurements,
+    random_walk,
+)
+from reference_math import relative
 
 if kernel.library() is None:
     pytest.skip("no compiled kernel on this machine (needs Linux and cc)",
                 allow_module_level=True)
 
 RTOL = 1e-12
-FMI_ERROR = 3
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> float:
-    """``max |a - b| / max |b|`` (b the numpy reference)."""
-    return float(np.max(np.abs(np.asarray(a) - b)) / np.max(np.abs(b)))
 
 
 def random_design(seed: int, n: int, k: int, order: int):
@@ -53,19 +47,6 @@ def random_design(seed: int, n: int, k: int, order: int):
         data["E"] = rng.standard_normal((n, 1)).tolist()
         data["observer"]["disturbance_order"] = order
     return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
-
-
-def plant_measurements(gains, seed: int, steps: int, dt: float, scale: float = 1.0):
-    """(ys, us): a random plant run (numpy, noise 1e-3 relative) with random inputs."""
-    rng = np.random.default_rng(seed)
-    plant = LTIPlant(gains.A, gains.B, gains.C, x0=scale * rng.standard_normal(gains.n),
-                     noise_amplitude=1e-3 * scale, seed=seed, kernel=False)
-    us = scale * random_walk(seed, steps, gains.m, 0.3)
-    ys = []
-    for u in us:
-        ys.append(plant.y)
-        plant.step(u, None, dt)
-    return np.array(ys), us
 
 
 def run_pair(make, ys, us, dt):
@@ -288,11 +269,6 @@ def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_gains, tmp_p
 
 
 # -- the paper's scenarios end to end ---------------------------------------------------------
-@pytest.fixture(scope="module")
-def kalman_gains(tuned_gains, pendulum_spec):
-    return with_kalman(tuned_gains, pendulum_spec.noise)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["nominal", "perturbed", "perturbed_noisy"])
 def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
@@ -337,120 +313,3 @@ def test_paper_gains_differ_by_no_more_than_one_ulp_of_y_makes(paper_design, mon
     assert relative(fast.z, slow.z) <= max(4 * ulp_effect, RTOL)
     for name in ("x", "z_lin", "psi", "xi"):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
-
-
-# -- FMUs built without the kernel (the numpy fallback) ---------------------------------------
-@pytest.fixture(scope="module")
-def fmu_pair(tmp_path_factory, tuned_gains):
-    """The pendulum FMUs built with and without the kernel: kind -> (path, unzip dir)."""
-    built = {}
-    for with_kernel in (True, False):
-        folder = tmp_path_factory.mktemp(f"kernel_{with_kernel}")
-        fmus = build_fmus(tuned_gains, folder, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
-                          noise_seed=NOISE_SEED, h=5e-5, kernel=with_kernel)
-        built[with_kernel] = {kind: (path, extract(str(path))) for kind, path in fmus.items()}
-    return built
-
-
-@pytest.fixture
-def open_pair(fmu_pair):
-    opened = []
-
-    def factory(with_kernel: bool, kind: str, name: str = "instance") -> FmuDriver:
-        path, folder = fmu_pair[with_kernel][kind]
-        opened.append(FmuDriver(path, folder, name))
-        return opened[-1]
-
-    yield factory
-    for driver in opened:
-        driver.fmu.freeInstance()
-
-
-def test_kernel_is_shipped_only_when_asked(fmu_pair):
-    for with_kernel, fmus in fmu_pair.items():
-        for path, _ in fmus.values():
-            with zipfile.ZipFile(path) as z:
-                shipped = [n for n in z.namelist() if n.endswith(kernel.SHIPPED.name)]
-            assert len(shipped) == (1 if with_kernel else 0)
-
-
-def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tuned_gains):
-    g, dt = tuned_gains, 1e-3
-    ys, us = plant_measurements(g, 8, 120, dt)
-    runtime = FilteringObserver(g, h=5e-5, kernel=False)
-    drivers = [open_pair(False, "observer"), open_pair(True, "observer", "k")]
-    for driver in drivers:
-        driver.start()
-    for step, (y, u) in enumerate(zip(ys, us, strict=True)):
-        runtime.step(y, u, dt)
-        outputs = []
-        for driver in drivers:
-            driver.set("y", y)
-            driver.set("u", u)
-            driver.fmu.doStep(step * dt, dt)
-            outputs.append(np.concatenate([driver.get("x_hat", (g.n,)),
-                                           driver.get("psi", (g.k,)),
-                                           driver.get("xi", ()).ravel()]))
-        expected = np.concatenate([runtime.x_hat, runtime.diagnostics()["psi"],
-                                   [runtime.diagnostics()["xi"]]])
-        np.testing.assert_array_equal(outputs[0], expected)
-        assert relative(outputs[1], expected) <= RTOL
-
-
-@pytest.mark.parametrize("with_kernel", [False, True])
-def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_gains,
-                                                             with_kernel):
-    g, dt = tuned_gains, 1e-3
-    us, qs = random_walk(9, 40, g.m, 0.1), random_walk(10, 40, g.E.shape[1], 0.1)
-    driver = open_pair(with_kernel, "plant")
-    driver.start()
-    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
-                     seed=NOISE_SEED, kernel=with_kernel)
-
-    def run(steps):
-        rows = []
-        for k in steps:
-            driver.set("u", us[k])
-            driver.set("q", qs[k])
-            driver.fmu.doStep(k * dt, dt)
-            rows.append(np.concatenate([driver.get("x", (g.n,)), driver.get("y", (g.k,))]))
-        return np.array(rows)
-
-    for k, row in zip(range(20), run(range(20)), strict=True):
-        plant.step(us[k], qs[k], dt)
-        np.testing.assert_array_equal(row, np.concatenate([plant.x, plant.y]))
-    state = driver.fmu.getFMUstate()
-    first = run(range(20, 40))
-    driver.fmu.setFMUstate(state)
-    np.testing.assert_array_equal(run(range(20, 40)), first)
-    driver.fmu.freeFMUstate(state)
-
-
-@pytest.mark.parametrize("with_kernel", [False, True])
-def test_fmu_bad_input_and_overflow_are_errors_state_kept(open_pair, tuned_gains, with_kernel):
-    g = tuned_gains
-    observer = open_pair(with_kernel, "observer")
-    observer.start()
-    observer.set("y", [np.nan, 0.0])
-    with pytest.raises(FMICallException) as err:
-        observer.fmu.doStep(0.0, 1e-3)
-    assert err.value.status == FMI_ERROR
-    observer.set("y", [0.1, 0.2])
-    observer.fmu.doStep(0.0, 1e-3)  # still usable
-    C = g.C.copy()
-    C[0, 0] = 1.7e308
-    plant = open_pair(with_kernel, "plant", "p")
-    plant.start({"C": C, "x0": np.ones(g.n)})
-    refs = [plant.vr[f"x[{i + 1}]"] for i in range(g.n)]
-    with np.errstate(over="ignore"):
-        for k in range(100):
-            before = plant.fmu.getReal(refs)
-            try:
-                plant.fmu.doStep(k * 1e-2, 1e-2)
-            except FMICallException as exc:
-                assert exc.status == FMI_ERROR
-                break
-        else:
-            pytest.fail("the plant output never overflowed")
-    assert k > 0
-    assert plant.fmu.getReal(refs) == before

@@ -19,6 +19,7 @@ from fhobs.scenarios_zoo import (
     state_feedback,
     zoo_spec_paths,
 )
+from reference_math import zoh
 from scipy.integrate import solve_ivp
 
 ZOO = zoo_spec_paths()
@@ -69,9 +70,9 @@ def test_closed_loop_feeds_back_the_true_state():
     """The plant of the zoo's loop follows the sampled LQR loop x_{k+1} = (Phi + Gamma K) x_k
     (ZOH blocks from one expm of the augmented matrix), whatever the observers do."""
     gains = default_design("quarter_car")
-    dt, n, m = 1e-3, gains.n, gains.m
-    M = scipy.linalg.expm(dt * np.block([[gains.A, gains.B], [np.zeros((m, n + m))]]))
-    step = M[:n, :n] + M[:n, n:] @ state_feedback(gains.A, gains.B)
+    dt, n = 1e-3, gains.n
+    Phi, Gamma = zoh(gains.A, gains.B, dt)
+    step = Phi + Gamma @ state_feedback(gains.A, gains.B)
     result = closed_loop(gains, dt, dt, t_end=0.5)
     x = np.ones(n)
     for k in range(result.t.size):

@@ -39,6 +39,19 @@ def extended_model(
     -------
     tuple of numpy.ndarray
         ``A_model`` ((n + r r_q) square), ``B_model``, ``C_model``.
+
+    Examples
+    --------
+    A double integrator with a constant perturbation on its second state (order 1):
+
+    >>> A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    >>> B = E = np.array([[0.0], [1.0]])
+    >>> C = np.array([[1.0, 0.0]])
+    >>> A_model, B_model, C_model = extended_model(A, B, C, E, order=1)
+    >>> A_model.tolist()
+    [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]
+    >>> B_model.ravel().tolist(), C_model.tolist()
+    ([0.0, 1.0, 0.0], [[1.0, 0.0, 0.0]])
     """
     if order == 0:
         return A, B, C

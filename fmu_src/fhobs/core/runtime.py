@@ -95,6 +95,9 @@ class Prediction(NamedTuple):
 
 SCHEMES = ("split", "euler")
 """Integration schemes; the first one is the default."""
+DEFAULT_H = 5e-5
+"""Default internal step h (s) of the observers: a communication step dt is run in
+``ceil(dt / h)`` equal substeps (the paper's step; the observer FMUs' start value of h)."""
 
 TAU_GRID = np.geomspace(1e-7, 3.0, 76)
 """Values of tau, in increasing order, scanned for each communication step size (gain cap and
@@ -110,7 +113,7 @@ CAP_CACHE_SIZE = 16
 MAX_SUBSTEPS = 1_000_000
 """A communication step longer than this many internal steps h is rejected (ValueError) rather
 than run for minutes (euler) or through an overflowing exponential (split): a step size of hours
-with h = 5e-5 is a mistake, not a request."""
+with h = DEFAULT_H is a mistake, not a request."""
 
 LEVEL_MISMATCH = 2.0
 """Split scheme: the frozen level is made self-consistent when sigma would exceed it by this."""
@@ -308,7 +311,8 @@ class _Observer:
                 Phi, Gamma_inj, np.hstack((Phi, Gamma_B, Gamma_inj)), Phi + Gamma_inj @ self._C)
         return prediction
 
-    def _run_split(self, z, aux, y, u, dt, level=None):
+    def _run_split(self, z: np.ndarray, aux: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
+                   level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One split step over dt: correction (exact, gain frozen at ``level``, by default the
         observer's own level capped for dt) then the ZOH ``prediction`` with v held:
         ``z+ = Phi (z + dz) + Gamma_B u + Gamma_inj (v + C dz) = M (z, u, v) + F dz``."""
@@ -321,7 +325,8 @@ class _Observer:
         z_new = prediction.M.dot(np.concatenate((z, u, v)))
         return (z_new, aux) if dz is None else (z_new + prediction.F.dot(dz), aux)
 
-    def _run_euler(self, z, aux, y, u, hs, n_sub):
+    def _run_euler(self, z: np.ndarray, aux: np.ndarray, y: np.ndarray, u: np.ndarray, hs: float,
+                   n_sub: int) -> tuple[np.ndarray, np.ndarray]:
         """The paper's explicit Euler over n_sub substeps, y held."""
         for _ in range(n_sub):
             v = self._C @ z - y
@@ -493,7 +498,7 @@ class FilteringObserver(_Observer):
     ((2,), True)
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
                  xi0: float = 0.0, tau_max: float | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
@@ -536,7 +541,8 @@ class FilteringObserver(_Observer):
         S[k:, k:] = Dilation(self.gains.G_d).matrix(math.log(level))
         return S
 
-    def _correct_own_level(self, aux, v, dt):
+    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
+                           dt: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Correction at the level of :meth:`_level`, redone at a self-consistent level when it
         leaves sigma above ``LEVEL_MISMATCH`` times the frozen level (e.g. at an all-zero start,
         where sigma = 0 but psi grows at once): that level s solves ``sigma_after(s) = s``
@@ -583,7 +589,7 @@ class FilteringObserver(_Observer):
             **{name: compiled.pointer(array) for name, array in arrays.items()})
         self._stepper.add_plan(dt, plan, *arrays.values())
 
-    def _euler_gain_data(self):
+    def _euler_gain_data(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """The dilation's eigen data, L_tilde and the xi equation's constants."""
         dilation = self._dilation
         arrays = {"L_tilde": np.ascontiguousarray(self.gains.L_tilde, dtype=float),
@@ -595,7 +601,8 @@ class FilteringObserver(_Observer):
                   "guard": SIGMA_GUARD}
         return arrays, values
 
-    def _correct(self, aux, v, hs, level):
+    def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
+                 level: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Exact flow of the (psi, z) injection with sigma frozen at ``level``, then xi."""
         k = self._k
         psi = aux[:k]
@@ -614,7 +621,8 @@ class FilteringObserver(_Observer):
         w = xi + abs(half_new - half_old) - half_new
         return signed_power_decay(w, self.gains.gamma, self._p, hs) + half_new
 
-    def _euler_rates(self, aux, v, dt):
+    def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
+                     dt: float) -> tuple[np.ndarray, np.ndarray]:
         g = self.gains
         psi, xi = aux[:-1], float(aux[-1])
         sigma = self._sigma(aux)
@@ -691,7 +699,7 @@ class PrescribedTimeObserver(_Observer):
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, xi0: float = 1.0,
                  tau_max: float | None = None) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
@@ -726,7 +734,8 @@ class PrescribedTimeObserver(_Observer):
         return math.copysign(max(abs(xi) ** (-g.nu) + g.nu * g.rho * hs, 0.0) ** (-1.0 / g.nu),
                              xi)
 
-    def _correct(self, aux, v, hs, level):
+    def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
+                 level: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Exact flow of ``dz = gain (C z - y)`` with x frozen: ``dv = xi^nu C L_pt v``."""
         g = self.gains
         log_x = math.log(level)
@@ -735,7 +744,8 @@ class PrescribedTimeObserver(_Observer):
         dz = self._dilation.apply(log_x, phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
-    def _euler_rates(self, aux, v, dt):
+    def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
+                     dt: float) -> tuple[np.ndarray, np.ndarray]:
         g = self.gains
         xi = float(aux[0])
         log_x = math.log(self._level(aux, dt))
@@ -761,7 +771,7 @@ class LuenbergerObserver(_Observer):
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = 5e-5, scheme: str = SCHEMES[0],
+    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
         self._aux = np.zeros(0)

@@ -32,10 +32,12 @@ class FhobsKalman(ObserverSlave):
         # N: states of the filter's model (n, or n + r q-states with a disturbance model)
         self.add_array("kalman_gain", kalman.gain, "parameter",
                        "measurement-update gain M = P C^T (C P C^T + R)^-1 (N x k)")
-        if kalman.disturbance_order:
-            n, size = self.design.n, kalman.gain.shape[0]
-            self.add_array("q_hat", np.zeros(size - n), "output",
-                           "disturbance-model estimates: q, then its derivatives")
+        self._declare_q_hat()
+
+    def _model_size(self) -> int:
+        """States of the filter's model (its own disturbance model, which may differ from the
+        homogeneous observer's)."""
+        return self.design.kalman.gain.shape[0]
 
     def _declare_timing(self) -> None:
         self.add_array("Ts", self.design.kalman.sample_time, "parameter",
@@ -62,11 +64,11 @@ class FhobsKalman(ObserverSlave):
             )
 
     def _make_model(self) -> KalmanObserver:
-        return KalmanObserver(self.edited_design(), z0=self.array("z0"), kalman=self._kalman())
+        return KalmanObserver(self.edited_design(), z0=self._padded_z0(), kalman=self._kalman())
 
     def _output_layout(self) -> list[str]:
         """The model state z = (x_hat, q_hat) (no q_hat without a disturbance model)."""
-        return ["x_hat", "q_hat"] if self.design.kalman.disturbance_order else ["x_hat"]
+        return self._state_layout()
 
     def _model_outputs(self) -> list[float]:
         """``[x_hat, q_hat]``: the model state."""

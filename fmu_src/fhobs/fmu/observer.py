@@ -37,9 +37,7 @@ class FhobsObserver(ObserverSlave):
         self.add_array("psi", np.zeros(design.k), "output", "output-filter state psi")
         self.add_array("xi", 0.0, "output", "scalar gain state xi")
         self.add_array("sigma", 0.0, "output", "sigma = sqrt(max(xi, |psi|^2 / 2))")
-        if design.disturbance_order:
-            self.add_array("q_hat", np.zeros(design.n_model - design.n), "output",
-                           "disturbance-model estimates: q, then its derivatives")
+        self._declare_q_hat()
 
     def _check_gains(self) -> None:
         design = self.edited_design()
@@ -51,7 +49,7 @@ class FhobsObserver(ObserverSlave):
             self.edited_design(),
             h=float(self.array("h")),
             scheme=self.scheme_name(),
-            z0=np.concatenate((self.array("z0"), np.zeros(self.design.n_model - self.design.n))),
+            z0=self._padded_z0(),
             psi0=self.array("psi0"),
             xi0=float(self.array("xi0")),
         )
@@ -59,8 +57,7 @@ class FhobsObserver(ObserverSlave):
     def _output_layout(self) -> list[str]:
         """The model state ``[z, psi, xi]``, z = (x_hat, q_hat), then sigma (no q_hat without a
         disturbance model)."""
-        z = ["x_hat", "q_hat"] if self.design.disturbance_order else ["x_hat"]
-        return [*z, "psi", "xi", "sigma"]
+        return [*self._state_layout(), "psi", "xi", "sigma"]
 
     def _model_outputs(self) -> list[float]:
         """``[x_hat, q_hat, psi, xi, sigma]``: the model state, then sigma."""

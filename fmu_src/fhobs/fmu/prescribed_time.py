@@ -12,8 +12,6 @@ value of the output ``xi``.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.certificate import certify_prescribed_time
 from ..core.runtime import PrescribedTimeObserver, prescribed_xi0
 from .slave_base import ObserverSlave, positive_parameter
@@ -40,9 +38,7 @@ class FhobsPrescribedTime(ObserverSlave):
         self.add_array("T0", self.config["T0"], "parameter",
                        "prescribed convergence time (s); xi0 = (-nu rho T0)^(-1/nu)")
         self.add_array("xi", 0.0, "output", "scalar gain state xi (0 from T0 on)")
-        if design.disturbance_order:
-            self.add_array("q_hat", np.zeros(design.n_model - design.n), "output",
-                           "disturbance-model estimates: q, then its derivatives")
+        self._declare_q_hat()
 
     def _check_gains(self) -> None:
         design = self.edited_design()
@@ -59,15 +55,14 @@ class FhobsPrescribedTime(ObserverSlave):
             design,
             h=float(self.array("h")),
             scheme=self.scheme_name(),
-            z0=np.concatenate((self.array("z0"), np.zeros(design.n_model - design.n))),
+            z0=self._padded_z0(),
             xi0=self._xi0(design.nu, design.rho),
         )
 
     def _output_layout(self) -> list[str]:
         """The model state ``[z, xi]``, z = (x_hat, q_hat) (no q_hat without a disturbance
         model)."""
-        z = ["x_hat", "q_hat"] if self.design.disturbance_order else ["x_hat"]
-        return [*z, "xi"]
+        return [*self._state_layout(), "xi"]
 
     def _model_outputs(self) -> list[float]:
         """``[x_hat, q_hat, xi]``: the model state."""

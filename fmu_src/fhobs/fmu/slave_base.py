@@ -406,7 +406,10 @@ class ObserverSlave(FhobsSlave):
     Subclasses add their gains with :meth:`_declare_gains` and may add outputs. The timing
     parameters are by default those of :mod:`fhobs.core.runtime` (internal step ``h`` and
     ``scheme``); a sampled-data observer replaces them (:meth:`_declare_timing`,
-    :meth:`_check_timing`).
+    :meth:`_check_timing`). An observer whose model has disturbance states (more than the
+    plant's n, :meth:`_model_size`) estimates them in the output ``q_hat``
+    (:meth:`_declare_q_hat`), starts them at zero (:meth:`_padded_z0`) and gives them after
+    x_hat (:meth:`_state_layout`).
     """
 
     def _declare(self) -> None:
@@ -448,6 +451,28 @@ class ObserverSlave(FhobsSlave):
         prediction) must be computable to some digits; an h larger than the step is fine
         (the runtime steps by min(h, step))."""
         return zoh_problem(self.edited_design().model[0], step_size, "the observer's model")
+
+    def _model_size(self) -> int:
+        """States of the observer's model: n, plus the disturbance states of a disturbance
+        model (default: those of the design's model)."""
+        return self.design.n_model
+
+    def _declare_q_hat(self) -> None:
+        """Register the output ``q_hat`` of the disturbance states (none without them)."""
+        size = self._model_size() - self.design.n
+        if size:
+            self.add_array("q_hat", np.zeros(size), "output",
+                           "disturbance-model estimates: q, then its derivatives")
+
+    def _padded_z0(self) -> np.ndarray:
+        """The model's initial state: the parameter z0 (the plant's states), then zeros (the
+        disturbance states)."""
+        return np.concatenate((self.array("z0"), np.zeros(self._model_size() - self.design.n)))
+
+    def _state_layout(self) -> list[str]:
+        """The outputs of the model's state z = (x_hat, q_hat): no q_hat without disturbance
+        states."""
+        return ["x_hat", "q_hat"] if self._model_size() > self.design.n else ["x_hat"]
 
     @abstractmethod
     def _declare_gains(self) -> None:

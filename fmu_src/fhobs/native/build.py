@@ -52,7 +52,7 @@ from ..core.certificate import certify
 from ..core.gains import ObserverGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
-from ..core.runtime import FilteringObserver, LuenbergerObserver
+from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver
 from ..errors import BuildError
 
 HERE = Path(__file__).resolve().parent
@@ -123,6 +123,8 @@ def build_native_fmus(
 
     Examples
     --------
+    >>> from fhobs.design import paper_gains
+    >>> gains = paper_gains()
     >>> build_native_fmus(gains, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
     {'observer': PosixPath('out/observer.fmu')}
     """
@@ -152,7 +154,7 @@ def build_native_fmus(
                                kernel=False, **options)
         for kind in kinds:
             interface = _read_interface(reference[kind], stage / f"{kind}_unzipped")
-            plans = _step_plans(kind, gains, steps, explicit, float(options.get("h", 5e-5)))
+            plans = _step_plans(kind, gains, steps, explicit, float(options.get("h", DEFAULT_H)))
             built[kind] = _build_one(kind, interface, plans, _sizes(kind, gains, plans),
                                      stage / kind, compiler, out_dir / f"{kind}.fmu")
     return built

@@ -1,0 +1,84 @@
+"""kalman.fmu (the steady-state Kalman filter baseline) through fmpy against the numpy runtime
+(:class:`fhobs.core.kalman_filter.KalmanObserver`), its rejections of caller mistakes, and the
+build's refusal of a design without a Kalman filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fhobs.build import build_fmus
+from fhobs.core.kalman_filter import KalmanObserver
+from fmpy import extract
+from fmu_fixtures import FmuDriver, assert_error, random_walk
+
+
+@pytest.fixture(scope="module")
+def kalman_fmu(tmp_path_factory, kalman_gains):
+    built = build_fmus(kalman_gains, tmp_path_factory.mktemp("kalman_fmu"), kinds=("kalman",))
+    path = built["kalman"]
+    return path, extract(str(path))
+
+
+@pytest.fixture
+def open_kalman(kalman_fmu):
+    opened = []
+
+    def factory(name="instance"):
+        driver = FmuDriver(kalman_fmu[0], kalman_fmu[1], name)
+        opened.append(driver)
+        return driver
+
+    yield factory
+    for driver in opened:
+        driver.fmu.freeInstance()
+
+
+def run_fmu(driver, g, ys, us, dt):
+    rows = []
+    for k, (y, u) in enumerate(zip(ys, us, strict=True)):
+        driver.set("y", y)
+        driver.set("u", u)
+        driver.fmu.doStep(k * dt, dt)
+        rows.append(np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))]))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("cycles", [1, 4])
+def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
+    g = kalman_gains
+    dt = cycles * g.kalman.sample_time
+    ys, us = random_walk(3, 100, g.k, 0.05), random_walk(4, 100, g.m, 0.1)
+    driver = open_kalman()
+    driver.start()
+    rows = run_fmu(driver, g, ys, us, dt)
+    obs = KalmanObserver(g)
+    expected = []
+    for y, u in zip(ys, us, strict=True):
+        obs.step(y, u, dt)
+        expected.append(obs.z)
+    np.testing.assert_allclose(rows, np.array(expected), rtol=0, atol=1e-12)
+
+
+def test_fmu_rejects_a_step_not_a_multiple_of_ts(open_kalman, kalman_gains):
+    g = kalman_gains
+    ts = g.kalman.sample_time
+    driver = open_kalman()
+    driver.start()
+    ys, us = random_walk(3, 5, g.k, 0.05), random_walk(4, 5, g.m, 0.1)
+    before = run_fmu(driver, g, ys, us, ts)[-1]
+    assert_error(driver, driver.fmu.doStep, 5 * ts, 1.5 * ts, words="whole multiple")
+    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[:g.n])
+    driver.fmu.doStep(5 * ts, ts)  # still usable
+
+
+def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):
+    driver = open_kalman()
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.set("kalman_gain", -kalman_gains.kalman.gain)
+    driver.fmu.enterInitializationMode()
+    assert_error(driver, driver.fmu.exitInitializationMode, words="schur_kalman")
+
+
+def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
+    with pytest.raises(ValueError, match="Kalman"):
+        build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
