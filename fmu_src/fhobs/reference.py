@@ -214,7 +214,7 @@ def replay(observer, result: SimulationResult) -> np.ndarray:
 
 
 def accuracy_metrics(results: list[SimulationResult], scenario: str) -> dict[str, float]:
-    """The issue's target metrics for one scenario (several results = several seeds).
+    """The target metrics of one of the paper's scenarios (several results = several seeds).
 
     Returns
     -------

@@ -145,6 +145,7 @@ def test_any_failure_inside_the_design_is_a_message(tmp_path, capsys, monkeypatc
     assert type(failure).__name__ in err and str(failure) in err
 
 
+@pytest.mark.slow
 def test_design_subprocess_prints_no_traceback(tmp_path):
     spec = tmp_path / "spec.toml"
     spec.write_text(DOUBLE_INTEGRATOR + "[observer]\nnu = -1e-300\n")
@@ -313,6 +314,7 @@ def test_mid_run_failure_keeps_the_recorded_rows(tmp_path, capsys, block_cache, 
     assert "error_at_0_2" in summary["tracking"] and "error_at_0_9" not in summary["tracking"]
 
 
+@pytest.mark.slow
 def test_harness_subprocess_prints_no_traceback(tmp_path, block_cache, observer_fmu):
     proc = subprocess.run(
         [sys.executable, "-m", "harness", "run", str(_system(tmp_path, observer_fmu)),

@@ -1,20 +1,24 @@
 """The pendulum's plant.fmu and observer.fmu coupled in libcosim (libcosimpy) and via fmpy.
 
 The loop of the paper: y = plant output -> observer; u = K x_hat -> plant and observer;
-q = 0.1 sin(5 t) -> plant. In libcosim, u comes from the harness's matrix-gain FMU and q from
-its sine FMU. libcosim exchanges values only at communication points, so the path through the
-gain block carries one step of delay: u_k = K x_hat_{k-1} (x_hat_{-1} = x_hat_0). The
-in-process loop below (numpy runtime + numpy plant) follows exactly that sequence.
+q = a sin(w t) -> plant (the paper's perturbation). In libcosim, u comes from the harness's
+matrix-gain FMU and q from its sine FMU. libcosim exchanges values only at communication
+points, so the path through the gain block carries one step of delay: u_k = K x_hat_{k-1}
+(x_hat_{-1} = x_hat_0). The in-process loop below (numpy runtime + numpy plant) follows
+exactly that sequence.
 """
 
 from __future__ import annotations
 
 import fmu_fixtures
 import numpy as np
+import pytest
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fhobs.paper import K_PAPER, PAPER_SCENARIOS
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
+
+pytestmark = pytest.mark.slow  # three engines, each loading the FMUs afresh
 
 pendulum_fmus = fmu_fixtures.pendulum_fmus
 unzipped = fmu_fixtures.unzipped

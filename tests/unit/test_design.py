@@ -238,6 +238,7 @@ def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
         design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=1.0))
 
 
+@pytest.mark.slow
 def test_build_fmu_design_only_writes_design_json(tmp_path):
     out = tmp_path / "out"
     proc = subprocess.run(
@@ -256,6 +257,7 @@ def test_build_fmu_design_only_writes_design_json(tmp_path):
     assert not list(out.glob("*.fmu"))
 
 
+@pytest.mark.slow
 def test_build_fmu_bad_spec_exit_code_and_message(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[0, 1]]\n")

@@ -346,6 +346,7 @@ def test_ceiling_where_small_gains_do_not_contract():
     assert spectral_radius(dilated(g, huge, scipy_error_map(g, huge, dt))) > 1.0
 
 
+@pytest.mark.slow
 def test_roundoff_floor_bounds_the_output_amplification():
     """spring_chain3 (n_tilde = 6): the floor keeps ||C|| ||d(ln s)|| / s^(1+nu) at or below
     AMPLIFICATION_LIMIT (d from scipy's expm); the contraction floor alone would not."""
