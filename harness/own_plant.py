@@ -2,7 +2,8 @@
 
 ``python -m harness plant SPEC --out DIR`` designs the observer of a plant spec (the design's
 defaults where the spec is silent), builds its FMUs into ``DIR/fmus`` (the prescribed-time
-observer with T0 = the spec's settling time) and runs
+observer with T0 = the spec's settling time; it runs only without noise, which its unbounded
+gain towards T0 would amplify up to the runtime's round-off limit) and runs
 :func:`own_plant_system`: the plant starts at the spec's ``state_scale`` (an initial error of the
 size the design was asked to remove in ``settling_time``), every observer at zero, the input is
 a stabilising state feedback ``u = K x`` on the true state (LQR with Q = I, R = I; the
@@ -56,6 +57,8 @@ def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarr
         plant_start |= expand_start("q", [0.0] * gains.E.shape[1])
     observers = {"observer": "homogeneous", "prescribed_time": "prescribed_time",
                  "luenberger": "linear", "kalman": "kalman"}
+    if noise_amplitude > 0.0:  # its gain grows without bound towards T0: noise, amplified
+        observers.pop("prescribed_time")
     present = {kind: label for kind, label in observers.items() if kind in fmus}
     specs = {"plant": FmuSpec("plant", fmus["plant"], plant_start)}
     specs |= {kind: FmuSpec(kind, fmus[kind]) for kind in present}

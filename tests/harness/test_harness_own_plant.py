@@ -43,6 +43,7 @@ def test_own_plant_with_noise_runs_the_kalman_filter_at_its_sample_time(tmp_path
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["step"] == 5e-5 and summary["seeds"] == [0]
     assert {"homogeneous", "linear", "kalman"} <= set(summary)
+    assert "prescribed_time" not in summary  # noise-free runs only
     assert (tmp_path / "states.png").stat().st_size > 10_000
 
 
