@@ -23,12 +23,13 @@ from fhobs.design import design_for_spec
 from fhobs.errors import SpecError
 from fhobs.homogenisation import observability_index
 from fhobs.limits import MAX_CHAIN, check_design_limits
+from fhobs.paper import EXAMPLES
 from fhobs.spec import load_spec, spec_from_dict
 
 from harness.cli import main as harness_main
 
 REPO = Path(__file__).resolve().parents[2]
-EXAMPLES = REPO / "examples"
+"""The clone (for build_fmu.py, the command the README gives)."""
 DOUBLE_INTEGRATOR = "A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n"
 
 
