@@ -24,6 +24,9 @@ interpolated linearly at ``t_k``. With one CSV row per step, that is the row of 
 itself, held over the step; the fmpy run sets the same row before the same step, so both
 FMUs see identical piecewise-constant inputs. The checker also sets the inputs of ``t_0``
 right after ``fmi2Instantiate``, before ``fmi2SetupExperiment``, as the fmpy run does.
+Without ``-h`` the checker steps by stopTime / 500 (1/500 s, as the FMUs declare no stop
+time), which the native FMUs refuse (``fmi2Error``, their log naming the built step sizes)
+unless built for it; hence the explicit ``-s`` and ``-h`` here.
 
 Building the checker (linux64, offline, about 40 s): take the FMU Compliance Checker sources
 (github.com/modelica-tools/FMUComplianceChecker) and unpack FMI Library 2.0.3
@@ -59,7 +62,8 @@ from fmpy.fmi2 import FMU2Slave
 KINDS = ("observer", "luenberger", "kalman", "plant")
 SUMMARY = re.compile(r"FMU reported:\s*(\d+) warning\(s\) and error\(s\)\s*Checker reported:"
                      r"\s*(\d+) Warning\(s\)\s*(\d+) Error\(s\)")
-MESSAGE = re.compile(r"^\[(WARNING|ERROR|FATAL)\]")
+FATAL = re.compile(r"(\d+) Fatal error\(s\)")
+MESSAGE = re.compile(r"^\s*\[(WARNING|ERROR|FATAL|FMU)\]")
 
 
 def variables(path: Path, causality: str) -> list[str]:
@@ -83,9 +87,10 @@ def write_inputs(path: Path, names: list[str], times: np.ndarray, values: np.nda
 
 
 def run_fmucheck(fmucheck: Path, fmu: Path, inputs: Path, stem: Path, stop: float,
-                 dt: float) -> tuple[dict[str, np.ndarray], tuple[int, int, int], list[str]]:
+                 dt: float) -> tuple[dict[str, np.ndarray], tuple[int, ...], list[str]]:
     """Run the checker on ``fmu``; return its output columns by name, (FMU-reported, checker
-    warnings, checker errors) and its warning/error/fatal log lines."""
+    warnings, checker errors, checker fatal errors) and its warning/error/fatal log lines and
+    the FMU's own log messages."""
     log, out = stem.with_suffix(".log"), stem.with_suffix(".csv")
     subprocess.run([str(fmucheck), "-s", repr(stop), "-h", repr(dt), "-n", "0", "-l", "3",
                     "-i", str(inputs), "-o", str(out), "-e", str(log), str(fmu)],
@@ -93,6 +98,8 @@ def run_fmucheck(fmucheck: Path, fmu: Path, inputs: Path, stem: Path, stop: floa
     text = log.read_text()
     found = SUMMARY.search(text)
     counts = tuple(int(g) for g in found.groups()) if found else (-1, -1, -1)
+    fatal = FATAL.search(text)
+    counts += (int(fatal.group(1)) if fatal else 0,)
     messages = [line for line in text.splitlines() if MESSAGE.match(line)]
     lines = out.read_text().splitlines() if out.exists() else ['"time"']
     names = [name.strip('"') for name in lines[0].split(",")]
@@ -160,22 +167,22 @@ def print_report(results: list[dict], args: argparse.Namespace) -> None:
     """The summary table, the per-output table and the checker's messages."""
     print(f"\nFMU Compliance Checker on the native FMUs, {args.steps} steps of {args.dt:g} s, "
           f"against the pythonfmu FMUs under fmpy (same inputs, seed {args.seed})")
-    print("| FMU | checker warnings | checker errors | FMU-reported | output rows | "
+    print("| FMU | checker warnings | checker errors | fatal | FMU-reported | output rows | "
           "max rel. difference | worst output |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for r in results:
-        fmu_reported, warnings, errors = r["counts"]
+        fmu_reported, warnings, errors, fatal = r["counts"]
         worst = int(np.nanargmax(r["relative"])) if np.isfinite(r["relative"]).any() else 0
-        print(f"| {r['kind']} | {warnings} | {errors} | {fmu_reported} | {r['rows']} | "
+        print(f"| {r['kind']} | {warnings} | {errors} | {fatal} | {fmu_reported} | {r['rows']} | "
               f"{r['relative'].max():.2e} | {r['outputs'][worst]} |")
     print("\n| FMU | output | max rel. difference |\n|---|---|---|")
     for r in results:
         for name, value in zip(r["outputs"], r["relative"], strict=True):
             print(f"| {r['kind']} | {name} | {value:.2e} |")
-    print("\nchecker messages (warnings, errors, fatal):")
+    print("\nchecker messages (warnings, errors, fatal; the FMU's own as [FMU]):")
     for r in results:
         for line in r["messages"] or ["(none)"]:
-            print(f"  {r['kind']}: {line}")
+            print(f"  {r['kind']}: {line.strip()}")
 
 
 def main() -> None:
