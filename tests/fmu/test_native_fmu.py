@@ -521,3 +521,13 @@ def test_another_design_complex_spectrum_no_perturbation_input(chain_gains, tmp_
                 driver.fmu.freeInstance()
                 runs.append(np.array(rows))
             assert relative(runs[1], runs[0]) <= RTOL, (kind, dt, scheme)
+
+
+def test_default_experiment_is_500_steps_of_a_built_step(native_fmus):
+    """A host that steps by stopTime / 500 when given no step (the FMU Compliance Checker)
+    takes a step size the FMU was built for; the Kalman filter takes any step."""
+    for kind in ("observer", "luenberger", "plant"):
+        experiment = read_model_description(str(native_fmus[kind])).defaultExperiment
+        step = float(experiment.stepSize)
+        assert step in DEFAULT_STEPS, kind
+        assert float(experiment.stopTime) / 500 == pytest.approx(step, rel=1e-12)

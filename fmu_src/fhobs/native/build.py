@@ -59,6 +59,10 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_STEPS = (5e-5, 1e-4, 1e-3)
 """Communication step sizes built by default: the paper's scenarios (5e-5) and the zoo bench's
 (1e-4, 1e-3)."""
+DEFAULT_EXPERIMENT_STEPS = 500
+"""The default experiment is this many steps of the first built step size: a host that divides
+the stop time into 500 steps when it is given no step (the FMU Compliance Checker) then takes
+a step the FMU was built for."""
 KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4}
 """``FHOBS_KIND_*`` of fhobs_native.h."""
 SETTABLE = {
@@ -481,7 +485,9 @@ def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]
     for name in compiled_files:
         ET.SubElement(files, "File", name=name)
     if steps:
-        experiment = ET.Element("DefaultExperiment", stepSize=repr(plans["steps"][0]))
+        step = plans["steps"][0]
+        experiment = ET.Element("DefaultExperiment", stepSize=repr(step),
+                                stopTime=repr(DEFAULT_EXPERIMENT_STEPS * step))
         position = list(root).index(root.find("ModelVariables"))
         root.insert(position, experiment)
     for element, var in zip(root.iterfind("ModelVariables/ScalarVariable"), variables,
