@@ -142,6 +142,9 @@ def _parser() -> argparse.ArgumentParser:
                        help=f"communication step (default the [noise] sample time, else {STEP:g})")
     plant.add_argument("--seed", type=int, default=0, help="measurement noise seed")
     plant.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    plant.add_argument("--native", action="store_true",
+                       help="also build native FMUs for the step (fmus/native) and run them "
+                            "(the prescribed-time observer has none: its pythonfmu FMU runs)")
     sub.add_parser("list", help="list the bundled scenarios")
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
@@ -377,8 +380,12 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     stop_time = args.stop_time or RUNS_PER_SETTLING_TIME * spec.settling_time
     stop_time = step * round(stop_time / step)
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
-    fmus = build_fmus(gains, args.out / "fmus", x0=spec.state_scale, noise_amplitude=noise,
-                      h=step, T0=spec.settling_time)
+    options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step}
+    fmus = build_fmus(gains, args.out / "fmus", T0=spec.settling_time, **options)
+    if args.native:
+        from fhobs.native.build import build_native_fmus
+
+        fmus |= build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,), **options)
     system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise)
     data = run_scenario(system, args.out, None, [args.seed] if noise else None, 1,
                         not args.no_plots, csv_every(args, 1))

@@ -87,3 +87,18 @@ def test_a_spec_beyond_the_design_limits_is_refused_before_any_design(tmp_path, 
     assert code == 2 and "Traceback" not in err
     assert "observer.rho = 1e+300 is beyond the design's range" in err
     assert not (tmp_path / "out" / "fmus").exists()
+
+
+@pytest.mark.slow
+def test_own_plant_with_native_fmus_gives_the_same_results(tmp_path, capsys):
+    """``harness plant --native`` builds native FMUs for its step into fmus/native and runs
+    them: the same results.csv, bit for bit, as with the pythonfmu FMUs."""
+    spec = str(EXAMPLES / "zoo" / "dc_motor.toml")
+    for folder, extra in (("python", []), ("native", ["--native"])):
+        assert main(["plant", spec, "--out", str(tmp_path / folder), "--stop-time", "1",
+                     "--no-plots", *extra]) == 0, capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "native" / "fmus" / "native").glob("*.fmu")) == [
+        "luenberger.fmu", "observer.fmu", "plant.fmu"]
+    python, native = ((tmp_path / folder / "results.csv").read_text()
+                      for folder in ("python", "native"))
+    assert python == native and "prescribed_time.x_hat[1]" in native
