@@ -400,9 +400,20 @@ def _cmd_list(args: argparse.Namespace) -> int:
     paths = sorted(SCENARIO_DIR.glob("*.toml"))
     width = max(len(path.stem) for path in paths)
     for path in paths:
-        first = path.read_text().splitlines()[0].lstrip("# ")
-        print(f"{path.stem:<{width}} {first}")
+        print(f"{path.stem:<{width}}  {scenario_summary(path)}")
     return 0
+
+
+def scenario_summary(path: Path) -> str:
+    """The first sentence of a scenario file's leading comment (up to its first ':' or '.')."""
+    lines = []
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line.lstrip("# ").strip())
+    text = " ".join(lines)
+    ends = [i for i in (text.find(": "), text.find(". ")) if i >= 0]
+    return text[:min(ends)] if ends else text
 
 
 def _cmd_export(args: argparse.Namespace) -> int:

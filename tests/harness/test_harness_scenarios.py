@@ -118,3 +118,15 @@ def test_paper_values_are_substituted_and_unknown_names_refused(tmp_path):
     with pytest.raises(DescriptionError, match=r"\$\{paper.gain\} is not one of the paper's "
                                                r"values \(paper.K, "):
         load_system(path)
+
+
+def test_list_names_every_bundled_scenario_with_its_first_sentence(capsys):
+    from harness.cli import main
+
+    assert main(["list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == sorted(
+        path.stem for path in SCENARIO_DIR.glob("*.toml"))
+    by_name = {line.split()[0]: line.split(maxsplit=1)[1] for line in lines}
+    assert by_name["pendulum_nominal"] == "The paper's nominal scenario"
+    assert by_name["pendulum_noisy"] == "The paper's perturbed and noisy scenario"
