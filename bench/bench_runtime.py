@@ -7,7 +7,7 @@ Usage::
 
 For each gain set, communication step dt (internal step h = 5e-5: euler substeps when dt > h,
 the split scheme takes one step per dt) and scheme (the paper's explicit Euler and the default
-split scheme) it prints the issue's metrics:
+split scheme) it prints the paper's scenario metrics:
 norm(x - z) at t = 1.5 (nominal), max over [1, 3] (perturbed), RMS over [1, 3] averaged over the
 seeds and the linear/homogeneous ratio (perturbed + noise). The plant is the exact-ZOH plant of
 the co-simulation; the all-Euler row (plant also explicit Euler) reproduces the paper's runs.

@@ -33,7 +33,7 @@ Building the checker (linux64, offline, about 40 s): take the FMU Compliance Che
 (github.com/modelon-community/fmi-library, tag ``2.0.3``) into its ``FMIL/`` folder. In the
 checker's ``CMakeLists.txt``, replace the ``GIT_REPOSITORY`` and ``GIT_TAG`` lines of
 ``ExternalProject_Add(fmil ...)`` by ``DOWNLOAD_COMMAND ""`` so that the unpacked copy is
-used. Configure with CMake 3.x (CMake 4 no longer accepts FMI Library 2.0.3's
+used. Configure with CMake 3.x (CMake 4 rejects FMI Library 2.0.3's
 ``LOCATION`` target property reads) and gcc, then build and install::
 
     mkdir build && cd build

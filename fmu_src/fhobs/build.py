@@ -7,7 +7,7 @@ Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
   :mod:`fhobs.fmu` (the slave classes), taken whole: both import only relatively, numpy,
   pythonfmu and the standard library. ``<tag>`` is a hash of that code, the design and the
   options, and ``<kind>`` the FMU's kind, so two FMUs loaded in one process never share a module
-  (pythonfmu shares ``sys.modules`` between the FMUs of a process, PythonFMU#228), not even the
+  (pythonfmu shares ``sys.modules`` between the FMUs of a process), not even the
   FMUs of one design;
 - ``slave_<kind>_<tag>.py``: the slave script, a subclass ``Fhobs<Kind>_<tag>`` of the slave
   class in ``fhobs_<kind>_<tag>.fmu``;

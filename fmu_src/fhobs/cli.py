@@ -174,7 +174,7 @@ def check_native_options(args: argparse.Namespace) -> None:
     >>> check_native_options(parse_args(["spec.toml", "--native-step", "0"]))
     Traceback (most recent call last):
     ...
-    fhobs.spec.SpecError: --native-step 0.0: a communication step size must be positive and finite
+    fhobs.errors.SpecError: --native-step 0.0: a communication step size must be positive and finite
     """
     for dt in args.native_step or ():
         if not (math.isfinite(dt) and dt > 0.0):

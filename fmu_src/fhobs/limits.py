@@ -2,8 +2,7 @@
 
 A spec that passes :func:`fhobs.spec.load_spec` can still be beyond the design's numerics; these
 limits refuse it at once, with a message naming the item, instead of a solver failure, an
-overflow or a memory exhaustion deep inside the design. They were measured (README, "Design
-limits"):
+overflow or a memory exhaustion deep inside the design. They were measured:
 
 - ``MAX_CHAIN``: the longest observability chain, ``n_tilde``. The LMIs are solved in blocks of
   size ``n_tilde + 1`` (:mod:`fhobs.lmi`); a single-output integrator chain designs up to

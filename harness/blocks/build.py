@@ -2,7 +2,7 @@
 
 Each (kind, dimensions) gets its own FMU whose Python module and class names encode the
 dimensions and a hash of the block's source, so that two different blocks loaded in one
-process never share a module (pythonfmu FMUs reuse the host's ``sys.modules``, PythonFMU#228).
+process never share a module (pythonfmu FMUs reuse the host's ``sys.modules``).
 """
 
 from __future__ import annotations

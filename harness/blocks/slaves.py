@@ -15,7 +15,7 @@
   algebraic loops through the block.
 
 The dimensions are constructor arguments; :mod:`harness.blocks.build` bakes them into a
-uniquely named copy of this module (see PythonFMU#228 on shared ``sys.modules``), which is
+uniquely named copy of this module (pythonfmu shares ``sys.modules`` between FMUs), which is
 why the module imports nothing from the harness.
 """
 

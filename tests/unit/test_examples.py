@@ -6,7 +6,8 @@ import importlib
 import pytest
 
 PUBLIC_MODULES = (
-    "fhobs", "fhobs.design", "fhobs.spec", "fhobs.errors", "fhobs.limits", "fhobs.build",
+    "fhobs", "fhobs.cli", "fhobs.design", "fhobs.spec", "fhobs.errors", "fhobs.limits",
+    "fhobs.build",
     "fhobs.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
     "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "fhobs.reference",
     "fhobs.settling", "fhobs.core.disturbance", "fhobs.native.build",

@@ -67,7 +67,7 @@ def test_jacobi_sequence(paper_design):
 
 def test_paper_explicit_euler_is_reproduced(paper_design):
     """All-Euler transcription (plant too), h = 5e-5: about 6e-9 at t = 1.0, then the gain blows
-    up and the error degrades to about 1e-3 at t = 1.5 (the issue's measurement)."""
+    up and the error degrades to about 1e-3 at t = 1.5 (as measured with the paper's scheme)."""
     metrics = accuracy_metrics(
         [simulate(paper_design, "nominal", t_end=1.5, scheme="euler", plant_scheme="euler")],
         "nominal")

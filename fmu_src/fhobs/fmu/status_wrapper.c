@@ -16,7 +16,7 @@
  * From then on:
  * - fmi2GetReal / fmi2SetReal whose value references are all Real variables read and write
  *   that buffer directly (exactly what the slave's get_real / set_real do); any other value
- *   reference goes to pythonfmu as before;
+ *   reference goes to pythonfmu unchanged;
  * - fmi2DoStep calls the callback, which runs the slave's do_step and answers FHOBS_STEP_OK,
  *   FHOBS_STEP_OK_LOGGED (messages are waiting in the slave's log queue), FHOBS_STEP_REJECTED
  *   (do_step returned False: pythonfmu's fmi2Discard, made fmi2Error by the recorded status)
