@@ -63,14 +63,36 @@ static void read_vector(const double *real, int vr, int n, double *out)
         out[i] = real[vr + i];
 }
 
-/* The first non-finite entry of the n variables from vr: its index, or -1. */
-static int non_finite_entry(const double *real, int vr, int n)
+/* Copy the n reals from value reference vr (the variable `name`) into out; 1 with a message
+ * naming the first entry that is not finite. */
+static int read_finite(const double *real, int vr, int n, const char *name, double *out,
+                       char *msg, size_t len)
 {
-    for (int i = 0; i < n; i++)
-        if (!isfinite(real[vr + i]))
-            return i;
-    return -1;
+    for (int i = 0; i < n; i++) {
+        if (!isfinite(real[vr + i])) {
+            if (n > 1)
+                snprintf(msg, len, "%s must be finite (%s[%d] is not)", name, name, i + 1);
+            else
+                snprintf(msg, len, "%s must be finite", name);
+            return 1;
+        }
+        out[i] = real[vr + i];
+    }
+    return 0;
 }
+
+#if FHOBS_KIND != FHOBS_KIND_PLANT
+/* The model state z of an estimator: z0 for the plant's states, zeros for the disturbance
+ * model's. */
+static int initial_z(const double *real, double *state, char *msg, size_t len)
+{
+    if (read_finite(real, VR_Z0, FHOBS_N, "z0", state, msg, len))
+        return 1;
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        state[i] = 0.0;
+    return 0;
+}
+#endif
 
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER
 /* ---------------------------------------------------------------------------------------- */
@@ -138,22 +160,12 @@ static int model_parameters_problem(const double *real, const int *integer, char
 
 static int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
-    int bad = non_finite_entry(real, VR_Z0, FHOBS_N);
-    if (bad >= 0) {
-        snprintf(msg, len, "z0 must be finite (z0[%d] is not)", bad + 1);
+    if (initial_z(real, state, msg, len))
         return 1;
-    }
-    read_vector(real, VR_Z0, FHOBS_N, state);
-    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
-        state[i] = 0.0;
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER
-    bad = non_finite_entry(real, VR_PSI0, FHOBS_K);
-    if (bad >= 0 || !isfinite(real[VR_XI0])) {
-        snprintf(msg, len, "psi0 and xi0 must be finite");
+    if (read_finite(real, VR_PSI0, FHOBS_K, "psi0", state + FHOBS_N_MODEL, msg, len) ||
+        read_finite(real, VR_XI0, 1, "xi0", state + FHOBS_N_MODEL + FHOBS_K, msg, len))
         return 1;
-    }
-    read_vector(real, VR_PSI0, FHOBS_K, state + FHOBS_N_MODEL);
-    state[FHOBS_N_MODEL + FHOBS_K] = real[VR_XI0];
 #endif
     return 0;
 }
@@ -261,12 +273,8 @@ static int model_parameters_problem(const double *real, const int *integer, char
 
 static int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
-    int bad = non_finite_entry(real, VR_X0, FHOBS_N);
-    if (bad >= 0) {
-        snprintf(msg, len, "x0 must be finite (x0[%d] is not)", bad + 1);
+    if (read_finite(real, VR_X0, FHOBS_N, "x0", state, msg, len))
         return 1;
-    }
-    read_vector(real, VR_X0, FHOBS_N, state);
     state[FHOBS_N] = 0.0; /* the step index k */
     return 0;
 }
@@ -359,15 +367,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
 
 static int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
-    int bad = non_finite_entry(real, VR_Z0, FHOBS_N);
-    if (bad >= 0) {
-        snprintf(msg, len, "z0 must be finite (z0[%d] is not)", bad + 1);
-        return 1;
-    }
-    read_vector(real, VR_Z0, FHOBS_N, state);
-    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
-        state[i] = 0.0;
-    return 0;
+    return initial_z(real, state, msg, len);
 }
 
 /* fhobs.kalman_filter.cycles_per_step: n = round(dt / Ts) (ties to even, as Python's round) */
