@@ -300,6 +300,14 @@ class Stepper:
         self._kept[dt] = (plan, arrays, structs)
         self._calls[dt] = tuple(ctypes.c_void_p(ctypes.addressof(c)) for c in structs)
 
+    def plan(self, dt: float) -> tuple[ctypes.Structure, tuple[np.ndarray, ...]]:
+        """The plan of step size dt and the arrays its pointers point into, made at its first
+        use as :meth:`run` makes it (ValueError if the model refuses the step size)."""
+        if dt not in self._kept:
+            self._make_plan(dt)
+        plan, arrays, _ = self._kept[dt]
+        return plan, arrays
+
     def run(self, dt: float, first: np.ndarray, last: np.ndarray, a: np.ndarray,
             b: np.ndarray) -> int:
         """Step the state whose arrays are ``first`` ... ``last`` (the same for a one-array

@@ -241,10 +241,7 @@ def _captured_plan(model: Any, dt: float) -> dict[str, Any]:
     ValueError
         If the runtime refuses the step size (as its step would).
     """
-    stepper = model._stepper  # the plan as fhobs.kernel.Stepper.add_plan keeps it
-    if dt not in stepper._kept:
-        stepper._make_plan(dt)
-    plan, arrays, _ = stepper._kept[dt]
+    plan, arrays = model._stepper.plan(dt)
     by_address = {array.ctypes.data: array for array in arrays}
     fields: dict[str, Any] = {}
     for name, ctype in plan._fields_:
