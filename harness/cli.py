@@ -29,8 +29,10 @@ from typing import Any
 
 import numpy as np
 from fhobs.cli import check_output_folder
+from fhobs.core.gains import ObserverGains
 from fhobs.errors import BuildError, CertificateError, KalmanDesignError, LMIError, SpecError
 from fhobs.paper import PENDULUM_SPEC
+from fhobs.spec import PlantSpec
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
@@ -296,24 +298,19 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         The folder of the FMUs to run: ``out``, or ``out/native`` with ``native``.
     """
     from fhobs.build import build_fmus
-    from fhobs.cli import design_from_spec, design_summary
     from fhobs.design import paper_gains
     from fhobs.kalman import with_kalman
-    from fhobs.limits import check_design_limits
     from fhobs.spec import load_spec
 
     if design not in DESIGN_LABELS:
         raise ValueError(f"design must be one of {sorted(DESIGN_LABELS)}, not {design!r}")
-    plant = load_spec(spec)
     if design == "spec":
-        check_design_limits(plant)
-        gains = design_from_spec(plant)
-        for line in design_summary(gains):
-            print(line)
+        _, gains = design_spec_file(spec)
     else:
         gains = paper_gains()
-        if plant.noise is not None:
-            gains = with_kalman(gains, plant.noise)
+        noise = load_spec(spec).noise
+        if noise is not None:
+            gains = with_kalman(gains, noise)
     out.mkdir(parents=True, exist_ok=True)
     gains.save_json(out / "design.json")
     build_fmus(gains, out, kernel=kernel)
@@ -326,6 +323,26 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
 
 
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
+
+
+def design_spec_file(path: Path) -> tuple[PlantSpec, ObserverGains]:
+    """The spec of ``path`` and its design, as build_fmu.py makes it (the design limits
+    checked first; what the design achieved printed).
+
+    Returns
+    -------
+    tuple of PlantSpec and ObserverGains
+    """
+    from fhobs.cli import design_from_spec, design_summary
+    from fhobs.limits import check_design_limits
+    from fhobs.spec import load_spec
+
+    spec = load_spec(path)
+    check_design_limits(spec)
+    gains = design_from_spec(spec)
+    for line in design_summary(gains):
+        print(line)
+    return spec, gains
 
 
 def _check_kalman_fmu(fmu_dir: Path, spec: Path) -> None:
@@ -363,19 +380,12 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
 def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.build import build_fmus
-    from fhobs.cli import design_from_spec, design_summary
-    from fhobs.limits import check_design_limits
-    from fhobs.spec import load_spec
 
     check_output_folder(args.out)
-    spec = load_spec(args.spec)
-    check_design_limits(spec)
-    gains = design_from_spec(spec)
+    spec, gains = design_spec_file(args.spec)
     noise = 0.0
     if spec.noise is not None:
         noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
-    for line in design_summary(gains):
-        print(line)
     step = args.step or (spec.noise.sample_time if spec.noise is not None else STEP)
     stop_time = args.stop_time or RUNS_PER_SETTLING_TIME * spec.settling_time
     stop_time = step * round(stop_time / step)
