@@ -59,16 +59,26 @@ def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
     np.testing.assert_allclose(rows, np.array(expected), rtol=0, atol=1e-12)
 
 
-def test_fmu_rejects_a_step_not_a_multiple_of_ts(open_kalman, kalman_gains):
+def test_fmu_takes_any_step_as_the_runtime(open_kalman, kalman_gains):
+    """Steps of 0.4 Ts with the time accumulated in floating point, a short last step, then
+    variable steps: the FMU runs the runtime's cycles (one per sample instant inside a step)."""
     g = kalman_gains
     ts = g.kalman.sample_time
+    variable = ts * np.random.default_rng(8).uniform(0.1, 3.3, 40)
+    steps = [0.4 * ts] * 40 + [3e-13] + variable.tolist()
+    ys, us = random_walk(3, len(steps), g.k, 0.05), random_walk(4, len(steps), g.m, 0.1)
     driver = open_kalman()
     driver.start()
-    ys, us = random_walk(3, 5, g.k, 0.05), random_walk(4, 5, g.m, 0.1)
-    before = run_fmu(driver, g, ys, us, ts)[-1]
-    assert_error(driver, driver.fmu.doStep, 5 * ts, 1.5 * ts, words="whole multiple")
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[:g.n])
-    driver.fmu.doStep(5 * ts, ts)  # still usable
+    obs = KalmanObserver(g)
+    t = 0.0
+    for dt, y, u in zip(steps, ys, us, strict=True):
+        driver.set("y", y)
+        driver.set("u", u)
+        driver.fmu.doStep(t, dt)
+        t += dt
+        obs.step(y, u, dt)
+        got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+        np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
 
 
 def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):

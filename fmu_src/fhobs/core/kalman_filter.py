@@ -14,16 +14,23 @@ estimate is that of t_k+1 from the measurements up to y_k, the information the J
 co-simulation gives every observer. Both equations are precomputed as one matrix
 ``z+ = [Phi (I - M C), Phi M, Gamma] (z, y, u)``.
 
-Communication steps. The filter is designed for Ts: a step ``dt`` must be a whole multiple
-``n Ts`` (relative tolerance ``STEP_TOLERANCE``); it then runs n cycles with y and u held (the
-same measurement used n times: a zero-order-hold sensor read faster than it is sampled). Any
-other dt raises ValueError, state unchanged (fmi2Error in the FMU): a filter run at a sample time
-it was not designed for is not the designed filter.
+Communication steps of any size. The filter samples at the instants ``t0 + j Ts`` (t0: where
+it started). A communication step ``[t, t + dt)`` runs one cycle for every sample instant that
+falls inside it, with the y and u held over the step (a zero-order-hold sensor sampled at Ts),
+and none when no instant falls inside: between samples the estimate is held. After the step
+the state is the prediction for the next sample instant, so for ``dt = n Ts`` (the design's
+case) a step runs exactly n cycles and its estimate is that of ``t + dt``. The state carries,
+besides z, the ``offset`` from the current time to the next sample instant (in ``[0, Ts)``);
+a sample instant within ``SAMPLE_SLACK`` Ts of a step's end belongs to the next step, so a
+host that accumulates time in floating point (and ends a step a few ulps before or after a
+sample instant) runs the same cycles as one that steps exactly.
 
 This module is numpy-only: it runs inside the FMUs.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -33,35 +40,50 @@ from .gains import KalmanGains, ObserverGains
 from .linalg import zoh_blocks
 from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
-STEP_TOLERANCE = 1e-9
-"""Relative tolerance of ``dt = n Ts`` (a master's t_k = k dt rounding stays far below it)."""
+SAMPLE_SLACK = 1e-6
+"""A sample instant closer than this fraction of Ts to a step's end belongs to the next step."""
 
 MAX_CYCLES = 1_000_000
 """A communication step of more filter cycles than this is rejected (a mistake, not a request)."""
 
 
-def cycles_per_step(dt: float, sample_time: float) -> int:
-    """The number n of filter cycles in a communication step ``dt = n Ts``.
+def samples_in_step(offset: float, dt: float, sample_time: float) -> tuple[int, float]:
+    """The filter cycles of a communication step and the offset of the next sample after it.
+
+    Parameters
+    ----------
+    offset : float
+        Time from the step's start to the next sample instant, in ``[0, Ts)``.
+    dt : float
+        The communication step (positive).
+    sample_time : float
+        The filter's sample time Ts.
+
+    Returns
+    -------
+    n : int
+        The number of sample instants ``offset + i Ts`` (i >= 0) before
+        ``dt - SAMPLE_SLACK Ts``.
+    offset : float
+        Time from the step's end to the next sample instant (``offset + n Ts - dt``, at least 0).
 
     Raises
     ------
     ValueError
-        If dt is not a whole multiple of Ts (within ``STEP_TOLERANCE``) or needs more than
-        ``MAX_CYCLES`` cycles.
+        If the step holds more than ``MAX_CYCLES`` sample instants.
 
     Examples
     --------
-    >>> cycles_per_step(1e-4, 5e-5)
-    2
+    >>> samples_in_step(0.0, 3e-3, 1e-3)
+    (3, 0.0)
+    >>> samples_in_step(0.0, 0.5e-3, 1e-3), samples_in_step(0.5e-3, 0.5e-3, 1e-3)
+    ((1, 0.0005), (0, 0.0))
     """
-    n = round(dt / sample_time)
-    if n < 1 or abs(dt - n * sample_time) > STEP_TOLERANCE * dt:
-        raise ValueError(f"the step size {dt!r} is not a whole multiple of the Kalman filter's "
-                         f"sample time Ts = {sample_time!r}; state left unchanged")
+    n = max(math.ceil((dt - offset) / sample_time - SAMPLE_SLACK), 0)
     if n > MAX_CYCLES:
-        raise ValueError(f"the step size {dt!r} needs {n} cycles of Ts = {sample_time!r}, more "
+        raise ValueError(f"the step size {dt!r} holds {n} samples of Ts = {sample_time!r}, more "
                          f"than {MAX_CYCLES}; state left unchanged")
-    return n
+    return n, max((offset + n * sample_time) - dt, 0.0)
 
 
 class KalmanObserver:
@@ -116,6 +138,7 @@ class KalmanObserver:
         Phi, Gamma = zoh_blocks(A, [B], self.sample_time)
         self._cycle = np.hstack((Phi - Phi @ kalman.gain @ C, Phi @ kalman.gain, Gamma))
         self._z = np.zeros(size)
+        self._offset = 0.0
         if z0 is not None:
             z0 = np.asarray(z0, dtype=float).reshape(-1)
             if z0.size == self._n:  # the plant's states; the disturbance states start at zero
@@ -141,12 +164,13 @@ class KalmanObserver:
         return self._z[self._n:].copy()
 
     def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
-        """Advance by dt = n Ts with y and u held (n filter cycles).
+        """Advance by dt with y and u held: one cycle per sample instant inside the step
+        (module docstring).
 
         Raises
         ------
         ValueError
-            On invalid y, u or dt (dt not a whole multiple of Ts included), or a non-finite
+            On invalid y, u or dt, a step of more than ``MAX_CYCLES`` samples, or a non-finite
             result; the state is then left unchanged.
         """
         self.advance(as_finite_vector(y, self._k, "y"), as_finite_vector(u, self._m, "u"),
@@ -154,15 +178,20 @@ class KalmanObserver:
 
     def advance(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """:meth:`step` without checking y, u (finite, of k and m entries) and the sign of dt;
-        a dt that is not a multiple of Ts and a non-finite result still raise ValueError."""
+        too many samples and a non-finite result still raise ValueError."""
+        n_cycles, offset = samples_in_step(self._offset, dt, self.sample_time)
+        if n_cycles:
+            self._z = self._cycles(n_cycles, y, u)
+        self._offset = offset
+
+    def _cycles(self, n_cycles: int, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """z after n_cycles filter cycles with y and u held (ValueError if not finite)."""
         stepper = self._stepper
         if stepper is not None:
-            if stepper.run(dt, self._z, self._z, y, u) != compiled.OK:
+            if stepper.run(float(n_cycles), self._z, self._z, y, u) != compiled.OK:
                 raise ValueError("the Kalman step diverged (non-finite state); state left "
                                  "unchanged")
-            self._z = stepper.state[0]
-            return
-        n_cycles = cycles_per_step(dt, self.sample_time)
+            return stepper.state[0]
         z, tail = self._z, np.concatenate((y, u))
         try:
             for _ in range(n_cycles):
@@ -171,29 +200,41 @@ class KalmanObserver:
             raise floating_point_failure("Kalman", err) from err
         if not all_finite(z):
             raise ValueError("the Kalman step diverged (non-finite state); state left unchanged")
-        self._z = z
+        return z
 
     @property
     def compiled(self) -> bool:
         """Whether the cycles run in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
-    def _kernel_plan(self, dt: float) -> None:
-        """Register the kernel's plan for dt (ValueError if dt is not a multiple of Ts)."""
+    def _kernel_plan(self, cycles: float) -> None:
+        """Register the kernel's plan of ``cycles`` filter cycles (its key in the stepper)."""
         work = np.zeros(2 * self._z.size)
-        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m,
-                                   cycles=cycles_per_step(dt, self.sample_time),
+        plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=int(cycles),
                                    M=compiled.pointer(self._cycle), work=compiled.pointer(work))
-        self._stepper.add_plan(dt, plan, self._cycle, work)
+        self._stepper.add_plan(cycles, plan, self._cycle, work)
 
     def get_state(self) -> np.ndarray:
-        """The full internal state (a copy): the prediction z."""
-        return self._z.copy()
+        """The full internal state (a copy): the prediction z, then the offset to the next
+        sample instant."""
+        return np.append(self._z, self._offset)
 
     def set_state(self, arr: np.ndarray) -> None:
-        """Restore a state from :meth:`get_state` exactly."""
-        self._z = as_finite_vector(arr, self._z.size, "Kalman state").copy()
+        """Restore a state from :meth:`get_state` exactly.
+
+        Raises
+        ------
+        ValueError
+            If ``arr`` is not such a state (size, finite entries, offset in ``[0, Ts)``).
+        """
+        arr = as_finite_vector(arr, self._z.size + 1, "Kalman state")
+        offset = float(arr[-1])
+        if not 0.0 <= offset < self.sample_time:
+            raise ValueError(f"Kalman state: the offset to the next sample {offset!r} is not in "
+                             f"[0, Ts = {self.sample_time!r})")
+        self._z, self._offset = arr[:-1].copy(), offset
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
-        """``z``, ``q_hat`` and the sample time."""
-        return {"z": self.z, "q_hat": self.q_hat, "sample_time": self.sample_time}
+        """``z``, ``q_hat``, the sample time and the offset to the next sample instant."""
+        return {"z": self.z, "q_hat": self.q_hat, "sample_time": self.sample_time,
+                "offset": self._offset}

@@ -1,9 +1,9 @@
 """pythonfmu slave of ``kalman.fmu``: the steady-state discrete Kalman filter baseline.
 
 One cycle per sample time Ts: measurement update with the gain ``kalman_gain``, prediction with
-the exact ZOH of the (extended) model (:mod:`fhobs.core.kalman_filter`). A communication step must
-be a whole multiple of Ts; any other step is rejected with fmi2Error, the state kept. Shipped
-in the FMU by :mod:`fhobs.build` like ``observer.py``.
+the exact ZOH of the (extended) model (:mod:`fhobs.core.kalman_filter`). A communication step of
+any size runs the cycles whose sample instants fall inside it and holds the estimate between
+samples. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ class FhobsKalman(ObserverSlave):
 
     def _declare_timing(self) -> None:
         self.add_array("Ts", self.design.kalman.sample_time, "parameter",
-                       "sample time of the filter (s); steps must be whole multiples of it")
+                       "sample time of the filter (s): one cycle per sample instant inside a step")
 
     def _check_timing(self) -> None:
         positive_parameter(self, "Ts", "sample time Ts")
@@ -71,5 +71,5 @@ class FhobsKalman(ObserverSlave):
         return self._state_layout()
 
     def _model_outputs(self) -> list[float]:
-        """``[x_hat, q_hat]``: the model state."""
-        return self.model.get_state().tolist()
+        """``[x_hat, q_hat]``: the model state z (the prediction for the next sample)."""
+        return self.model.z.tolist()
