@@ -143,16 +143,6 @@ def test_runtime_equals_the_equations_written_out(kalman_gains, cycles):
                                atol=1e-10 * np.abs(expected).max())
 
 
-@pytest.mark.parametrize("dt", [1.5 * TS, 0.5 * TS, TS * (1 + 1e-6)])
-def test_step_not_a_multiple_of_ts_is_rejected_state_kept(kalman_gains, dt):
-    obs = KalmanObserver(kalman_gains)
-    obs.step(np.array([0.1, 0.2]), np.array([0.3]), TS)
-    before = obs.get_state()
-    with pytest.raises(ValueError, match="not a whole multiple"):
-        obs.step(np.array([0.1, 0.2]), np.array([0.3]), dt)
-    np.testing.assert_array_equal(obs.get_state(), before)
-
-
 def test_state_round_trip_and_bad_inputs(kalman_gains):
     g = kalman_gains
     obs = KalmanObserver(g, z0=np.arange(1.0, g.n + 1))
