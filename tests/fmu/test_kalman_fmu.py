@@ -92,3 +92,41 @@ def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):
 def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
     with pytest.raises(ValueError, match="Kalman"):
         build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
+
+
+def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, tmp_path):
+    """The native kalman.fmu under the same host-like steps: the runtime's cycles, and its
+    FMU state carries the offset to the next sample."""
+    from fhobs.native.build import build_native_fmus
+
+    g = kalman_gains
+    path = build_native_fmus(g, tmp_path, kinds=["kalman"])["kalman"]
+    ts = g.kalman.sample_time
+    variable = ts * np.random.default_rng(9).uniform(0.1, 3.3, 40)
+    steps = [0.4 * ts] * 40 + [3e-13] + variable.tolist()
+    ys, us = random_walk(5, len(steps), g.k, 0.05), random_walk(6, len(steps), g.m, 0.1)
+    driver = FmuDriver(path, extract(str(path)), "native")
+    try:
+        driver.start()
+        obs = KalmanObserver(g)
+        times = np.concatenate(([0.0], np.cumsum(steps)))
+        for i, (dt, y, u) in enumerate(zip(steps, ys, us, strict=True)):
+            driver.set("y", y)
+            driver.set("u", u)
+            if i == 20:
+                state, saved = driver.fmu.getFMUstate(), obs.get_state()
+            driver.fmu.doStep(times[i], dt)
+            obs.step(y, u, dt)
+            got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+            np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
+        driver.fmu.setFMUstate(state)
+        obs.set_state(saved)
+        for i in range(20, 30):
+            driver.set("y", ys[i])
+            driver.set("u", us[i])
+            driver.fmu.doStep(times[i], steps[i])
+            obs.step(ys[i], us[i], steps[i])
+        got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+        np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
+    finally:
+        driver.fmu.freeInstance()

@@ -198,7 +198,7 @@ def _step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], expli
     kind needs), each plan a dict of its fields (:func:`_captured_plan`)."""
     if kind == "kalman":
         observer = KalmanObserver(gains)
-        return {"kalman": _captured_plan(observer, gains.kalman.sample_time),
+        return {"kalman": _captured_plan(observer, 1.0),  # one cycle; doStep sets the count
                 "Ts": float(gains.kalman.sample_time), "steps": ()}
     if kind == "plant":
         make = lambda: LTIPlant(gains.A, gains.B, gains.C, E=gains.E)  # noqa: E731
@@ -377,7 +377,8 @@ def _sizes(kind: str, gains: ObserverGains, plans: dict[str, Any]) -> dict[str, 
     states (the plan's n), outputs k, inputs m, perturbations r, the state kept."""
     n_model = (plans["kalman"] if kind == "kalman" else plans["split"][0])["n"]
     r = 0 if gains.E is None else gains.E.shape[1]
-    state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1}.get(kind, n_model)
+    state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1,
+             "kalman": n_model + 1}.get(kind, n_model)
     return {"n": gains.n, "n_model": n_model, "k": gains.k, "m": gains.m, "r": r,
             "state_size": state}
 
@@ -507,8 +508,9 @@ def _documentation(kind: str, variables: list[dict[str, Any]], plans: dict[str, 
         if plans.get("euler") is not None:
             steps += " The euler scheme (scheme = 1) takes any step size."
     else:
-        steps = (f"Any communication step that is a whole multiple of Ts = {plans['Ts']!r} "
-                 "(the filter's cycles).")
+        steps = (f"Any communication step: one filter cycle for every sample instant (a "
+                 f"multiple of Ts = {plans['Ts']!r} from the start) inside the step, the "
+                 "estimate held between samples.")
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>fhobs native {kind} FMU</title></head><body>
 <h1>fhobs native {kind} FMU</h1>

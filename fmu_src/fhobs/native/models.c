@@ -14,7 +14,8 @@
 
 #define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.runtime.MAX_SUBSTEPS */
 #define FHOBS_MAX_CYCLES 1000000   /* fhobs.kalman_filter.MAX_CYCLES */
-#define FHOBS_STEP_TOLERANCE 1e-9  /* fhobs.kalman_filter.STEP_TOLERANCE */
+#define FHOBS_STEP_TOLERANCE 1e-9  /* a step within this of a built one runs its plan */
+#define FHOBS_SAMPLE_SLACK 1e-6    /* fhobs.kalman_filter.SAMPLE_SLACK */
 #define FHOBS_NOISE_BLOCK 1024     /* fhobs.plant.NOISE_BLOCK */
 #define FHOBS_SCHEME_EULER 1       /* index of "euler" in fhobs.runtime.SCHEMES and PLANT_SCHEMES */
 
@@ -342,7 +343,7 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 
 #elif FHOBS_KIND == FHOBS_KIND_KALMAN
 /* ---------------------------------------------------------------------------------------- */
-/* Kalman filter: the cycle matrix; dt / Ts cycles per communication step                    */
+/* Kalman filter: the cycle matrix; one cycle per sample instant inside a step              */
 
 typedef struct {
     LinearPlan plan;
@@ -367,37 +368,52 @@ static int model_parameters_problem(const double *real, const int *integer, char
 
 static int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
+    state[FHOBS_N_MODEL] = 0.0; /* the offset to the next sample instant */
     return initial_z(real, state, msg, len);
 }
 
-/* fhobs.kalman_filter.cycles_per_step: n = round(dt / Ts) (ties to even, as Python's round) */
+/* fhobs.kalman_filter.samples_in_step: the cycles of the sample instants offset + i Ts inside
+ * the step (before dt - SAMPLE_SLACK Ts) and the offset of the next one after it. */
+static double samples_in_step(double offset, double dt, double *next)
+{
+    double n = ceil((dt - offset) / KALMAN_TS - FHOBS_SAMPLE_SLACK);
+    if (n < 0.0)
+        n = 0.0;
+    *next = (offset + n * KALMAN_TS) - dt;
+    if (*next < 0.0)
+        *next = 0.0;
+    return n;
+}
+
+/* One cycle per sample instant inside the step, y and u held; the estimate held between
+ * samples. State: z, then the offset to the next sample instant. */
 static int model_step(Work *w, const double *real, const int *integer, const double *src,
                       double *dst, double dt, char *msg, size_t len)
 {
     (void)integer;
     char a[32], b[32];
-    double inputs[FHOBS_K + FHOBS_M];
-    double n = nearbyint(dt / KALMAN_TS);
-    if (n < 1.0 || fabs(dt - n * KALMAN_TS) > FHOBS_STEP_TOLERANCE * dt) {
-        snprintf(msg, len, "the step size %s is not a whole multiple of the Kalman filter's "
-                 "sample time Ts = %s; state left unchanged", number(dt, a, sizeof a),
-                 number(KALMAN_TS, b, sizeof b));
-        return 1;
-    }
+    double inputs[FHOBS_K + FHOBS_M], offset;
+    double n = samples_in_step(src[FHOBS_N_MODEL], dt, &offset);
     if (n > FHOBS_MAX_CYCLES) {
-        snprintf(msg, len, "the step size %s needs %.0f cycles of Ts = %s, more than %d; state "
-                 "left unchanged", number(dt, a, sizeof a), n, number(KALMAN_TS, b, sizeof b),
-                 FHOBS_MAX_CYCLES);
+        snprintf(msg, len, "the step size %s holds %.0f samples of Ts = %s, more than %d; "
+                 "state left unchanged", number(dt, a, sizeof a), n,
+                 number(KALMAN_TS, b, sizeof b), FHOBS_MAX_CYCLES);
         return 1;
     }
-    read_vector(real, VR_Y, FHOBS_K, inputs);
-    read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
-    w->plan.cycles = (int)n;
-    Call call = {&w->plan, src, dst, inputs};
-    if (fhobs_kalman_step(&call) != FHOBS_OK) {
-        snprintf(msg, len, "the Kalman step diverged (non-finite state); state left unchanged");
-        return 1;
+    if (n == 0.0) {
+        memcpy(dst, src, sizeof(double) * FHOBS_N_MODEL);
+    } else {
+        read_vector(real, VR_Y, FHOBS_K, inputs);
+        read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
+        w->plan.cycles = (int)n;
+        Call call = {&w->plan, src, dst, inputs};
+        if (fhobs_kalman_step(&call) != FHOBS_OK) {
+            snprintf(msg, len, "the Kalman step diverged (non-finite state); state left "
+                     "unchanged");
+            return 1;
+        }
     }
+    dst[FHOBS_N_MODEL] = offset;
     return 0;
 }
 
