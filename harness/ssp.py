@@ -12,6 +12,9 @@ What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6)
   values (libcosim applies them; fmpy's ``simulate_ssp`` parses but does not apply them, so
   a caller hands them over as its ``parameter_set``).
 - signal sources: carried as :mod:`harness.blocks` sine FMUs (the systems already use them).
+- the blocks are native (compiled C, :mod:`harness.blocks.native`) when the system's own FMUs
+  are (none of them a pythonfmu FMU), or when asked for: the SSP then runs in a host without
+  Python (OMSimulator, ``bench/check_omsimulator.py``); else they are the pythonfmu blocks.
 
 The default experiment (start, stop) is written; the step size goes into two vendor
 annotations, which other engines ignore: OSP's ``osp:FixedStepAlgorithm baseStepSize`` on the
@@ -27,12 +30,12 @@ from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from harness.blocks import block_fmu
 from harness.system import (
     ConnectionSpec,
     FmuSpec,
     ResolvedSystem,
     SystemSpec,
-    build_blocks,
     resolve_system,
     split_signal,
 )
@@ -72,7 +75,62 @@ def lower_gains(spec: SystemSpec) -> SystemSpec:
     return replace(spec, fmus=fmus, connections=tuple(connections))
 
 
-def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None) -> Path:
+def is_pythonfmu(fmu: str | Path) -> bool:
+    """Whether ``fmu`` is a pythonfmu FMU (its binary needs libpython at run time).
+
+    Examples
+    --------
+    >>> from harness.blocks import block_fmu
+    >>> is_pythonfmu(block_fmu("sine", (1,)))  # doctest: +SKIP
+    True
+    """
+    with zipfile.ZipFile(fmu) as archive:
+        root = ET.fromstring(archive.read("modelDescription.xml"))
+    return root.get("generationTool", "").startswith("PythonFMU")
+
+
+def exported_system(spec: SystemSpec, block_cache: Path | None = None,
+                    native_blocks: bool | None = None) -> SystemSpec:
+    """The system :func:`export_ssp` writes: gains lowered to blocks, every block built.
+
+    Parameters
+    ----------
+    spec
+        The system.
+    block_cache
+        Where the blocks are built (see :func:`harness.blocks.block_fmu`).
+    native_blocks
+        Native blocks (True), pythonfmu blocks (False), or (None) native blocks exactly when
+        none of the system's own FMUs is a pythonfmu FMU (:func:`is_pythonfmu`). Blocks the
+        spec already has files for are replaced by the chosen ones.
+
+    Returns
+    -------
+    SystemSpec
+        What the harness runs to compare with an engine running the SSP
+        (``run_system(resolve_system(exported_system(spec)))``).
+
+    Examples
+    --------
+    >>> from harness.cli import SCENARIO_DIR
+    >>> from harness.system import load_system
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_nominal.toml",
+    ...                    {"fmu_dir": "build/pendulum/native"})
+    >>> sorted(exported_system(spec).fmus)  # doctest: +SKIP
+    ['gain_4', 'gain_5', 'gain_6', 'gain_7', 'kalman', 'linear', 'observer', 'plant']
+    """
+    lowered = lower_gains(spec)
+    if native_blocks is None:
+        native_blocks = not any(is_pythonfmu(fs.path) for fs in lowered.fmus.values()
+                                if fs.block is None)
+    fmus = {name: fs if fs.block is None
+            else replace(fs, path=block_fmu(*fs.block, block_cache, native=native_blocks))
+            for name, fs in lowered.fmus.items()}
+    return replace(lowered, fmus=fmus)
+
+
+def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None,
+               native_blocks: bool | None = None) -> Path:
     """Write ``spec`` (gains lowered to blocks) as an SSP file at ``path``.
 
     Parameters
@@ -83,6 +141,9 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
         The ``.ssp`` file to write.
     block_cache
         Where the gain blocks are built (see :func:`harness.blocks.block_fmu`).
+    native_blocks
+        As for :func:`exported_system`: by default native blocks when the system's own FMUs
+        are native, so that the SSP of native FMUs needs no Python.
 
     Returns
     -------
@@ -100,7 +161,7 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     >>> export_ssp(spec, "out/pendulum_perturbed.ssp")  # doctest: +SKIP
     PosixPath('out/pendulum_perturbed.ssp')
     """
-    system = resolve_system(build_blocks(lower_gains(spec), block_cache))
+    system = resolve_system(exported_system(spec, block_cache, native_blocks))
     resources = _resource_names(system)
     root = _ssd(system, resources)
     path = Path(path)

@@ -60,7 +60,8 @@ def _script(kind: BlockKind, dims: tuple[int, ...], digest: str) -> tuple[str, s
     return f"harness_{kind.module}_{suffix}_{digest}", text
 
 
-def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = None) -> Path:
+def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = None,
+              native: bool = False) -> Path:
     """Path of the block FMU ``kind_name`` with dimensions ``dims``, building it if needed.
 
     Parameters
@@ -72,12 +73,26 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
         Positive dimensions, one per name in the kind's ``dimensions``.
     cache_dir
         Where built FMUs are kept; :func:`default_cache_dir` if None.
+    native
+        The native block (compiled C, no Python at run time, the same interface:
+        :func:`harness.blocks.native.native_block_fmu`) instead of the pythonfmu one.
 
     Returns
     -------
     Path
         The ``.fmu`` file.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as cache:
+    ...     print(block_fmu("sine", (2,), Path(cache)).name)  # doctest: +ELLIPSIS
+    harness_sine_source_2_....fmu
     """
+    if native:
+        from harness.blocks.native import native_block_fmu
+
+        return native_block_fmu(kind_name, dims, cache_dir)
     kind = BLOCK_KINDS[kind_name]
     dims = tuple(int(d) for d in dims)
     if len(dims) != len(kind.dimensions) or min(dims) < 1:
