@@ -7,7 +7,7 @@ algorithm for stepping)::
                   enterInitializationMode, exitInitializationMode
     outputs(t0) <- getReal
     for k = 0 .. N-1, t_k = t0 + k h (never accumulated):
-        inputs  <- M @ outputs(t_k)      (connections and their gains: one matmul)
+        inputs  <- M outputs(t_k)        (connections and their gains, row sums)
         for each FMU: setReal(inputs)    (Jacobi: all inputs from the outputs at t_k)
         for each FMU: doStep(t_k, h)
         for each FMU: getReal(outputs)   -> outputs(t_{k+1}), recorded
@@ -15,8 +15,8 @@ algorithm for stepping)::
 
 Variables are looked up once (:func:`harness.system.resolve_system`); the step loop calls the
 FMUs' C functions directly through ctypes on preallocated buffers that alias one numpy vector
-of outputs and one of inputs, so a step costs three C calls per FMU plus one matmul and one row
-copy; with a C compiler at hand the calls of a step are made by one ctypes call of a small C
+of outputs and one of inputs, so a step costs three C calls per FMU plus the gather and one row
+copy; with a C compiler at hand a chunk of steps is made by one ctypes call of a small C
 function (:mod:`harness.native`), else from Python. Every FMI status is checked: warnings pass,
 anything worse raises :class:`MasterError` naming the FMU, the call, the time and the FMU's own
 log messages (every FMU is instantiated with logging on). A failure during the run keeps what
@@ -47,7 +47,7 @@ from fmpy.fmi2 import calloc as _calloc
 from fmpy.fmi2 import free as _free
 
 from harness.native import CALLS as NATIVE_CALLS
-from harness.native import StepFmu, step_library
+from harness.native import Gather, StepFmu, step_library
 from harness.system import ResolvedFmu, ResolvedSystem, check_timing, vector_names
 
 FMI2_WARNING = 1
@@ -163,6 +163,46 @@ def _alias(arr: np.ndarray, start: int, count: int) -> ctypes.Array:
     return (ctypes.c_double * count).from_address(arr.ctypes.data + 8 * start)
 
 
+class Connections:
+    """The connection matrix as rows of (output index, gain) entries: input i is the sum of
+    ``gain * outputs[j]`` over its row's entries, left to right, the same sums in the master's
+    Python loop (:meth:`gather`) and in its C loop (:attr:`struct`, ``Gather`` of
+    step_loop.c), so that both give the same inputs bit for bit.
+
+    Parameters
+    ----------
+    matrix : np.ndarray
+        (inputs x outputs) gains; zero entries are no connection.
+
+    Examples
+    --------
+    >>> c = Connections(np.array([[0.0, 2.0], [1.0, -1.0]]))
+    >>> inputs = np.zeros(2)
+    >>> c.gather(np.array([3.0, 4.0]), inputs)
+    >>> inputs.tolist()
+    [8.0, -1.0]
+    """
+
+    def __init__(self, matrix: np.ndarray) -> None:
+        rows = [np.flatnonzero(row) for row in matrix]
+        self.entries = [[(int(j), float(row[j])) for j in cols]
+                        for row, cols in zip(matrix, rows, strict=True)]
+        self._row_start = np.cumsum([0] + [len(cols) for cols in rows]).astype(np.intc)
+        self._cols = np.array([j for cols in rows for j in cols] or [0], dtype=np.intc)
+        self._gains = np.array([g for row in self.entries for _, g in row] or [0.0])
+        self.struct = Gather(len(rows), self._row_start.ctypes.data, self._cols.ctypes.data,
+                             self._gains.ctypes.data)
+
+    def gather(self, outputs: np.ndarray, inputs: np.ndarray) -> None:
+        """Write the inputs of the outputs ``outputs`` into ``inputs``."""
+        values = outputs.tolist()
+        for i, row in enumerate(self.entries):
+            total = 0.0
+            for j, gain in row:
+                total += gain * values[j]
+            inputs[i] = total
+
+
 class Master:
     """Co-simulate a :class:`~harness.system.ResolvedSystem` (see the module docstring)."""
 
@@ -196,6 +236,7 @@ class Master:
             rows = [in_index[f"{f}.{v.name}"] for f, v in conn.targets]
             cols = [index[f"{f}.{v.name}"] for f, v in conn.sources]
             self.matrix[np.ix_(rows, cols)] += conn.gain
+        self.connections = Connections(self.matrix)
 
     def run(self, stop_time: float | None = None, progress: bool | None = None) -> CoSimResult:
         """Run from the system's start time to ``stop_time`` (default: the system's).
@@ -231,9 +272,10 @@ class Master:
                 for k0 in self._chunks(steps, show):
                     k1 = min(k0 + PROGRESS_CHUNK, steps)
                     if k0 == 0 and self.first_inputs == "zero":
-                        self._steps(slaves, 0, 1, t0, h, *buffers, np.zeros_like(self.matrix))
+                        unconnected = Connections(np.zeros_like(self.matrix))
+                        self._steps(slaves, 0, 1, t0, h, *buffers, unconnected)
                         k0 = 1
-                    self._steps(slaves, k0, k1, t0, h, *buffers, self.matrix)
+                    self._steps(slaves, k0, k1, t0, h, *buffers, self.connections)
         except MasterError as err:
             raise self._explained(err, values, t0, h, time.perf_counter() - started) from None
         wall = time.perf_counter() - started
@@ -273,19 +315,20 @@ class Master:
         values: np.ndarray,
         outputs: np.ndarray,
         inputs: np.ndarray,
-        matrix: np.ndarray,
+        connections: Connections,
     ) -> None:
-        """Steps ``k_from .. k_to - 1`` with inputs ``matrix @ outputs``: the hot loop.
+        """Steps ``k_from .. k_to - 1`` with inputs gathered by ``connections``: the hot loop.
 
-        The C functions are called through :func:`_raw` entry points (GIL kept, no argtypes)
-        with every argument already a ctypes object; only the time changes from step to step,
-        written into one ``c_double``. When :func:`harness.native.step_library` is available,
-        the nine calls of a step are made by one call of its ``harness_step`` instead.
+        When :func:`harness.native.step_library` is available, one call of its ``harness_run``
+        makes the steps (gather, the nine FMI calls of each step, the recorded row); else the
+        C functions are called from Python through :func:`_raw` entry points (GIL kept, no
+        argtypes) with every argument already a ctypes object, only the time changing from
+        step to step, written into one ``c_double``.
         """
-        gather = matrix.dot  # for a small matrix much cheaper than np.matmul, and bit-identical
         native = step_library()
         if native is not None:
-            self._native_steps(native, slaves, k_from, k_to, t0, h, values, outputs, inputs, gather)
+            self._native_steps(native, slaves, k_from, k_to, t0, h, values, outputs, inputs,
+                               connections)
             return
         t_c = ctypes.c_double(0.0)
         h_c = ctypes.c_double(h)
@@ -301,10 +344,11 @@ class Master:
             for s in slaves
             if len(s.out_vr)
         ]
+        gather = connections.gather
         for k in range(k_from, k_to):
             t = t0 + k * h
             t_c.value = t
-            gather(outputs, out=inputs)
+            gather(outputs, inputs)
             for set_real, comp, vr, n, buf, name in setters:
                 if status := set_real(comp, vr, n, buf):
                     _status(status, name, "fmi2SetReal", t, k)
@@ -327,10 +371,10 @@ class Master:
         values: np.ndarray,
         outputs: np.ndarray,
         inputs: np.ndarray,
-        gather,
+        connections: Connections,
     ) -> None:
-        """:meth:`_steps` with the nine FMI calls of a step made by ``harness_step``
-        (``step_loop.c``): the same calls, in the same order, on the same buffers."""
+        """:meth:`_steps` by one call of ``harness_run`` (``step_loop.c``): the same gathers
+        and calls, in the same order, on the same buffers."""
         fmus = (StepFmu * len(slaves))()
         for f, s in zip(fmus, slaves, strict=True):
             f.component = s.fmu.component
@@ -340,20 +384,20 @@ class Master:
             f.in_vr, f.in_n = ctypes.addressof(s.in_vr), len(s.in_vr)
             f.out_vr, f.out_n = ctypes.addressof(s.out_vr), len(s.out_vr)
             f.in_buf, f.out_buf = ctypes.addressof(s.in_buf), ctypes.addressof(s.out_buf)
-        step = native.harness_step
-        n = ctypes.c_int(len(slaves))
-        t_c = ctypes.c_double(0.0)
-        h_c = ctypes.c_double(h)
+        assert values.flags.c_contiguous and values.shape[1] == outputs.size
         failed = (ctypes.c_int * 2)()
-        for k in range(k_from, k_to):
+        failed_step = ctypes.c_long(0)
+        status = native.harness_run(
+            fmus, ctypes.c_int(len(slaves)), ctypes.byref(connections.struct),
+            ctypes.c_void_p(outputs.ctypes.data), ctypes.c_void_p(inputs.ctypes.data),
+            ctypes.c_int(outputs.size), ctypes.c_void_p(values.ctypes.data),
+            ctypes.c_long(k_from), ctypes.c_long(k_to), ctypes.c_double(t0), ctypes.c_double(h),
+            failed, ctypes.byref(failed_step))
+        if status:
+            k = failed_step.value
             t = t0 + k * h
-            t_c.value = t
-            gather(outputs, out=inputs)
-            if status := step(fmus, n, t_c, h_c, failed):
-                call = NATIVE_CALLS[failed[1]]
-                t_call = t + h if failed[1] == 2 else t
-                _status(status, slaves[failed[0]].name, call, t_call, k)
-            values[k + 1] = outputs
+            call = NATIVE_CALLS[failed[1]]
+            _status(status, slaves[failed[0]].name, call, t + h if failed[1] == 2 else t, k)
 
     @staticmethod
     def _read_outputs(slaves: list[_Slave], t: float) -> None:

@@ -1,10 +1,12 @@
 /*
- * One communication step of harness.master's Jacobi loop: fmi2SetReal of every FMU with
- * inputs, fmi2DoStep of every FMU, fmi2GetReal of every FMU with outputs, in that order,
- * exactly the calls the master's Python loop makes. Compiled and loaded by harness.native;
- * calling it once per step spares eight of the nine ctypes calls per step.
+ * The steps of harness.master's Jacobi loop: per step, the inputs gathered from the outputs
+ * (the connections' gains, row by row, summed left to right), fmi2SetReal of every FMU with
+ * inputs, fmi2DoStep of every FMU, fmi2GetReal of every FMU with outputs, in that order, and
+ * the outputs recorded: exactly what the master's Python loop does. Compiled and loaded by
+ * harness.native; one call runs a chunk of steps.
  */
 #include <stddef.h>
+#include <string.h>
 
 typedef int set_real_fn(void *c, const unsigned int vr[], size_t n, const double v[]);
 typedef int get_real_fn(void *c, const unsigned int vr[], size_t n, double v[]);
@@ -26,9 +28,28 @@ typedef struct {
 
 #define FMI2_WARNING 1
 
+/* The connections: input i = sum over e in [row_start[i], row_start[i+1]) of
+ * gains[e] * outputs[cols[e]], summed left to right (harness.master.Gather). */
+typedef struct {
+    int n_inputs;
+    const int *row_start;
+    const int *cols;
+    const double *gains;
+} Gather;
+
+static void gather(const Gather *g, const double *outputs, double *inputs)
+{
+    for (int i = 0; i < g->n_inputs; i++) {
+        double s = 0.0;
+        for (int e = g->row_start[i]; e < g->row_start[i + 1]; e++)
+            s += g->gains[e] * outputs[g->cols[e]];
+        inputs[i] = s;
+    }
+}
+
 /* Step the n FMUs from t by h. Returns 0, or the first status worse than fmi2Warning, the
  * call stopping there: failed[0] = index of the FMU, failed[1] = 0 set, 1 doStep, 2 get. */
-int harness_step(const StepFmu *fmus, int n, double t, double h, int failed[2])
+static int harness_step(const StepFmu *fmus, int n, double t, double h, int failed[2])
 {
     int status;
     for (int i = 0; i < n; i++) {
@@ -54,6 +75,26 @@ int harness_step(const StepFmu *fmus, int n, double t, double h, int failed[2])
             failed[1] = 2;
             return status;
         }
+    }
+    return 0;
+}
+
+/* Steps k_from .. k_to - 1 from t_k = t0 + k h: gather, step, record the outputs (n_outputs
+ * of them) as row k + 1 of values. Returns 0, or the failed step's status with failed[0] the
+ * FMU, failed[1] the call (0 set, 1 doStep, 2 get) and *failed_step = k. */
+int harness_run(const StepFmu *fmus, int n, const Gather *g, const double *outputs,
+                double *inputs, int n_outputs, double *values, long k_from, long k_to,
+                double t0, double h, int failed[2], long *failed_step)
+{
+    for (long k = k_from; k < k_to; k++) {
+        gather(g, outputs, inputs);
+        int status = harness_step(fmus, n, t0 + (double)k * h, h, failed);
+        if (status) {
+            *failed_step = k;
+            return status;
+        }
+        memcpy(values + (size_t)(k + 1) * (size_t)n_outputs, outputs,
+               sizeof(double) * (size_t)n_outputs);
     }
     return 0;
 }
