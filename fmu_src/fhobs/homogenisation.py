@@ -56,7 +56,38 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
     """Observability index of (A, C) and the rank of the observability matrix.
 
     The subspaces K_j = span(C^T, A^T C^T, ..., (A^T)^(j-1) C^T) are grown with an orthonormal
-    basis, which stays well conditioned where the plain stacked matrix [C; CA; ...] would not:
+    basis (:func:`observable_basis`), which stays well conditioned where the plain stacked
+    matrix [C; CA; ...] would not.
+
+    Parameters
+    ----------
+    A : numpy.ndarray
+        n x n system matrix.
+    C : numpy.ndarray
+        k x n output matrix.
+
+    Returns
+    -------
+    n_tilde : int or None
+        Least j with rank [C; CA; ...; CA^(j-1)] = n, or None when (A, C) is unobservable.
+    rank : int
+        Rank of the observability matrix (dimension of the observable subspace).
+
+    Examples
+    --------
+    >>> observability_index(np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[1.0, 0.0]]))
+    (2, 2)
+    >>> observability_index(np.eye(2), np.array([[1.0, 0.0]]))
+    (None, 1)
+    """
+    n_tilde, basis = observable_basis(A, C)
+    return n_tilde, basis.shape[1]
+
+
+def observable_basis(A: np.ndarray, C: np.ndarray) -> tuple[int | None, np.ndarray]:
+    """Observability index of (A, C) and an orthonormal basis of the observable subspace
+    (the row space of the observability matrix).
+
     K_(j+1) = K_j + A^T N_j, N_j the directions K_j added to K_(j-1), so each stage
     orthogonalises only A^T N_j against the basis (O(n^2 k) per stage, O(n^3) in all). A is
     first shifted by the mean of its diagonal (the subspaces of A - s I are those of A), so a
@@ -74,8 +105,14 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
     -------
     n_tilde : int or None
         Least j with rank [C; CA; ...; CA^(j-1)] = n, or None when (A, C) is unobservable.
-    rank : int
-        Rank of the observability matrix (dimension of the observable subspace).
+    basis : numpy.ndarray
+        n x rank, orthonormal columns spanning the observable subspace.
+
+    Examples
+    --------
+    >>> n_tilde, basis = observable_basis(np.eye(2), np.array([[2.0, 0.0]]))
+    >>> n_tilde, basis.ravel().tolist()
+    (None, [1.0, 0.0])
     """
     n = A.shape[0]
     A = A - np.trace(A / n) * np.eye(n)
@@ -84,16 +121,59 @@ def observability_index(A: np.ndarray, C: np.ndarray) -> tuple[int | None, int]:
     newest = basis
     for j in range(1, n + 1):
         if basis.shape[1] == n:
-            return j, n
+            return j, basis
         candidate = A.T @ newest / scale
         for _ in range(2):  # Gram-Schmidt against the basis, repeated once for orthogonality
             candidate -= basis @ (basis.T @ candidate)
         u, s, _ = np.linalg.svd(candidate, full_matrices=False)
         newest = u[:, s > RANK_RTOL]
         if newest.shape[1] == 0:
-            return None, basis.shape[1]
+            return None, basis
         basis = np.hstack([basis, newest])
-    return (n, n) if basis.shape[1] == n else (None, basis.shape[1])
+    return (n if basis.shape[1] == n else None), basis
+
+
+def unobservable_directions(A: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """A basis of the unobservable subspace of (A, C), as readable as possible.
+
+    The orthogonal complement of :func:`observable_basis`, brought to reduced row echelon form
+    with partial pivoting (each direction then has a 1 on a state that the others do not
+    involve) and rounded to zero below ``1e-9`` of its largest entry, so a direction that is
+    one state alone comes out as that unit vector.
+
+    Parameters
+    ----------
+    A : numpy.ndarray
+        n x n system matrix.
+    C : numpy.ndarray
+        k x n output matrix.
+
+    Returns
+    -------
+    numpy.ndarray
+        n x (n - rank); no columns when (A, C) is observable.
+
+    Examples
+    --------
+    Two integrators, only the first measured: the second is the unobservable direction.
+
+    >>> unobservable_directions(np.zeros((2, 2)), np.array([[1.0, 0.0]])).ravel().tolist()
+    [0.0, 1.0]
+    """
+    n = A.shape[0]
+    _, basis = observable_basis(A, C)
+    if basis.shape[1] == n:
+        return np.zeros((n, 0))
+    u = np.linalg.svd(basis, full_matrices=True)[0]
+    rows = u[:, basis.shape[1]:].T.copy()  # (n - rank) x n, orthonormal rows
+    for i in range(rows.shape[0]):  # Gauss-Jordan with partial pivoting
+        pivot = int(np.argmax(np.abs(rows[i])))
+        rows[i] /= rows[i, pivot]
+        for r in range(rows.shape[0]):
+            if r != i:
+                rows[r] -= rows[r, pivot] * rows[i]
+    rows[np.abs(rows) < 1e-9 * np.max(np.abs(rows), axis=1, keepdims=True)] = 0.0
+    return rows.T
 
 
 def _orth(M: np.ndarray) -> np.ndarray:

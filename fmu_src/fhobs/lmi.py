@@ -73,6 +73,8 @@ from .spec import OBJECTIVES
 GAIN_STAGE_KAPPA = 10.0
 DEFAULT_MARGIN = 1e-2
 STRUCTURE_RTOL = 1e-8
+CHAIN_COND_LIMIT = 1e12
+"""A chain basis more ill-conditioned than this is reported as singular (LMIError)."""
 # A relative duality gap of 1e-7 on kappa (or ||Y~||) is plenty; at Clarabel's default 1e-8 some
 # reduced LMIs stop one step short with status "optimal_inaccurate".
 SOLVER_OPTIONS = {"tol_gap_rel": 1e-7}
@@ -125,8 +127,13 @@ def chain_basis(
 ) -> ChainBasis:
     """Chains v, A0 v, ..., A0^j v of dilation eigenvectors, heads on level 0.
 
-    Level j - 1 holds A0 times level j; the chains start on the orthogonal complement (within
-    the level) of the images from deeper levels, orthonormal. With ``C``, every chain gets the
+    Level j - 1 holds A0 times level j, and A0 maps level j >= 1 one to one into level j - 1
+    (a vector of level j >= 1 that A0 sends to zero would be unobservable: C G_d = (1 + nu) C
+    makes C zero on every level but the first). Going down from the deepest level, the chains
+    that started deeper pass through level j as A0 times their vectors of level j + 1; new
+    chains start on the orthogonal complement, within level j, of these images (orthonormal),
+    so the observability chains may have any lengths, equal or not (the number of chains of
+    length > j is the dimension of level j: the observability indices). With ``C``, every chain gets the
     head (C h; 0), h its level-0 vector: the (psi, z) coordinates of Theorem 2. Then the chains
     of each length are made orthogonal, in the sum over their levels, to the leading rows of
     every longer chain (those rows are a chain of the same length: adding them keeps the
@@ -148,15 +155,33 @@ def chain_basis(
     Returns
     -------
     ChainBasis
+
+    Raises
+    ------
+    LMIError
+        If the chain vectors do not form a basis (condition number beyond
+        ``CHAIN_COND_LIMIT``).
+
+    Examples
+    --------
+    A triple integrator with a double integrator, both positions measured (chains 3 and 2);
+    G_d = diag(1 + nu, 1 + 2 nu, 1 + 3 nu, 1 + nu, 1 + 2 nu) levels them:
+
+    >>> A0 = np.diag([1.0, 1.0, 0.0, 1.0], k=1)
+    >>> e = np.eye(5)
+    >>> basis = chain_basis(A0, [e[:, [0, 3]], e[:, [4, 1]], e[:, [2]]])
+    >>> basis.sizes, int(np.linalg.matrix_rank(basis.T))
+    ((3, 2), 5)
     """
     chains: list[np.ndarray] = []
-    images = np.zeros((A0.shape[0], 0))
+    deeper = np.zeros((A0.shape[0], 0))  # the chain vectors of level j + 1
     for j in range(len(levels) - 1, -1, -1):
+        images = A0 @ deeper  # in level j: the chains that started deeper pass through here
         u = np.linalg.svd(levels[j].T @ images, full_matrices=True)[0]
         starts = levels[j] @ u[:, images.shape[1]:]
         chains += [np.array([np.linalg.matrix_power(A0, i) @ v for i in range(j, -1, -1)])
                    for v in starts.T]
-        images = np.hstack([A0 @ images, starts])
+        deeper = np.hstack([images, starts])
     if C is not None:
         chains = [np.vstack([np.hstack([C @ ch[0], 0 * ch[0]]),
                              np.hstack([np.zeros((len(ch), C.shape[0])), ch])]) for ch in chains]
@@ -173,6 +198,12 @@ def chain_basis(
     rms = [np.sqrt(np.mean([np.sum(ch[i] ** 2) for ch in mixed if len(ch) > i]))
            for i in range(len(mixed[0]))]
     T = np.vstack([ch / np.array(rms[: len(ch)])[:, None] for ch in mixed]).T
+    if T.shape[0] != T.shape[1] or not np.linalg.cond(T) < CHAIN_COND_LIMIT:
+        raise LMIError(
+            f"the chain basis of the dilation is singular ({T.shape[1]} chain vectors for "
+            f"{T.shape[0]} states, condition number {np.linalg.cond(T):.3g}): A0 does not map "
+            "each level of G_d's eigenvectors one to one into the next"
+        )
     return ChainBasis(T, tuple(len(ch) for ch in mixed))
 
 

@@ -42,9 +42,9 @@ from typing import Any
 import numpy as np
 
 from .core.certificate import tuning_problem
-from .core.disturbance import extended_model
+from .core.disturbance import describe_direction, extended_model, model_state_names
 from .errors import SpecError
-from .homogenisation import observability_index
+from .homogenisation import observability_index, unobservable_directions
 
 DEFAULT_SETTLING_TIME = 2.0
 OBJECTIVES = ("min_cond", "min_gain")
@@ -305,7 +305,8 @@ def plant_spec(
         what = "(A, C)" if order == 0 else f"the disturbance model of order {order} (A, E, C)"
         raise SpecError(
             f"{source}: {what} is not observable: the observability matrix has rank {rank}, "
-            f"n = {A_model.shape[0]}"
+            f"n = {A_model.shape[0]}; "
+            + unobservable_text(A_model, C_model, n, 0 if E is None else E.shape[1], order)
         )
     nu = -1.0 / (n_tilde + 1) if nu is None else _scalar(nu, prefix + "nu", source)
     rho = None if rho is None else _scalar(rho, prefix + "rho", source)
@@ -328,6 +329,52 @@ def plant_spec(
         A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order,
         settling_time, state_scale, None,
     )
+
+
+MAX_LISTED_DIRECTIONS = 3
+"""An unobservable subspace is described by at most this many of its directions."""
+
+
+def unobservable_text(A_model: np.ndarray, C_model: np.ndarray, n: int, p: int,
+                      order: int) -> str:
+    """The unobservable directions of an observer's model, for an error message: each as a
+    combination of named states (:func:`fhobs.core.disturbance.model_state_names`) and as a
+    rounded vector.
+
+    Parameters
+    ----------
+    A_model, C_model : numpy.ndarray
+        The model (:func:`fhobs.core.disturbance.extended_model`).
+    n, p, order : int
+        Plant states, columns of E and disturbance order (to name the states).
+
+    Returns
+    -------
+    str
+        One sentence, '' if the model is observable.
+
+    Examples
+    --------
+    Two integrators, q entering the second, only the first measured, q constant:
+
+    >>> A_model, _, C_model = extended_model(np.zeros((2, 2)), np.eye(2)[:, :1],
+    ...     np.array([[1.0, 0.0]]), np.array([[0.0], [1.0]]), 1)
+    >>> unobservable_text(A_model, C_model, 2, 1, 1)
+    'the outputs cannot see the direction x[2] (vector [0, 1, 0]) and the direction q[1] \
+(vector [0, 0, 1])'
+    """
+    directions = unobservable_directions(A_model, C_model).T
+    if not directions.size:
+        return ""
+    names = model_state_names(n, p, order)
+    shown = [
+        f"the direction {describe_direction(v, names)} (vector "
+        f"[{', '.join(f'{x:.3g}' for x in v / v[np.argmax(np.abs(v))])}])"
+        for v in directions[:MAX_LISTED_DIRECTIONS]
+    ]
+    more = len(directions) - len(shown)
+    return ("the outputs cannot see " + " and ".join(shown)
+            + (f" and {more} more direction(s)" if more else ""))
 
 
 def _state_scale(value: Any, n: int, source: str, label: str) -> np.ndarray:
@@ -400,7 +447,8 @@ def _noise(data: dict[str, Any], A: np.ndarray, B: np.ndarray, C: np.ndarray,
     A_model, _, C_model = extended_model(A, B, C, E, order)
     if observability_index(A_model, C_model)[0] is None:
         raise SpecError(f"{source}: noise.disturbance_order = {order}: the Kalman filter's "
-                        "disturbance model (A, E, C) is not observable")
+                        "disturbance model (A, E, C) is not observable; "
+                        + unobservable_text(A_model, C_model, A.shape[0], E.shape[1], order))
     return NoiseSpec(std, positive["sample_time"], positive["process_intensity"], order)
 
 

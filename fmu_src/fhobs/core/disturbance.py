@@ -75,3 +75,42 @@ def model_perturbation_matrix(n: int, p: int, order: int) -> np.ndarray:
     E_model = np.zeros((n + order * p, p))
     E_model[-p:] = np.eye(p)
     return E_model
+
+
+def model_state_names(n: int, p: int, order: int) -> list[str]:
+    """Names of the extended model's states: ``x[1]..x[n]``, then q and its derivatives per
+    component (``q[1]``, ``q[1]'``, ``q[1]''``; one block of p per derivative).
+
+    Examples
+    --------
+    >>> model_state_names(2, 1, 2)
+    ['x[1]', 'x[2]', 'q[1]', "q[1]'"]
+    """
+    return [f"x[{i + 1}]" for i in range(n)] + [
+        f"q[{i + 1}]" + "'" * j for j in range(order) for i in range(p)
+    ]
+
+
+def describe_direction(vector: np.ndarray, names: list[str], digits: int = 3) -> str:
+    """A direction of the state space as a readable combination of named states, rounded to
+    ``digits`` significant digits of its largest entry (entries below that are left out).
+
+    Examples
+    --------
+    >>> describe_direction(np.array([0.0, 1.0, -0.5]), ["x[1]", "x[2]", "q[1]"])
+    'x[2] - 0.5 q[1]'
+    >>> describe_direction(np.array([0.0, -2.0, 0.0]), ["x[1]", "x[2]", "q[1]"])
+    'x[2]'
+    """
+    vector = np.asarray(vector, dtype=float)
+    vector = vector / vector[int(np.argmax(np.abs(vector)))]  # largest entry 1
+    terms = []
+    for value, name in zip(vector, names, strict=True):
+        value = float(f"{value:.{digits}g}")
+        if abs(value) < 10.0 ** -digits:
+            continue
+        size = "" if abs(value) == 1.0 else f"{abs(value):g} "
+        sign = "-" if value < 0 else "+"
+        terms.append(f"{sign} {size}{name}")
+    text = " ".join(terms)
+    return text[2:] if text.startswith("+ ") else "-" + text[2:]
