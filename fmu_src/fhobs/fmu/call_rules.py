@@ -1,0 +1,149 @@
+"""Which FMI 2.0 co-simulation function an instance accepts in which state: one table for both
+builds of every FMU kind.
+
+The states are those of the FMI 2.0 co-simulation state machine that a synchronous FMU whose
+refused calls leave it unchanged can be in: ``instantiated`` (after fmi2Instantiate or
+fmi2Reset), ``initialisation mode`` (after fmi2EnterInitializationMode), ``step mode`` (the
+standard's stepComplete: after fmi2ExitInitializationMode and every doStep, also a refused
+one, which leaves the state as it was) and ``terminated``. The table :data:`ALLOWED` is the
+standard's (section 4.2.4) restricted to these states; functions the FMUs do not provide
+(input and output derivatives, asynchronous steps) are refused in every state with
+:data:`UNSUPPORTED`'s reason.
+
+The Python slaves ask :func:`call_problem`; the C layers (the native FMUs' ``fmi2_layer.c``,
+the pythonfmu FMUs' ``status_wrapper.c``) include the header :func:`c_header` writes from the
+same table, so the rules and their messages are written once.
+
+This module is standard-library only: it runs inside the FMUs and at build time.
+
+Examples
+--------
+>>> call_problem("fmi2DoStep", "instantiated")
+'fmi2DoStep is not allowed in the state instantiated (only in step mode)'
+>>> call_problem("fmi2GetReal", "step mode")
+''
+"""
+
+from __future__ import annotations
+
+STATES = ("instantiated", "initialisation mode", "step mode", "terminated")
+"""The states, in the order of their bits in the C masks (bit i: ``STATES[i]``)."""
+
+_ANY = frozenset(STATES)
+_READABLE = frozenset(("initialisation mode", "step mode", "terminated"))
+_WRITABLE = frozenset(("instantiated", "initialisation mode", "step mode"))
+
+ALLOWED: dict[str, frozenset[str]] = {
+    "fmi2SetDebugLogging": _ANY,
+    "fmi2FreeInstance": _ANY,
+    "fmi2SetupExperiment": frozenset(("instantiated",)),
+    "fmi2EnterInitializationMode": frozenset(("instantiated",)),
+    "fmi2ExitInitializationMode": frozenset(("initialisation mode",)),
+    "fmi2Terminate": frozenset(("step mode",)),
+    "fmi2Reset": _ANY,
+    "fmi2GetReal": _READABLE,
+    "fmi2GetInteger": _READABLE,
+    "fmi2GetBoolean": _READABLE,
+    "fmi2GetString": _READABLE,
+    "fmi2SetReal": _WRITABLE,
+    "fmi2SetInteger": _WRITABLE,
+    "fmi2SetBoolean": _WRITABLE,
+    "fmi2SetString": _WRITABLE,
+    "fmi2GetFMUstate": _ANY,
+    "fmi2SetFMUstate": _ANY,
+    "fmi2FreeFMUstate": _ANY,
+    "fmi2SerializedFMUstateSize": _ANY,
+    "fmi2SerializeFMUstate": _ANY,
+    "fmi2DeSerializeFMUstate": _ANY,
+    "fmi2DoStep": frozenset(("step mode",)),
+    "fmi2GetRealStatus": frozenset(("step mode", "terminated")),
+    "fmi2GetBooleanStatus": frozenset(("step mode", "terminated")),
+}
+"""For each function taking an instance: the states in which it is allowed."""
+
+_SYNCHRONOUS = ("this FMU's steps are synchronous: it has no pending step whose status to query "
+                "(fmi2GetRealStatus gives the last successful time, fmi2GetBooleanStatus whether "
+                "it terminated)")
+UNSUPPORTED: dict[str, str] = {
+    "fmi2GetDirectionalDerivative": "this FMU provides no directional derivatives "
+                                    "(providesDirectionalDerivative = false)",
+    "fmi2SetRealInputDerivatives": "this FMU does not interpolate inputs "
+                                   "(canInterpolateInputs = false)",
+    "fmi2GetRealOutputDerivatives": "this FMU provides no output derivatives "
+                                    "(maxOutputDerivativeOrder = 0)",
+    "fmi2CancelStep": "this FMU's steps are synchronous (canRunAsynchronuously = false): "
+                      "there is no step in progress to cancel",
+    "fmi2GetStatus": _SYNCHRONOUS,
+    "fmi2GetIntegerStatus": _SYNCHRONOUS,
+    "fmi2GetStringStatus": _SYNCHRONOUS,
+}
+"""Functions refused in every state, with the reason."""
+
+FUNCTIONS = (*ALLOWED, *UNSUPPORTED)
+"""Every function of the table, in the order of the C header's ``FHOBS_CALL_*`` numbers."""
+
+
+def call_problem(function: str, state: str) -> str:
+    """Why ``function`` may not be called in ``state`` ('' if it may).
+
+    Parameters
+    ----------
+    function : str
+        An FMI 2.0 function name of :data:`FUNCTIONS` (``"fmi2DoStep"``...).
+    state : str
+        One of :data:`STATES`.
+
+    Returns
+    -------
+    str
+        The message an FMU logs with its fmi2Error, or '' when the call is allowed.
+
+    Examples
+    --------
+    >>> call_problem("fmi2CancelStep", "step mode")[:32]
+    'fmi2CancelStep is not supported:'
+    """
+    if function in UNSUPPORTED:
+        return f"{function} is not supported: {UNSUPPORTED[function]}"
+    allowed = ALLOWED[function]
+    if state in allowed:
+        return ""
+    where = " or ".join(s for s in STATES if s in allowed)
+    return f"{function} is not allowed in the state {state} (only in {where})"
+
+
+def c_header() -> str:
+    """The C header of this table (``fhobs_call_rules.h``): ``FHOBS_STATE_*`` bit numbers,
+    ``FHOBS_CALL_*`` function numbers, their masks and the refusal messages (with one ``%s``
+    for the state's name where the call is merely out of sequence).
+
+    Examples
+    --------
+    >>> "#define FHOBS_CALL_DOSTEP" in c_header()
+    True
+    """
+    lines = ["/* Generated by fhobs.fmu.call_rules: the FMI 2.0 co-simulation functions allowed",
+             " * in each state, and the refusal messages. Do not edit. */",
+             "#ifndef FHOBS_CALL_RULES_H", "#define FHOBS_CALL_RULES_H", ""]
+    for bit, state in enumerate(STATES):
+        lines.append(f"#define FHOBS_STATE_{state.split()[0].upper()} {bit}")
+    lines.append("static const char *const FHOBS_STATE_NAMES[] = {"
+                 + ", ".join(f'"{state}"' for state in STATES) + "};")
+    lines.append("")
+    for number, function in enumerate(FUNCTIONS):
+        lines.append(f"#define FHOBS_CALL_{function[4:].upper()} {number}")
+    lines.append(f"#define FHOBS_N_CALLS {len(FUNCTIONS)}")
+    masks = [sum(1 << STATES.index(s) for s in ALLOWED.get(f, ())) for f in FUNCTIONS]
+    lines.append("static const unsigned FHOBS_CALL_MASKS[FHOBS_N_CALLS] = {"
+                 + ", ".join(str(mask) for mask in masks) + "};")
+    messages = []
+    for function in FUNCTIONS:
+        if function in UNSUPPORTED:
+            messages.append(call_problem(function, STATES[0]))
+        else:
+            where = " or ".join(s for s in STATES if s in ALLOWED[function])
+            messages.append(f"{function} is not allowed in the state %s (only in {where})")
+    lines.append("static const char *const FHOBS_CALL_MESSAGES[FHOBS_N_CALLS] = {")
+    lines += [f'    "{message}",' for message in messages]
+    lines += ["};", "", "#endif", ""]
+    return "\n".join(lines)
