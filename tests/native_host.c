@@ -9,8 +9,11 @@
  * FMU_DIR    the extracted FMU (modelDescription.xml, binaries/, resources/)
  * INPUTS.csv header "time,<input name>,...", then one row per communication point
  *            t_k = t_0 + k STEP (the time column of the rows after the first is not read)
- *            with the inputs held over [t_k, t_k+1); the last row ends the run
- * STEP       the communication step
+ *            with the inputs held over [t_k, t_k+1); the last row ends the run. With STEP
+ *            "-", the header is "time,step,<input name>,..." and each row also gives the
+ *            size of the step taken from it; the host then accumulates the communication
+ *            point in floating point, t_k+1 = t_k + step_k, as hosts such as OMSimulator do
+ * STEP       the communication step, or "-" (the steps of the input rows)
  * OUTPUTS.csv written: header "time,<output name>,..." (every Real output, in the order of
  *            modelDescription.xml), a row after initialisation and one after each doStep
  * NAME=VALUE Real parameters set before initialisation
@@ -170,9 +173,10 @@ int main(int argc, char **argv)
 {
     if (argc < 5)
         return fail(1, "usage: native_host FMU_DIR INPUTS.csv OUTPUTS.csv STEP [NAME=VALUE ...]");
-    double step = strtod(argv[4], NULL);
-    if (!(step > 0.0))
-        return fail(1, "STEP must be positive, got '%s'", argv[4]);
+    int step_column = strcmp(argv[4], "-") == 0;
+    double step = step_column ? 0.0 : strtod(argv[4], NULL);
+    if (!step_column && !(step > 0.0))
+        return fail(1, "STEP must be positive or '-', got '%s'", argv[4]);
     char path[4096], identifier[256], guid[256];
     snprintf(path, sizeof path, "%s/modelDescription.xml", argv[1]);
     char *xml = read_file(path);
@@ -212,12 +216,15 @@ int main(int argc, char **argv)
     if (!fgets(line, sizeof line, in))
         return fail(1, "%s is empty", argv[2]);
     int n_columns = split(line, fields, MAX_VARS);
-    int n_inputs = n_columns - 1;
+    int first_input = step_column ? 2 : 1; /* the column of the first input */
+    int n_inputs = n_columns - first_input;
+    if (step_column && (n_columns < 2 || strcmp(fields[1], "step") != 0))
+        return fail(1, "with STEP '-' the second column of %s must be 'step'", argv[2]);
     fmi2ValueReference input_vrs[MAX_VARS], output_vrs[MAX_VARS];
     for (int i = 0; i < n_inputs; i++) {
-        const Variable *v = find(fields[i + 1]);
+        const Variable *v = find(fields[i + first_input]);
         if (!v || !v->is_real || strcmp(v->causality, "input") != 0)
-            return fail(1, "'%s' is not a Real input of the FMU", fields[i + 1]);
+            return fail(1, "'%s' is not a Real input of the FMU", fields[i + first_input]);
         input_vrs[i] = v->vr;
     }
     int n_outputs = 0;
@@ -257,8 +264,10 @@ int main(int argc, char **argv)
     if (split(line, fields, MAX_VARS) != n_columns)
         return fail(1, "row 1 of %s has the wrong number of fields", argv[2]);
     t = t0 = strtod(fields[0], NULL);
+    if (step_column)
+        step = strtod(fields[1], NULL);
     for (int i = 0; i < n_inputs; i++)
-        inputs[i] = strtod(fields[i + 1], NULL);
+        inputs[i] = strtod(fields[i + first_input], NULL);
     CHECK(fmi2SetupExperiment(c, fmi2False, 0.0, t, fmi2False, 0.0));
     CHECK(fmi2EnterInitializationMode(c));
     CHECK(fmi2ExitInitializationMode(c));
@@ -275,9 +284,14 @@ int main(int argc, char **argv)
             return fail(1, "row %d of %s has the wrong number of fields", row + 1, argv[2]);
         CHECK(fmi2SetReal(c, input_vrs, (size_t)n_inputs, inputs));
         CHECK(fmi2DoStep(c, t, step, fmi2True));
-        t = t0 + row * step;
+        if (step_column) {
+            t += step;
+            step = strtod(fields[1], NULL);
+        } else {
+            t = t0 + row * step;
+        }
         for (int i = 0; i < n_inputs; i++)
-            inputs[i] = strtod(fields[i + 1], NULL);
+            inputs[i] = strtod(fields[i + first_input], NULL);
     }
     CHECK(fmi2Terminate(c));
     fmi2FreeInstance(c);

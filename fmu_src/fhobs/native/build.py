@@ -5,15 +5,17 @@ interface of the pythonfmu FMU of the same kind (:mod:`fhobs.build`): the same v
 value references, causalities, variabilities and start values, taken from the pythonfmu FMU
 built for the same design and options (its start values read from an instance, so they are
 exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
-(``kernel.c``) with an FMI layer (``fmi2_layer.c``, ``models.c``) and the generated
-``model_data.c``: the design and, for every communication step size of ``steps``, the step's
-plan exactly as the numpy runtime prepares it for its kernel (ZOH matrices, the filtering
-observer's gain-level floor and ceiling and the injection flow's eigen data). A step size
-within 1e-9 relative of a built one runs that one's plan (a master's t_k+1 - t_k rounding); any
-other is refused with fmi2Error (the Kalman filter takes any whole multiple of its sample time;
-the observers' euler scheme any step). ``sources/`` holds every C file and the
-FMI headers, listed in the modelDescription's ``<SourceFiles>``, so an importer can compile the
-FMU for another platform.
+(``kernel.c``) with the step planner (``planner.c``), an FMI layer (``fmi2_layer.c``,
+``models.c``) and the generated ``model_data.c``: the design and what the planner needs that
+does not depend on the step size (the injection flow's and the dilation's eigen data, the tau
+grid, the gain level's round-off floor; :mod:`fhobs.native.planner`). Every positive finite
+communication step is taken: the plan of a step size (ZOH matrices, the filtering observer's
+gain-level floor and ceiling) is computed in C at its first use by the numpy runtime's
+algorithms, to 1e-12 relative of the numpy runtime's plan, and kept per instance for the 8
+step sizes used last. A step size the filtering observer cannot follow (no gain level
+contracts) is refused with fmi2Error, as the numpy runtime refuses it. ``sources/`` holds
+every C file and the FMI headers, listed in the modelDescription's ``<SourceFiles>``, so an
+importer can compile the FMU for another platform.
 
 Design parameters (the plant matrices, the gains, nu, gamma, rho, Ts...) are compiled in: they
 keep their names and value references, and writing a value bit-equal to the built one is
@@ -54,15 +56,9 @@ from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
 from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver
 from ..errors import BuildError
+from . import planner
 
 HERE = Path(__file__).resolve().parent
-DEFAULT_STEPS = (5e-5, 1e-4, 1e-3)
-"""Communication step sizes built by default: the paper's scenarios (5e-5) and the zoo bench's
-(1e-4, 1e-3)."""
-DEFAULT_EXPERIMENT_STEPS = 500
-"""The default experiment is this many steps of the first built step size: a host that divides
-the stop time into 500 steps when it is given no step (the FMU Compliance Checker) then takes
-a step the FMU was built for."""
 KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4}
 """``FHOBS_KIND_*`` of fhobs_native.h."""
 SETTABLE = {
@@ -76,7 +72,8 @@ other parameter is design data, compiled in."""
 LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", "z0", "psi0",
           "xi0", "x0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
 """Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
-C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "models.c", "fmi2_layer.c")
+C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "planner.c", "gain_levels.c",
+             "models.c", "fmi2_layer.c")
 """Sources of every native FMU (with the generated model_data.c; the plant adds noise.c)."""
 NOISE_SOURCES = ("noise.c", "noise.h")
 """The plant's measurement noise (numpy's generator in C)."""
@@ -103,9 +100,10 @@ def build_native_fmus(
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
     steps : iterable of float, optional
-        Communication step sizes to build the step plans for. Default :data:`DEFAULT_STEPS`,
-        of which those for which the filtering observer has no contractive gain level are left
-        out; a step size given here that cannot be built raises :class:`BuildError`.
+        Communication step sizes checked at build time: the numpy runtime must be able to
+        step each of them (the filtering observer: a contractive gain level), else
+        :class:`BuildError`. The FMUs take every step size either way; this makes sure before
+        they are shipped that those a user means to run are followed. Default: none.
     kinds : iterable of str, optional
         As for :func:`fhobs.build.build_fmus` (default: observer, luenberger, plant, and kalman
         when the design has a Kalman filter).
@@ -123,7 +121,7 @@ def build_native_fmus(
     BuildError
         Without a C compiler or the compiled kernel, for a design the native
         observer cannot run (no eigen path of its injection flow), or for a step size of
-        ``steps`` without a plan.
+        ``steps`` that the numpy runtime refuses.
 
     Examples
     --------
@@ -144,8 +142,7 @@ def build_native_fmus(
         raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
                          "compiled step kernel (FHOBS_NO_KERNEL unset)")
     certify(gains)
-    explicit = steps is not None
-    steps = tuple(float(dt) for dt in (DEFAULT_STEPS if steps is None else steps))
+    steps = tuple(float(dt) for dt in (steps or ()))
     for dt in steps:
         if not (np.isfinite(dt) and dt > 0.0):
             raise BuildError(f"native step size {dt!r} is not a positive finite number")
@@ -158,8 +155,8 @@ def build_native_fmus(
                                kernel=False, **options)
         for kind in kinds:
             interface = _read_interface(reference[kind], stage / f"{kind}_unzipped")
-            plans = _step_plans(kind, gains, steps, explicit, float(options.get("h", DEFAULT_H)))
-            built[kind] = _build_one(kind, interface, plans, _sizes(kind, gains, plans),
+            data = _native_data(kind, gains, steps, float(options.get("h", DEFAULT_H)))
+            built[kind] = _build_one(kind, interface, data, _sizes(kind, gains, data),
                                      stage / kind, compiler, out_dir / f"{kind}.fmu")
     return built
 
@@ -190,45 +187,37 @@ def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
     return {"xml": ET.parse(unzip_dir / "modelDescription.xml"), "start": start}
 
 
-# -- the step plans of the numpy runtime ----------------------------------------------------------
-def _step_plans(kind: str, gains: ObserverGains, steps: tuple[float, ...], explicit: bool,
-               h: float) -> dict[str, Any]:
-    """The kernel plans of ``kind`` as the numpy runtime makes them: ``{"steps": (dt, ...),
-    "split": [plan per dt], "euler": plan or None, "kalman": plan, "Ts": float}`` (what the
-    kind needs), each plan a dict of its fields (:func:`_captured_plan`)."""
+# -- the design data of the planner ----------------------------------------------------------------
+def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
+                 h: float) -> dict[str, Any]:
+    """What the native FMU of ``kind`` compiles in, from the numpy runtime's model of it: the
+    planner's design data (:func:`fhobs.native.planner.design_data`), the plant's matrices, the
+    euler plan (None without one), the Kalman filter's cycle plan and Ts. Each step size of
+    ``steps`` must have a plan in the numpy runtime (:class:`BuildError` otherwise)."""
     if kind == "kalman":
         observer = KalmanObserver(gains)
         return {"kalman": _captured_plan(observer, 1.0),  # one cycle; doStep sets the count
-                "Ts": float(gains.kalman.sample_time), "steps": ()}
+                "Ts": float(gains.kalman.sample_time)}
     if kind == "plant":
-        make = lambda: LTIPlant(gains.A, gains.B, gains.C, E=gains.E)  # noqa: E731
-        matrices = {"A": gains.A, "B": gains.B, "C": gains.C,
-                    "E": np.zeros((gains.n, 0)) if gains.E is None else gains.E}
+        model = LTIPlant(gains.A, gains.B, gains.C, E=gains.E)
     else:
         cls = FilteringObserver if kind == "observer" else LuenbergerObserver
-        make = lambda scheme="split": cls(gains, h=h, scheme=scheme)  # noqa: E731
-    model = make()
+        model = cls(gains, h=h)
     if not model.compiled:
         raise BuildError(f"the {kind}'s split step does not run in the compiled kernel for this "
                          "design (the injection flow has no eigen path): no native FMU")
-    plans, kept = [], []
     for dt in steps:
         try:
-            plans.append(_captured_plan(model, dt))
-            kept.append(dt)
+            _captured_plan(model, dt)
         except ValueError as err:
-            if explicit:
-                raise BuildError(f"--native-step {dt!r}: {err}") from err
-    if not kept:
-        raise BuildError(f"no step size of {steps} has a plan for the {kind}")
-    result = {"steps": tuple(kept), "split": plans, "euler": None}
+            raise BuildError(f"--native-step {dt!r}: {err}") from err
+    data = planner.design_data(kind, model)
     if kind == "plant":
-        result.update(matrices)
+        data.update({"A": model.A, "B": model.B, "C": model.C, "E": model.E})
     else:
-        euler = make("euler")
-        if euler.compiled:
-            result["euler"] = _captured_plan(euler, kept[0])
-    return result
+        euler = cls(gains, h=h, scheme="euler")
+        data["euler"] = _captured_plan(euler, h) if euler.compiled else None
+    return data
 
 
 def _captured_plan(model: Any, dt: float) -> dict[str, Any]:
@@ -309,10 +298,10 @@ def _plan_initializer(plan: dict[str, Any], arrays: _Arrays) -> str:
     return "{" + ", ".join(items) + "}"
 
 
-def _model_data(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any],
+def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any],
                sizes: dict[str, int]) -> str:
     """The text of model_data.c (without its identity line): sizes, value references, the
-    variable table, the step sizes and the plans."""
+    variable table and the design data of the kind (:func:`_native_data`)."""
     arrays = _Arrays()
     first_vr = {}
     for var in variables:
@@ -327,27 +316,30 @@ def _model_data(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any
     body = []
     if kind == "kalman":
         body.append(f"static const LinearPlan KALMAN_PLAN = "
-                    f"{_plan_initializer(plans['kalman'], arrays)};")
-        body.append(f"static const double KALMAN_TS = {c_number(plans['Ts'])};")
+                    f"{_plan_initializer(data['kalman'], arrays)};")
+        body.append(f"static const double KALMAN_TS = {c_number(data['Ts'])};")
     else:
-        steps = plans["steps"]
-        body.append(f"#define FHOBS_N_STEPS {len(steps)}")
-        body.append(f"static const double STEP_SIZES[FHOBS_N_STEPS] = "
-                    f"{{{', '.join(c_number(dt) for dt in steps)}}};")
-        plan_type = {"observer": "FilterPlan", "luenberger": "LinearPlan",
-                     "plant": "PlantPlan"}[kind]
-        table_name = "ZOH_PLANS" if kind == "plant" else "SPLIT_PLANS"
-        body.append(f"static const {plan_type} {table_name}[FHOBS_N_STEPS] = {{")
-        body += [f"    {_plan_initializer(plan, arrays)}," for plan in plans["split"]]
-        body.append("};")
+        scan = data.get("scan")
+        body.append(f"#define FHOBS_ZOH_SIZE {data['top'].shape[1]}")
+        body.append(f"#define FHOBS_N_TAU {0 if scan is None else scan['tau_grid'].size}")
+        body.append(f"#define ZOH_TOP {arrays.name(data['top'])}")
+        if kind == "observer":
+            body.append(f"static const FilterPlan FILTER_BASE = "
+                        f"{_plan_initializer(data['base'], arrays)};")
+            fields = {**scan, "n_tau": scan["tau_grid"].size}
+            body.append(f"static const LevelScan LEVEL_SCAN = "
+                        f"{_plan_initializer(fields, arrays)};")
+        elif kind == "luenberger":
+            body.append(f"static const LinearPlan LINEAR_BASE = "
+                        f"{_plan_initializer(data['base'], arrays)};")
         if kind == "plant":
             for name in ("A", "B", "E", "C"):
-                body.append(f"#define PLANT_{name} {arrays.name(plans[name])}")
+                body.append(f"#define PLANT_{name} {arrays.name(data[name])}")
         else:
-            body.append(f"#define FHOBS_HAS_EULER {int(plans['euler'] is not None)}")
-            if plans["euler"] is not None:
+            body.append(f"#define FHOBS_HAS_EULER {int(data['euler'] is not None)}")
+            if data["euler"] is not None:
                 body.append(f"static const EulerPlan EULER_PLAN = "
-                            f"{_plan_initializer(plans['euler'], arrays)};")
+                            f"{_plan_initializer(data['euler'], arrays)};")
     return "\n".join([*lines, "", *table, "", *arrays.lines, "", *body, ""])
 
 
@@ -372,10 +364,10 @@ def _variables(kind: str, interface: dict[str, Any]) -> list[dict[str, Any]]:
     return variables
 
 
-def _sizes(kind: str, gains: ObserverGains, plans: dict[str, Any]) -> dict[str, int]:
+def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, int]:
     """The sizes model_data.c defines (``FHOBS_<NAME>``): the plant's states n, the model's
     states (the plan's n), outputs k, inputs m, perturbations r, the state kept."""
-    n_model = (plans["kalman"] if kind == "kalman" else plans["split"][0])["n"]
+    n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
     r = 0 if gains.E is None else gains.E.shape[1]
     state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1,
              "kalman": n_model + 1}.get(kind, n_model)
@@ -383,12 +375,12 @@ def _sizes(kind: str, gains: ObserverGains, plans: dict[str, Any]) -> dict[str, 
             "state_size": state}
 
 
-def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
+def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
                sizes: dict[str, int], stage: Path, compiler: str, dest: Path) -> Path:
     """Generate the sources of one native FMU, compile them, write its modelDescription and
     documentation and zip it into ``dest``."""
     variables = _variables(kind, interface)
-    data = _model_data(kind, variables, plans, sizes)
+    data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
     sources["kernel.c"] = kernel.SOURCE.read_text()
     if kind == "plant":
@@ -399,9 +391,9 @@ def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
     guid = str(uuid.UUID(bytes=digest.digest()[:16]))
     identifier = f"fhobs_{kind}_{digest.hexdigest()[:12]}"
     sources["model_data.c"] = (
-        f"/* Generated by fhobs.native.build for a {kind} FMU: its design data and the step\n"
-        " * plans of the numpy runtime, doubles in hexadecimal (exact). Included by fhobs_fmu.c;"
-        "\n * do not edit (rebuild with build_fmu.py --native). */\n"
+        f"/* Generated by fhobs.native.build for a {kind} FMU: its design data and what its\n"
+        " * step planner needs, from the numpy runtime, doubles in hexadecimal (exact). Included"
+        "\n * by fhobs_fmu.c; do not edit (rebuild with build_fmu.py --native). */\n"
         f'#define FHOBS_IDENTITY "{guid}"\n' + data)
     root = stage / "fmu"
     (root / "sources").mkdir(parents=True)
@@ -412,11 +404,10 @@ def _build_one(kind: str, interface: dict[str, Any], plans: dict[str, Any],
     binary = root / "binaries" / "linux64" / f"{identifier}.so"
     compile_binary(root / "sources", binary, compiler)
     compiled_files = ["fhobs_fmu.c"] + (["noise.c"] if kind == "plant" else [])
-    tree = _model_description(interface["xml"], variables, identifier, guid, plans,
-                              compiled_files)
+    tree = _model_description(interface["xml"], variables, identifier, guid, compiled_files)
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
-    (root / "documentation" / "index.html").write_text(_documentation(kind, variables, plans))
+    (root / "documentation" / "index.html").write_text(_documentation(kind, variables, native))
     dest.unlink(missing_ok=True)
     with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as archive:
         for path in sorted(root.rglob("*")):
@@ -455,22 +446,19 @@ def compile_binary(sources: Path, target: Path, compiler: str) -> None:
 
 
 def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]],
-                       identifier: str, guid: str, plans: dict[str, Any],
+                       identifier: str, guid: str,
                        compiled_files: list[str]) -> ET.ElementTree:
-    """The pythonfmu FMU's modelDescription with this FMU's identity, capabilities, exact
-    start values and source files."""
+    """The pythonfmu FMU's modelDescription (its default experiment, if any, included) with
+    this FMU's identity, capabilities, exact start values and source files."""
     tree = ET.ElementTree(ET.fromstring(ET.tostring(reference.getroot())))
     root = tree.getroot()
-    steps = ", ".join(repr(dt) for dt in plans["steps"])
     root.set("modelName", identifier)
     root.set("guid", guid)
     root.set("generationTool", "fhobs.native.build (compiled C, no Python at run time)")
-    root.set("description", root.get("description", "") + (
-        f" -- native FMU, communication step sizes {steps}" if steps else " -- native FMU"))
+    root.set("description", root.get("description", "") + " -- native FMU")
     cosim = root.find("CoSimulation")
     for name, value in (("modelIdentifier", identifier), ("needsExecutionTool", "false"),
-                        ("canHandleVariableCommunicationStepSize",
-                         "false" if steps else "true"),
+                        ("canHandleVariableCommunicationStepSize", "true"),
                         ("canInterpolateInputs", "false"),
                         ("canBeInstantiatedOnlyOncePerProcess", "false"),
                         ("canNotUseMemoryManagementFunctions", "false"),
@@ -482,12 +470,6 @@ def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]
     files = ET.SubElement(cosim, "SourceFiles")
     for name in compiled_files:
         ET.SubElement(files, "File", name=name)
-    if steps:
-        step = plans["steps"][0]
-        experiment = ET.Element("DefaultExperiment", stepSize=repr(step),
-                                stopTime=repr(DEFAULT_EXPERIMENT_STEPS * step))
-        position = list(root).index(root.find("ModelVariables"))
-        root.insert(position, experiment)
     for element, var in zip(root.iterfind("ModelVariables/ScalarVariable"), variables,
                             strict=True):
         value = element.find("Real" if var["type"] == "real" else "Integer")
@@ -497,24 +479,33 @@ def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]
     return tree
 
 
-def _documentation(kind: str, variables: list[dict[str, Any]], plans: dict[str, Any]) -> str:
+def _documentation(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]) -> str:
     """documentation/index.html: what the FMU runs, its step sizes and its parameters."""
     compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "compiled"})
     settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "settable"})
-    if plans["steps"]:
-        steps = ("Communication step sizes (their plans are compiled in; a step within 1e-9 "
-                 "relative of one of them runs its plan, any other step is refused with "
-                 f"fmi2Error): {', '.join(repr(dt) for dt in plans['steps'])}.")
-        if plans.get("euler") is not None:
-            steps += " The euler scheme (scheme = 1) takes any step size."
-    else:
+    if kind == "kalman":
         steps = (f"Any communication step: one filter cycle for every sample instant (a "
-                 f"multiple of Ts = {plans['Ts']!r} from the start) inside the step, the "
+                 f"multiple of Ts = {data['Ts']!r} from the start) inside the step, the "
                  "estimate held between samples.")
+    else:
+        steps = ("Any positive finite communication step, fixed or variable "
+                 "(canHandleVariableCommunicationStepSize). The plan of a step size (the "
+                 "exact zero-order-hold matrices" + (
+                     ", the gain level's floor and ceiling from the scan of the dilated error "
+                     "map's spectral radius" if kind == "observer" else "") +
+                 ") is computed at the first step of that size, by the algorithms of the numpy "
+                 "runtime (to 1e-12 relative of its plan), and kept for the 8 step sizes used "
+                 "last; a step size is matched exactly, so a host that forms t_k+1 - t_k gets "
+                 "the plan of the step it asked for.")
+        if kind == "observer":
+            steps += (" A step size for which no gain level makes the split step contractive "
+                      "is refused with fmi2Error (the log names the smallest spectral radius), "
+                      "the state unchanged: use a smaller communication step.")
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>fhobs native {kind} FMU</title></head><body>
 <h1>fhobs native {kind} FMU</h1>
-<p>FMI 2.0 co-simulation FMU of compiled C (the fhobs step kernel and an FMI layer); no Python
+<p>FMI 2.0 co-simulation FMU of compiled C (the fhobs step kernel, its step planner and an
+FMI layer); no Python
 is needed to run it. It has the interface of the pythonfmu {kind}.fmu built from the same
 design (names, value references, causalities, start values).</p>
 <p>{steps}</p>

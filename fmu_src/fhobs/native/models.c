@@ -2,10 +2,12 @@
  * The model of a native fhobs FMU for the kind its generated data names (FHOBS_KIND): the
  * state it keeps, the initial state from the per-instance parameters, the checks of those
  * parameters, the step and the outputs. The steps are the compiled kernel's (kernel.c); the
- * plans of every built communication step size were prepared at build time by the numpy
- * runtime and are compiled in (model_data.c), so nothing here depends on numpy.
+ * plan of a communication step size (ZOH matrices, the filtering observer's gain-level floor
+ * and ceiling) is computed by planner.c at the first step of that size from the design data
+ * compiled in (model_data.c) and kept per instance for the FHOBS_PLAN_SLOTS step sizes used
+ * last, so nothing here depends on numpy.
  *
- * Part of the translation unit fhobs_fmu.c (after kernel.c and model_data.c).
+ * Part of the translation unit fhobs_fmu.c (after kernel.c, planner.c and model_data.c).
  */
 #include <math.h>
 #include <stdio.h>
@@ -14,7 +16,6 @@
 
 #define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.runtime.MAX_SUBSTEPS */
 #define FHOBS_MAX_CYCLES 1000000   /* fhobs.kalman_filter.MAX_CYCLES */
-#define FHOBS_STEP_TOLERANCE 1e-9  /* a step within this of a built one runs its plan */
 #define FHOBS_SAMPLE_SLACK 1e-6    /* fhobs.kalman_filter.SAMPLE_SLACK */
 #define FHOBS_NOISE_BLOCK 1024     /* fhobs.plant.NOISE_BLOCK */
 #define FHOBS_SCHEME_EULER 1       /* index of "euler" in fhobs.runtime.SCHEMES and PLANT_SCHEMES */
@@ -33,27 +34,48 @@ static const char *number(double x, char *buf, size_t len)
     return buf;
 }
 
-#if FHOBS_KIND != FHOBS_KIND_KALMAN
-/* The index of the built step size that dt is (within FHOBS_STEP_TOLERANCE relative: a master
- * that forms t_k+1 - t_k, as fmpy does, passes 5.000000000000001e-05 for 5e-05); -1 with the
- * message when it is none of them. */
-static int step_index(double dt, char *msg, size_t len)
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER ||             \
+    FHOBS_KIND == FHOBS_KIND_PLANT
+#define FHOBS_PLAN_SLOTS 8 /* step sizes whose plans an instance keeps */
+#define FHOBS_ZOH_ROWS (FHOBS_N_MODEL * FHOBS_ZOH_SIZE)
+#define FHOBS_PLAN_WORK                                                                        \
+    FHOBS_PLAN_WORK_SIZE(FHOBS_N_MODEL, FHOBS_K, FHOBS_M, FHOBS_ZOH_SIZE, FHOBS_N_TAU)
+
+/* The plan cache's keys: the step size of each slot (NAN: empty) and when it was last used. */
+typedef struct {
+    double dt[FHOBS_PLAN_SLOTS];
+    unsigned long long used[FHOBS_PLAN_SLOTS];
+    unsigned long long clock;
+} PlanKeys;
+
+static void plan_keys_init(PlanKeys *keys)
 {
-    char a[32], b[32];
-    for (int i = 0; i < FHOBS_N_STEPS; i++)
-        if (fabs(dt - STEP_SIZES[i]) <= FHOBS_STEP_TOLERANCE * STEP_SIZES[i])
+    for (int i = 0; i < FHOBS_PLAN_SLOTS; i++) {
+        keys->dt[i] = NAN;
+        keys->used[i] = 0;
+    }
+    keys->clock = 0;
+}
+
+/* The slot of the step size dt (exactly dt: the numpy runtime keys its plans so too) and
+ * whether it was taken for dt now (*fresh; the plan is then to be computed): an empty slot or
+ * the least recently used one. */
+static int plan_slot(PlanKeys *keys, double dt, int *fresh)
+{
+    int slot = 0;
+    for (int i = 0; i < FHOBS_PLAN_SLOTS; i++) {
+        if (keys->dt[i] == dt) {
+            keys->used[i] = ++keys->clock;
+            *fresh = 0;
             return i;
-    size_t used = (size_t)snprintf(
-        msg, len, "the communication step size %s is not one this native FMU was built for (",
-        number(dt, a, sizeof a));
-    for (int i = 0; i < FHOBS_N_STEPS && used < len; i++)
-        used += (size_t)snprintf(msg + used, len - used, "%s%s", i ? ", " : "",
-                                 number(STEP_SIZES[i], b, sizeof b));
-    if (used < len)
-        snprintf(msg + used, len - used,
-                 "): the plans of its step are compiled in; rebuild with build_fmu.py --native "
-                 "--native-step %s (repeatable), or use the pythonfmu FMU; state left unchanged", a);
-    return -1;
+        }
+        if (keys->used[i] < keys->used[slot])
+            slot = i;
+    }
+    keys->dt[slot] = dt;
+    keys->used[slot] = ++keys->clock;
+    *fresh = 1;
+    return slot;
 }
 #endif
 
@@ -108,11 +130,15 @@ typedef LinearPlan SplitPlan;
 #endif
 
 typedef struct {
-    SplitPlan split[FHOBS_N_STEPS];
+    PlanKeys keys;
+    SplitPlan split[FHOBS_PLAN_SLOTS];
+    double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER
-    cplx factors[FHOBS_N_STEPS][4 * FHOBS_K]; /* spectral-factor caches of the split plans */
-    double last_tau[FHOBS_N_STEPS];
+    double F[FHOBS_PLAN_SLOTS][FHOBS_N_MODEL * FHOBS_N_MODEL];
+    cplx factors[FHOBS_PLAN_SLOTS][4 * FHOBS_K]; /* spectral-factor caches of the split plans */
+    double last_tau[FHOBS_PLAN_SLOTS];
 #endif
+    double scratch[FHOBS_PLAN_WORK];
 #if FHOBS_HAS_EULER
     EulerPlan euler;
     double euler_work[2 * FHOBS_STATE_SIZE];
@@ -121,18 +147,43 @@ typedef struct {
 
 static void work_init(Work *w)
 {
-    for (int i = 0; i < FHOBS_N_STEPS; i++) {
-        w->split[i] = SPLIT_PLANS[i];
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER
-        w->split[i].factors = w->factors[i];
-        w->last_tau[i] = NAN;
-        w->split[i].last_tau = &w->last_tau[i];
-#endif
-    }
+    plan_keys_init(&w->keys);
 #if FHOBS_HAS_EULER
     w->euler = EULER_PLAN;
     w->euler.work = w->euler_work;
 #endif
+}
+
+/* The split plan of the step size dt: kept from an earlier step, or computed now into the
+ * least recently used slot; NULL with the message when the filtering observer cannot follow
+ * dt (no gain level of the tau scan contracts). */
+static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
+{
+    int fresh, i = plan_slot(&w->keys, dt, &fresh);
+    SplitPlan *plan = &w->split[i];
+    if (!fresh)
+        return plan;
+#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+    char a[32];
+    double best;
+    plan->factors = w->factors[i];
+    plan->last_tau = &w->last_tau[i];
+    if (plan_filter(plan, &FILTER_BASE, &LEVEL_SCAN, ZOH_TOP, dt, w->M[i], w->F[i], &best,
+                    w->scratch)) {
+        w->keys.dt[i] = NAN;
+        snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
+                 "spectral radius %.6g); use a smaller communication step; state left unchanged",
+                 number(dt, a, sizeof a), best);
+        return NULL;
+    }
+#else
+    (void)msg;
+    (void)len;
+    *plan = LINEAR_BASE;
+    zoh_rows(ZOH_TOP, FHOBS_N_MODEL, FHOBS_ZOH_SIZE, dt, w->M[i], w->scratch);
+    plan->M = w->M[i];
+#endif
+    return plan;
 }
 
 static int model_parameters_problem(const double *real, const int *integer, char *msg,
@@ -202,10 +253,10 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
     (void)integer;
 #endif
     {
-        int index = step_index(dt, msg, len);
-        if (index < 0)
+        const SplitPlan *plan = split_plan(w, dt, msg, len);
+        if (!plan)
             return 1;
-        Call call = {&w->split[index], src, dst, inputs};
+        Call call = {plan, src, dst, inputs};
         code = SPLIT_STEP(&call);
     }
     if (code != FHOBS_OK) {
@@ -242,12 +293,47 @@ typedef struct {
     double noise[FHOBS_NOISE_BLOCK * FHOBS_K]; /* draws of the block `block` of `seed` */
     long long block;                           /* -1: none drawn */
     int seed;
+    PlanKeys keys;
+    PlantPlan zoh[FHOBS_PLAN_SLOTS];
+    double Phi[FHOBS_PLAN_SLOTS][FHOBS_N * FHOBS_N];
+    double Gamma_B[FHOBS_PLAN_SLOTS][FHOBS_N * FHOBS_M + 1];
+    double Gamma_E[FHOBS_PLAN_SLOTS][FHOBS_N * FHOBS_R + 1];
+    double rows[FHOBS_ZOH_ROWS]; /* [Phi, Gamma_B, Gamma_E] of the plan being made */
+    double scratch[FHOBS_PLAN_WORK];
 } Work;
 
 static void work_init(Work *w)
 {
     w->block = -1;
     w->seed = -1;
+    plan_keys_init(&w->keys);
+}
+
+/* The ZOH plan of the step size dt: kept from an earlier step, or computed now into the least
+ * recently used slot (fhobs.core.plant.LTIPlant._blocks). */
+static const PlantPlan *zoh_plan(Work *w, double dt)
+{
+    int fresh, i = plan_slot(&w->keys, dt, &fresh);
+    PlantPlan *plan = &w->zoh[i];
+    if (!fresh)
+        return plan;
+    zoh_rows(ZOH_TOP, FHOBS_N, FHOBS_ZOH_SIZE, dt, w->rows, w->scratch);
+    for (int r = 0; r < FHOBS_N; r++) {
+        const double *row = w->rows + (size_t)r * FHOBS_ZOH_SIZE;
+        for (int j = 0; j < FHOBS_N; j++)
+            w->Phi[i][r * FHOBS_N + j] = row[j];
+        for (int j = 0; j < FHOBS_M; j++)
+            w->Gamma_B[i][r * FHOBS_M + j] = row[FHOBS_N + j];
+        for (int j = 0; j < FHOBS_R; j++)
+            w->Gamma_E[i][r * FHOBS_R + j] = row[FHOBS_N + FHOBS_M + j];
+    }
+    plan->n = FHOBS_N;
+    plan->m = FHOBS_M;
+    plan->r = FHOBS_R;
+    plan->Phi = w->Phi[i];
+    plan->Gamma_B = w->Gamma_B[i];
+    plan->Gamma_E = w->Gamma_E[i];
+    return plan;
 }
 
 static int model_parameters_problem(const double *real, const int *integer, char *msg,
@@ -283,7 +369,6 @@ static int model_initial_state(const double *real, double *state, char *msg, siz
 static int model_step(Work *w, const double *real, const int *integer, const double *src,
                       double *dst, double dt, char *msg, size_t len)
 {
-    (void)w;
     double u[FHOBS_M + FHOBS_R + 1];
     read_vector(real, VR_U, FHOBS_M, u);
     read_vector(real, VR_Q, FHOBS_R, u + FHOBS_M);
@@ -299,10 +384,7 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
             dst[i] = src[i] + dt * ((s + t) + e);
         }
     } else {
-        int index = step_index(dt, msg, len);
-        if (index < 0)
-            return 1;
-        Call call = {&ZOH_PLANS[index], src, dst, u};
+        Call call = {zoh_plan(w, dt), src, dst, u};
         fhobs_plant_step(&call);
     }
     if (!all_finite(dst, FHOBS_N)) {

@@ -1,0 +1,323 @@
+/*
+ * The filtering observer's plan of a communication step size (fhobs.core.runtime: _prediction,
+ * the tau scan of _Observer._auto_taus with error_map and _dilated_radius, _step_size_plan):
+ * M, F, the gain-level floor and ceiling. The spectral radius of the dilated error map is
+ * computed by balancing, a Hessenberg reduction and Francis double-shift QR sweeps; it only
+ * decides (the argmin over the tau grid, the contraction limit), so it needs the accuracy of
+ * numpy's eigenvalues, not their bits.
+ *
+ * Part of the translation unit fhobs_fmu.c of the observer FMU (after planner.c and
+ * model_data.c); also built with planner_api.c into a library for the tests.
+ */
+#include <float.h>
+#include <math.h>
+
+#define FHOBS_QR_ITERATIONS 60   /* QR sweeps per eigenvalue before the radius is unknown */
+#define FHOBS_BALANCE_SWEEPS 100 /* fhobs.core.linalg.BALANCE_SWEEPS */
+
+/* F = Phi + Gamma_inj C: Phi the first n columns of M (n x size), Gamma_inj its last k. */
+static void carry_matrix(const double *M, const double *C, int n, int size, int k, double *F)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int l = 0; l < k; l++)
+                s += M[(size_t)i * size + size - k + l] * C[(size_t)l * n + j];
+            F[(size_t)i * n + j] = M[(size_t)i * size + j] + s;
+        }
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* Spectral radius of a real nonsymmetric matrix: balancing, Hessenberg reduction by         */
+/* Householder reflections, Francis double-shift QR with deflation                           */
+
+/* Scale A (n x n) by a diagonal similarity of powers of two (exact) until its off-diagonal row
+ * and column norms are balanced (fhobs.core.linalg.balancing_scale): the eigenvalues are kept,
+ * their computation is as accurate as for a balanced matrix. */
+static void balance(double *A, int n)
+{
+    for (int sweep = 0; sweep < FHOBS_BALANCE_SWEEPS; sweep++) {
+        int converged = 1;
+        for (int i = 0; i < n; i++) {
+            double col = 0.0, row = 0.0;
+            for (int j = 0; j < n; j++)
+                if (j != i) {
+                    col += fabs(A[(size_t)j * n + i]);
+                    row += fabs(A[(size_t)i * n + j]);
+                }
+            if (col == 0.0 || row == 0.0)
+                continue;
+            double f = 1.0, c = col, r = row;
+            while (c < r / 2.0) {
+                f *= 2.0;
+                c *= 2.0;
+                r /= 2.0;
+            }
+            while (c >= 2.0 * r) {
+                f /= 2.0;
+                c /= 2.0;
+                r *= 2.0;
+            }
+            if (c + r < 0.95 * (col + row)) {
+                converged = 0;
+                for (int j = 0; j < n; j++) {
+                    A[(size_t)j * n + i] *= f;
+                    A[(size_t)i * n + j] /= f;
+                }
+            }
+        }
+        if (converged)
+            return;
+    }
+}
+
+/* Apply the reflection I - 2 v v^T / (v^T v) (v of `len` entries, rows r0.. of A) from the
+ * left to columns c0..c1 and from the right (columns r0..) to rows q0..q1. */
+static void reflect(double *A, int n, const double *v, int len, int r0, int c0, int c1, int q0,
+                    int q1)
+{
+    double vv = 0.0;
+    for (int i = 0; i < len; i++)
+        vv += v[i] * v[i];
+    if (vv == 0.0)
+        return;
+    for (int j = c0; j <= c1; j++) {
+        double w = 0.0;
+        for (int i = 0; i < len; i++)
+            w += v[i] * A[(size_t)(r0 + i) * n + j];
+        w = 2.0 * w / vv;
+        for (int i = 0; i < len; i++)
+            A[(size_t)(r0 + i) * n + j] -= w * v[i];
+    }
+    for (int i = q0; i <= q1; i++) {
+        double w = 0.0;
+        for (int j = 0; j < len; j++)
+            w += A[(size_t)i * n + r0 + j] * v[j];
+        w = 2.0 * w / vv;
+        for (int j = 0; j < len; j++)
+            A[(size_t)i * n + r0 + j] -= w * v[j];
+    }
+}
+
+/* The Householder vector that maps x (len entries) onto a multiple of e_1, into v. */
+static void householder(const double *x, int len, double *v)
+{
+    double norm = 0.0;
+    for (int i = 0; i < len; i++)
+        norm = hypot(norm, x[i]);
+    for (int i = 0; i < len; i++)
+        v[i] = x[i];
+    v[0] += x[0] < 0.0 ? -norm : norm;
+}
+
+/* Reduce A (n x n) to upper Hessenberg form by similarity; work: n doubles. */
+static void hessenberg(double *A, int n, double *work)
+{
+    for (int c = 0; c < n - 2; c++) {
+        int len = n - c - 1;
+        for (int i = 0; i < len; i++)
+            work[i] = A[(size_t)(c + 1 + i) * n + c];
+        householder(work, len, work);
+        reflect(A, n, work, len, c + 1, c, n - 1, 0, n - 1);
+    }
+}
+
+/* The larger modulus of the eigenvalues of [[a, b], [c, d]]. */
+static double block_radius(double a, double b, double c, double d)
+{
+    double mid = 0.5 * (a + d), half = 0.5 * (a - d);
+    double disc = half * half + b * c;
+    if (disc >= 0.0)
+        return fabs(mid) + sqrt(disc);
+    return sqrt(fabs(a * d - b * c));
+}
+
+/* Spectral radius of the upper Hessenberg H (n x n, destroyed) by Francis double-shift QR
+ * sweeps on its unreduced trailing block, deflating 1 x 1 and 2 x 2 blocks; inf when a block
+ * does not converge. */
+static double hessenberg_radius(double *H, int n)
+{
+    double radius = 0.0, scale = 0.0;
+    for (size_t i = 0; i < (size_t)n * n; i++)
+        scale = fabs(H[i]) > scale ? fabs(H[i]) : scale;
+    int hi = n - 1, iterations = 0;
+    while (hi >= 0) {
+        int lo = hi;
+        while (lo > 0) { /* the first negligible subdiagonal entry above hi */
+            double s = fabs(H[(size_t)(lo - 1) * n + lo - 1]) + fabs(H[(size_t)lo * n + lo]);
+            if (s == 0.0)
+                s = scale;
+            if (fabs(H[(size_t)lo * n + lo - 1]) <= DBL_EPSILON * s)
+                break;
+            lo--;
+        }
+        double r;
+        if (lo == hi) {
+            r = fabs(H[(size_t)hi * n + hi]);
+            hi -= 1;
+        } else if (lo == hi - 1) {
+            r = block_radius(H[(size_t)lo * n + lo], H[(size_t)lo * n + hi],
+                             H[(size_t)hi * n + lo], H[(size_t)hi * n + hi]);
+            hi -= 2;
+        } else {
+            if (++iterations > FHOBS_QR_ITERATIONS)
+                return INFINITY;
+            double a = H[(size_t)(hi - 1) * n + hi - 1], b = H[(size_t)(hi - 1) * n + hi];
+            double c = H[(size_t)hi * n + hi - 1], d = H[(size_t)hi * n + hi];
+            double trace = a + d, det = a * d - b * c;
+            if (iterations % 11 == 10) { /* exceptional shift against cycling */
+                double w = fabs(c) + fabs(H[(size_t)(hi - 1) * n + hi - 2]);
+                trace = 1.5 * w;
+                det = w * w;
+            }
+            const double *h0 = H + (size_t)lo * n, *h1 = h0 + n, *h2 = h1 + n;
+            double x[3] = {h0[lo] * h0[lo] + h0[lo + 1] * h1[lo] - trace * h0[lo] + det,
+                           h1[lo] * (h0[lo] + h1[lo + 1] - trace), h1[lo] * h2[lo + 1]};
+            double v[3];
+            for (int k = lo; k < hi - 1; k++) {
+                householder(x, 3, v);
+                int c0 = k > lo ? k - 1 : lo, q1 = k + 3 < hi ? k + 3 : hi;
+                reflect(H, n, v, 3, k, c0, hi, lo, q1);
+                x[0] = H[(size_t)(k + 1) * n + k];
+                x[1] = H[(size_t)(k + 2) * n + k];
+                if (k < hi - 2)
+                    x[2] = H[(size_t)(k + 3) * n + k];
+            }
+            householder(x, 2, v);
+            reflect(H, n, v, 2, hi - 1, hi - 2, hi, lo, hi);
+            continue;
+        }
+        iterations = 0;
+        if (!(r <= radius))
+            radius = r;
+    }
+    return radius;
+}
+
+/* Spectral radius of A (n x n, destroyed), inf if an entry or the result is not finite
+ * (fhobs.core.runtime._dilated_radius); work: n doubles. */
+static double spectral_radius(double *A, int n, double *work)
+{
+    for (size_t i = 0; i < (size_t)n * n; i++)
+        if (!isfinite(A[i]))
+            return INFINITY;
+    balance(A, n);
+    hessenberg(A, n, work);
+    double r = hessenberg_radius(A, n);
+    return isfinite(r) ? r : INFINITY;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* The filtering observer's gain-level floor and ceiling                                     */
+
+/* S = diag(level I_k, d(ln level)) (N = k + n square, row-major): the dilation of
+ * (psi, z - x), d(s) = V_g diag(exp(s g)) V_g^-1 (fhobs.core.dilation.Dilation.matrix);
+ * work: 2 n doubles. */
+static void error_scaling(const FilterPlan *p, const LevelScan *scan, double level, double *S,
+                          double *work)
+{
+    const int n = p->n, k = p->k, N = n + k;
+    const double log_s = log(level);
+    cplx *scale = (cplx *)work;
+    for (int l = 0; l < n; l++)
+        scale[l] = cexp_((cplx){log_s * p->g[l].re, log_s * p->g[l].im});
+    for (size_t i = 0; i < (size_t)N * N; i++)
+        S[i] = 0.0;
+    for (int i = 0; i < k; i++)
+        S[(size_t)i * N + i] = level;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double re = 0.0;
+            for (int l = 0; l < n; l++) {
+                cplx t = cmul(scale[l], scan->Vg_inv[(size_t)l * n + j]);
+                re += p->V_g[(size_t)i * n + l].re * t.re - p->V_g[(size_t)i * n + l].im * t.im;
+            }
+            S[(size_t)(k + i) * N + k + j] = re;
+        }
+}
+
+/* Spectral radius of the split step's map of the dilated error S^-1 (psi, z - x) at the
+ * frozen gain level (fhobs.core.runtime._Observer.error_map with x = y = u = 0), inf where it
+ * cannot be formed; work: 2 N^2 + 4 N + m + 4 doubles (N = n + k). */
+static double dilated_radius(const FilterPlan *p, const LevelScan *scan, double level,
+                             double *work)
+{
+    const int n = p->n, k = p->k, N = n + k;
+    const size_t NN = (size_t)N * N;
+    double *S = work, *map = S + NN, *v = map + NN, *psi_new = v + k, *dz = psi_new + k + 1;
+    double *z_new = dz + n, *u = z_new + n, *scratch = u + p->m + 1;
+    error_scaling(p, scan, level, S, scratch);
+    const double log_s = log(level);
+    for (int i = 0; i < p->m; i++)
+        u[i] = 0.0;
+    for (int j = 0; j < N; j++) { /* the column e = S[:, j]: psi = e[:k], z = e[k:] */
+        double *psi = scratch, *z = scratch + k;
+        for (int i = 0; i < N; i++)
+            psi[i] = S[(size_t)i * N + j];
+        matvec(p->C, z, k, n, v);
+        correct(p, psi, 0.0, v, log_s, psi_new, psi_new + k, dz);
+        matvec3(p->M, n, z, n, u, p->m, v, k, z_new);
+        for (int i = 0; i < n; i++) {
+            const double *a = p->F + (size_t)i * n;
+            double s = 0.0;
+            for (int l = 0; l < n; l++)
+                s += a[l] * dz[l];
+            z_new[i] += s;
+        }
+        for (int i = 0; i < k; i++)
+            map[(size_t)i * N + j] = psi_new[i];
+        for (int i = 0; i < n; i++)
+            map[(size_t)(k + i) * N + j] = z_new[i];
+    }
+    if (lu_solve(S, map, N, N))
+        return INFINITY;
+    return spectral_radius(map, N, scratch);
+}
+
+/* The gain-level floor and ceiling of the plan p (its dt, M, F and spectral-factor cache
+ * set) as _Observer._step_size_plan makes them with _auto_taus: 0, or 1 when no tau of the
+ * grid contracts (*best: the smallest spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
+static int filter_levels(FilterPlan *p, const LevelScan *scan, double *best, double *work)
+{
+    double *radii = work, *rest = work + scan->n_tau;
+    const double dt = p->dt, inverse_nu = 1.0 / p->nu;
+    int arg = 0;
+    for (int i = 0; i < scan->n_tau; i++) {
+        radii[i] = dilated_radius(p, scan, pow(scan->tau_grid[i] / dt, inverse_nu), rest);
+        if (radii[i] < radii[arg])
+            arg = i;
+    }
+    *best = radii[arg];
+    if (!(radii[arg] < scan->contraction))
+        return 1;
+    int first = arg;
+    while (first > 0 && radii[first - 1] < scan->contraction)
+        first--;
+    double floor_level = pow(scan->tau_grid[arg] / dt, inverse_nu);
+    p->floor_level = scan->roundoff > floor_level ? scan->roundoff : floor_level;
+    p->ceiling = first == 0 ? INFINITY : pow(scan->tau_grid[first] / dt, inverse_nu);
+    return 0;
+}
+
+/* The filtering observer's plan of the step size dt: base's fields, then M and F (into the
+ * caller's arrays, n x (n + m + k) and n x n) from the ZOH of top = [A, B, L0], then the
+ * floor and ceiling (plan's factors and last_tau: the caller's cache, reset here). 0, or 1
+ * when the observer cannot follow dt (*best: the smallest spectral radius). */
+static int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+                       const double *top, double dt, double *M, double *F, double *best,
+                       double *work)
+{
+    cplx *factors = plan->factors;
+    double *last_tau = plan->last_tau;
+    const int n = base->n, size = base->n + base->m + base->k;
+    *plan = *base;
+    plan->factors = factors;
+    plan->last_tau = last_tau;
+    *last_tau = NAN;
+    plan->dt = dt;
+    zoh_rows(top, n, size, dt, M, work);
+    carry_matrix(M, base->C, n, size, base->k, F);
+    plan->M = M;
+    plan->F = F;
+    return filter_levels(plan, scan, best, work);
+}

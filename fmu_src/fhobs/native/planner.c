@@ -1,0 +1,176 @@
+/*
+ * Step plans of a native fhobs FMU computed in C at the first step of each size: what the
+ * numpy runtime prepares per communication step size for its kernel, by the same algorithms.
+ *
+ *   - zoh_rows: the exact zero-order hold of fhobs.core.linalg.zoh_blocks, the first n rows
+ *     of expm(h [[A, B_1, ...], [0, 0, ...]]) = [Phi, Gamma_1, ...];
+ *   - expm: fhobs.core.linalg.expm (Pade 13, the same squaring count, the same polynomial
+ *     evaluation, the solve by LU with partial pivoting, the squarings);
+ *   - the filtering observer's gain-level floor and ceiling: gain_levels.c.
+ *
+ * Every function takes its scratch memory from the caller (no variable-length arrays): see
+ * FHOBS_PLAN_WORK_SIZE. Part of the translation unit fhobs_fmu.c (after kernel.c); also built
+ * with planner_api.c into a library for the tests.
+ */
+#include <math.h>
+
+/* Scratch doubles needed by plan_filter (model states n, outputs k, inputs m, the ZOH's
+ * augmented size z, taus scanned) and, a fortiori, by zoh_rows of size z. */
+#define FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus)                                                 \
+    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + (taus) + 8)
+
+/* The tau scan of the filtering observer (fhobs.core.runtime._Observer._auto_taus). */
+typedef struct {
+    const double *tau_grid; /* fhobs.core.runtime.TAU_GRID, increasing */
+    int n_tau;
+    const cplx *Vg_inv;  /* n x n: inverse of the eigenvectors V_g of G_d (FilterPlan.V_g) */
+    double roundoff;     /* the round-off floor of the gain level (independent of dt) */
+    double contraction;  /* fhobs.core.runtime.CONTRACTION_LIMIT */
+} LevelScan;
+
+/* C = A B, all n x n row-major */
+static void square_product(const double *A, const double *B, int n, double *C)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int l = 0; l < n; l++)
+                s += A[(size_t)i * n + l] * B[(size_t)l * n + j];
+            C[(size_t)i * n + j] = s;
+        }
+}
+
+/* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting, the row
+ * exchanges and eliminations applied to B as they are made; A is destroyed, B becomes X.
+ * 1 when a pivot is exactly zero (LAPACK's singular case), else 0. */
+static int lu_solve(double *A, double *B, int n, int cols)
+{
+    for (int c = 0; c < n; c++) {
+        int pivot = c;
+        for (int i = c + 1; i < n; i++)
+            if (fabs(A[(size_t)i * n + c]) > fabs(A[(size_t)pivot * n + c]))
+                pivot = i;
+        if (A[(size_t)pivot * n + c] == 0.0)
+            return 1;
+        if (pivot != c) {
+            for (int j = 0; j < n; j++) {
+                double t = A[(size_t)c * n + j];
+                A[(size_t)c * n + j] = A[(size_t)pivot * n + j];
+                A[(size_t)pivot * n + j] = t;
+            }
+            for (int j = 0; j < cols; j++) {
+                double t = B[(size_t)c * cols + j];
+                B[(size_t)c * cols + j] = B[(size_t)pivot * cols + j];
+                B[(size_t)pivot * cols + j] = t;
+            }
+        }
+        for (int i = c + 1; i < n; i++) {
+            double f = A[(size_t)i * n + c] / A[(size_t)c * n + c];
+            for (int j = c + 1; j < n; j++)
+                A[(size_t)i * n + j] -= f * A[(size_t)c * n + j];
+            for (int j = 0; j < cols; j++)
+                B[(size_t)i * cols + j] -= f * B[(size_t)c * cols + j];
+        }
+    }
+    for (int c = n - 1; c >= 0; c--)
+        for (int j = 0; j < cols; j++) {
+            double s = B[(size_t)c * cols + j];
+            for (int l = c + 1; l < n; l++)
+                s -= A[(size_t)c * n + l] * B[(size_t)l * cols + j];
+            B[(size_t)c * cols + j] = s / A[(size_t)c * n + c];
+        }
+    return 0;
+}
+
+/* Pade(13) coefficients and theta_13 (fhobs.core.linalg._PADE13, _THETA13) */
+static const double PADE13[14] = {
+    64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+    129060195264000.0,   10559470521600.0,    670442572800.0,     33522128640.0,
+    1323241920.0,        40840800.0,          960960.0,           16380.0,
+    182.0,               1.0};
+#define FHOBS_THETA13 5.371920351148152
+
+/* out = b0 P0 + b1 P1 + b2 P2 (left to right, as numpy evaluates the sum), n x n */
+static void combine3(double b0, const double *P0, double b1, const double *P1, double b2,
+                     const double *P2, int n, double *out)
+{
+    for (size_t i = 0; i < (size_t)n * n; i++)
+        out[i] = b0 * P0[i] + b1 * P1[i] + b2 * P2[i];
+}
+
+/* out += b0 P0 + b1 P1 + b2 P2 + b3 I, each added in turn as numpy does */
+static void add_terms(double b0, const double *P0, double b1, const double *P1, double b2,
+                      const double *P2, double b3, int n, double *out)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            size_t e = (size_t)i * n + j;
+            out[e] = out[e] + b0 * P0[e] + b1 * P1[e] + b2 * P2[e] + b3 * (i == j ? 1.0 : 0.0);
+        }
+}
+
+/* E = expm(M) (n x n) as fhobs.core.linalg.expm; work: 7 n^2 doubles. A matrix whose 1-norm
+ * is not finite gives NaN (the numpy runtime refuses it with an error). */
+static void expm(const double *M, int n, double *E, double *work)
+{
+    const size_t nn = (size_t)n * n;
+    double *X = work, *X2 = X + nn, *X4 = X2 + nn, *X6 = X4 + nn, *U = X6 + nn, *V = U + nn;
+    double *T = V + nn;
+    double norm = 0.0;
+    for (int j = 0; j < n; j++) {
+        double s = 0.0;
+        for (int i = 0; i < n; i++)
+            s += fabs(M[(size_t)i * n + j]);
+        if (s > norm || isnan(s))
+            norm = s;
+    }
+    if (!isfinite(norm)) {
+        for (size_t i = 0; i < nn; i++)
+            E[i] = NAN;
+        return;
+    }
+    int squarings = 0;
+    if (norm > FHOBS_THETA13) {
+        double c = ceil(log2(norm / FHOBS_THETA13));
+        squarings = c > 0.0 ? (int)c : 0;
+    }
+    double scale = pow(2.0, squarings);
+    for (size_t i = 0; i < nn; i++)
+        X[i] = M[i] / scale;
+    const double *b = PADE13;
+    square_product(X, X, n, X2);
+    square_product(X2, X2, n, X4);
+    square_product(X4, X2, n, X6);
+    combine3(b[13], X6, b[11], X4, b[9], X2, n, T);
+    square_product(X6, T, n, E);
+    add_terms(b[7], X6, b[5], X4, b[3], X2, b[1], n, E);
+    square_product(X, E, n, U);
+    combine3(b[12], X6, b[10], X4, b[8], X2, n, T);
+    square_product(X6, T, n, V);
+    add_terms(b[6], X6, b[4], X4, b[2], X2, b[0], n, V);
+    for (size_t i = 0; i < nn; i++) { /* solve (V - U) E = V + U */
+        double u = U[i], v = V[i];
+        T[i] = v - u;
+        E[i] = v + u;
+    }
+    lu_solve(T, E, n, n);
+    for (int s = 0; s < squarings; s++) {
+        square_product(E, E, n, T);
+        for (size_t i = 0; i < nn; i++)
+            E[i] = T[i];
+    }
+}
+
+/* The first n rows of expm(h aug), aug = [[top], [0]] (size x size, top = [A, B_1, ...]
+ * n x size): [Phi, Gamma_1, ...] (fhobs.core.linalg.zoh_blocks), into out (n x size);
+ * work: 9 size^2 doubles. */
+static void zoh_rows(const double *top, int n, int size, double h, double *out, double *work)
+{
+    const size_t ss = (size_t)size * size;
+    double *aug = work, *E = aug + ss;
+    for (size_t i = 0; i < ss; i++)
+        aug[i] = i < (size_t)n * size ? h * top[i] : h * 0.0;
+    expm(aug, size, E, E + ss);
+    for (size_t i = 0; i < (size_t)n * size; i++)
+        out[i] = E[i];
+}

@@ -1,0 +1,176 @@
+"""The native FMUs' step planner (``planner.c``): its design data and a ctypes entry to it.
+
+A native FMU computes the plan of a communication step size in C at the first step of that
+size (``planner.c``, ``gain_levels.c``): the ZOH matrices, and for the filtering observer the gain-level floor
+and ceiling of the tau scan. What the planner needs that does not depend on the step size is
+taken here from the numpy runtime's models and compiled into the FMU (:mod:`fhobs.native.build`):
+:func:`design_data`. :func:`c_plan` runs the same C planner through ctypes (``planner_api.c``
+compiled with ``kernel.c``, ``planner.c`` and ``gain_levels.c``), so the tests compare its plans with the numpy
+runtime's (``kernel.Stepper.plan``).
+
+Examples
+--------
+>>> from fhobs.design import paper_gains
+>>> from fhobs.core.runtime import FilteringObserver
+>>> observer = FilteringObserver(paper_gains())
+>>> sorted(c_plan("observer", observer, 1e-3))  # doctest: +SKIP
+['F', 'M', 'ceiling', 'floor_level']
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core import kernel
+from ..core.dilation import Dilation
+from ..core.linalg import PHI1_SERIES
+from ..core.runtime import CONTRACTION_LIMIT, LEVEL_MISMATCH, TAU_GRID
+
+HERE = Path(__file__).resolve().parent
+SOURCE = HERE / "planner.c"
+LEVELS_SOURCE = HERE / "gain_levels.c"
+API_SOURCE = HERE / "planner_api.c"
+_DOUBLE_P = ctypes.POINTER(ctypes.c_double)
+
+
+class LevelScan(ctypes.Structure):
+    """``LevelScan`` of planner.c (complex arrays as interleaved doubles)."""
+
+    _fields_ = [("tau_grid", _DOUBLE_P), ("n_tau", ctypes.c_int), ("Vg_inv", _DOUBLE_P),
+                ("roundoff", ctypes.c_double), ("contraction", ctypes.c_double)]
+
+
+def design_data(kind: str, model: Any) -> dict[str, Any]:
+    """What the planner of ``kind`` needs beyond the step size, from a runtime model of it.
+
+    Parameters
+    ----------
+    kind : str
+        ``observer`` (a :class:`~fhobs.core.runtime.FilteringObserver`), ``luenberger`` (a
+        :class:`~fhobs.core.runtime.LuenbergerObserver`) or ``plant`` (an
+        :class:`~fhobs.core.plant.LTIPlant`).
+    model : object
+        The model, split (or zoh) scheme.
+
+    Returns
+    -------
+    dict
+        ``top``: the first rows ``[A, B, L_inj]`` (plant: ``[A, B, E]``) of the ZOH's
+        augmented matrix; observer: ``base`` (the plan's fields that do not depend on the step
+        size, as :meth:`FilteringObserver._kernel_plan` sets them) and ``scan`` (the
+        :class:`LevelScan` fields); Luenberger: ``base`` (``LinearPlan`` fields).
+    """
+    if kind == "plant":
+        return {"top": np.hstack((model.A, model.B, model.E))}
+    top = np.hstack((model._A, model._B, model._L_inj))
+    C = np.ascontiguousarray(model._C, dtype=float)
+    n, k, m = model._z.size, model._k, model._m
+    if kind == "luenberger":
+        return {"top": top, "base": {"n": n, "k": k, "m": m, "cycles": 1, "C": C}}
+    gains, flow = model.gains, model._flow.kernel_arrays()
+    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": float(gains.nu),
+            "gamma": float(gains.gamma), "p": model._p, "mismatch": LEVEL_MISMATCH,
+            "tiny": flow["tiny"], "series": PHI1_SERIES, "C": C,
+            **{name: flow[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")}}
+    dilation = Dilation(gains.G_d)
+    scan = {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
+            "Vg_inv": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
+            "roundoff": float(model._amplification_level()),
+            "contraction": CONTRACTION_LIMIT}
+    return {"top": top, "base": base, "scan": scan}
+
+
+@functools.cache
+def library() -> ctypes.CDLL | None:
+    """The planner compiled for the tests (cached as the kernel is), or None without a C
+    compiler."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        return None
+    sources = [kernel.SOURCE, SOURCE, LEVELS_SOURCE, API_SOURCE]
+    flags = (*kernel.COMPILE_FLAGS, f"-I{kernel.SOURCE.parent}", f"-I{HERE}")
+    tag = hashlib.sha256(b"".join(path.read_bytes() for path in sources)
+                         + " ".join(flags[:4]).encode() + compiler.encode()).hexdigest()
+    target = kernel.cache_dir() / f"fhobs_planner_{tag[:16]}.so"
+    if not target.exists():
+        try:
+            kernel.compile_source(API_SOURCE, target, compiler, flags, ("-lm",))
+        except (OSError, subprocess.SubprocessError):
+            return None
+    lib = ctypes.CDLL(str(target))
+    lib.fhobs_plan_work_size.restype = ctypes.c_int
+    lib.fhobs_plan_filter.restype = ctypes.c_int
+    lib.fhobs_plan_zoh.restype = None
+    return lib
+
+
+def _structure(cls: type[ctypes.Structure], fields: dict[str, Any],
+               keep: list[np.ndarray]) -> ctypes.Structure:
+    """A ctypes structure of ``fields`` (arrays as pointers, kept alive in ``keep``)."""
+    values = {}
+    for name, value in fields.items():
+        if isinstance(value, np.ndarray):
+            array = np.ascontiguousarray(value)
+            keep.append(array)
+            values[name] = kernel.pointer(array)
+        else:
+            values[name] = value
+    return cls(**values)
+
+
+def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
+    """The C planner's plan of ``kind`` for the step size dt, as the native FMU makes it.
+
+    Returns
+    -------
+    dict
+        observer: ``M``, ``F``, ``floor_level``, ``ceiling``; luenberger: ``M``; plant:
+        ``Phi``, ``Gamma_B``, ``Gamma_E``.
+
+    Raises
+    ------
+    ValueError
+        If the observer cannot follow dt (the numpy runtime's refusal), the smallest spectral
+        radius of the tau scan named.
+    RuntimeError
+        Without a C compiler.
+    """
+    lib = library()
+    if lib is None:
+        raise RuntimeError("the planner library needs a C compiler (cc or gcc)")
+    data = design_data(kind, model)
+    top = np.ascontiguousarray(data["top"], dtype=float)
+    n, size = top.shape
+    k = data["base"]["k"] if "base" in data else 0
+    m = data["base"]["m"] if "base" in data else 0
+    work = np.zeros(lib.fhobs_plan_work_size(n, k, m, size, TAU_GRID.size))
+    M = np.zeros((n, size))
+    if kind != "observer":
+        lib.fhobs_plan_zoh(kernel.pointer(top), n, size, ctypes.c_double(dt),
+                           kernel.pointer(M), kernel.pointer(work))
+        if kind == "luenberger":
+            return {"M": M}
+        widths = np.cumsum([n, model.B.shape[1]])
+        Phi, Gamma_B, Gamma_E = np.split(M, widths, axis=1)
+        return {"Phi": Phi, "Gamma_B": Gamma_B, "Gamma_E": Gamma_E}
+    keep: list[np.ndarray] = []
+    base = _structure(kernel.FilterPlan, data["base"], keep)
+    scan = _structure(LevelScan, {**data["scan"], "n_tau": TAU_GRID.size}, keep)
+    factors, last_tau = np.zeros(4 * k, dtype=complex), np.zeros(1)
+    plan = kernel.FilterPlan(factors=kernel.pointer(factors), last_tau=kernel.pointer(last_tau))
+    F, best = np.zeros((n, n)), ctypes.c_double()
+    refused = lib.fhobs_plan_filter(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan),
+                                    kernel.pointer(top), ctypes.c_double(dt), kernel.pointer(M),
+                                    kernel.pointer(F), ctypes.byref(best), kernel.pointer(work))
+    if refused:
+        raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
+                         f"(smallest spectral radius {best.value:.6g})")
+    return {"M": M, "F": F, "floor_level": plan.floor_level, "ceiling": plan.ceiling}

@@ -1,0 +1,29 @@
+/*
+ * The step planner of the native FMUs (planner.c, gain_levels.c, with the kernel they drive) as a shared
+ * library with exported entry points, for the tests that compare it with the numpy runtime's
+ * plans (fhobs.native.planner). Not part of any FMU.
+ */
+#include "kernel.c"
+#include "planner.c"
+#include "gain_levels.c"
+
+/* Scratch doubles the entry points below need (FHOBS_PLAN_WORK_SIZE). */
+int fhobs_plan_work_size(int n, int k, int m, int z, int taus)
+{
+    return FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus);
+}
+
+/* The first n rows of expm(h [[top], [0]]) (top n x size) into out: zoh_rows. */
+void fhobs_plan_zoh(const double *top, int n, int size, double h, double *out, double *work)
+{
+    zoh_rows(top, n, size, h, out, work);
+}
+
+/* The filtering observer's plan of dt (plan's factors and last_tau set by the caller):
+ * plan_filter. */
+int fhobs_plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+                      const double *top, double dt, double *M, double *F, double *best,
+                      double *work)
+{
+    return plan_filter(plan, base, scan, top, dt, M, F, best, work);
+}
