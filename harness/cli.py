@@ -1,4 +1,4 @@
-"""Command line: ``python -m harness {run,paper,plant,list,export-ssp} ...``.
+"""Command line: ``python -m harness {run,paper,plant,list,export-ssp,sweep} ...``.
 
 - ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
   bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
@@ -15,6 +15,9 @@
   three settling times); results and plots (errors, states against estimates) in DIR.
 - ``list``: the bundled scenarios.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
+- ``sweep SWEEP.toml --out DIR``: the points of a sweep file (design axes, spec entries, start
+  values, seeds, steps; a grid or seeded random samples) on dask, one table of their figures
+  (:mod:`harness.sweep`).
 """
 
 from __future__ import annotations
@@ -151,6 +154,17 @@ def _parser() -> argparse.ArgumentParser:
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
     ssp.add_argument("--out", type=Path, required=True, help="the .ssp file")
+    sweep = sub.add_parser("sweep", help="run a sweep file's points on dask (harness/sweep.py)")
+    sweep.add_argument("sweep", help="sweep file or bundled sweep name (harness/sweeps/)")
+    sweep.add_argument("--out", type=Path, required=True,
+                       help="results folder (a re-run skips the points done there)")
+    sweep.add_argument("--scheduler", help="address of a running dask scheduler "
+                                           "(tcp://HOST:PORT); default: a local cluster")
+    sweep.add_argument("--workers", type=int, help="local cluster's worker processes "
+                                                   "(default: the core count)")
+    sweep.add_argument("--retry-failed", action="store_true", help="rerun the failed points")
+    sweep.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
 
@@ -437,6 +451,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from harness.sweep import check_workers, format_report, load_sweep, run_sweep
+
+    check_workers(args.workers)
+    sweep = load_sweep(args.sweep)
+    check_output_folder(args.out)
+    report = run_sweep(sweep, args.out, args.scheduler, args.workers, args.retry_failed,
+                       not args.no_progress, not args.no_plots)
+    print(format_report(report, sweep, args.out))
+    return 0
+
+
 def format_table(summaries: dict[str, dict[str, Any]]) -> str:
     """Plain-text table: one row per (scenario, error signal), one column per figure."""
     rows = []
@@ -466,7 +492,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = _parser().parse_args(argv)
     commands = {"run": _cmd_run, "paper": _cmd_paper, "plant": _cmd_plant, "list": _cmd_list,
-                "export-ssp": _cmd_export}
+                "export-ssp": _cmd_export, "sweep": _cmd_sweep}
     try:
         return commands[args.command](args)
     except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,

@@ -1,0 +1,1232 @@
+"""Sweeps and Monte Carlo runs of the harness on dask.distributed.
+
+``python -m harness sweep SWEEP.toml --out DIR [--scheduler ADDRESS] [--workers N]`` runs one
+co-simulation per point of a sweep file and writes one table of their figures. A sweep file::
+
+    # what this sweep is for (its first sentence is its summary)
+    base = "pendulum_noisy"        # a scenario (bundled name or system description file)
+                                   # or a plant spec (a TOML file with A, B, C)
+    spec = "examples/pendulum.toml"   # scenario bases: the plant spec designed (default: the
+                                      # pendulum's); a plant-spec base is its own spec
+    design = "spec"                # "spec" (default) or "paper" (the published pendulum gains)
+    fmus = "native"                # "native" (default) or "pythonfmu"
+    stop_time = 1.5                # default: the scenario's (a plant: 3 settling times)
+    step = 5e-5                    # default: the scenario's (a plant: [noise] sample time or 1e-3)
+
+    [grid]                         # every combination of the values (or several [[grid]])
+    rho = [3.0, 6.0]               # an [observer] key of the spec: nu, rho, gamma, objective,
+                                   # filter_scale, disturbance_order, settling_time, state_scale
+    "spec.noise.process_intensity" = [1e-3, 1e-2]   # any spec entry: spec.<key>[.<key>]
+    "set.plant.x0" = [[1, 0, 0, 0], [2, 2, 1, 2]]   # a start value, as `run --set FMU.VAR=V`
+    seed = [0, 1, 2, 3, 4]         # the scenario's noise seed ([run] seed)
+    # step, stop_time and base are axes too
+
+    [random]                       # seeded random samples (combined with every grid point)
+    samples = 16
+    seed = 1                       # the generator's seed: the same file gives the same points
+    [random.axes]
+    rho = {uniform = [2.0, 8.0]}   # uniform, loguniform (both bounds > 0), integers (both
+    seed = {integers = [0, 999]}   # bounds included), choice (a list of values)
+
+    [evaluation]                   # optional: instants and windows of the figures
+    at = [0.1]
+    windows = [[0.1, 0.2]]
+
+    [pareto]                       # optional: the Pareto picture of two bases
+    perturbation = "pendulum_perturbed"   # its max error (first window) on the x-axis
+    noisy = "pendulum_noisy"              # its RMS error (first window, mean over seeds)
+
+Each point designs the observer of its spec (cached in the worker by the content hash of the
+spec, so equal designs are designed and built once per worker), builds its FMUs into a
+worker-local temporary folder (:func:`fhobs.native.build.build_native_fmus` or
+:func:`fhobs.build.build_fmus`: nothing but the point's data travels to a worker, no disk is
+shared), co-simulates the scenario (:func:`harness.master.run_system`) and returns its row: its
+parameters, the figures of :func:`harness.results.error_figures` per estimator
+(``<estimator>.<figure>``), wall time, status and, when it failed, the reason. A scenario base
+runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_plant_system`
+(with native FMUs without the prescribed-time observer, which has no native FMU).
+
+Every finished row is written at once to ``DIR/points/<key>.json`` (the key is a hash of the
+point and of the files it depends on); a re-run of the same command skips the points that
+have a row (``--retry-failed`` reruns the failed ones). At the end ``DIR/sweep.parquet`` and
+``DIR/sweep.csv`` hold one row per point, and ``DIR/plots/`` each figure against each swept
+axis and, with ``[pareto]``, the Pareto picture.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import hashlib
+import itertools
+import json
+import math
+import os
+import shutil
+import socket
+import tempfile
+import time
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harness.system import DescriptionError, SystemSpec, check_timing
+
+SWEEP_DIR = Path(__file__).resolve().parent / "sweeps"
+"""The bundled sweep files."""
+TOP_KEYS = ("name", "base", "spec", "design", "fmus", "stop_time", "step", "grid", "random",
+            "evaluation", "pareto")
+RANDOM_KEYS = ("samples", "seed", "axes")
+EVALUATION_KEYS = ("at", "windows")
+PARETO_KEYS = ("perturbation", "noisy")
+DESIGNS = ("spec", "paper")
+FLAVOURS = ("native", "pythonfmu")
+RUN_AXES = ("base", "seed", "step", "stop_time")
+"""Axes that are not spec entries or start values."""
+DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
+PLANT_FMUS = ("plant", "observer", "luenberger", "kalman", "prescribed_time")
+"""The FMU names of a plant-spec base's system (:func:`harness.own_plant.own_plant_system`)."""
+STATUS_OK, STATUS_FAILED = "ok", "failed"
+
+
+class SweepError(DescriptionError):
+    """An invalid sweep file or sweep option (the message names the field and the reason)."""
+
+
+# -- the sweep file ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Base:
+    """What a point runs: a scenario with the spec it designs, or a plant spec alone.
+
+    Attributes
+    ----------
+    name : str
+        As the sweep file names it.
+    kind : str
+        ``"scenario"`` or ``"plant"``.
+    spec_data : dict
+        The plant spec's parsed TOML (the design's source).
+    system : SystemSpec or None
+        The scenario, loaded with FMU paths under :data:`FMU_PLACEHOLDER` (``scenario`` only).
+    files : dict
+        ``{path: bytes}`` of the FMUs the scenario names outside ``${fmu_dir}``.
+    digest : str
+        Hash of the files the base was read from (a point's key depends on it).
+    """
+
+    name: str
+    kind: str
+    spec_data: dict[str, Any]
+    system: SystemSpec | None = None
+    files: dict[str, bytes] = field(default_factory=dict)
+    digest: str = ""
+
+
+FMU_PLACEHOLDER = "/fhobs-sweep-fmu-dir"
+"""``${fmu_dir}`` of a scenario loaded on the client; each worker puts its own folder there."""
+
+
+@dataclass(frozen=True)
+class Point:
+    """One point of a sweep: its position, parameters (axis -> value) and key (hash)."""
+
+    index: int
+    params: dict[str, Any]
+    key: str
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A loaded sweep file (see the module docstring).
+
+    Attributes
+    ----------
+    path : Path
+        The sweep file.
+    name : str
+        Its ``name`` (default: the file's stem).
+    bases : dict
+        ``{name: Base}`` of every base the points use.
+    points : list of Point
+        In the order of the grid (then of the random samples); no two with the same key.
+    axes : tuple of str
+        The swept axes, sorted.
+    settings : dict
+        ``base``, ``design``, ``fmus``, ``stop_time``, ``step``, ``evaluation``: what every point
+        shares unless an axis sets it.
+    pareto : dict
+        ``{"perturbation": base, "noisy": base}`` or empty.
+    """
+
+    path: Path
+    name: str
+    bases: dict[str, Base]
+    points: list[Point]
+    axes: tuple[str, ...]
+    settings: dict[str, Any]
+    pareto: dict[str, str]
+
+
+def sweep_path(name: str | Path) -> Path:
+    """A sweep file's path: a file, or a bundled sweep's name.
+
+    Examples
+    --------
+    >>> sweep_path("pendulum_noisy_seeds").name
+    'pendulum_noisy_seeds.toml'
+    """
+    path = Path(name)
+    if path.is_file():
+        return path
+    bundled = SWEEP_DIR / f"{name}.toml"
+    if path.suffix != ".toml" and bundled.is_file():
+        return bundled
+    have = sorted(p.stem for p in SWEEP_DIR.glob("*.toml"))
+    raise SweepError(f"{name}: no such sweep file, and no bundled sweep of that name "
+                     f"(bundled: {', '.join(have)})")
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Read and check a sweep file, and enumerate its points.
+
+    Parameters
+    ----------
+    path : str or Path
+        The sweep file, or a bundled sweep's name (:data:`SWEEP_DIR`).
+
+    Returns
+    -------
+    Sweep
+
+    Raises
+    ------
+    SweepError
+        One paragraph naming the field and the reason: not TOML, an unknown key or axis, an
+        empty grid or axis, a file that does not exist, a bad distribution, a spec value the
+        design refuses, a step that does not divide the run.
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> len(sweep.points), sweep.axes
+    (6, ('base', 'seed'))
+    """
+    path = sweep_path(path)
+    data = _read_toml(path)
+    where = str(path)
+    _reject_unknown(data, TOP_KEYS, where)
+    settings = _settings(data, where)
+    combos = _combinations(data, where)
+    axes = tuple(sorted({axis for combo in combos for axis in combo}))
+    for axis in axes:
+        _check_axis(axis, where)
+    bases = {}
+    for name in {c.get("base", settings["base"]) for c in combos}:
+        if name is None:
+            raise SweepError(f"{where}: base is missing (a scenario name such as "
+                             "'pendulum_nominal', or a plant spec file)")
+        bases[name] = _load_base(str(name), settings, path)
+    pareto = _pareto(data, bases, where)
+    points = _points(combos, bases, settings, where)
+    return Sweep(path, _string(data.get("name", path.stem), f"{where}: name"), bases, points,
+                 axes, settings, pareto)
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise SweepError(f"{path}: cannot read the sweep file ({err})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SweepError(f"{path}: not valid TOML ({err})") from None
+
+
+def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise SweepError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
+
+
+def _string(value: Any, where: str) -> str:
+    if not isinstance(value, str):
+        raise SweepError(f"{where} = {value!r} must be a string")
+    return value
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise SweepError(f"{where} = {value!r} must be a finite number")
+    return float(value)
+
+
+def _settings(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """The values every point shares unless an axis sets them."""
+    design = data.get("design", "spec")
+    flavour = data.get("fmus", "native")
+    if design not in DESIGNS:
+        raise SweepError(f"{where}: design = {design!r} must be one of {', '.join(DESIGNS)}")
+    if flavour not in FLAVOURS:
+        raise SweepError(f"{where}: fmus = {flavour!r} must be one of {', '.join(FLAVOURS)}")
+    settings = {"base": data.get("base"), "design": design, "fmus": flavour,
+                "spec": data.get("spec"), "evaluation": _evaluation(data, where)}
+    for key in ("stop_time", "step"):
+        settings[key] = None if key not in data else _number(data[key], f"{where}: {key}")
+    if settings["spec"] is not None:
+        _string(settings["spec"], f"{where}: spec")
+    return settings
+
+
+def _evaluation(data: dict[str, Any], where: str) -> dict[str, Any] | None:
+    """The ``[evaluation]`` override: ``{"at": [...], "windows": [[a, b], ...]}``."""
+    if "evaluation" not in data:
+        return None
+    table = data["evaluation"]
+    if not isinstance(table, dict):
+        raise SweepError(f"{where}: evaluation must be a table with at and windows")
+    _reject_unknown(table, EVALUATION_KEYS, f"{where}: [evaluation]")
+    at = table.get("at", [])
+    windows = table.get("windows", [])
+    if not isinstance(at, list) or not isinstance(windows, list):
+        raise SweepError(f"{where}: [evaluation] at and windows must be lists")
+    out = {"at": [_number(t, f"{where}: evaluation.at") for t in at], "windows": []}
+    for w in windows:
+        if not (isinstance(w, list) and len(w) == 2):
+            raise SweepError(f"{where}: evaluation.windows entry {w!r} must be [start, end]")
+        a, b = (_number(v, f"{where}: evaluation.windows") for v in w)
+        if not a < b:
+            raise SweepError(f"{where}: evaluation.windows entry {w!r} must have start < end")
+        out["windows"].append([a, b])
+    return out
+
+
+def _flatten(table: dict[str, Any], leaf: Any, prefix: str = "") -> dict[str, Any]:
+    """Dotted keys of nested tables (``set.plant.x0``), down to the values ``leaf`` accepts."""
+    out = {}
+    for key, value in table.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and not leaf(value):
+            out |= _flatten(value, leaf, name + ".")
+        else:
+            out[name] = value
+    return out
+
+
+def _combinations(data: dict[str, Any], where: str) -> list[dict[str, Any]]:
+    """The axis values of every point: each grid's product, times the random samples."""
+    if "grid" not in data and "random" not in data:
+        raise SweepError(f"{where}: no [grid] and no [random] table: nothing to sweep "
+                         "(add e.g. [grid] seed = [0, 1, 2])")
+    grids = data.get("grid", [])
+    grids = [grids] if isinstance(grids, dict) else grids
+    if not isinstance(grids, list) or not all(isinstance(g, dict) for g in grids):
+        raise SweepError(f"{where}: grid must be a [grid] table or [[grid]] tables")
+    combos: list[dict[str, Any]] = []
+    for i, grid in enumerate(grids, start=1):
+        combos += _grid_points(grid, f"{where}: grid" + (f" {i}" if len(grids) > 1 else ""))
+    if "random" in data:
+        samples = _random_points(data["random"], f"{where}: [random]")
+        combos = [c | s for c in (combos or [{}]) for s in samples]
+    return combos
+
+
+def _grid_points(grid: dict[str, Any], where: str) -> list[dict[str, Any]]:
+    axes = _flatten(grid, lambda value: False)
+    if not axes:
+        raise SweepError(f"{where}: empty grid (give each axis a list of values, e.g. "
+                         "seed = [0, 1, 2])")
+    for axis, values in axes.items():
+        if not isinstance(values, list):
+            raise SweepError(f"{where}: axis {axis!r} = {values!r} must be a list of values")
+        if not values:
+            raise SweepError(f"{where}: axis {axis!r} is empty (the grid would have no point)")
+    names = sorted(axes)
+    return [dict(zip(names, values, strict=True))
+            for values in itertools.product(*(axes[n] for n in names))]
+
+
+def _random_points(table: Any, where: str) -> list[dict[str, Any]]:
+    """``samples`` draws of every axis of ``[random.axes]``, in sorted axis order, seeded."""
+    if not isinstance(table, dict):
+        raise SweepError(f"{where} must be a table (samples, seed, axes)")
+    _reject_unknown(table, RANDOM_KEYS, where)
+    samples = table.get("samples")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise SweepError(f"{where}: samples = {samples!r} must be an integer >= 1")
+    seed = table.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SweepError(f"{where}: seed = {seed!r} must be an integer >= 0")
+    axes = table.get("axes", {})
+    if not isinstance(axes, dict):
+        raise SweepError(f"{where}: axes must be a table of distributions")
+    axes = _flatten(axes, lambda value: set(value) <= set(DISTRIBUTIONS))
+    if not axes:
+        raise SweepError(f"{where}: no [random.axes] (e.g. rho = {{uniform = [2.0, 8.0]}})")
+    rng = np.random.default_rng(seed)
+    draws = {axis: _draw(rng, axes[axis], samples, f"{where}: axes.{axis}")
+             for axis in sorted(axes)}
+    return [{axis: draws[axis][i] for axis in draws} for i in range(samples)]
+
+
+def _draw(rng: np.random.Generator, dist: Any, samples: int, where: str) -> list[Any]:
+    """``samples`` values of one distribution ``{uniform|loguniform|integers|choice = ...}``."""
+    if not isinstance(dist, dict) or len(dist) != 1 or next(iter(dist)) not in DISTRIBUTIONS:
+        raise SweepError(f"{where} = {dist!r} must be one distribution: "
+                         f"{{NAME = ARGS}} with NAME one of {', '.join(DISTRIBUTIONS)}")
+    (name, args), = dist.items()
+    if name == "choice":
+        if not isinstance(args, list) or not args:
+            raise SweepError(f"{where}: choice needs a non-empty list of values")
+        return [args[i] for i in rng.integers(0, len(args), samples)]
+    if not (isinstance(args, list) and len(args) == 2):
+        raise SweepError(f"{where}: {name} needs [low, high], got {args!r}")
+    low, high = (_number(v, f"{where}.{name}") for v in args)
+    if not low < high or (name == "loguniform" and low <= 0.0):
+        raise SweepError(f"{where}: {name} bounds {args!r} must have low < high"
+                         + (" and low > 0" if name == "loguniform" else ""))
+    if name == "integers":
+        if low != int(low) or high != int(high):
+            raise SweepError(f"{where}: integers bounds {args!r} must be whole numbers")
+        return [int(v) for v in rng.integers(int(low), int(high) + 1, samples)]
+    if name == "loguniform":
+        return [float(v) for v in np.exp(rng.uniform(np.log(low), np.log(high), samples))]
+    return [float(v) for v in rng.uniform(low, high, samples)]
+
+
+def spec_axis(axis: str) -> tuple[str, ...] | None:
+    """The spec path an axis sets, or None: ``rho`` and ``spec.observer.rho`` ->
+    ``("observer", "rho")``, ``spec.E`` -> ``("E",)``.
+
+    Examples
+    --------
+    >>> spec_axis("rho"), spec_axis("spec.noise.process_intensity"), spec_axis("seed")
+    (('observer', 'rho'), ('noise', 'process_intensity'), None)
+    """
+    from fhobs.spec import OBSERVER_KEYS
+
+    if axis in OBSERVER_KEYS:
+        return ("observer", axis)
+    if axis.startswith("spec."):
+        return tuple(axis.split(".")[1:])
+    return None
+
+
+def _check_axis(axis: str, where: str) -> None:
+    """SweepError unless ``axis`` is a run axis, a known spec entry or ``set.FMU.VAR``."""
+    from fhobs.spec import NOISE_KEYS, OBSERVER_KEYS
+    from fhobs.spec import TOP_KEYS as SPEC_KEYS
+
+    path = spec_axis(axis)
+    if axis in RUN_AXES:
+        return
+    if axis.startswith("set."):
+        if len(axis.split(".", 2)) < 3:
+            raise SweepError(f"{where}: axis {axis!r} must be set.FMU.VARIABLE (a start value, "
+                             "as `run --set FMU.VAR=VALUE`)")
+        return
+    tables = {"observer": OBSERVER_KEYS, "noise": NOISE_KEYS}
+    if path is not None and path and path[0] in SPEC_KEYS and (
+            (len(path) == 1 and path[0] not in tables)
+            or (len(path) == 2 and path[0] in tables and path[1] in tables[path[0]])):
+        return
+    raise SweepError(
+        f"{where}: unknown axis {axis!r}; an axis is one of {', '.join(RUN_AXES)}, an "
+        f"[observer] key ({', '.join(OBSERVER_KEYS)}), spec.KEY for a spec entry (spec.A, "
+        f"spec.observer.rho, spec.noise.process_intensity; keys: "
+        f"{', '.join(SPEC_KEYS)}) or set.FMU.VARIABLE for a start value")
+
+
+def _resolve_file(name: str, sweep_file: Path, what: str) -> Path:
+    """A path of the sweep file: relative to its folder, else to the working directory."""
+    for path in (sweep_file.parent / name, Path(name)):
+        if path.is_file():
+            return path.resolve()
+    raise SweepError(f"{sweep_file}: {what} {name!r}: no such file (looked in "
+                     f"{sweep_file.parent} and in the working directory {Path.cwd()})")
+
+
+def _load_base(name: str, settings: dict[str, Any], sweep_file: Path) -> Base:
+    """Read a base: a bundled scenario, a system description or a plant spec file."""
+    from fhobs.paper import PENDULUM_SPEC
+
+    from harness.cli import SCENARIO_DIR
+
+    where = f"{sweep_file}: base {name!r}"
+    bundled = SCENARIO_DIR / f"{name}.toml"
+    path = bundled if bundled.is_file() and not name.endswith(".toml") else \
+        _resolve_file(name, sweep_file, "base")
+    data = _read_toml(path)
+    if "A" in data:
+        if settings["design"] == "paper":
+            raise SweepError(f"{where}: design = 'paper' (the pendulum's published gains) needs "
+                             "a scenario base, not a plant spec")
+        return Base(name, "plant", data, digest=_digest(path.read_bytes()))
+    if "fmus" not in data and "extends" not in data:
+        raise SweepError(f"{where}: {path} is neither a plant spec (no A, B, C) nor a system "
+                         "description (no [fmus] tables)")
+    spec_file = PENDULUM_SPEC if settings["spec"] is None else \
+        _resolve_file(settings["spec"], sweep_file, "spec")
+    return _scenario_base(name, path, spec_file, where)
+
+
+def _scenario_base(name: str, path: Path, spec_file: Path, where: str) -> Base:
+    """A scenario loaded with its FMUs under :data:`FMU_PLACEHOLDER`; FMUs it names elsewhere
+    are read into ``files`` (they travel with the points)."""
+    from harness.system import load_system
+
+    try:
+        system = load_system(path, {"fmu_dir": FMU_PLACEHOLDER})
+    except DescriptionError as err:
+        raise SweepError(f"{where}: {err}") from None
+    files, sources = {}, [path.read_bytes(), spec_file.read_bytes()]
+    for fs in system.fmus.values():
+        if fs.path is not None and not str(fs.path).startswith(FMU_PLACEHOLDER):
+            if not Path(fs.path).is_file():
+                raise SweepError(f"{where}: FMU {fs.name!r}: {fs.path} does not exist")
+            files[str(fs.path)] = Path(fs.path).read_bytes()
+            sources.append(files[str(fs.path)])
+    extends = system.source
+    while extends is not None:  # the files it extends count in the digest too
+        parent = tomllib.loads(extends.read_text()).get("extends")
+        extends = None if parent is None else (extends.parent / parent)
+        if extends is not None:
+            sources.append(extends.read_bytes())
+    spec_data = _read_toml(spec_file)
+    return Base(name, "scenario", spec_data, system, files, _digest(*sources))
+
+
+def _digest(*parts: bytes) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(hashlib.sha256(part).digest())
+    return h.hexdigest()[:16]
+
+
+def _pareto(data: dict[str, Any], bases: dict[str, Base], where: str) -> dict[str, str]:
+    table = data.get("pareto", {})
+    if not isinstance(table, dict):
+        raise SweepError(f"{where}: pareto must be a table (perturbation, noisy)")
+    _reject_unknown(table, PARETO_KEYS, f"{where}: [pareto]")
+    if table and set(table) != set(PARETO_KEYS):
+        raise SweepError(f"{where}: [pareto] needs both perturbation and noisy (base names)")
+    for key, value in table.items():
+        if value not in bases:
+            raise SweepError(f"{where}: pareto.{key} = {value!r} is not a base of the sweep "
+                             f"(bases: {', '.join(sorted(bases))})")
+    return dict(table)
+
+
+def _points(combos: list[dict[str, Any]], bases: dict[str, Base], settings: dict[str, Any],
+            where: str) -> list[Point]:
+    """The points with their keys (duplicates dropped), each checked on the client: its FMU
+    start values name FMUs of its base, its spec is valid, its step divides its run."""
+    points, seen, checked = [], set(), set()
+    for combo in combos:
+        params = {axis: _plain(combo[axis]) for axis in sorted(combo)}
+        base = bases[params.get("base", settings["base"])]
+        job = make_job(base, params, settings)
+        key = point_key(job)
+        if key in seen:
+            continue
+        seen.add(key)
+        label = f"{where}: point {len(points)} ({_describe(params)})"
+        _check_point(job, label, checked)
+        points.append(Point(len(points), params, key))
+    return points
+
+
+def _plain(value: Any) -> Any:
+    """JSON-compatible plain values (numpy scalars and tuples become floats and lists)."""
+    return json.loads(json.dumps(value, default=float))
+
+
+def _describe(params: dict[str, Any]) -> str:
+    return ", ".join(f"{k} = {json.dumps(v)}" for k, v in params.items()) or "no axis"
+
+
+def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
+    from fhobs.errors import SpecError
+    from fhobs.spec import spec_from_dict
+
+    digest = design_key(job)
+    if digest not in checked:
+        checked.add(digest)
+        if job["design"] == "paper" and any(
+                path[0] != "noise" for path in spec_changes(job["params"])):
+            raise SweepError(f"{label}: design = 'paper' takes the published gains: only "
+                             "spec.noise.* axes apply to it")
+        try:
+            spec_from_dict(design_spec_data(job), source=f"the spec of base {job['base']!r}")
+        except SpecError as err:
+            raise SweepError(f"{label}: {err}") from None
+    fmus = set(job["system"].fmus) if job["system"] is not None else set(PLANT_FMUS)
+    for axis in job["params"]:
+        if axis.startswith("set.") and axis.split(".")[1] not in fmus:
+            raise SweepError(f"{label}: axis {axis!r}: no FMU {axis.split('.')[1]!r} in base "
+                             f"{job['base']!r} (FMUs: {', '.join(sorted(fmus))})")
+    step, stop = job["step"], job["stop_time"]
+    system = job["system"]
+    if system is not None:
+        step = system.step if step is None else step
+        stop = system.stop_time if stop is None else stop
+    if step is not None and stop is not None:
+        start = system.start_time if system is not None else 0.0
+        try:
+            check_timing(step, start, stop, "step/stop_time")
+        except DescriptionError as err:
+            raise SweepError(f"{label}: {err}") from None
+
+
+# -- a point's job: what travels to a worker ---------------------------------------------------
+def make_job(base: Base, params: dict[str, Any], settings: dict[str, Any]) -> dict[str, Any]:
+    """The data a worker needs to run one point (plain data, pickled to the worker).
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> job = make_job(sweep.bases["pendulum_noisy"], {"seed": 3}, sweep.settings)
+    >>> job["kind"], job["fmus"], job["seed"]
+    ('scenario', 'native', 3)
+    """
+    return {
+        "base": base.name, "kind": base.kind, "spec_data": base.spec_data,
+        "system": base.system, "files": base.files, "digest": base.digest,
+        "design": settings["design"], "fmus": settings["fmus"],
+        "evaluation": settings["evaluation"], "params": params,
+        "seed": params.get("seed"),
+        "step": params.get("step", settings["step"]),
+        "stop_time": params.get("stop_time", settings["stop_time"]),
+    }
+
+
+def point_key(job: dict[str, Any]) -> str:
+    """Hash of everything a point's row depends on (its base's files, settings, parameters).
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> len(sweep.points[0].key)
+    16
+    """
+    data = {k: job[k] for k in ("base", "kind", "digest", "design", "fmus", "evaluation",
+                                "params", "step", "stop_time")}
+    return _digest(json.dumps(data, sort_keys=True, default=str).encode())
+
+
+def spec_changes(params: dict[str, Any]) -> dict[tuple[str, ...], Any]:
+    """The spec entries a point's parameters set: ``{path: value}``."""
+    return {path: value for axis, value in params.items()
+            if (path := spec_axis(axis)) is not None}
+
+
+def design_spec_data(job: dict[str, Any]) -> dict[str, Any]:
+    """The plant spec of a point: its base's spec with the point's spec entries set."""
+    data = json.loads(json.dumps(job["spec_data"]))
+    for path, value in spec_changes(job["params"]).items():
+        table = data
+        for key in path[:-1]:
+            table = table.setdefault(key, {})
+        table[path[-1]] = value
+    return data
+
+
+def design_key(job: dict[str, Any]) -> str:
+    """The content hash of a point's design (its spec and the design kind)."""
+    text = json.dumps({"spec": design_spec_data(job), "design": job["design"]}, sort_keys=True)
+    return _digest(text.encode())
+
+
+# -- the worker side --------------------------------------------------------------------------
+_DESIGNS: dict[str, Any] = {}
+"""Designs of this process by design key: ``(PlantSpec, ObserverGains)``."""
+_FMU_DIRS: dict[str, dict[str, Path]] = {}
+"""FMUs built in this process, by design key, flavour and options."""
+_WORKDIR: list[Path] = []
+"""This process's temporary folder (removed at exit)."""
+
+
+def _workdir() -> Path:
+    if not _WORKDIR:
+        path = Path(tempfile.mkdtemp(prefix="fhobs_sweep_"))
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+        _WORKDIR.append(path)
+    return _WORKDIR[0]
+
+
+def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
+    """The point's spec and design, designed once per process for equal specs.
+
+    Returns
+    -------
+    tuple
+        ``(PlantSpec, ObserverGains, design key)``.
+    """
+    from fhobs.cli import design_from_spec
+    from fhobs.design import paper_gains
+    from fhobs.kalman import with_kalman
+    from fhobs.limits import check_design_limits
+    from fhobs.spec import spec_from_dict
+
+    key = design_key(job)
+    if key not in _DESIGNS:
+        spec = spec_from_dict(design_spec_data(job), source=f"spec of base {job['base']!r}")
+        if job["design"] == "paper":
+            gains = paper_gains()
+            gains = gains if spec.noise is None else with_kalman(gains, spec.noise)
+        else:
+            check_design_limits(spec)
+            gains = design_from_spec(spec)
+        _DESIGNS[key] = (spec, gains)
+    return (*_DESIGNS[key], key)
+
+
+def point_fmus(gains: Any, key: str, flavour: str, step: float,
+               options: dict[str, Any]) -> dict[str, Path]:
+    """The FMUs of a design, built once per process into its temporary folder.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design.
+    key : str
+        Its design key.
+    flavour : str
+        ``"native"`` (:func:`fhobs.native.build.build_native_fmus`, for ``step``) or
+        ``"pythonfmu"`` (:func:`fhobs.build.build_fmus`).
+    step : float
+        The communication step the native FMUs are built for.
+    options : dict
+        Start values given to the build (``x0``, ``noise_amplitude``, ``h``, ``T0``).
+
+    Returns
+    -------
+    dict of str to Path
+    """
+    built = json.dumps([key, flavour, step if flavour == "native" else None, options],
+                       sort_keys=True, default=float)
+    tag = _digest(built.encode())
+    if tag not in _FMU_DIRS:
+        out = _workdir() / "fmus" / tag
+        if flavour == "native":
+            _FMU_DIRS[tag] = _build_native(gains, out, step, options)
+        else:
+            from fhobs.build import build_fmus
+
+            _FMU_DIRS[tag] = build_fmus(gains, out, **options)
+    return _FMU_DIRS[tag]
+
+
+def _build_native(gains: Any, out: Path, step: float, options: dict[str, Any]) -> dict[str, Path]:
+    """Native FMUs for ``step`` (when the builder takes step sizes; it may take any step)."""
+    import inspect
+
+    from fhobs.native.build import build_native_fmus
+
+    options = {k: v for k, v in options.items() if k != "T0"}
+    if "steps" in inspect.signature(build_native_fmus).parameters:
+        options["steps"] = (step,)
+    return build_native_fmus(gains, out, **options)
+
+
+def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
+    """The runnable system of a point (designed, FMUs built) and its stop time."""
+    from harness.system import build_blocks
+
+    spec, gains, key = point_design(job)
+    if job["kind"] == "plant":
+        system, stop = _plant_system(job, spec, gains, key)
+    else:
+        system = job["system"]
+        step = system.step if job["step"] is None else job["step"]
+        fmus = point_fmus(gains, key, job["fmus"], step, {})
+        system = replace(system, step=step, fmus=_placed(system, fmus, job["files"]))
+        stop = job["stop_time"]
+        blocks = _workdir() / "blocks"
+        system = build_blocks(system, blocks)
+    sets = {axis[4:]: value for axis, value in job["params"].items() if axis.startswith("set.")}
+    if sets:
+        system = system.with_start(sets)
+    if job["seed"] is not None:
+        system = system.with_seed(job["seed"])
+    if job["evaluation"] is not None:
+        ev = job["evaluation"]
+        system = replace(system, evaluation=replace(
+            system.evaluation, at=tuple(ev["at"]),
+            windows=tuple(tuple(w) for w in ev["windows"])))
+    return system, stop
+
+
+def _plant_system(job: dict[str, Any], spec: Any, gains: Any,
+                  key: str) -> tuple[SystemSpec, float]:
+    """The default closed loop of a plant spec, as ``harness plant`` runs it."""
+    from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
+
+    noise = 0.0
+    if spec.noise is not None:
+        noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
+    step = job["step"] or (spec.noise.sample_time if spec.noise is not None else STEP)
+    stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
+    stop = step * round(stop / step)
+    options = {"x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step}
+    if job["fmus"] == "pythonfmu":
+        options["T0"] = float(spec.settling_time)
+    fmus = point_fmus(gains, key, job["fmus"], step, options)
+    return own_plant_system(gains, fmus, spec.state_scale, stop, step, noise), stop
+
+
+def _placed(system: SystemSpec, fmus: dict[str, Path],
+            files: dict[str, bytes]) -> dict[str, Any]:
+    """The scenario's FMUs with paths in this worker: ``${fmu_dir}`` -> the built FMUs, other
+    FMU files written from the bytes that came with the point."""
+    out = {}
+    for name, fs in system.fmus.items():
+        path = fs.path
+        if path is not None and str(path).startswith(FMU_PLACEHOLDER):
+            stem = Path(path).stem
+            if stem not in fmus:
+                raise DescriptionError(f"FMU {name!r}: {Path(path).name} is not built for this "
+                                       f"design (built: {', '.join(sorted(fmus))})")
+            path = fmus[stem]
+        elif path is not None:
+            target = _workdir() / "files" / _digest(files[str(path)]) / Path(path).name
+            if not target.exists():
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(files[str(path)])
+            path = target
+        out[name] = replace(fs, path=path)
+    return out
+
+
+def run_point(job: dict[str, Any]) -> dict[str, Any]:
+    """Design, build and co-simulate one point; its row (a failure is a row too).
+
+    Parameters
+    ----------
+    job : dict
+        From :func:`make_job`.
+
+    Returns
+    -------
+    dict
+        The point's parameters, ``status`` (``ok`` or ``failed``), ``reason``, the figures
+        ``<estimator>.<figure>``, ``wall_time_s`` (the whole point), ``cosim_s`` (its run),
+        ``started_at``/``finished_at`` (Unix time), ``worker`` and ``pid``.
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")                      # doctest: +SKIP
+    >>> job = make_job(sweep.bases["pendulum_perturbed"], {}, sweep.settings)  # doctest: +SKIP
+    >>> run_point(job)["status"]                                      # doctest: +SKIP
+    'ok'
+    """
+    from harness.master import run_system
+    from harness.results import error_figures
+    from harness.system import resolve_system
+
+    started, clock = time.time(), time.perf_counter()
+    row: dict[str, Any] = {"status": STATUS_OK, "reason": "", "cosim_s": math.nan}
+    try:
+        with np.errstate(all="ignore"):
+            system, stop = point_system(job)
+            result = run_system(resolve_system(system), stop, progress=False)
+        row["cosim_s"] = result.wall_time_s
+        row["steps"] = result.steps
+        for estimator, figures in error_figures(result, system.evaluation).items():
+            row |= {f"{estimator}.{name}": value for name, value in figures.items()}
+    except Exception as err:  # noqa: BLE001 - a failed point is a row, the sweep goes on
+        row |= {"status": STATUS_FAILED, "reason": one_paragraph(err)}
+    row |= {"wall_time_s": time.perf_counter() - clock, "started_at": started,
+            "finished_at": time.time(), "worker": _worker_name(), "pid": os.getpid()}
+    return row
+
+
+def one_paragraph(err: BaseException) -> str:
+    """``Type: message`` on one line.
+
+    Examples
+    --------
+    >>> one_paragraph(ValueError("bad\\nvalue"))
+    'ValueError: bad value'
+    """
+    text = " ".join(str(err).split())
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+# -- the engine -------------------------------------------------------------------------------
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A dask.distributed client: of the cluster at ``scheduler``, or of an embedded
+    LocalCluster of ``workers`` worker processes (default: the core count), one thread each.
+
+    Examples
+    --------
+    >>> with dask_client(workers=1) as client:                       # doctest: +SKIP
+    ...     client.submit(sum, [1, 2]).result()
+    3
+    """
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as err:
+            raise SweepError(f"--scheduler {scheduler}: cannot connect ({err}); start one with "
+                             "`dask scheduler` and workers with `dask worker ADDRESS`") from None
+        with client:
+            yield client
+        return
+    n = workers or os.cpu_count() or 1
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def read_rows(points_dir: Path) -> dict[str, dict[str, Any]]:
+    """The rows already written (``points/<key>.json``), by key."""
+    rows = {}
+    for path in points_dir.glob("*.json"):
+        with contextlib.suppress(OSError, ValueError):
+            rows[path.stem] = json.loads(path.read_text())
+    return rows
+
+
+def write_row(points_dir: Path, row: dict[str, Any]) -> Path:
+    """Write one point's row at once (atomically: a rename)."""
+    path = points_dir / f"{row['key']}.json"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(row, default=float))
+    os.replace(tmp, path)
+    return path
+
+
+@dataclass
+class SweepReport:
+    """What a sweep did: ``rows`` in point order, how many ran now, skipped (done before) and
+    failed, the table and plot files, the elapsed time of the run (s)."""
+
+    rows: list[dict[str, Any]]
+    ran: int
+    skipped: int
+    failed: int
+    files: list[Path]
+    elapsed_s: float
+
+
+def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: int | None = None,
+              retry_failed: bool = False, progress: bool = True,
+              plots: bool = True) -> SweepReport:
+    """Run the points of ``sweep`` that have no row in ``out`` yet, then write the table.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        From :func:`load_sweep`.
+    out : Path
+        The results folder: ``points/``, ``sweep.parquet``, ``sweep.csv``, ``plots/``.
+    scheduler : str, optional
+        Address of a running dask scheduler (``tcp://HOST:PORT``); default: an embedded
+        LocalCluster.
+    workers : int, optional
+        Worker processes of the LocalCluster (default: the core count).
+    retry_failed : bool
+        Rerun the points whose row says failed.
+    progress : bool
+        Show a tqdm progress bar.
+    plots : bool
+        Draw the PNGs.
+
+    Returns
+    -------
+    SweepReport
+
+    Examples
+    --------
+    >>> report = run_sweep(load_sweep("pendulum_noisy_seeds"), Path("out/seeds"))  # doctest: +SKIP
+    >>> report.failed                                                             # doctest: +SKIP
+    0
+    """
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    points_dir = out / "points"
+    points_dir.mkdir(parents=True, exist_ok=True)
+    done = read_rows(points_dir)
+    todo = [p for p in sweep.points if p.key not in done
+            or (retry_failed and done[p.key].get("status") != STATUS_OK)]
+    if todo:
+        with dask_client(scheduler, workers) as client, \
+                tqdm(total=len(todo), desc=f"sweep {sweep.name}", unit="point",
+                     disable=not progress) as bar:
+            for point, row in _submit(client, sweep, todo):
+                write_row(points_dir, _full_row(sweep, point, row))
+                bar.update(1)
+    rows = _ordered_rows(sweep, read_rows(points_dir))
+    files = write_table(rows, out)
+    if plots:
+        files += plot_sweep(rows, sweep, out / "plots")
+    failed = sum(r["status"] != STATUS_OK for r in rows)
+    return SweepReport(rows, len(todo), len(sweep.points) - len(todo), failed, files,
+                       time.perf_counter() - started)
+
+
+def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Point, dict]]:
+    """Submit the points; yield ``(point, row)`` as each finishes (a task the cluster gave up
+    on, after the workers running it died, yields a failed row)."""
+    from distributed import as_completed
+
+    futures = {}
+    for point in todo:
+        job = make_job(sweep.bases[point.params.get("base", sweep.settings["base"])],
+                       point.params, sweep.settings)
+        future = client.submit(run_point, job, key=f"fhobs-sweep-{point.key}", pure=False)
+        futures[future.key] = (future, point)
+    for future in as_completed([f for f, _ in futures.values()]):
+        point = futures[future.key][1]
+        try:
+            row = future.result()
+        except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: the point failed
+            row = {"status": STATUS_FAILED, "reason": one_paragraph(err)}
+        future.release()
+        yield point, row
+
+
+def _full_row(sweep: Sweep, point: Point, row: dict[str, Any]) -> dict[str, Any]:
+    """A worker's row with the point's identity and parameters first."""
+    params = {axis: point.params.get(axis) for axis in sweep.axes}
+    return {"point": point.index, "key": point.key, "sweep": sweep.name, **params, **row}
+
+
+def _ordered_rows(sweep: Sweep, rows: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of this sweep's points, in point order (rows of other points are ignored)."""
+    return [rows[p.key] | {"point": p.index} for p in sweep.points if p.key in rows]
+
+
+def write_table(rows: list[dict[str, Any]], out: Path) -> list[Path]:
+    """``sweep.parquet`` and ``sweep.csv``: one row per point, one column per key (lists as
+    JSON text, a figure a point lacks as null).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> files = write_table([{"point": 0, "rho": 3.0, "x0": [1, 0]}], Path(tempfile.mkdtemp()))
+    >>> [f.name for f in files]
+    ['sweep.parquet', 'sweep.csv']
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pa_csv
+    import pyarrow.parquet as pq
+
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    data = {c: [_cell(row.get(c)) for row in rows] for c in columns}
+    table = pa.table({c: _column(values) for c, values in data.items()}) if rows else \
+        pa.table({"point": pa.array([], pa.int64())})
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table, out / "sweep.parquet")
+    pa_csv.write_csv(table, out / "sweep.csv")
+    return [out / "sweep.parquet", out / "sweep.csv"]
+
+
+def _cell(value: Any) -> Any:
+    return json.dumps(value) if isinstance(value, list | dict) else value
+
+
+def _column(values: list[Any]) -> Any:
+    """One column: numbers as float64 (int64 when all are integers), else text."""
+    import pyarrow as pa
+
+    present = [v for v in values if v is not None]
+    if all(isinstance(v, bool) for v in present) and present:
+        return pa.array(values, pa.bool_())
+    if all(isinstance(v, int) and not isinstance(v, bool) for v in present) and present:
+        return pa.array(values, pa.int64())
+    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in present):
+        return pa.array([None if v is None else float(v) for v in values], pa.float64())
+    return pa.array([None if v is None else str(v) for v in values], pa.string())
+
+
+# -- plots ------------------------------------------------------------------------------------
+def figure_columns(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """``{figure: [estimator, ...]}`` of the ``<estimator>.<figure>`` columns.
+
+    Examples
+    --------
+    >>> figure_columns([{"homogeneous.rms_error_1_3": 1e-3, "linear.rms_error_1_3": 2e-3}])
+    {'rms_error_1_3': ['homogeneous', 'linear']}
+    """
+    out: dict[str, list[str]] = {}
+    for column in dict.fromkeys(k for row in rows for k in row):
+        estimator, dot, figure = column.partition(".")
+        if dot and figure.startswith(("error_at_", "max_error_", "rms_error_")):
+            out.setdefault(figure, []).append(estimator)
+    return out
+
+
+def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path]:
+    """Each figure against each numeric swept axis (one PNG per axis) and, with ``[pareto]``,
+    the Pareto picture; the finished rows only.
+
+    Returns
+    -------
+    list of Path
+        The PNGs written (none without finished rows).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    ok = [r for r in rows if r.get("status") == STATUS_OK]
+    figures = figure_columns(ok)
+    if not ok or not figures:
+        return []
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [_plot_axis(ok, axis, figures, out) for axis in sweep.axes
+             if all(_is_number(r.get(axis)) for r in ok)]
+    if sweep.pareto:
+        path = plot_pareto(ok, sweep, out / "pareto.png")
+        if path is not None:
+            paths.append(path)
+    return paths
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[str]],
+               out: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(figures), figsize=(4.5 * len(figures), 3.6),
+                             squeeze=False, layout="constrained")
+    x = [r[axis] for r in rows]
+    for ax, (figure, estimators) in zip(axes[0], figures.items(), strict=True):
+        for estimator in estimators:
+            y = [r.get(f"{estimator}.{figure}") for r in rows]
+            pairs = [(a, b) for a, b in zip(x, y, strict=True) if b is not None and b > 0]
+            if pairs:
+                ax.semilogy(*zip(*pairs, strict=True), "o", ms=4, label=estimator)
+        ax.set_xlabel(axis)
+        ax.set_title(figure, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    path = out / f"{axis.replace('/', '_')}.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[tuple]]:
+    """Per estimator, ``(perturbation max error, noisy RMS error, design label)`` of every
+    design: the rows of the two bases of ``[pareto]`` paired on every axis but base and seed,
+    the noisy RMS averaged over the seeds.
+
+    Returns
+    -------
+    dict
+        ``{estimator: [(x, y, label), ...]}``; empty when the figures are missing.
+    """
+    xfig = _first(rows, sweep.pareto["perturbation"], "max_error_")
+    yfig = _first(rows, sweep.pareto["noisy"], "rms_error_")
+    if xfig is None or yfig is None:
+        return {}
+    others = [a for a in sweep.axes if a not in ("base", "seed")]
+    base = sweep.settings["base"]
+    groups: dict[str, dict[str, list[dict]]] = {}
+    for r in rows:
+        label = _describe({a: r.get(a) for a in others})
+        groups.setdefault(label, {}).setdefault(r.get("base") or base, []).append(r)
+    out: dict[str, list[tuple]] = {}
+    for label, by_base in groups.items():
+        pert, noisy = by_base.get(sweep.pareto["perturbation"]), by_base.get(sweep.pareto["noisy"])
+        if not pert or not noisy:
+            continue
+        for estimator in figure_columns(rows).get(xfig, []):
+            xs = [r.get(f"{estimator}.{xfig}") for r in pert]
+            ys = [r.get(f"{estimator}.{yfig}") for r in noisy]
+            if None in xs or None in ys:
+                continue
+            out.setdefault(estimator, []).append((float(np.mean(xs)), float(np.mean(ys)), label))
+    return out
+
+
+def _first(rows: list[dict[str, Any]], base: str, prefix: str) -> str | None:
+    """The first figure of ``prefix`` in the rows of ``base``."""
+    for row in rows:
+        if row.get("base", base) in (base, None):
+            for column in row:
+                figure = column.partition(".")[2]
+                if figure.startswith(prefix):
+                    return figure
+    return None
+
+
+def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | None:
+    """The Pareto picture: noisy RMS against perturbation max error, per estimator (None
+    when the sweep lacks one of the two figures)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = pareto_points(rows, sweep)
+    if not points:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
+    for estimator, values in points.items():
+        xs, ys, _ = zip(*values, strict=True)
+        ax.loglog(xs, ys, "o", ms=6, label=estimator)
+    ax.set_xlabel(f"{sweep.pareto['perturbation']}: max error (first window)")
+    ax.set_ylabel(f"{sweep.pareto['noisy']}: RMS error (first window, mean over seeds)")
+    ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
+    """The command's closing lines: counts, failures (first reasons), files.
+
+    Examples
+    --------
+    >>> rep = SweepReport([{"point": 0, "status": "ok"}], 1, 0, 0, [], 1.0)
+    >>> print(format_report(rep, load_sweep("pendulum_noisy_seeds"), Path("out")))
+    sweep pendulum_noisy_seeds: 6 points, 1 run now, 0 done before, 0 failed, 1.0 s
+    table: out/sweep.parquet, out/sweep.csv
+    """
+    lines = [f"sweep {sweep.name}: {len(sweep.points)} points, {report.ran} run now, "
+             f"{report.skipped} done before, {report.failed} failed, {report.elapsed_s:.1f} s"]
+    for row in [r for r in report.rows if r.get("status") != STATUS_OK][:5]:
+        lines.append(f"  point {row['point']} failed: {row.get('reason', '')}")
+    lines.append(f"table: {out / 'sweep.parquet'}, {out / 'sweep.csv'}")
+    pngs = [str(p) for p in report.files if p.suffix == ".png"]
+    if pngs:
+        lines.append(f"plots: {', '.join(pngs)}")
+    return "\n".join(lines)
+
+
+def check_workers(workers: int | None) -> None:
+    """SweepError unless ``--workers`` is None or >= 1."""
+    if workers is not None and workers < 1:
+        raise SweepError(f"--workers = {workers} must be >= 1")
+
+
+__all__ = ["Base", "Point", "Sweep", "SweepError", "SweepReport", "dask_client", "load_sweep",
+           "make_job", "plot_sweep", "point_key", "run_point", "run_sweep", "write_table"]
