@@ -685,8 +685,7 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     return (*_DESIGNS[key], key)
 
 
-def point_fmus(gains: Any, key: str, flavour: str, step: float,
-               options: dict[str, Any]) -> dict[str, Path]:
+def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
     """The FMUs of a design, built once per process into its temporary folder.
 
     Parameters
@@ -696,41 +695,36 @@ def point_fmus(gains: Any, key: str, flavour: str, step: float,
     key : str
         Its design key.
     flavour : str
-        ``"native"`` (:func:`fhobs.native.build.build_native_fmus`, for ``step``) or
-        ``"pythonfmu"`` (:func:`fhobs.build.build_fmus`).
-    step : float
-        The communication step the native FMUs are built for.
+        ``"native"`` (:func:`fhobs.native.build.build_native_fmus`: any communication step;
+        no prescribed-time observer) or ``"pythonfmu"`` (:func:`fhobs.build.build_fmus`).
     options : dict
-        Start values given to the build (``x0``, ``noise_amplitude``, ``h``, ``T0``).
+        Keyword arguments of the build: ``kinds`` and start values (``x0``,
+        ``noise_amplitude``, ``h``; ``T0`` for the pythonfmu prescribed-time observer).
 
     Returns
     -------
     dict of str to Path
+        ``{kind: path}``.
+
+    Examples
+    --------
+    >>> spec, gains, key = point_design(job)                     # doctest: +SKIP
+    >>> sorted(point_fmus(gains, key, "native", {}))              # doctest: +SKIP
+    ['kalman', 'luenberger', 'observer', 'plant']
     """
-    built = json.dumps([key, flavour, step if flavour == "native" else None, options],
-                       sort_keys=True, default=float)
-    tag = _digest(built.encode())
+    tag = _digest(json.dumps([key, flavour, options], sort_keys=True, default=float).encode())
     if tag not in _FMU_DIRS:
         out = _workdir() / "fmus" / tag
         if flavour == "native":
-            _FMU_DIRS[tag] = _build_native(gains, out, step, options)
+            from fhobs.native.build import build_native_fmus
+
+            native = {k: v for k, v in options.items() if k != "T0"}
+            _FMU_DIRS[tag] = build_native_fmus(gains, out, **native)
         else:
             from fhobs.build import build_fmus
 
             _FMU_DIRS[tag] = build_fmus(gains, out, **options)
     return _FMU_DIRS[tag]
-
-
-def _build_native(gains: Any, out: Path, step: float, options: dict[str, Any]) -> dict[str, Path]:
-    """Native FMUs for ``step`` (when the builder takes step sizes; it may take any step)."""
-    import inspect
-
-    from fhobs.native.build import build_native_fmus
-
-    options = {k: v for k, v in options.items() if k != "T0"}
-    if "steps" in inspect.signature(build_native_fmus).parameters:
-        options["steps"] = (step,)
-    return build_native_fmus(gains, out, **options)
 
 
 def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
@@ -743,7 +737,9 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
     else:
         system = job["system"]
         step = system.step if job["step"] is None else job["step"]
-        fmus = point_fmus(gains, key, job["fmus"], step, {})
+        kinds = sorted(Path(fs.path).stem for fs in system.fmus.values()
+                       if fs.path is not None and str(fs.path).startswith(FMU_PLACEHOLDER))
+        fmus = point_fmus(gains, key, job["fmus"], {"kinds": kinds})
         system = replace(system, step=step, fmus=_placed(system, fmus, job["files"]))
         stop = job["stop_time"]
         blocks = _workdir() / "blocks"
@@ -773,9 +769,12 @@ def _plant_system(job: dict[str, Any], spec: Any, gains: Any,
     stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
     stop = step * round(stop / step)
     options = {"x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step}
-    if job["fmus"] == "pythonfmu":
+    if job["fmus"] == "pythonfmu" and noise == 0.0:  # it runs only without noise
         options["T0"] = float(spec.settling_time)
-    fmus = point_fmus(gains, key, job["fmus"], step, options)
+    else:
+        options["kinds"] = [k for k in PLANT_FMUS if k != "prescribed_time"
+                            and (k != "kalman" or gains.kalman is not None)]
+    fmus = point_fmus(gains, key, job["fmus"], options)
     return own_plant_system(gains, fmus, spec.state_scale, stop, step, noise), stop
 
 

@@ -1,0 +1,250 @@
+"""``python -m harness sweep``: sweep files, points, the dask engine (a LocalCluster, and a
+scheduler and workers started as separate processes), a worker killed mid-sweep, resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+import pytest
+
+from harness.cli import main
+from harness.sweep import STATUS_FAILED, STATUS_OK, load_sweep, read_rows, run_sweep
+
+ROOT = Path(__file__).resolve().parents[2]
+PLANT = """\
+A = [[0, 1], [0, -1]]
+B = [[0], [1]]
+C = [[1, 0]]
+E = [[0], [1]]
+[observer]
+rho = 2.0
+[noise]
+measurement_std = [1e-3]
+sample_time = 1e-3
+process_intensity = 1e-2
+"""
+"""A small plant with a Kalman filter: designed in a fraction of a second."""
+SWEEP = """\
+base = "plant.toml"
+fmus = "pythonfmu"
+stop_time = {stop}
+[evaluation]
+at = [0.1]
+windows = [[0.1, {stop}]]
+[[grid]]
+seed = {seeds}
+"""
+
+
+def write_sweep(folder: Path, seeds: list[int], stop: float = 0.2, extra: str = "") -> Path:
+    """plant.toml and sweep.toml in ``folder``: one design, one point per seed."""
+    (folder / "plant.toml").write_text(PLANT)
+    path = folder / "sweep.toml"
+    path.write_text(SWEEP.format(stop=stop, seeds=json.dumps(seeds)) + extra)
+    return path
+
+
+# -- sweep files ------------------------------------------------------------------------------
+BAD_FILES = {
+    "unknown axis": ('[grid]\nrhoo = [1.0]\n', "unknown axis 'rhoo'"),
+    "empty grid": ("[grid]\n", "empty grid"),
+    "empty axis": ("[grid]\nseed = []\n", "axis 'seed' is empty"),
+    "no grid": ("", "nothing to sweep"),
+    "bad TOML": ("[grid\nseed = [1]\n", "not valid TOML"),
+    "unknown key": ("colour = 1\n[grid]\nseed = [1]\n", "unknown key 'colour'"),
+    "bad distribution": ("[random]\nsamples = 2\n[random.axes]\nrho = {normal = [1, 2]}\n",
+                         "must be one distribution"),
+    "unknown FMU": ('[grid]\n"set.motor.x0" = [[1, 0]]\n', "no FMU 'motor'"),
+    "bad spec value": ("[grid]\nrho = [-1.0]\n", "observer.rho = -1.0 must be > 0"),
+    "bad step": ("step = 0.3\n[grid]\nseed = [0]\n", "does not divide"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_bad_sweep_files_are_one_paragraph_errors(case, tmp_path, capsys):
+    """Each defect: exit status 2, one line on stderr naming the field, no traceback, no
+    output folder."""
+    text, expected = BAD_FILES[case]
+    (tmp_path / "plant.toml").write_text(PLANT)
+    path = tmp_path / "sweep.toml"
+    path.write_text('base = "plant.toml"\nstop_time = 0.2\n' + text)
+    code = main(["sweep", str(path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert expected in err and str(path) in err, err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_files_and_options_are_errors(tmp_path, capsys):
+    """A sweep file or a base that does not exist, and --workers 0: exit 2, one paragraph."""
+    assert main(["sweep", str(tmp_path / "none.toml"), "--out", str(tmp_path)]) == 2
+    assert "no such sweep file" in capsys.readouterr().err
+    path = tmp_path / "sweep.toml"
+    path.write_text('base = "missing/plant.toml"\n[grid]\nseed = [0]\n')
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "base 'missing/plant.toml': no such file" in err and err.count("\n") == 1
+    assert main(["sweep", str(path), "--out", str(tmp_path), "--workers", "0"]) == 2
+    assert "--workers = 0 must be >= 1" in capsys.readouterr().err
+
+
+def test_grid_and_random_points_are_reproducible(tmp_path):
+    """Grids multiply, [[grid]] tables add up, random samples are drawn from the file's seed
+    (the same file, the same points), within their bounds, combined with every grid point;
+    keys are distinct and depend on the base's file."""
+    extra = """
+[random]
+samples = 4
+seed = 7
+[random.axes]
+rho = {uniform = [2.0, 4.0]}
+settling_time = {loguniform = [0.5, 2.0]}
+"""
+    path = write_sweep(tmp_path, [0, 1], extra=extra)
+    first, again = load_sweep(path), load_sweep(path)
+    assert [p.params for p in first.points] == [p.params for p in again.points]
+    assert len(first.points) == 8 and first.axes == ("rho", "seed", "settling_time")
+    assert all(2.0 <= p.params["rho"] <= 4.0 for p in first.points)
+    assert all(0.5 <= p.params["settling_time"] <= 2.0 for p in first.points)
+    assert len({p.key for p in first.points}) == 8
+    (tmp_path / "plant.toml").write_text(PLANT.replace("-1]]", "-2]]"))
+    assert {p.key for p in load_sweep(path).points}.isdisjoint(p.key for p in first.points)
+    union = tmp_path / "union.toml"
+    union.write_text('base = "plant.toml"\n[[grid]]\nseed = [0, 1]\nrho = [1.0, 2.0]\n'
+                     '[[grid]]\n"spec.noise.process_intensity" = [1e-3]\n')
+    assert len(load_sweep(union).points) == 5
+
+
+def test_bundled_sweep_is_the_main_jobs_noisy_seeds():
+    """pendulum_noisy_seeds: the perturbed scenario once and the noisy one over the paper
+    job's 5 seeds, native FMUs, with the Pareto picture."""
+    sweep = load_sweep("pendulum_noisy_seeds")
+    assert [p.params for p in sweep.points] == [{"base": "pendulum_perturbed"}] + [
+        {"base": "pendulum_noisy", "seed": s} for s in range(5)]
+    assert sweep.settings["fmus"] == "native" and sweep.pareto
+
+
+# -- the engine -------------------------------------------------------------------------------
+def test_local_cluster_runs_every_point_then_resumes(tmp_path):
+    """Two worker processes run four points (one fails: a start value the plant FMU lacks;
+    the sweep goes on); the table has one row per point in Parquet and CSV, with the figures
+    per estimator; a re-run computes nothing (the rows' finish times unchanged); a point
+    whose row is removed is the only one run again."""
+    path = write_sweep(tmp_path, [0, 1, 2], extra='[[grid]]\n"set.plant.bogus" = [1.0]\n')
+    sweep = load_sweep(path)
+    out = tmp_path / "out"
+    report = run_sweep(sweep, out, workers=2, progress=False)
+    assert (report.ran, report.skipped, report.failed) == (4, 0, 1)
+    table = pq.read_table(out / "sweep.parquet").to_pylist()
+    csv = pa_csv.read_csv(out / "sweep.csv").to_pylist()
+    assert [(r["key"], r["status"]) for r in csv] == [(r["key"], r["status"]) for r in table]
+    assert [r["point"] for r in table] == [0, 1, 2, 3]
+    ok = [r for r in table if r["status"] == STATUS_OK]
+    assert [r["seed"] for r in ok] == [0, 1, 2]
+    for row in ok:
+        for estimator in ("homogeneous", "linear", "kalman"):
+            assert 0.0 < row[f"{estimator}.rms_error_0_1_0_2"] < 10.0
+        assert row["steps"] == 200 and row["wall_time_s"] > 0.0
+    assert ok[0]["homogeneous.rms_error_0_1_0_2"] != ok[1]["homogeneous.rms_error_0_1_0_2"]
+    failed = table[3]
+    assert failed["status"] == STATUS_FAILED and "bogus" in failed["reason"]
+    assert (out / "plots" / "seed.png").is_file()
+
+    before = read_rows(out / "points")
+    again = run_sweep(sweep, out, workers=2, progress=False, plots=False)
+    assert (again.ran, again.skipped) == (0, 4)
+    assert read_rows(out / "points") == before
+
+    lost = sweep.points[1].key
+    (out / "points" / f"{lost}.json").unlink()
+    third = run_sweep(sweep, out, workers=1, progress=False, plots=False)
+    assert (third.ran, third.skipped) == (1, 3)
+    after = read_rows(out / "points")
+    assert {k: after[k] for k in before if k != lost} == {k: before[k] for k in before
+                                                          if k != lost}
+    assert after[lost]["finished_at"] > before[lost]["finished_at"]
+    assert after[lost]["homogeneous.rms_error_0_1_0_2"] == \
+        before[lost]["homogeneous.rms_error_0_1_0_2"]
+
+
+def _start(args: list[str], log: Path) -> subprocess.Popen:
+    """A dask process of this Python, its output in ``log``."""
+    with log.open("w") as handle:
+        return subprocess.Popen([sys.executable, "-m", *args], stdout=handle,
+                                stderr=subprocess.STDOUT, cwd=ROOT)
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=10)
+
+
+def _wait_for(condition, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.1)
+
+
+@pytest.mark.slow
+def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
+    """A scheduler and two workers started as separate processes on 127.0.0.1 (random ports);
+    the sweep command given --scheduler. One worker is killed (SIGKILL) after the first row
+    is written: the sweep completes, every point ok, the rows finished before the kill are
+    unchanged, and no row comes from the killed worker after its death (its points ran
+    again on the other)."""
+    path = write_sweep(tmp_path, list(range(8)), stop=0.6)
+    out = tmp_path / "out"
+    scheduler_file = tmp_path / "scheduler.json"
+    processes = []
+    try:
+        processes.append(_start(["distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                                 "--port", "0", "--no-dashboard", "--scheduler-file",
+                                 str(scheduler_file)], tmp_path / "scheduler.log"))
+        _wait_for(scheduler_file.exists, 60, "the scheduler file")
+        _wait_for(lambda: "address" in scheduler_file.read_text(), 10, "its address")
+        address = json.loads(scheduler_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        for i in range(2):
+            processes.append(_start(
+                ["distributed.cli.dask_worker", address, "--no-nanny", "--nthreads", "1",
+                 "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}",
+                 "--local-directory", str(tmp_path / f"w{i}")], tmp_path / f"w{i}.log"))
+        sweep = subprocess.Popen(
+            [sys.executable, "-m", "harness", "sweep", str(path), "--out", str(out),
+             "--scheduler", address, "--no-progress", "--no-plots"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        processes.append(sweep)
+        points = out / "points"
+        _wait_for(lambda: points.is_dir() and any(points.glob("*.json")), 240, "a first row")
+        finished = read_rows(points)
+        busy = [p for p in processes[1:3] if p.pid not in {r["pid"] for r in finished.values()}]
+        victim = (busy or processes[1:3])[0]  # preferably one that is running its first point
+        os.kill(victim.pid, signal.SIGKILL)
+        killed_at = time.time()
+        stdout, stderr = sweep.communicate(timeout=400)
+        assert sweep.returncode == 0, stderr
+        assert "8 points, 8 run now, 0 done before, 0 failed" in stdout
+        final = read_rows(points)
+        assert len(final) == 8 and all(r["status"] == STATUS_OK for r in final.values())
+        assert {k: final[k] for k in finished} == finished
+        assert all(r["finished_at"] < killed_at for r in final.values() if r["pid"] == victim.pid)
+        assert len(pq.read_table(out / "sweep.parquet")) == 8
+    finally:
+        for process in reversed(processes):
+            _stop(process)
