@@ -123,6 +123,7 @@ class FmuStates:
         self.model = model
         self._start_model = None
         self._accepted_step = math.nan
+        self._time = math.nan  # the next doStep's time is taken as it comes
         if state["mode"] in (STEP_MODE, TERMINATED):
             self._certified = self._parameters()
         self._set_mode(state["mode"])

@@ -109,6 +109,34 @@ class SlaveModel(Protocol):
         """Restore a state returned by :meth:`get_state`."""
 
 
+TIME_TOLERANCE = 1e-9
+"""doStep's currentCommunicationPoint may differ from the FMU's own time (the end of its last
+step) by this much relative to the larger of that time and the step size: far above the
+round-off of a host that accumulates time (t + h) or forms it as t0 + k h, far below a
+step."""
+
+
+def time_problem(current_time: float, own_time: float, step_size: float) -> str:
+    """Why a doStep from ``current_time`` does not continue an FMU whose time is ``own_time``
+    ('' if it does; any finite time does when ``own_time`` is NaN: after an FMU state was set).
+
+    Examples
+    --------
+    >>> time_problem(0.30000000000000004, 0.3, 0.1)
+    ''
+    >>> time_problem(0.0, 0.3, 0.1)[:44]
+    'currentCommunicationPoint 0.0 is not the FMU'
+    """
+    if not math.isfinite(current_time):
+        return f"currentCommunicationPoint {number(current_time)} is not finite"
+    if math.isnan(own_time) or abs(current_time - own_time) <= TIME_TOLERANCE * max(
+            abs(own_time), step_size):
+        return ""
+    return (f"currentCommunicationPoint {number(current_time)} is not the FMU's time "
+            f"{number(own_time)} (the end of its last step, or the start time; a difference "
+            f"of up to {TIME_TOLERANCE:g} relative is taken as the host's round-off)")
+
+
 def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
     """Why the exact ZOH of ``A`` over ``step`` cannot be trusted ('' when it can).
 
@@ -168,6 +196,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         )
         self._pack_arrays()
         self._set_mode(INSTANTIATED)
+        self._start_time = self._time = 0.0
         self.via_wrapper = self._register_with_wrapper()
         self.model: SlaveModel = self._make_model()
         # the start model and the parameters it was built from, until initialisation uses it
@@ -212,6 +241,15 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         if not self._status_via_wrapper:
             raise ValueError(message)
 
+    def setup_experiment(self, start_time: float, stop_time: float | None = None,
+                         tolerance: float | None = None) -> None:
+        """Record the start time: the first doStep's currentCommunicationPoint."""
+        self.status = STATUS_OK
+        if not math.isfinite(start_time):
+            self._refuse(f"fmi2SetupExperiment: startTime {number(start_time)} is not finite")
+            return
+        self._start_time = float(start_time)
+
     def enter_initialization_mode(self) -> None:
         """Enter initialisation mode: once, right after instantiation or fmi2Reset."""
         self.status = STATUS_OK
@@ -247,6 +285,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             return
         self._certified = self._parameters()
         self._accepted_step = math.nan
+        self._time = self._start_time
         self._set_mode(STEP_MODE)
 
     def terminate(self) -> None:
@@ -279,9 +318,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         # their Euclidean norm (Python >= 3.10), which bounds each |input|, so a hypot strictly
         # below the bound bounds them all; it is NaN or inf when an input is not finite, which
         # fails the comparison. Anything else (also |input| = bound) gets the exact checks.
-        if not (step_size == self._accepted_step
+        if not (step_size == self._accepted_step and current_time == self._time
                 and _hypot(*self._inputs.tolist()) < self._bound.item()):
-            problem = self._step_size_problem(step_size) or self._input_problem()
+            problem = (time_problem(current_time, self._time, step_size)
+                       or self._step_size_problem(step_size) or self._input_problem())
             if problem:
                 return self._fail(f"doStep at t = {number(current_time)} rejected: {problem}")
             self._accepted_step = step_size
@@ -299,6 +339,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             attributes.update(saved)
             return self._fail(f"doStep at t = {number(current_time)} rejected: {err}")
         self._outputs[...] = outputs
+        self._time = current_time + step_size
         return True
 
     def _check_all_parameters(self) -> None:
