@@ -930,7 +930,7 @@ class SweepReport:
 
 def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: int | None = None,
               retry_failed: bool = False, progress: bool = True,
-              plots: bool = True) -> SweepReport:
+              plots: bool = True, client: Any = None) -> SweepReport:
     """Run the points of ``sweep`` that have no row in ``out`` yet, then write the table.
 
     Parameters
@@ -950,6 +950,8 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
         Show a tqdm progress bar.
     plots : bool
         Draw the PNGs.
+    client : distributed.Client, optional
+        A client to use (``scheduler`` and ``workers`` are then ignored).
 
     Returns
     -------
@@ -970,9 +972,11 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
     todo = [p for p in sweep.points if p.key not in done
             or (retry_failed and done[p.key].get("status") != STATUS_OK)]
     if todo:
-        with dask_client(scheduler, workers) as client, \
-                tqdm(total=len(todo), desc=f"sweep {sweep.name}", unit="point",
-                     disable=not progress) as bar:
+        with contextlib.ExitStack() as stack:
+            if client is None:
+                client = stack.enter_context(dask_client(scheduler, workers))
+            bar = stack.enter_context(tqdm(total=len(todo), desc=f"sweep {sweep.name}",
+                                           unit="point", disable=not progress))
             for point, row in _submit(client, sweep, todo):
                 write_row(points_dir, _full_row(sweep, point, row))
                 bar.update(1)
