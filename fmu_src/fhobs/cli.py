@@ -101,6 +101,9 @@ def design_summary(gains: ObserverGains) -> list[str]:
                 "are not certified): ask for a longer settling_time, give rho yourself, or "
                 "accept the figures above"
             )
+    if gains.kalman is not None:
+        lines.append(f"kalman filter: disturbance order {gains.kalman.disturbance_order}, Ts = "
+                     f"{gains.kalman.sample_time:g} s; {gains.kalman.tuning}")
     return lines
 
 

@@ -173,7 +173,8 @@ def unobservable_directions(A: np.ndarray, C: np.ndarray) -> np.ndarray:
             if r != i:
                 rows[r] -= rows[r, pivot] * rows[i]
     rows[np.abs(rows) < 1e-9 * np.max(np.abs(rows), axis=1, keepdims=True)] = 0.0
-    return rows.T
+    first = [int(np.flatnonzero(row)[0]) for row in rows]
+    return rows[np.argsort(first, kind="stable")].T
 
 
 def _orth(M: np.ndarray) -> np.ndarray:

@@ -15,6 +15,19 @@ Gain. The a-priori covariance P solves the discrete algebraic Riccati equation
 ``P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd`` (scipy.linalg.solve_discrete_are);
 the measurement-update gain is ``M = P C^T (C P C^T + R)^-1`` (python-control's ``dlqe`` returns
 the predictor gain ``Phi M``; a test checks both).
+
+Stability. The steady-state filter ``z+ = Phi (I - M C) z + ...`` must be asymptotically stable
+(spectral radius of ``Phi (I - M C)`` below ``1 - RADIUS_MARGIN``; the kalman FMU refuses a
+filter with radius >= 1 at initialisation). It is not when the process noise reaches no mode of
+the model on or near the unit circle: the ball and beam with q on the ball and no disturbance
+model (order 0) has noise on the ball only, so the filter never corrects the beam angle, a
+double integrator (radius 1), and with a disturbance model the Riccati equation has no
+stabilising solution at all. Then a small process noise of intensity ``REGULARISATION`` times
+the largest intensity that the noise puts on one state (``max diag(W G G^T)``) is added on every
+state of the filter's model (``G W G^T + W_reg I``), multiplied by ``REGULARISATION_GROWTH``
+until the filter is stable (up to the noise's own intensity); the record's ``tuning`` says so and
+names the states the table's noise does not reach. A filter that is stable as specified is left
+exactly as specified.
 """
 
 from __future__ import annotations
@@ -24,13 +37,27 @@ import dataclasses
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from .core.disturbance import extended_model, model_perturbation_matrix
+from .core.disturbance import (
+    describe_direction,
+    extended_model,
+    model_perturbation_matrix,
+    model_state_names,
+)
 from .core.gains import KalmanGains, ObserverGains
 from .errors import KalmanDesignError
+from .homogenisation import unobservable_directions
 from .spec import NoiseSpec
 
 RICCATI_TOLERANCE = 1e-8
 """Largest accepted relative residual of the Riccati equation (and negative eigenvalue of P)."""
+RADIUS_MARGIN = 1e-6
+"""A filter whose spectral radius is within this of 1 counts as not asymptotically stable (at
+Ts = 1e-3 s such a mode would take more than 1000 s to decay by e)."""
+REGULARISATION = 1e-6
+"""Intensity of the process noise added on every state of a filter that is not stable as
+specified, relative to the largest intensity that the specified noise puts on one state."""
+REGULARISATION_GROWTH = 10.0
+"""Factor between the regularisation intensities tried (from REGULARISATION up to 1)."""
 
 
 def riccati_residual(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray,
@@ -137,7 +164,10 @@ def design_kalman(
     KalmanDesignError
         On E missing, a non-positive std, intensity or sample time, or a Riccati equation
         without a stabilising solution or whose computed solution fails
-        ``RICCATI_TOLERANCE`` (an intensity too far from the noise for double precision).
+        ``RICCATI_TOLERANCE`` (an intensity too far from the noise for double precision),
+        when the specified noise reaches every state; a filter that the specified noise leaves
+        unstable because it reaches some states only is regularised (module docstring), or
+        this error names the states it does not reach.
 
     Examples
     --------
@@ -157,26 +187,119 @@ def design_kalman(
             raise KalmanDesignError(f"{name} = {value!r} must be a positive finite number")
     A_model, _, C_model = extended_model(A, B, C, E, order)
     G = noise_input_matrix(E, A.shape[0], order)
-    Phi, Qd = van_loan(A_model, process_intensity * G @ G.T, sample_time)
+    noise = process_intensity * G @ G.T
     R = np.diag(std**2)
+    label = f"order {order}, W = {process_intensity:g}, Ts = {sample_time:g}"
+    try:
+        P, gain, radius = steady_state_filter(A_model, C_model, noise, R, sample_time, label)
+        failure = None if radius < 1.0 - RADIUS_MARGIN else KalmanDesignError(
+            f"the Kalman filter ({label}) is not asymptotically stable: spectral radius of "
+            f"Phi (I - M C) = {radius:.9g} (required < 1 - {RADIUS_MARGIN:g})")
+    except KalmanDesignError as err:
+        failure = err
+    if failure is not None:
+        P, gain, note = _regularised_filter(A_model, C_model, G, noise, R, sample_time, order,
+                                            E.shape[1], A.shape[0], label, failure)
+        tuning = f"{tuning}; {note}" if tuning else note
+    return KalmanGains(order, float(sample_time), std, float(process_intensity), gain, P, tuning)
+
+
+def steady_state_filter(
+    A_model: np.ndarray, C_model: np.ndarray, noise: np.ndarray, R: np.ndarray,
+    sample_time: float, label: str = "",
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The steady-state filter of a model with continuous process noise ``noise = G W G^T``.
+
+    Parameters
+    ----------
+    A_model, C_model : numpy.ndarray
+        The filter's model (N x N, k x N).
+    noise : numpy.ndarray
+        N x N intensity of the continuous process noise on the model's states.
+    R : numpy.ndarray
+        k x k covariance of the measurement noise.
+    sample_time : float
+        Ts.
+    label : str
+        What the error messages name (order, intensity, sample time).
+
+    Returns
+    -------
+    P : numpy.ndarray
+        A-priori covariance (symmetrised).
+    gain : numpy.ndarray
+        Measurement-update gain M (N x k).
+    radius : float
+        Spectral radius of ``Phi (I - M C)``.
+
+    Raises
+    ------
+    KalmanDesignError
+        If the Riccati equation has no stabilising solution or its computed solution fails
+        ``RICCATI_TOLERANCE``.
+
+    Examples
+    --------
+    A measured integrator with unit noises, sampled at 1 s:
+
+    >>> P, gain, radius = steady_state_filter(np.zeros((1, 1)), np.eye(1), np.eye(1),
+    ...                                       np.eye(1), 1.0)
+    >>> round(float(P[0, 0]), 6), round(radius, 6)
+    (1.618034, 0.381966)
+    """
+    Phi, Qd = van_loan(A_model, noise, sample_time)
     try:
         P = solve_discrete_are(Phi.T, C_model.T, Qd, R)
     except (ValueError, np.linalg.LinAlgError) as err:
         raise KalmanDesignError(f"the Kalman filter's Riccati equation has no stabilising solution "
-                         f"(order {order}, W = {process_intensity:g}, Ts = {sample_time:g}): "
-                         f"{err}") from err
+                                f"({label}): {err}") from err
     P = 0.5 * (P + P.T)
     gain = np.linalg.solve(C_model @ P @ C_model.T + R, C_model @ P).T
     residual = riccati_residual(Phi, C_model, Qd, R, P)
     smallest = float(np.linalg.eigvalsh(P)[0]) / max(float(np.abs(P).max()), 1e-300)
     if not (residual <= RICCATI_TOLERANCE and smallest >= -RICCATI_TOLERANCE):
         raise KalmanDesignError(
-            f"the Kalman filter's Riccati solution is inaccurate (order {order}, "
-            f"W = {process_intensity:g}, Ts = {sample_time:g}): relative residual "
+            f"the Kalman filter's Riccati solution is inaccurate ({label}): relative residual "
             f"{residual:.2e}, smallest eigenvalue of P / max |P| = {smallest:.2e} (required "
             f"<= {RICCATI_TOLERANCE:g} and >= -{RICCATI_TOLERANCE:g}); the intensity is too "
             "far from the measurement noise for double precision")
-    return KalmanGains(order, float(sample_time), std, float(process_intensity), gain, P, tuning)
+    radius = float(np.max(np.abs(np.linalg.eigvals(Phi - Phi @ gain @ C_model))))
+    return P, gain, radius
+
+
+def _regularised_filter(
+    A_model: np.ndarray, C_model: np.ndarray, G: np.ndarray, noise: np.ndarray, R: np.ndarray,
+    sample_time: float, order: int, p: int, n: int, label: str, failure: KalmanDesignError,
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """The filter with a small process noise on every state (module docstring), and the note
+    that says so; ``failure`` (the unregularised filter's problem) is raised when the noise
+    reaches every state (regularising cannot be the cure) or no regularisation up to the
+    noise's own intensity gives a stable filter."""
+    names = model_state_names(n, p, order)
+    unreached = unobservable_directions(A_model.T, G.T).T  # the uncontrollable directions
+    if not unreached.size:
+        raise failure
+    missed = ", ".join(describe_direction(v, names) for v in unreached)
+    largest = float(np.max(np.diag(noise)))
+    fraction = REGULARISATION
+    while fraction <= 1.0:
+        extra = fraction * largest
+        try:
+            P, gain, radius = steady_state_filter(
+                A_model, C_model, noise + extra * np.eye(A_model.shape[0]), R, sample_time, label)
+        except KalmanDesignError:
+            radius = np.inf
+        if radius < 1.0 - RADIUS_MARGIN:
+            note = (f"process noise of intensity {extra:.3g} ({fraction:g} of the largest the "
+                    f"[noise] table puts on a state) added on every state: the table's noise "
+                    f"does not reach {missed}, and without it the filter is not asymptotically "
+                    f"stable; spectral radius of Phi (I - M C) = {radius:.9g}")
+            return P, gain, note
+        fraction *= REGULARISATION_GROWTH
+    raise KalmanDesignError(
+        f"the Kalman filter ({label}) is not asymptotically stable: the [noise] table's process "
+        f"noise does not reach {missed}, and a process noise on every state of up to the "
+        f"table's own intensity does not stabilise it ({failure})")
 
 
 def with_kalman(gains: ObserverGains, noise: NoiseSpec,

@@ -133,12 +133,13 @@ def chain_basis(
     that started deeper pass through level j as A0 times their vectors of level j + 1; new
     chains start on the orthogonal complement, within level j, of these images (orthonormal),
     so the observability chains may have any lengths, equal or not (the number of chains of
-    length > j is the dimension of level j: the observability indices). With ``C``, every chain gets the
-    head (C h; 0), h its level-0 vector: the (psi, z) coordinates of Theorem 2. Then the chains
-    of each length are made orthogonal, in the sum over their levels, to the leading rows of
-    every longer chain (those rows are a chain of the same length: adding them keeps the
-    structure) and mixed to be orthonormal, and each level (position in the chains) is scaled
-    to unit rms norm; none of this changes the chain structure. Without the first step two
+    length > j is the dimension of level j: the observability indices). With ``C``, every
+    chain gets the head (C h; 0), h its level-0 vector: the (psi, z) coordinates of Theorem 2.
+    Then the chains of each length are made orthogonal, in the sum over their levels, to the
+    leading rows of every longer chain (those rows are a chain of the same length: adding them
+    keeps the structure) and mixed to be orthonormal, and each level (position in the chains)
+    is scaled to unit rms norm; none of this changes the chain structure. Without the first
+    step two
     chains of different lengths can end in nearly parallel heads (two outputs that see the
     disturbance almost alike), which makes T, hence P, nearly singular.
 

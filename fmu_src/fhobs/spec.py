@@ -360,21 +360,23 @@ def unobservable_text(A_model: np.ndarray, C_model: np.ndarray, n: int, p: int,
     >>> A_model, _, C_model = extended_model(np.zeros((2, 2)), np.eye(2)[:, :1],
     ...     np.array([[1.0, 0.0]]), np.array([[0.0], [1.0]]), 1)
     >>> unobservable_text(A_model, C_model, 2, 1, 1)
-    'the outputs cannot see the direction x[2] (vector [0, 1, 0]) and the direction q[1] \
-(vector [0, 0, 1])'
+    'the outputs cannot see the directions x[2] (vector [0, 1, 0]) and q[1] (vector [0, 0, 1])'
     """
     directions = unobservable_directions(A_model, C_model).T
     if not directions.size:
         return ""
     names = model_state_names(n, p, order)
     shown = [
-        f"the direction {describe_direction(v, names)} (vector "
+        f"{describe_direction(v, names)} (vector "
         f"[{', '.join(f'{x:.3g}' for x in v / v[np.argmax(np.abs(v))])}])"
         for v in directions[:MAX_LISTED_DIRECTIONS]
     ]
     more = len(directions) - len(shown)
-    return ("the outputs cannot see " + " and ".join(shown)
-            + (f" and {more} more direction(s)" if more else ""))
+    if more:
+        shown.append(f"{more} more")
+    if len(shown) == 1:
+        return f"the outputs cannot see the direction {shown[0]}"
+    return f"the outputs cannot see the directions {', '.join(shown[:-1])} and {shown[-1]}"
 
 
 def _state_scale(value: Any, n: int, source: str, label: str) -> np.ndarray:

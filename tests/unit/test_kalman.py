@@ -15,7 +15,7 @@ from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.errors import KalmanDesignError, SpecError
-from fhobs.kalman import design_kalman, van_loan
+from fhobs.kalman import RADIUS_MARGIN, REGULARISATION, design_kalman, van_loan
 from fhobs.paper import K_PAPER, X0_PAPER
 from fhobs.reference import accuracy_metrics, replay, simulate
 from fhobs.spec import spec_from_dict
@@ -94,9 +94,10 @@ def test_design_rejects_bad_arguments(tuned_gains, change, words):
 
 
 def test_inaccurate_riccati_solution_is_refused(tuned_gains):
-    """Order 0 with an intensity 1e6: scipy returns a P with an O(1) residual; not a filter."""
+    """Order 0 with an intensity 1e6: scipy returns a P with an O(1) residual (or, in other
+    scipy versions, fails to reorder the pencil); not a filter either way."""
     g = tuned_gains
-    with pytest.raises(KalmanDesignError, match="inaccurate"):
+    with pytest.raises(KalmanDesignError, match="inaccurate|no stabilising solution"):
         design_kalman(g.A, g.B, g.C, g.E, 0, STD, 1e6, TS)
 
 
@@ -196,6 +197,85 @@ def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_gains):
     metrics = accuracy_metrics([r], "perturbed_noisy")  # the window [1, 3] cut at 1.2
     tail = r.error_kalman[r.window(1.0, 3.0)]
     assert metrics["rms_1_3_kalman"] == pytest.approx(np.sqrt(np.mean(tail**2)), rel=1e-12)
+
+
+# -- a filter that the specified noise leaves unstable -----------------------------------------
+BALL_BEAM = {
+    "A": [[0, 1, 0, 0], [0, 0, -7, 0], [0, 0, 0, 1], [0, 0, 0, 0]], "B": [[0], [0], [0], [1]],
+    "C": [[1, 0, 0, 0], [0, 0, 1, 0]], "E": [[0], [1], [0], [0]],
+}
+"""The ball and beam measured in r and theta, q on the ball: noise through E never reaches the
+beam (theta'' = u), a double integrator that the filter would leave uncorrected."""
+BALL_BEAM_NOISE = {"measurement_std": [1e-3, 1e-3], "sample_time": 1e-3,
+                   "process_intensity": 1e-2}
+
+
+def ball_beam_model(order):
+    """(A_model, C_model, G) of the ball and beam, written out here."""
+    A, C, E = (np.array(BALL_BEAM[key], dtype=float) for key in ("A", "C", "E"))
+    N = 4 + order
+    A_model = np.zeros((N, N))
+    A_model[:4, :4] = A
+    A_model[:4, 4:5] = E if order else 0.0
+    A_model[4:N - 1, 5:] = np.eye(order - 1) if order > 1 else 0.0
+    G = E if order == 0 else np.eye(N)[:, -1:]
+    return A_model, np.hstack([C, np.zeros((2, order))]), G
+
+
+def test_ball_and_beam_filter_as_specified_is_not_asymptotically_stable():
+    """The reason for the regularisation: with the table's noise alone the steady-state filter
+    of order 0 has spectral radius 1 (python-control's dlqe), and with a disturbance model the
+    Riccati equation has no stabilising solution."""
+    W, Ts, R = 1e-2, 1e-3, np.diag(np.square(BALL_BEAM_NOISE["measurement_std"]))
+    A, C, G = ball_beam_model(0)
+    Phi, Qd = van_loan(A, W * G @ G.T, Ts)
+    L, _, _ = control.dlqe(Phi, np.eye(4), C, Qd, R)
+    assert np.max(np.abs(np.linalg.eigvals(Phi - L @ C))) > 1 - 1e-9
+    A, C, G = ball_beam_model(1)
+    Phi, Qd = van_loan(A, W * G @ G.T, Ts)
+    with pytest.raises((ValueError, np.linalg.LinAlgError)):
+        sl.solve_discrete_are(Phi.T, C.T, Qd, R)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
+def test_unreached_states_get_a_small_documented_process_noise(order):
+    """The filter is python-control's for the table's noise plus REGULARISATION times its
+    intensity on every state, asymptotically stable, and its record says so and names the
+    states the table's noise does not reach (the beam's theta and theta')."""
+    W, Ts = BALL_BEAM_NOISE["process_intensity"], BALL_BEAM_NOISE["sample_time"]
+    std = np.array(BALL_BEAM_NOISE["measurement_std"])
+    kf = design_kalman(*(np.array(BALL_BEAM[key], dtype=float) for key in "ABCE"), order,
+                       std, W, Ts, "from the test")
+    A, C, G = ball_beam_model(order)
+    Phi, Qd = van_loan(A, W * G @ G.T + REGULARISATION * W * np.eye(A.shape[0]), Ts)
+    L, P, _ = control.dlqe(Phi, np.eye(A.shape[0]), C, Qd, np.diag(std**2))
+    np.testing.assert_allclose(Phi @ kf.gain, L, rtol=1e-7, atol=1e-10 * np.abs(L).max())
+    np.testing.assert_allclose(kf.covariance, P, rtol=1e-7, atol=1e-10 * np.abs(P).max())
+    Phi = sl.expm(Ts * A)
+    radius = np.max(np.abs(np.linalg.eigvals(Phi - Phi @ kf.gain @ C)))
+    assert radius < 1 - RADIUS_MARGIN
+    assert kf.tuning.startswith("from the test; process noise of intensity 1e-08")
+    assert "does not reach x[3], x[4]" in kf.tuning and f"{radius:.9g}" in kf.tuning
+
+
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
+def test_stable_filter_is_left_as_specified(tuned_gains, order):
+    """The pendulum's noise reaches every state: no process noise is added."""
+    g = tuned_gains
+    kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 10.0, TS, "as given")
+    assert kf.tuning == "as given"
+
+
+def test_noise_that_cannot_be_regularised_names_the_states():
+    """A filter that stays within RADIUS_MARGIN of instability with a process noise on every
+    state up to the table's own intensity is a KalmanDesignError naming the unreached states:
+    a double integrator whose velocity the noise does not reach, measured through a noise of
+    std 1e3 against a process intensity of 1e-12."""
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    C = np.array([[1.0, 0.0]])
+    E = np.array([[1.0], [0.0]])
+    with pytest.raises(KalmanDesignError, match=r"does not reach x\[2\]"):
+        design_kalman(A, E, C, E, 0, [1e3], 1e-12, 1e-3)
 
 
 # -- the spec's [noise] table ------------------------------------------------------------------
