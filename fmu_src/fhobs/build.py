@@ -29,6 +29,7 @@ import json
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import zipfile
 from collections.abc import Iterable
@@ -56,6 +57,8 @@ DEFAULT_KINDS = ("observer", "luenberger", "prescribed_time", "plant")
 """Built by default; ``kalman`` too when the design has a Kalman filter."""
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
+PYTHON_RECORD = "resources/fhobs_python.txt"
+"""Where the status wrapper finds :func:`python_record` in an FMU."""
 
 
 def build_fmus(
@@ -294,8 +297,50 @@ def _compile_kernel(stage: Path, compiler: str) -> Path:
     return library
 
 
+def python_record() -> str:
+    """The facts about this interpreter that the status wrapper reads in a native host.
+
+    ``status_wrapper.c`` reads them from ``resources/fhobs_python.txt`` when no Python is in
+    the importer's process: the Python version, its shared library, its prefix
+    (``sys.base_prefix``), its executable (``sys.executable``, whose prefix and virtual
+    environment the embedded interpreter takes) and the directory that holds numpy.
+    An empty ``library`` (an interpreter without a shared libpython) or paths missing on the
+    importing machine make the wrapper search the usual places.
+
+    Returns
+    -------
+    str
+        Lines ``key=value`` (``version``, ``library``, ``home``, ``executable``, ``site``)
+        after a comment.
+
+    Examples
+    --------
+    >>> record = dict(line.split("=", 1) for line in python_record().splitlines()
+    ...               if not line.startswith("#"))
+    >>> sorted(record)
+    ['executable', 'home', 'library', 'site', 'version']
+    >>> record["version"] == "{}.{}".format(*sys.version_info[:2])
+    True
+    """
+    import numpy
+
+    libdir = Path(sysconfig.get_config_var("LIBDIR") or Path(sys.base_prefix) / "lib")
+    names = [sysconfig.get_config_var(key) for key in ("INSTSONAME", "LDLIBRARY")]
+    found = [libdir / name for name in names if name and ".so" in name and (libdir / name).is_file()]
+    lines = [
+        "# The Python that built this FMU (read by the status wrapper in a native host)",
+        "version={}.{}".format(*sys.version_info[:2]),
+        f"library={found[0] if found else ''}",
+        f"home={sys.base_prefix}",
+        f"executable={sys.executable}",
+        f"site={Path(numpy.__file__).resolve().parent.parent}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
 def _install_wrapper(fmu: Path, wrapper: Path) -> None:
-    """Rename pythonfmu's linux64 library ``<id>_pythonfmu.so``; the wrapper becomes ``<id>.so``."""
+    """Rename pythonfmu's linux64 library ``<id>_pythonfmu.so``; the wrapper becomes ``<id>.so``,
+    and :func:`python_record` is written as ``resources/fhobs_python.txt`` for it."""
     rebuilt = fmu.with_suffix(".tmp")
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(rebuilt, "w", zipfile.ZIP_DEFLATED) as dst:
         for item in src.infolist():
@@ -304,8 +349,9 @@ def _install_wrapper(fmu: Path, wrapper: Path) -> None:
                 stem = item.filename[: -len(".so")]
                 dst.writestr(f"{stem}_pythonfmu.so", data)
                 dst.write(wrapper, item.filename)
-            else:
+            elif item.filename != PYTHON_RECORD:
                 dst.writestr(item, data)
+        dst.writestr(PYTHON_RECORD, python_record())
     rebuilt.replace(fmu)
 
 

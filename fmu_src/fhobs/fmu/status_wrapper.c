@@ -40,18 +40,55 @@
  * slave's recorded status is returned as after fmi2ExitInitializationMode (call sequence and
  * state checks of the slave).
  *
- * If pythonfmu's library cannot be loaded (a native host without libpython in the process),
- * fmi2Instantiate hands the loader's message to the host's logger and returns NULL, and every
- * other function returns fmi2Error: nothing aborts the host. Messages of this library go to
- * the host's logger whatever loggingOn says (they are errors, not debug logging).
+ * A NULL component is answered with fmi2Error by every function (fmi2FreeInstance: nothing).
+ *
+ * The interpreter. pythonfmu's library needs libpython's symbols in the process. The first
+ * fmi2Instantiate looks for them, then loads pythonfmu's library (RTLD_LOCAL, RTLD_NODELETE):
+ * - Python already in the process (a Python host; LD_PRELOAD of libpython) is used as it is;
+ * - otherwise the candidates, in order: the Python that built the FMU, as recorded in
+ *   resources/fhobs_python.txt (lines key=value: version, library, home = sys.base_prefix,
+ *   executable = sys.executable, site = the directory holding numpy; found next to this
+ *   library in the extracted FMU, or in the resource folder the importer gives);
+ *   python<version> and python3 on PATH (the libpython of their prefix, the site-packages of
+ *   their virtual environment); libpython<version>.so.1.0 in LD_LIBRARY_PATH, /usr/local/lib,
+ *   /usr/lib/x86_64-linux-gnu, /usr/lib64, /usr/lib. A candidate is taken if its library
+ *   exists, its prefix (the nearest directory above the library, or the recorded home, with
+ *   lib/python<version>/encodings) holds the standard library and numpy is found (recorded
+ *   site, PYTHONPATH, the prefix's site-packages / dist-packages); its library is then loaded
+ *   with RTLD_GLOBAL.
+ * Before pythonfmu starts the interpreter, Py_SetProgramName is given the candidate's
+ * executable (or <prefix>/bin/python<version>): the interpreter starts as that python would,
+ * with its prefix and virtual environment (pythonfmu gives no program name, and the default
+ * one is looked up on PATH, so the first python3 there would decide). The process environment
+ * is changed in one case only: when numpy's directory is not one the interpreter puts on
+ * sys.path itself, it is appended to PYTHONPATH (after the user's entries). PYTHONHOME and
+ * PYTHONPATH the user set are kept; a PYTHONHOME without lib/python<version>/encodings (a
+ * virtual environment), on which Py_Initialize would abort the host, is refused.
+ * Where no candidate fits, or pythonfmu's library does not load, fmi2Instantiate hands the
+ * reason and every place tried to the host's logger and returns NULL, and every other function
+ * returns fmi2Error: nothing aborts the host. Messages of this library go to the host's logger
+ * whatever loggingOn says (they are errors, not debug logging); with loggingOn the first
+ * instance also logs which interpreter was loaded.
+ *
+ * Exit. pythonfmu keeps its interpreter state in a static std::shared_ptr and resets it from
+ * its destructor function; at exit() the C++ static destructor runs first (an atexit entry)
+ * and the destructor function then resets a destroyed object (a double free: the host dies
+ * with SIGABRT at exit, or its heap is corrupted). Once pythonfmu's library is loaded, this library is made
+ * resident (RTLD_NODELETE) and registers an atexit handler, which exit() runs before the
+ * static destructors registered earlier: it calls pythonfmu's finalizePythonInterpreter, which
+ * releases the state (and finalises the interpreter pythonfmu started, once no instance is
+ * left); the static destructor and the destructor function then find it released.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <limits.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "fmi2Functions.h"
 
@@ -60,8 +97,13 @@
 #endif
 #define IMPL_SUFFIX "_pythonfmu.so"
 
+#define PYTHON_RECORD "fhobs_python.txt"
+#define DEFAULT_PYTHON_VERSION "3.11"
+
 static void *impl_handle = NULL;
-static char load_error[1024] = "pythonfmu's library was not loaded";
+static pthread_mutex_t load_lock = PTHREAD_MUTEX_INITIALIZER;
+static int load_done = 0; /* load_impl ran: impl_handle, or load_error says why not */
+static char load_error[8192] = "pythonfmu's library was not loaded";
 
 /* Answers of the slave's doStep callback (0: the callback itself failed). */
 #define FHOBS_STEP_OK 1
@@ -116,7 +158,7 @@ static void say(fmi2CallbackLogger logger, fmi2ComponentEnvironment environment,
     if (logger == NULL) {
         return;
     }
-    char text[2048], escaped[4096];
+    char text[8192], escaped[16384];
     va_list args;
     va_start(args, format);
     vsnprintf(text, sizeof text, format, args);
@@ -152,37 +194,610 @@ static void *impl(const char *name)
         } \
     }
 
-__attribute__((constructor)) static void load_impl(void)
+/* ---- Finding the interpreter and loading pythonfmu's library ---------------------------- */
+
+/* What was tried while looking for an interpreter, for the refusal message. */
+static char tried[6144];
+
+static void note(const char *format, ...)
+{
+    size_t used = strlen(tried);
+    if (used + 8 >= sizeof tried) {
+        return;
+    }
+    if (used > 0) {
+        strcpy(tried + used, "; ");
+        used += 2;
+    }
+    va_list args;
+    va_start(args, format);
+    vsnprintf(tried + used, sizeof tried - used, format, args);
+    va_end(args);
+}
+
+static int is_file(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+static void copy(char *out, size_t size, const char *text)
+{
+    snprintf(out, size, "%s", text != NULL ? text : "");
+}
+
+/* Drop the last component of ``path`` in place ("/a/b" -> "/a", "/a" -> "/", "a" -> "."). */
+static void parent(char *path)
+{
+    char *slash = strrchr(path, '/');
+    if (slash == NULL) {
+        strcpy(path, ".");
+    } else if (slash == path) {
+        path[1] = '\0';
+    } else {
+        *slash = '\0';
+    }
+}
+
+/* A candidate interpreter: its shared library, its prefix (sys.base_prefix), its executable
+ * (sys.executable) and a directory holding numpy; only the library is required, the others are
+ * found from it. */
+typedef struct {
+    char version[16];
+    char library[PATH_MAX];
+    char home[PATH_MAX];
+    char executable[PATH_MAX];
+    char site[PATH_MAX];
+} Python;
+
+/* Whether ``prefix`` holds the standard library of Python ``version`` (what Py_Initialize
+ * needs, or it aborts the process: "No module named 'encodings'"). */
+static int stdlib_at(const char *prefix, const char *version)
+{
+    char path[PATH_MAX + 64];
+    snprintf(path, sizeof path, "%s/lib/python%s/encodings/__init__.py", prefix, version);
+    if (is_file(path)) {
+        return 1;
+    }
+    snprintf(path, sizeof path, "%s/lib64/python%s/encodings/__init__.py", prefix, version);
+    return is_file(path);
+}
+
+/* The prefix of the interpreter whose library is ``library``: the nearest directory above it
+ * that holds the standard library. */
+static int prefix_of(const char *library, const char *version, char *out, size_t size)
+{
+    char dir[PATH_MAX];
+    if (realpath(library, dir) == NULL) {
+        copy(dir, sizeof dir, library);
+    }
+    for (int up = 0; up < 4 && strcmp(dir, "/") != 0 && strcmp(dir, ".") != 0; up++) {
+        parent(dir);
+        if (stdlib_at(dir, version)) {
+            copy(out, size, dir);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int has_numpy(const char *dir)
+{
+    char path[PATH_MAX + 32];
+    snprintf(path, sizeof path, "%s/numpy/__init__.py", dir);
+    return dir[0] != '\0' && is_file(path);
+}
+
+static int same_dir(const char *a, const char *b)
+{
+    char ra[PATH_MAX], rb[PATH_MAX];
+    return realpath(a, ra) != NULL && realpath(b, rb) != NULL && strcmp(ra, rb) == 0;
+}
+
+/* Whether ``dir`` is on the interpreter's sys.path without our help: an entry of PYTHONPATH,
+ * one of the site directories of prefix ``home`` or the site-packages of the virtual
+ * environment of ``executable``. */
+static int on_path_already(const char *dir, const char *home, const char *executable,
+    const char *version)
+{
+    char venv[PATH_MAX + 64], config[PATH_MAX + 64];
+    copy(venv, sizeof venv, executable);
+    parent(venv);
+    parent(venv);
+    snprintf(config, sizeof config, "%s/pyvenv.cfg", venv);
+    size_t used = strlen(venv);
+    snprintf(venv + used, sizeof venv - used, "/lib/python%s/site-packages", version);
+    int in_venv = is_file(config);
+    if (in_venv && same_dir(venv, dir)) {
+        return 1;
+    }
+    const char *pythonpath = getenv("PYTHONPATH");
+    if (pythonpath != NULL) {
+        char entries[8192];
+        copy(entries, sizeof entries, pythonpath);
+        for (char *entry = strtok(entries, ":"); entry != NULL; entry = strtok(NULL, ":")) {
+            if (same_dir(entry, dir)) {
+                return 1;
+            }
+        }
+    }
+    if (in_venv) {
+        return 0; /* the prefix's site directories are not counted on */
+    }
+    static const char *sites[] = { "%s/lib/python%s/site-packages",
+        "%s/lib64/python%s/site-packages", "%s/local/lib/python%s/dist-packages",
+        "%s/lib/python3/dist-packages%.0s" };
+    for (size_t i = 0; i < sizeof sites / sizeof *sites; i++) {
+        char site[PATH_MAX + 64];
+        snprintf(site, sizeof site, sites[i], home, version);
+        if (same_dir(site, dir)) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* A directory holding numpy for the interpreter of prefix ``home``: ``site`` (recorded at build
+ * time, or of a virtual environment) first, then the entries of PYTHONPATH and the site
+ * directories of the prefix. */
+static int find_numpy(const char *home, const char *version, const char *site, char *out,
+    size_t size)
+{
+    if (has_numpy(site)) {
+        copy(out, size, site);
+        return 1;
+    }
+    const char *pythonpath = getenv("PYTHONPATH");
+    if (pythonpath != NULL) {
+        char entries[8192];
+        copy(entries, sizeof entries, pythonpath);
+        for (char *entry = strtok(entries, ":"); entry != NULL; entry = strtok(NULL, ":")) {
+            if (has_numpy(entry)) {
+                copy(out, size, entry);
+                return 1;
+            }
+        }
+    }
+    static const char *sites[] = { "%s/lib/python%s/site-packages",
+        "%s/lib64/python%s/site-packages", "%s/local/lib/python%s/dist-packages",
+        "%s/lib/python3/dist-packages%.0s" };
+    for (size_t i = 0; i < sizeof sites / sizeof *sites; i++) {
+        char dir[PATH_MAX + 64];
+        snprintf(dir, sizeof dir, sites[i], home, version);
+        if (has_numpy(dir)) {
+            copy(out, size, dir);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* Before pythonfmu starts the interpreter (Py_Initialize, which reads PYTHONHOME, PYTHONPATH and
+ * the program name): make it start as ``executable`` would (its prefix, its virtual environment,
+ * its site-packages; not as whatever python3 comes first on PATH, the default program name's
+ * lookup), and make ``numpy_dir`` importable. PYTHONPATH is extended (after the user's own
+ * entries) only when the interpreter does not add numpy's directory itself. */
+static void prepare_interpreter(const char *executable, const char *home, const char *numpy_dir,
+    const char *version)
+{
+    void (*set_program_name)(const wchar_t *)
+        = (void (*)(const wchar_t *))dlsym(RTLD_DEFAULT, "Py_SetProgramName");
+    wchar_t *(*decode)(const char *, size_t *)
+        = (wchar_t * (*)(const char *, size_t *)) dlsym(RTLD_DEFAULT, "Py_DecodeLocale");
+    if (set_program_name != NULL && decode != NULL && executable[0] != '\0') {
+        static wchar_t *program = NULL; /* kept: the interpreter may keep the pointer */
+        if (program == NULL) {
+            program = decode(executable, NULL);
+        }
+        if (program != NULL) {
+            set_program_name(program);
+        }
+    }
+    if (numpy_dir[0] != '\0' && !on_path_already(numpy_dir, home, executable, version)) {
+        const char *old = getenv("PYTHONPATH");
+        if (old == NULL || old[0] == '\0') {
+            setenv("PYTHONPATH", numpy_dir, 1);
+        } else {
+            size_t size = strlen(old) + strlen(numpy_dir) + 2;
+            char *joined = malloc(size);
+            if (joined != NULL) {
+                snprintf(joined, size, "%s:%s", old, numpy_dir);
+                setenv("PYTHONPATH", joined, 1);
+                free(joined);
+            }
+        }
+    }
+}
+
+/* The executable of the candidate ``p`` of prefix ``home``: its own if it exists, else the
+ * prefix's python<version> (which need not exist: the interpreter finds its prefix from the
+ * path). */
+static void executable_of(const Python *p, const char *home, const char *version, char *out,
+    size_t size)
+{
+    if (p->executable[0] != '\0' && is_file(p->executable)) {
+        copy(out, size, p->executable);
+    } else {
+        snprintf(out, size, "%s/bin/python%s", home, version);
+    }
+}
+
+/* Which interpreter pythonfmu's library runs on, for the debug log. */
+static char loaded_python[3 * PATH_MAX];
+
+/* Load the candidate ``p`` (found by ``origin``) if it is usable: its library exists, its
+ * prefix (or the user's PYTHONHOME, ``user_home``) holds the standard library and numpy is
+ * found. Returns 1 once its library is loaded with RTLD_GLOBAL and the environment set. */
+static int try_python(const char *origin, const Python *p, const char *version,
+    const char *user_home)
+{
+    static char seen[8][PATH_MAX]; /* libraries already tried (by other candidates) */
+    static int n_seen = 0;
+    char home[PATH_MAX], numpy_dir[PATH_MAX], real[PATH_MAX];
+    if (!is_file(p->library) || realpath(p->library, real) == NULL) {
+        note("%s: no file %s", origin, p->library);
+        return 0;
+    }
+    for (int i = 0; i < n_seen; i++) {
+        if (strcmp(seen[i], real) == 0) {
+            return 0;
+        }
+    }
+    if (n_seen < 8) {
+        copy(seen[n_seen++], sizeof seen[0], real);
+    }
+    if (user_home != NULL) {
+        copy(home, sizeof home, user_home);
+    } else if (p->home[0] != '\0' && stdlib_at(p->home, version)) {
+        copy(home, sizeof home, p->home);
+    } else if (!prefix_of(p->library, version, home, sizeof home)) {
+        note("%s: %s has no standard library (lib/python%s/encodings) in the directories "
+            "above it%s%s", origin, p->library, version, p->home[0] != '\0' ? " nor in " : "",
+            p->home);
+        return 0;
+    }
+    if (!find_numpy(home, version, p->site, numpy_dir, sizeof numpy_dir)) {
+        note("%s: %s (prefix %s) has no numpy (looked in %s%sPYTHONPATH and the prefix's "
+            "site-packages / dist-packages)", origin, p->library, home, p->site,
+            p->site[0] != '\0' ? ", " : "");
+        return 0;
+    }
+    if (dlopen(p->library, RTLD_NOW | RTLD_GLOBAL) == NULL) {
+        const char *why = dlerror();
+        note("%s: %s", origin, why != NULL ? why : p->library);
+        return 0;
+    }
+    char executable[PATH_MAX + 32];
+    executable_of(p, home, version, executable, sizeof executable);
+    prepare_interpreter(executable, home, numpy_dir, version);
+    snprintf(loaded_python, sizeof loaded_python, "%s as %s (numpy in %s; %s)", p->library,
+        executable, numpy_dir, origin);
+    return 1;
+}
+
+/* The shared library of Python ``version`` in directory ``dir``, into ``out``. */
+static int library_in(const char *dir, const char *version, char *out, size_t size)
+{
+    static const char *names[] = { "%s/libpython%s.so.1.0", "%s/libpython%s.so" };
+    for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
+        snprintf(out, size, names[i], dir, version);
+        if (is_file(out)) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* python<version> and python3 on PATH: the interpreter they are (its prefix's library), with
+ * the site-packages of the virtual environment they belong to, if any. */
+static int try_path(const char *version, const char *user_home)
+{
+    const char *path = getenv("PATH");
+    if (path == NULL || path[0] == '\0') {
+        note("PATH is not set: no python3 on it");
+        return 0;
+    }
+    char dirs[8192], names[2][32];
+    copy(dirs, sizeof dirs, path);
+    snprintf(names[0], sizeof names[0], "python%s", version);
+    snprintf(names[1], sizeof names[1], "python3");
+    int seen = 0;
+    for (char *dir = strtok(dirs, ":"); dir != NULL; dir = strtok(NULL, ":")) {
+        for (int n = 0; n < 2; n++) {
+            char exe[PATH_MAX + 40], real[PATH_MAX], prefix[PATH_MAX], origin[PATH_MAX + 64];
+            snprintf(exe, sizeof exe, "%s/%s", dir, names[n]);
+            if (!is_file(exe) || access(exe, X_OK) != 0) {
+                continue;
+            }
+            seen = 1;
+            Python p = { .version = "" };
+            snprintf(origin, sizeof origin, "%s on PATH", exe);
+            copy(p.executable, sizeof p.executable, exe);
+            char venv[PATH_MAX + 40], config[PATH_MAX + 64];
+            copy(venv, sizeof venv, dir);
+            parent(venv);
+            snprintf(config, sizeof config, "%s/pyvenv.cfg", venv);
+            if (is_file(config)) {
+                snprintf(p.site, sizeof p.site, "%s/lib/python%s/site-packages", venv, version);
+            }
+            if (realpath(exe, real) == NULL) {
+                continue;
+            }
+            copy(prefix, sizeof prefix, real);
+            parent(prefix); /* its bin directory */
+            parent(prefix);
+            static const char *libdirs[] = { "lib", "lib64", "lib/x86_64-linux-gnu" };
+            int found = 0;
+            for (size_t i = 0; i < sizeof libdirs / sizeof *libdirs && !found; i++) {
+                char libdir[PATH_MAX + 32];
+                snprintf(libdir, sizeof libdir, "%s/%s", prefix, libdirs[i]);
+                found = library_in(libdir, version, p.library, sizeof p.library);
+            }
+            if (!found) {
+                note("%s (%s): no libpython%s.so.1.0 in %s/lib", origin, real, version, prefix);
+                continue;
+            }
+            copy(p.home, sizeof p.home, prefix);
+            if (try_python(origin, &p, version, user_home)) {
+                return 1;
+            }
+        }
+    }
+    if (!seen) {
+        note("no python%s or python3 on PATH", version);
+    }
+    return 0;
+}
+
+/* libpython<version>.so.1.0 in the directories of LD_LIBRARY_PATH and the standard ones. */
+static int try_standard_places(const char *version, const char *user_home)
+{
+    static const char *standard[] = { "/usr/local/lib", "/usr/lib/x86_64-linux-gnu",
+        "/usr/lib64", "/usr/lib" };
+    char dirs[8192] = "";
+    const char *extra = getenv("LD_LIBRARY_PATH");
+    if (extra != NULL && extra[0] != '\0') {
+        snprintf(dirs, sizeof dirs, "%s:", extra);
+    }
+    for (size_t i = 0; i < sizeof standard / sizeof *standard; i++) {
+        size_t used = strlen(dirs);
+        snprintf(dirs + used, sizeof dirs - used, "%s%s", standard[i],
+            i + 1 < sizeof standard / sizeof *standard ? ":" : "");
+    }
+    int seen = 0;
+    for (char *dir = strtok(dirs, ":"); dir != NULL; dir = strtok(NULL, ":")) {
+        Python p = { .version = "" };
+        char origin[PATH_MAX + 32];
+        if (!library_in(dir, version, p.library, sizeof p.library)) {
+            continue;
+        }
+        seen = 1;
+        snprintf(origin, sizeof origin, "standard place %s", dir);
+        if (try_python(origin, &p, version, user_home)) {
+            return 1;
+        }
+    }
+    if (!seen) {
+        note("no libpython%s.so.1.0 in LD_LIBRARY_PATH, /usr/local/lib, "
+            "/usr/lib/x86_64-linux-gnu, /usr/lib64 or /usr/lib", version);
+    }
+    return 0;
+}
+
+/* Python already in the process (a Python host, or LD_PRELOAD of libpython): use it. An
+ * interpreter not yet started is given a prefix (the library's) and the recorded numpy. */
+static int python_in_process(const Python *record, const char *version, const char *user_home)
+{
+    void *symbol = dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    if (symbol == NULL) {
+        return 0;
+    }
+    int (*initialized)(void) = (int (*)(void))symbol;
+    Dl_info info;
+    const char *library = dladdr(symbol, &info) != 0 && info.dli_fname != NULL
+        ? info.dli_fname : "the process";
+    if (initialized()) {
+        snprintf(loaded_python, sizeof loaded_python, "the interpreter running in %s", library);
+        return 1;
+    }
+    char home[PATH_MAX], numpy_dir[PATH_MAX] = "", executable[PATH_MAX + 32];
+    if (!prefix_of(library, version, home, sizeof home)) {
+        snprintf(loaded_python, sizeof loaded_python, "%s, already in the process", library);
+        return 1; /* the interpreter finds its prefix itself */
+    }
+    if (record->home[0] != '\0' && same_dir(record->home, home)) {
+        executable_of(record, home, version, executable, sizeof executable);
+        find_numpy(home, version, record->site, numpy_dir, sizeof numpy_dir);
+    } else {
+        executable_of(&(Python) { .version = "" }, home, version, executable, sizeof executable);
+    }
+    prepare_interpreter(executable, user_home != NULL ? user_home : home, numpy_dir, version);
+    snprintf(loaded_python, sizeof loaded_python, "%s as %s, already in the process", library,
+        executable);
+    return 1;
+}
+
+/* The path of a file named ``name`` in the resource folder given as a file URI. */
+static int resource_file(const char *uri, const char *name, char *out, size_t size)
+{
+    if (uri == NULL || strncmp(uri, "file:", 5) != 0) {
+        return 0;
+    }
+    const char *path = uri + 5;
+    if (strncmp(path, "///", 3) == 0) {
+        path += 2;
+    } else if (strncmp(path, "//localhost/", 12) == 0) {
+        path += 11;
+    } else if (strncmp(path, "//", 2) == 0) {
+        return 0; /* another host */
+    }
+    size_t j = 0;
+    for (size_t i = 0; path[i] != '\0' && j + 1 < size; i++) {
+        unsigned int byte;
+        if (path[i] == '%' && sscanf(path + i + 1, "%2x", &byte) == 1) {
+            out[j++] = (char)byte;
+            i += 2;
+        } else {
+            out[j++] = path[i];
+        }
+    }
+    out[j] = '\0';
+    while (j > 1 && out[j - 1] == '/') {
+        out[--j] = '\0';
+    }
+    size_t room = size - j;
+    return (size_t)snprintf(out + j, room, "/%s", name) < room;
+}
+
+/* The build record (resources/PYTHON_RECORD: lines key=value), next to this library in the
+ * extracted FMU (binaries/linux64/..) or in the resource folder the importer gave. */
+static int read_record(const char *resources, Python *record, char *where, size_t size)
 {
     Dl_info info;
-    if (dladdr((void *)&load_impl, &info) == 0 || info.dli_fname == NULL) {
+    char candidates[2][PATH_MAX + 64];
+    int n = 0;
+    if (dladdr((void *)&read_record, &info) != 0 && info.dli_fname != NULL) {
+        char root[PATH_MAX];
+        copy(root, sizeof root, info.dli_fname);
+        parent(root);
+        parent(root);
+        parent(root);
+        snprintf(candidates[n++], sizeof candidates[0], "%s/resources/%s", root, PYTHON_RECORD);
+    }
+    if (resource_file(resources, PYTHON_RECORD, candidates[n], sizeof candidates[0])) {
+        n++;
+    }
+    copy(where, size, n > 0 ? candidates[0] : "resources/" PYTHON_RECORD);
+    for (int i = 0; i < n; i++) {
+        FILE *f = fopen(candidates[i], "r");
+        if (f == NULL) {
+            continue;
+        }
+        copy(where, size, candidates[i]);
+        char line[PATH_MAX + 64];
+        while (fgets(line, sizeof line, f) != NULL) {
+            line[strcspn(line, "\r\n")] = '\0';
+            char *eq = strchr(line, '=');
+            if (line[0] == '#' || eq == NULL) {
+                continue;
+            }
+            *eq = '\0';
+            if (strcmp(line, "version") == 0) {
+                copy(record->version, sizeof record->version, eq + 1);
+            } else if (strcmp(line, "library") == 0) {
+                copy(record->library, sizeof record->library, eq + 1);
+            } else if (strcmp(line, "home") == 0) {
+                copy(record->home, sizeof record->home, eq + 1);
+            } else if (strcmp(line, "executable") == 0) {
+                copy(record->executable, sizeof record->executable, eq + 1);
+            } else if (strcmp(line, "site") == 0) {
+                copy(record->site, sizeof record->site, eq + 1);
+            }
+        }
+        fclose(f);
+        return 1;
+    }
+    return 0;
+}
+
+/* At exit, before pythonfmu's static std::shared_ptr<PyState> is destroyed: release it through
+ * pythonfmu's own finalizePythonInterpreter (the interpreter is finalised if no instance is
+ * left). Otherwise exit() destroys that shared_ptr first and pythonfmu's destructor function
+ * then resets the destroyed object (use after free, a double free of its control block). */
+static void release_python_at_exit(void)
+{
+    void (*finalize)(void) = (void (*)(void))impl("finalizePythonInterpreter");
+    if (finalize != NULL) {
+        finalize();
+    }
+}
+
+/* Find an interpreter, then load pythonfmu's library (once per process; under load_lock). On
+ * failure impl_handle stays NULL and load_error says why. */
+static void load_impl(const char *resources)
+{
+    Python record = { .version = "" };
+    char where[PATH_MAX + 64];
+    tried[0] = '\0';
+    int recorded_python = read_record(resources, &record, where, sizeof where);
+    const char *version = record.version[0] != '\0' ? record.version : DEFAULT_PYTHON_VERSION;
+    const char *user_home = getenv("PYTHONHOME");
+    char home[PATH_MAX];
+    if (user_home != NULL && user_home[0] != '\0') {
+        copy(home, sizeof home, user_home);
+        home[strcspn(home, ":")] = '\0'; /* prefix[:exec_prefix] */
+        user_home = home;
+    } else {
+        user_home = NULL;
+    }
+    int found;
+    void *is_initialized = dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    int running = is_initialized != NULL && ((int (*)(void))is_initialized)();
+    if (!running && user_home != NULL && !stdlib_at(user_home, version)) {
+        found = 0; /* Py_Initialize would abort the host */
+        note("PYTHONHOME=%s has no lib/python%s/encodings (Python would abort the host; for a "
+            "virtual environment leave PYTHONHOME unset or give its base prefix, and give its "
+            "site-packages in PYTHONPATH)", getenv("PYTHONHOME"), version);
+    } else {
+        found = python_in_process(&record, version, user_home);
+        if (!found) {
+            if (recorded_python && record.library[0] != '\0') {
+                found = try_python("the build's Python", &record, version, user_home);
+            } else {
+                note(recorded_python ? "%s names no library" : "no build record %s", where);
+            }
+        }
+        if (!found) {
+            found = try_path(version, user_home);
+        }
+        if (!found) {
+            found = try_standard_places(version, user_home);
+        }
+    }
+    if (!found) {
+        snprintf(load_error, sizeof load_error, "no usable Python %s with numpy for "
+            "pythonfmu's library (this FMU runs Python code). Tried: %s. Install Python %s "
+            "with numpy, or start the host with LD_PRELOAD=<prefix>/lib/libpython%s.so and "
+            "PYTHONHOME=<prefix>, or use the native FMUs (build_fmu.py --native)", version,
+            tried, version, version);
+        return;
+    }
+    Dl_info info;
+    if (dladdr((void *)&load_impl, &info) == 0 || info.dli_fname == NULL
+        || strlen(info.dli_fname) < 3) {
+        copy(load_error, sizeof load_error, "cannot find the path of this library");
         return;
     }
     size_t len = strlen(info.dli_fname);
-    char *path = malloc(len + sizeof(IMPL_SUFFIX));
-    if (path == NULL || len < 3) {
-        free(path);
-        return;
-    }
-    memcpy(path, info.dli_fname, len - 3); /* drop ".so" */
-    strcpy(path + len - 3, IMPL_SUFFIX);
-    impl_handle = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    char path[PATH_MAX + sizeof IMPL_SUFFIX];
+    snprintf(path, sizeof path, "%.*s%s", (int)(len - 3), info.dli_fname, IMPL_SUFFIX);
+    /* Never unloaded (its interpreter cannot be started twice in a process). */
+    impl_handle = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (impl_handle == NULL) {
         const char *why = dlerror();
-        snprintf(load_error, sizeof load_error, "cannot load pythonfmu's library: %s%s",
-            why != NULL ? why : path,
-            " (a native host needs libpython in the process, e.g. LD_PRELOAD of "
-            "libpython3.11.so, and numpy importable by that interpreter)");
-        fprintf(stderr, "fhobs status wrapper: %s\n", load_error);
+        snprintf(load_error, sizeof load_error, "cannot load pythonfmu's library with %s: %s",
+            loaded_python, why != NULL ? why : path);
+        return;
     }
-    free(path);
+    /* Kept loaded too, so that the exit handler (registered after pythonfmu's static
+     * destructors, hence run before them) is there at exit. */
+    dlopen(info.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+    atexit(release_python_at_exit);
 }
 
-__attribute__((destructor)) static void unload_impl(void)
+/* Load pythonfmu's library if not done yet; whether it is loaded. */
+static int ensure_impl(const char *resources, int *just_loaded)
 {
-    if (impl_handle != NULL) {
-        dlclose(impl_handle);
+    pthread_mutex_lock(&load_lock);
+    *just_loaded = 0;
+    if (!load_done) {
+        load_impl(resources);
+        load_done = 1;
+        *just_loaded = impl_handle != NULL;
     }
+    int loaded = impl_handle != NULL;
+    pthread_mutex_unlock(&load_lock);
+    return loaded;
 }
 
 /* Called by the slave's constructor (through ctypes) while its instance is created: give
@@ -334,7 +949,15 @@ static void withdraw(State *state)
 
 /* Forward ``name`` to pythonfmu's library with pythonfmu's component in place of ours. */
 #define FORWARD(name, params, args) \
-    fmi2Status name params { IMPL(name, fmi2Error) fmi2Component c = INNER(w); return name##_impl args; }
+    fmi2Status name params \
+    { \
+        IMPL(name, fmi2Error) \
+        if (w == NULL) { \
+            return fmi2Error; \
+        } \
+        fmi2Component c = INNER(w); \
+        return name##_impl args; \
+    }
 
 /* Forward a get/set call once the slave accepts it. */
 #define FORWARD_ACCESS(name, code, params, args) \
@@ -366,10 +989,20 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     fmi2CallbackLogger logger = functions != NULL ? functions->logger : NULL;
     fmi2ComponentEnvironment environment = functions != NULL ? functions->componentEnvironment
                                                              : NULL;
-    fmi2InstantiateTYPE *instantiate = (fmi2InstantiateTYPE *)impl("fmi2Instantiate");
-    if (instantiate == NULL) {
+    int just_loaded;
+    if (!ensure_impl(resources, &just_loaded)) {
         say(logger, environment, instanceName, fmi2Error, "fhobs status wrapper: %s",
             load_error);
+        return NULL;
+    }
+    if (just_loaded && loggingOn) {
+        say(logger, environment, instanceName, fmi2OK, "fhobs status wrapper: Python: %s",
+            loaded_python);
+    }
+    fmi2InstantiateTYPE *instantiate = (fmi2InstantiateTYPE *)impl("fmi2Instantiate");
+    if (instantiate == NULL) {
+        say(logger, environment, instanceName, fmi2Error,
+            "fhobs status wrapper: pythonfmu's library has no fmi2Instantiate");
         return NULL;
     }
     Instance *w = calloc(1, sizeof *w);
@@ -394,15 +1027,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
 
 void fmi2FreeInstance(fmi2Component w)
 {
+    if (w == NULL) {
+        return;
+    }
     fmi2FreeInstanceTYPE *free_instance = (fmi2FreeInstanceTYPE *)impl("fmi2FreeInstance");
     if (free_instance != NULL) {
         free_instance(INNER(w));
     }
-    if (w != NULL) {
-        unregister((Instance *)w);
-        free(((Instance *)w)->name);
-        free(w);
-    }
+    unregister((Instance *)w);
+    free(((Instance *)w)->name);
+    free(w);
 }
 
 fmi2Status fmi2Reset(fmi2Component w)
@@ -410,7 +1044,7 @@ fmi2Status fmi2Reset(fmi2Component w)
     /* pythonfmu replaces the Python slave: its new constructor registers its own buffer. */
     IMPL(fmi2Reset, fmi2Error)
     if (w == NULL) {
-        return fmi2Reset_impl(NULL);
+        return fmi2Error;
     }
     Instance *self = w, *outer = registering;
     unregister(self);
@@ -423,18 +1057,27 @@ fmi2Status fmi2Reset(fmi2Component w)
 fmi2Status fmi2EnterInitializationMode(fmi2Component w)
 {
     IMPL(fmi2EnterInitializationMode, fmi2Error)
+    if (w == NULL) {
+        return fmi2Error;
+    }
     return recorded(INNER(w), fmi2EnterInitializationMode_impl(INNER(w)));
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component w)
 {
     IMPL(fmi2ExitInitializationMode, fmi2Error)
+    if (w == NULL) {
+        return fmi2Error;
+    }
     return recorded(INNER(w), fmi2ExitInitializationMode_impl(INNER(w)));
 }
 
 fmi2Status fmi2Terminate(fmi2Component w)
 {
     IMPL(fmi2Terminate, fmi2Error)
+    if (w == NULL) {
+        return fmi2Error;
+    }
     return recorded(INNER(w), fmi2Terminate_impl(INNER(w)));
 }
 
@@ -442,7 +1085,10 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
 {
     Instance *self = w;
     IMPL(fmi2DoStep, fmi2Error)
-    if (self != NULL && self->step != NULL) {
+    if (self == NULL) {
+        return fmi2Error;
+    }
+    if (self->step != NULL) {
         switch (self->step(t, h)) {
         case FHOBS_STEP_OK:
             self->own_time = 1;
@@ -474,7 +1120,10 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
 fmi2Status fmi2GetRealStatus(fmi2Component w, const fmi2StatusKind k, fmi2Real *v)
 {
     const Instance *self = w;
-    if (self != NULL && self->own_time && k == fmi2LastSuccessfulTime && v != NULL) {
+    if (self == NULL) {
+        return fmi2Error;
+    }
+    if (self->own_time && k == fmi2LastSuccessfulTime && v != NULL) {
         *v = self->last_time;
         return fmi2OK;
     }
