@@ -44,7 +44,8 @@ shared), co-simulates the scenario (:func:`harness.master.run_system`) and retur
 parameters, the figures of :func:`harness.results.error_figures` per estimator
 (``<estimator>.<figure>``), wall time, status and, when it failed, the reason. A scenario base
 runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_plant_system`
-(with native FMUs without the prescribed-time observer, which has no native FMU).
+(as ``harness plant``). The prescribed-time observer has no native FMU: its pythonfmu FMU runs
+beside the native ones.
 
 Every finished row is written at once to ``DIR/points/<key>.json`` (the key is a hash of the
 point and of the files it depends on); a re-run of the same command skips the points that
@@ -715,16 +716,31 @@ def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> d
     tag = _digest(json.dumps([key, flavour, options], sort_keys=True, default=float).encode())
     if tag not in _FMU_DIRS:
         out = _workdir() / "fmus" / tag
-        if flavour == "native":
-            from fhobs.native.build import build_native_fmus
-
-            native = {k: v for k, v in options.items() if k != "T0"}
-            _FMU_DIRS[tag] = build_native_fmus(gains, out, **native)
-        else:
-            from fhobs.build import build_fmus
-
-            _FMU_DIRS[tag] = build_fmus(gains, out, **options)
+        _FMU_DIRS[tag] = _build(gains, out, flavour, dict(options))
     return _FMU_DIRS[tag]
+
+
+def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
+    """Build the FMUs; with ``native``, the kinds without a native FMU (the prescribed-time
+    observer) as pythonfmu FMUs, as ``harness plant --native`` runs them."""
+    from fhobs.build import build_fmus
+
+    if flavour != "native":
+        return build_fmus(gains, out, **options)
+    from fhobs.native.build import KIND_NUMBERS, build_native_fmus
+
+    kinds = options.pop("kinds", None)
+    T0 = options.pop("T0", None)
+    kinds = list(KIND_NUMBERS if kinds is None else kinds)
+    if gains.kalman is None and "kalman" in kinds:
+        kinds.remove("kalman")
+    others = [k for k in kinds if k not in KIND_NUMBERS]
+    fmus = build_native_fmus(gains, out, kinds=[k for k in kinds if k in KIND_NUMBERS],
+                             **options)
+    if others:
+        extra = {} if T0 is None else {"T0": T0}
+        fmus |= build_fmus(gains, out / "pythonfmu", kinds=others, **options, **extra)
+    return fmus
 
 
 def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
@@ -769,11 +785,10 @@ def _plant_system(job: dict[str, Any], spec: Any, gains: Any,
     stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
     stop = step * round(stop / step)
     options = {"x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step}
-    if job["fmus"] == "pythonfmu" and noise == 0.0:  # it runs only without noise
+    options["kinds"] = [k for k in PLANT_FMUS if (k != "kalman" or gains.kalman is not None)
+                        and (k != "prescribed_time" or noise == 0.0)]  # it runs without noise
+    if noise == 0.0:
         options["T0"] = float(spec.settling_time)
-    else:
-        options["kinds"] = [k for k in PLANT_FMUS if k != "prescribed_time"
-                            and (k != "kalman" or gains.kalman is not None)]
     fmus = point_fmus(gains, key, job["fmus"], options)
     return own_plant_system(gains, fmus, spec.state_scale, stop, step, noise), stop
 
