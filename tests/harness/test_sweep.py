@@ -204,11 +204,13 @@ def _wait_for(condition, timeout: float, what: str) -> None:
 @pytest.mark.slow
 def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
     """A scheduler and two workers started as separate processes on 127.0.0.1 (random ports);
-    the sweep command given --scheduler. One worker is killed (SIGKILL) after the first row
-    is written: the sweep completes, every point ok, the rows finished before the kill are
-    unchanged, and no row comes from the killed worker after its death (its points ran
-    again on the other)."""
-    path = write_sweep(tmp_path, list(range(8)), stop=0.6)
+    the sweep command given --scheduler. One worker is killed (SIGKILL) while it runs a point,
+    after a first row is written: the sweep completes, every point ok, the rows finished
+    before the kill are unchanged, and the points the killed worker was running were run
+    again by the other."""
+    from distributed import Client
+
+    path = write_sweep(tmp_path, list(range(8)), stop=1.0)
     out = tmp_path / "out"
     scheduler_file = tmp_path / "scheduler.json"
     processes = []
@@ -216,8 +218,8 @@ def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
         processes.append(_start(["distributed.cli.dask_scheduler", "--host", "127.0.0.1",
                                  "--port", "0", "--no-dashboard", "--scheduler-file",
                                  str(scheduler_file)], tmp_path / "scheduler.log"))
-        _wait_for(scheduler_file.exists, 60, "the scheduler file")
-        _wait_for(lambda: "address" in scheduler_file.read_text(), 10, "its address")
+        _wait_for(lambda: scheduler_file.exists() and "address" in scheduler_file.read_text(),
+                  60, "the scheduler file")
         address = json.loads(scheduler_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
         for i in range(2):
@@ -225,18 +227,22 @@ def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
                 ["distributed.cli.dask_worker", address, "--no-nanny", "--nthreads", "1",
                  "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}",
                  "--local-directory", str(tmp_path / f"w{i}")], tmp_path / f"w{i}.log"))
-        sweep = subprocess.Popen(
-            [sys.executable, "-m", "harness", "sweep", str(path), "--out", str(out),
-             "--scheduler", address, "--no-progress", "--no-plots"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-        processes.append(sweep)
-        points = out / "points"
-        _wait_for(lambda: points.is_dir() and any(points.glob("*.json")), 240, "a first row")
-        finished = read_rows(points)
-        busy = [p for p in processes[1:3] if p.pid not in {r["pid"] for r in finished.values()}]
-        victim = (busy or processes[1:3])[0]  # preferably one that is running its first point
-        os.kill(victim.pid, signal.SIGKILL)
-        killed_at = time.time()
+        with Client(address, timeout="60s") as watcher:
+            watcher.wait_for_workers(2, timeout=120)
+            victim = processes[2]
+            where = {pid: addr for addr, pid in watcher.run(os.getpid).items()}[victim.pid]
+            sweep = subprocess.Popen(
+                [sys.executable, "-m", "harness", "sweep", str(path), "--out", str(out),
+                 "--scheduler", address, "--no-progress", "--no-plots"],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+            processes.append(sweep)
+            points = out / "points"
+            _wait_for(lambda: points.is_dir() and any(points.glob("*.json"))
+                      and watcher.processing().get(where), 240, "a row and a busy worker")
+            lost = {key.removeprefix("fhobs-sweep-") for key in watcher.processing()[where]}
+            finished = read_rows(points)
+            os.kill(victim.pid, signal.SIGKILL)
+            killed_at = time.time()
         stdout, stderr = sweep.communicate(timeout=400)
         assert sweep.returncode == 0, stderr
         assert "8 points, 8 run now, 0 done before, 0 failed" in stdout
@@ -244,6 +250,8 @@ def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
         assert len(final) == 8 and all(r["status"] == STATUS_OK for r in final.values())
         assert {k: final[k] for k in finished} == finished
         assert all(r["finished_at"] < killed_at for r in final.values() if r["pid"] == victim.pid)
+        rerun = [k for k in lost if final[k]["pid"] != victim.pid]
+        assert rerun and all(final[k]["finished_at"] > killed_at for k in rerun)
         assert len(pq.read_table(out / "sweep.parquet")) == 8
     finally:
         for process in reversed(processes):
