@@ -620,13 +620,26 @@ def point_key(job: dict[str, Any]) -> str:
 
 
 def spec_changes(params: dict[str, Any]) -> dict[tuple[str, ...], Any]:
-    """The spec entries a point's parameters set: ``{path: value}``."""
+    """The spec entries a point's parameters set: ``{path: value}``.
+
+    Examples
+    --------
+    >>> spec_changes({"rho": 3.0, "seed": 1, "spec.noise.process_intensity": 1e-3})
+    {('observer', 'rho'): 3.0, ('noise', 'process_intensity'): 0.001}
+    """
     return {path: value for axis, value in params.items()
             if (path := spec_axis(axis)) is not None}
 
 
 def design_spec_data(job: dict[str, Any]) -> dict[str, Any]:
-    """The plant spec of a point: its base's spec with the point's spec entries set."""
+    """The plant spec of a point: its base's spec with the point's spec entries set.
+
+    Examples
+    --------
+    >>> job = {"spec_data": {"A": [[0]], "observer": {"rho": 2.0}}, "params": {"nu": -0.2}}
+    >>> design_spec_data(job)
+    {'A': [[0]], 'observer': {'rho': 2.0, 'nu': -0.2}}
+    """
     data = json.loads(json.dumps(job["spec_data"]))
     for path, value in spec_changes(job["params"]).items():
         table = data
@@ -637,7 +650,15 @@ def design_spec_data(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def design_key(job: dict[str, Any]) -> str:
-    """The content hash of a point's design (its spec and the design kind)."""
+    """The content hash of a point's design (its spec and the design kind): points that
+    differ only by seed, step or start values share it.
+
+    Examples
+    --------
+    >>> job = {"spec_data": {"A": [[0]]}, "design": "spec", "params": {"seed": 1}}
+    >>> design_key(job) == design_key(job | {"params": {"seed": 2}})
+    True
+    """
     text = json.dumps({"spec": design_spec_data(job), "design": job["design"]}, sort_keys=True)
     return _digest(text.encode())
 
@@ -666,6 +687,14 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     -------
     tuple
         ``(PlantSpec, ObserverGains, design key)``.
+
+    Examples
+    --------
+    >>> job = {"base": "b", "spec_data": {"A": [[0, 1], [0, 0]], "B": [[0], [1]],
+    ...        "C": [[1, 0]], "observer": {"rho": 2.0}}, "design": "spec", "params": {}}
+    >>> spec, gains, key = point_design(job)
+    >>> gains.rho, point_design(job)[1] is gains
+    (2.0, True)
     """
     from fhobs.cli import design_from_spec
     from fhobs.design import paper_gains
@@ -744,7 +773,15 @@ def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict
 
 
 def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
-    """The runnable system of a point (designed, FMUs built) and its stop time."""
+    """The runnable system of a point (designed, FMUs built) and its stop time.
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")                        # doctest: +SKIP
+    >>> job = make_job(sweep.bases["pendulum_noisy"], {"seed": 2}, sweep.settings)  # doctest: +SKIP
+    >>> point_system(job)[0].fmus["plant"].start["noise_seed"]           # doctest: +SKIP
+    2
+    """
     from harness.system import build_blocks
 
     spec, gains, key = point_design(job)
@@ -913,7 +950,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
 
 
 def read_rows(points_dir: Path) -> dict[str, dict[str, Any]]:
-    """The rows already written (``points/<key>.json``), by key."""
+    """The rows already written (``points/<key>.json``), by key.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> write_row(folder, {"key": "abc", "status": "ok"}).name
+    'abc.json'
+    >>> read_rows(folder)
+    {'abc': {'key': 'abc', 'status': 'ok'}}
+    """
     rows = {}
     for path in points_dir.glob("*.json"):
         with contextlib.suppress(OSError, ValueError):
@@ -922,7 +969,7 @@ def read_rows(points_dir: Path) -> dict[str, dict[str, Any]]:
 
 
 def write_row(points_dir: Path, row: dict[str, Any]) -> Path:
-    """Write one point's row at once (atomically: a rename)."""
+    """Write one point's row at once (atomically: a rename); see :func:`read_rows`."""
     path = points_dir / f"{row['key']}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(row, default=float))
@@ -1104,6 +1151,12 @@ def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path
     -------
     list of Path
         The PNGs written (none without finished rows).
+
+    Examples
+    --------
+    >>> report = run_sweep(sweep, Path("out"), plots=False)         # doctest: +SKIP
+    >>> [p.name for p in plot_sweep(report.rows, sweep, Path("out/plots"))]  # doctest: +SKIP
+    ['seed.png', 'pareto.png']
     """
     import matplotlib
 
@@ -1158,6 +1211,15 @@ def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[tu
     -------
     dict
         ``{estimator: [(x, y, label), ...]}``; empty when the figures are missing.
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> rows = [{"base": "pendulum_perturbed", "kalman.max_error_1_3": 1e-3},
+    ...         {"base": "pendulum_noisy", "seed": 0, "kalman.rms_error_1_3": 2e-3},
+    ...         {"base": "pendulum_noisy", "seed": 1, "kalman.rms_error_1_3": 4e-3}]
+    >>> pareto_points(rows, sweep)
+    {'kalman': [(0.001, 0.003, 'no axis')]}
     """
     xfig = _first(rows, sweep.pareto["perturbation"], "max_error_")
     yfig = _first(rows, sweep.pareto["noisy"], "rms_error_")
@@ -1196,7 +1258,13 @@ def _first(rows: list[dict[str, Any]], base: str, prefix: str) -> str | None:
 
 def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | None:
     """The Pareto picture: noisy RMS against perturbation max error, per estimator (None
-    when the sweep lacks one of the two figures)."""
+    when the sweep lacks one of the two figures).
+
+    Examples
+    --------
+    >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
+    PosixPath('pareto.png')
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1241,7 +1309,15 @@ def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
 
 
 def check_workers(workers: int | None) -> None:
-    """SweepError unless ``--workers`` is None or >= 1."""
+    """SweepError unless ``--workers`` is None or >= 1.
+
+    Examples
+    --------
+    >>> check_workers(0)
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: --workers = 0 must be >= 1
+    """
     if workers is not None and workers < 1:
         raise SweepError(f"--workers = {workers} must be >= 1")
 

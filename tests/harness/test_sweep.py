@@ -256,3 +256,13 @@ def test_scheduler_and_workers_as_processes_survive_a_killed_worker(tmp_path):
     finally:
         for process in reversed(processes):
             _stop(process)
+
+
+def test_docstring_examples():
+    """The Examples sections of harness.sweep run and give what they print."""
+    import doctest
+
+    import harness.sweep
+
+    result = doctest.testmod(harness.sweep, optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0 and result.failed == 0
