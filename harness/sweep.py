@@ -1167,7 +1167,7 @@ def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path
         return []
     out.mkdir(parents=True, exist_ok=True)
     paths = [_plot_axis(ok, axis, figures, out) for axis in sweep.axes
-             if all(_is_number(r.get(axis)) for r in ok)]
+             if any(r.get(axis) is not None for r in ok)]
     if sweep.pareto:
         path = plot_pareto(ok, sweep, out / "pareto.png")
         if path is not None:
@@ -1181,17 +1181,25 @@ def _is_number(value: Any) -> bool:
 
 def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[str]],
                out: Path) -> Path:
+    """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
+    have the axis; a non-numeric axis (base, a start vector) by its values' order."""
     import matplotlib.pyplot as plt
 
+    rows = [r for r in rows if r.get(axis) is not None]
+    numeric = all(_is_number(r[axis]) for r in rows)
+    labels = list(dict.fromkeys(json.dumps(r[axis]) for r in rows))
+    x = [r[axis] if numeric else labels.index(json.dumps(r[axis])) for r in rows]
     fig, axes = plt.subplots(1, len(figures), figsize=(4.5 * len(figures), 3.6),
                              squeeze=False, layout="constrained")
-    x = [r[axis] for r in rows]
     for ax, (figure, estimators) in zip(axes[0], figures.items(), strict=True):
         for estimator in estimators:
             y = [r.get(f"{estimator}.{figure}") for r in rows]
             pairs = [(a, b) for a, b in zip(x, y, strict=True) if b is not None and b > 0]
             if pairs:
                 ax.semilogy(*zip(*pairs, strict=True), "o", ms=4, label=estimator)
+        if not numeric:
+            ax.set_xticks(range(len(labels)), [t.strip('"') for t in labels], fontsize=7,
+                          rotation=20)
         ax.set_xlabel(axis)
         ax.set_title(figure, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
@@ -1275,8 +1283,10 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
         return None
     fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
     for estimator, values in points.items():
-        xs, ys, _ = zip(*values, strict=True)
+        xs, ys, labels = zip(*values, strict=True)
         ax.loglog(xs, ys, "o", ms=6, label=estimator)
+        for x, y, label in values if len(values) > 1 else ():
+            ax.annotate(label, (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.set_xlabel(f"{sweep.pareto['perturbation']}: max error (first window)")
     ax.set_ylabel(f"{sweep.pareto['noisy']}: RMS error (first window, mean over seeds)")
     ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
