@@ -267,7 +267,8 @@ def design_for_spec(
     Raises
     ------
     fhobs.errors.LMIError
-        If an LMI solve fails.
+        If an LMI solve fails, or a linear-algebra step of the design does (numpy's
+        LinAlgError is not passed on).
     fhobs.errors.CertificateError
         If the solver's result does not pass the numpy certificate, also after solving the
         LMIs again with the margin the failed checks asked for (``MARGIN_ATTEMPTS`` solves in
@@ -295,6 +296,9 @@ def design_for_spec(
             if not err.lmi_margin_needed or attempt + 1 == MARGIN_ATTEMPTS:
                 raise
             margin = max(MARGIN_GROWTH * err.lmi_margin_needed, MARGIN_GROWTH * margin)
+        except np.linalg.LinAlgError as err:
+            raise LMIError(f"numerical failure in the design at rho = {spec.rho:g} (a singular "
+                           f"or non-converging linear-algebra step): {err}") from err
     raise AssertionError("unreachable")
 
 
