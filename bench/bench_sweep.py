@@ -11,8 +11,8 @@ same work) runs through :func:`harness.sweep.run_sweep` on an embedded LocalClus
 ``--workers`` count, into a fresh folder. Printed per worker count:
 
 - the cluster's start and the whole sweep (s),
-- points per second, over the whole sweep and in steady state (the points after each worker's
-  first, which designs and builds the FMUs),
+- points per second, over the whole sweep and in steady state (the sum over the workers of
+  the points after each one's first, which designs and builds the FMUs, per second),
 - the engine's per-point overhead: the sweep's time times the workers, less the time the
   points spent in :func:`harness.sweep.run_point`, per point (scheduling, transfer of the
   point's data and row, writing the row, and workers idle at the end; the cluster's start
@@ -75,16 +75,17 @@ def on_cluster(path: Path, workers: int) -> dict[str, float]:
     rows = report.rows
     if any(r["status"] != "ok" for r in rows):
         raise RuntimeError(next(r["reason"] for r in rows if r["status"] != "ok"))
-    first_end = {}
+    by_worker: dict[int, list[dict]] = {}
     for row in sorted(rows, key=lambda r: r["finished_at"]):
-        first_end.setdefault(row["pid"], row["finished_at"])
-    steady = [r for r in rows if r["finished_at"] > first_end[r["pid"]]]
-    span = max(r["finished_at"] for r in rows) - max(first_end.values())
+        by_worker.setdefault(row["pid"], []).append(row)
+    steady = [r for done in by_worker.values() for r in done[1:]]
+    rate = sum((len(done) - 1) / (done[-1]["finished_at"] - done[0]["finished_at"])
+               for done in by_worker.values() if len(done) > 1)
     busy = sum(r["wall_time_s"] for r in rows)
     return {
         "workers": workers, "cluster_s": cluster_s, "sweep_s": report.elapsed_s,
         "points_per_s": len(rows) / report.elapsed_s,
-        "steady_points_per_s": len(steady) / span if steady and span > 0 else float("nan"),
+        "steady_points_per_s": rate if steady else float("nan"),
         "overhead_s": (report.elapsed_s * workers - busy) / len(rows),
         "point_s": statistics.median(r["wall_time_s"] for r in steady) if steady else
         float("nan"),
