@@ -1,6 +1,7 @@
 """The native FMUs in the FMU Compliance Checker, against the pythonfmu FMUs under fmpy.
 
-Usage: ``python bench/check_fmucheck.py --fmucheck PATH --out DIR [--steps N] [--dt DT]``.
+Usage: ``python bench/check_fmucheck.py --fmucheck PATH --out DIR [--steps N] [--dt DT]
+[--pythonfmu]``.
 
 Builds the pendulum FMUs of ``examples/pendulum.toml`` (our design, with its Kalman filter)
 into ``DIR`` (pythonfmu FMUs in ``DIR/pythonfmu``, native FMUs in ``DIR/native``), then for
@@ -14,10 +15,15 @@ every kind (observer, luenberger, kalman, plant):
 3. runs the pythonfmu FMU through fmpy's ``FMU2Slave`` on the same input values, with the
    checker's calling sequence;
 
+4. with ``--pythonfmu``: runs the checker on the pythonfmu FMU too, in an empty environment
+   (no ``LD_PRELOAD``, ``PYTHONHOME`` or ``PATH``: its status wrapper loads the Python that
+   built it), log and results in ``DIR/<kind>_pythonfmu_fmucheck.*``;
+
 and prints a table: the warnings and errors the checker reports (its own and those the FMU
 logged), and the largest difference between the two runs, max |native - pythonfmu| / max
-|pythonfmu| over time, for the worst output (then every output). The checker's messages
-are printed under the table.
+|pythonfmu| over time, for the worst output (then every output); with ``--pythonfmu`` the same
+for the pythonfmu FMU in the checker against fmpy. The checker's messages are printed under
+the tables.
 
 Input convention: before each ``fmi2DoStep(t_k, h)`` the checker sets the inputs to the CSV
 interpolated linearly at ``t_k``. With one CSV row per step, that is the row of ``t_k``
@@ -34,7 +40,8 @@ Building the checker (linux64, offline, about 40 s): take the FMU Compliance Che
 checker's ``CMakeLists.txt``, replace the ``GIT_REPOSITORY`` and ``GIT_TAG`` lines of
 ``ExternalProject_Add(fmil ...)`` by ``DOWNLOAD_COMMAND ""`` so that the unpacked copy is
 used. Configure with CMake 3.x (CMake 4 rejects FMI Library 2.0.3's
-``LOCATION`` target property reads) and gcc, then build and install::
+``LOCATION`` target property reads; Debian's ``/usr/bin/cmake`` is 3.x where a pip-installed
+CMake 4 comes first on ``PATH``) and gcc, then build and install::
 
     mkdir build && cd build
     cmake .. -DCMAKE_BUILD_TYPE=Release -DFMUCHK_INSTALL_PREFIX=$PWD/../install
@@ -87,14 +94,20 @@ def write_inputs(path: Path, names: list[str], times: np.ndarray, values: np.nda
 
 
 def run_fmucheck(fmucheck: Path, fmu: Path, inputs: Path, stem: Path, stop: float,
-                 dt: float) -> tuple[dict[str, np.ndarray], tuple[int, ...], list[str]]:
-    """Run the checker on ``fmu``; return its output columns by name, (FMU-reported, checker
-    warnings, checker errors, checker fatal errors) and its warning/error/fatal log lines and
-    the FMU's own log messages."""
+                 dt: float, env: dict[str, str] | None = None
+                 ) -> tuple[dict[str, np.ndarray], tuple[int, ...], list[str]]:
+    """Run the checker on ``fmu`` (in the environment ``env``, this process's by default);
+    return its output columns by name, (FMU-reported, checker warnings, checker errors,
+    checker fatal errors) and its warning/error/fatal log lines and the FMU's own log
+    messages."""
     log, out = stem.with_suffix(".log"), stem.with_suffix(".csv")
-    subprocess.run([str(fmucheck), "-s", repr(stop), "-h", repr(dt), "-n", "0", "-l", "3",
-                    "-i", str(inputs), "-o", str(out), "-e", str(log), str(fmu)],
-                   check=False, capture_output=True, text=True)
+    log.unlink(missing_ok=True)
+    out.unlink(missing_ok=True)
+    done = subprocess.run([str(fmucheck), "-s", repr(stop), "-h", repr(dt), "-n", "0", "-l", "3",
+                           "-i", str(inputs), "-o", str(out), "-e", str(log), str(fmu)],
+                          check=False, capture_output=True, text=True, env=env)
+    if not log.exists():
+        log.write_text(f"the checker wrote no log (exit code {done.returncode})\n{done.stderr}")
     text = log.read_text()
     found = SUMMARY.search(text)
     counts = tuple(int(g) for g in found.groups()) if found else (-1, -1, -1)
@@ -155,17 +168,31 @@ def check_kind(kind: str, native: Path, python: Path, args: argparse.Namespace) 
                                            args.out / f"{kind}_fmucheck", args.steps * args.dt,
                                            args.dt)
     reference = run_fmpy(python, names, outputs, values, args.dt)
+    row = {"kind": kind, "counts": counts, "messages": messages, "outputs": outputs,
+           "relative": relative_differences(output_table(columns, outputs), reference),
+           "rows": len(output_table(columns, outputs))}
+    if args.pythonfmu:
+        columns, counts, messages = run_fmucheck(args.fmucheck, python, inputs,
+                                                 args.out / f"{kind}_pythonfmu_fmucheck",
+                                                 args.steps * args.dt, args.dt, env={})
+        checked = output_table(columns, outputs)
+        row["pythonfmu"] = {"kind": kind, "counts": counts, "messages": messages,
+                            "outputs": outputs, "rows": len(checked),
+                            "relative": relative_differences(checked, reference)}
+    return row
+
+
+def output_table(columns: dict[str, np.ndarray], outputs: list[str]) -> np.ndarray:
+    """The checker's ``outputs`` columns side by side (no rows if one is missing)."""
     if all(name in columns for name in outputs):
-        checked = np.column_stack([columns[name] for name in outputs])
-    else:
-        checked = np.empty((0, len(outputs)))
-    return {"kind": kind, "counts": counts, "messages": messages, "outputs": outputs,
-            "relative": relative_differences(checked, reference), "rows": len(checked)}
+        return np.column_stack([columns[name] for name in outputs])
+    return np.empty((0, len(outputs)))
 
 
-def print_report(results: list[dict], args: argparse.Namespace) -> None:
+def print_report(results: list[dict], args: argparse.Namespace,
+                 title: str = "the native FMUs") -> None:
     """The summary table, the per-output table and the checker's messages."""
-    print(f"\nFMU Compliance Checker on the native FMUs, {args.steps} steps of {args.dt:g} s, "
+    print(f"\nFMU Compliance Checker on {title}, {args.steps} steps of {args.dt:g} s, "
           f"against the pythonfmu FMUs under fmpy (same inputs, seed {args.seed})")
     print("| FMU | checker warnings | checker errors | fatal | FMU-reported | output rows | "
           "max rel. difference | worst output |")
@@ -194,6 +221,8 @@ def main() -> None:
     parser.add_argument("--dt", type=float, default=1e-3,
                         help="communication step (the native FMUs are built for it)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the input signals")
+    parser.add_argument("--pythonfmu", action="store_true",
+                        help="also run the checker on the pythonfmu FMUs, environment empty")
     args = parser.parse_args()
     if not args.fmucheck.is_file():
         parser.error(f"--fmucheck {args.fmucheck}: no such file (build the checker first, "
@@ -202,7 +231,11 @@ def main() -> None:
     gains = design_from_spec(load_spec(PENDULUM_SPEC))
     python = build_fmus(gains, args.out / "pythonfmu", kinds=KINDS)
     native = build_native_fmus(gains, args.out / "native", kinds=KINDS, steps=[args.dt])
-    print_report([check_kind(kind, native[kind], python[kind], args) for kind in KINDS], args)
+    results = [check_kind(kind, native[kind], python[kind], args) for kind in KINDS]
+    print_report(results, args)
+    if args.pythonfmu:
+        print_report([r["pythonfmu"] for r in results], args,
+                     "the pythonfmu FMUs (empty environment: env -i)")
 
 
 if __name__ == "__main__":

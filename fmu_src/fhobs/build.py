@@ -326,7 +326,8 @@ def python_record() -> str:
 
     libdir = Path(sysconfig.get_config_var("LIBDIR") or Path(sys.base_prefix) / "lib")
     names = [sysconfig.get_config_var(key) for key in ("INSTSONAME", "LDLIBRARY")]
-    found = [libdir / name for name in names if name and ".so" in name and (libdir / name).is_file()]
+    found = [libdir / name for name in names
+             if name and ".so" in name and (libdir / name).is_file()]
     lines = [
         "# The Python that built this FMU (read by the status wrapper in a native host)",
         "version={}.{}".format(*sys.version_info[:2]),

@@ -20,7 +20,7 @@ import fmpy
 import fmu_fixtures
 import numpy as np
 import pytest
-from fhobs.build import PYTHON_RECORD
+from fhobs.build import PYTHON_RECORD, python_record
 from fhobs.core.kernel import compile_source
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
@@ -174,8 +174,21 @@ def test_empty_environment_runs_the_fmu_as_fmpy_does(host, folders, kind, tmp_pa
     columns, rows = read_outputs(tmp_path / "out.csv")
     assert np.allclose(rows[:, 0], DT * np.arange(len(values)), rtol=0, atol=1e-15)
     expected = fmpy_rows(folders[kind], names, values, columns)
-    scale = np.abs(expected).max(axis=0)
-    assert np.all(np.abs(rows[:, 1:] - expected).max(axis=0) <= RTOL * np.where(scale > 0, scale, 1))
+    scale = np.where(np.abs(expected).max(axis=0) > 0, np.abs(expected).max(axis=0), 1.0)
+    assert np.all(np.abs(rows[:, 1:] - expected).max(axis=0) <= RTOL * scale)
+
+
+def test_build_records_this_interpreter_in_each_fmu(pendulum_fmus, folders):
+    """resources/fhobs_python.txt: this interpreter's shared library, prefix, executable and
+    numpy's directory."""
+    record = python_record()
+    for path in pendulum_fmus.values():
+        with zipfile.ZipFile(path) as archive:
+            assert archive.read(PYTHON_RECORD).decode() == record
+    facts = dict(line.split("=", 1) for line in record.splitlines() if "=" in line)
+    assert facts["home"] == sys.base_prefix and facts["executable"] == sys.executable
+    assert (Path(facts["site"]) / "numpy" / "__init__.py").is_file()
+    assert facts["library"] == "" or Path(facts["library"]).is_file()
 
 
 def test_python_on_path_is_used_when_the_record_points_nowhere(host, folders, tmp_path):
