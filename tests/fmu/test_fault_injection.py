@@ -15,10 +15,8 @@ import re
 import shutil
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
 
-import fmpy
 import fmu_fixtures
 import numpy as np
 import pytest
@@ -160,61 +158,6 @@ def test_mistake_is_an_error_with_a_message_instance_usable(child_run, case):
     assert result["usable"]  # the same steps give the same estimates as a clean instance
     for message in result["messages"]:
         assert not any(word in message for word in UNREADABLE), message
-
-
-# -- a native host without libpython ----------------------------------------------------------
-NATIVE_HOST = r"""
-#include <dlfcn.h>
-#include <stdio.h>
-#include "fmi2Functions.h"
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
-    fmi2String category, fmi2String message, ...)
-{
-    printf("LOG %d %s\n", (int)status, message);
-}
-int main(int argc, char **argv)
-{
-    void *lib = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL);
-    if (lib == NULL || argc != 4) {
-        return 3;
-    }
-    fmi2CallbackFunctions functions = {logger, NULL, NULL, NULL, NULL};
-    fmi2Component c = ((fmi2InstantiateTYPE *)dlsym(lib, "fmi2Instantiate"))(
-        "native", fmi2CoSimulation, argv[2], argv[3], &functions, fmi2False, fmi2False);
-    printf("INSTANCE %s\n", c == NULL ? "NULL" : "made");
-    printf("VERSION %s\n", ((fmi2GetVersionTYPE *)dlsym(lib, "fmi2GetVersion"))());
-    printf("DOSTEP %d\n", (int)((fmi2DoStepTYPE *)dlsym(lib, "fmi2DoStep"))(c, 0.0, 1e-3, 1));
-    return 0;
-}
-"""
-
-
-def test_native_host_without_libpython_gets_null_and_the_loaders_message(
-    pendulum_fmus, tmp_path
-):
-    """A C host (no libpython in the process) cannot load pythonfmu's library: the wrapper's
-    fmi2Instantiate returns NULL with the loader's message to the host's logger, other calls
-    return fmi2Error, and the host exits normally (no abort())."""
-    source = tmp_path / "host.c"
-    source.write_text(NATIVE_HOST)
-    host = tmp_path / "host"
-    subprocess.run(["cc", "-o", str(host), str(source),
-                    f"-I{Path(fmpy.__file__).parent / 'c-code'}", "-ldl"], check=True)
-    fmu = tmp_path / "observer"
-    with zipfile.ZipFile(pendulum_fmus["observer"]) as z:
-        z.extractall(fmu)
-    description = read_model_description(str(pendulum_fmus["observer"]))
-    identifier = description.coSimulation.modelIdentifier
-    library = fmu / "binaries" / "linux64" / f"{identifier}.so"
-    done = subprocess.run([str(host), str(library), description.guid, (fmu / "resources").as_uri()],
-                          capture_output=True, text=True, timeout=60, check=False)
-    assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()
-    assert "INSTANCE NULL" in lines and "VERSION 2.0" in lines and f"DOSTEP {FMI_ERROR}" in lines
-    (log,) = [line for line in lines if line.startswith("LOG ")]
-    assert log.startswith(f"LOG {FMI_ERROR} ")
-    assert f"{identifier}_pythonfmu.so" in log and "undefined symbol" in log
-    assert "LD_PRELOAD" in log
 
 
 # -- tunability and FMU states ----------------------------------------------------------------

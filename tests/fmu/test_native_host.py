@@ -37,19 +37,6 @@ def test_host_detects_libpython_in_its_process(native_host, unzipped_observer, t
     assert "libpython is mapped" in done.stderr
 
 
-def test_host_without_libpython_reports_the_pythonfmu_loader_failure(native_host,
-                                                                     unzipped_observer,
-                                                                     tmp_path):
-    """A pythonfmu FMU cannot run in a Python-free process: the host sees a NULL instance
-    (exit 2) with the FMU's own explanation in the log, and does not crash."""
-    inputs = tmp_path / "in.csv"
-    write_inputs(inputs, ["y[1]", "y[2]", "u[1]"], np.array([0.0, 5e-5]), np.zeros((2, 3)))
-    done = run_host(native_host, unzipped_observer, inputs, tmp_path / "out.csv", 5e-5)
-    assert done.returncode == 2, done.stderr
-    assert "fmi2Instantiate returned NULL" in done.stderr
-    assert "libpython" in done.stderr
-
-
 def test_host_rejects_an_unknown_input_name(native_host, unzipped_observer, tmp_path):
     inputs = tmp_path / "in.csv"
     write_inputs(inputs, ["y[9]"], np.array([0.0, 5e-5]), np.zeros((2, 1)))
