@@ -31,6 +31,7 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from harness.blocks import block_fmu
+from harness.blocks.native import KIND_MACROS
 from harness.system import (
     ConnectionSpec,
     FmuSpec,
@@ -101,7 +102,8 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
         Where the blocks are built (see :func:`harness.blocks.block_fmu`).
     native_blocks
         Native blocks (True), pythonfmu blocks (False), or (None) native blocks exactly when
-        none of the system's own FMUs is a pythonfmu FMU (:func:`is_pythonfmu`). Blocks the
+        none of the system's own FMUs is a pythonfmu FMU (:func:`is_pythonfmu`) and every
+        block has a native version (:data:`harness.blocks.native.KIND_MACROS`). Blocks the
         spec already has files for are replaced by the chosen ones.
 
     Returns
@@ -121,8 +123,8 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
     """
     lowered = lower_gains(spec)
     if native_blocks is None:
-        native_blocks = not any(is_pythonfmu(fs.path) for fs in lowered.fmus.values()
-                                if fs.block is None)
+        native_blocks = all(fs.block[0] in KIND_MACROS if fs.block else not is_pythonfmu(fs.path)
+                            for fs in lowered.fmus.values())
     fmus = {name: fs if fs.block is None
             else replace(fs, path=block_fmu(*fs.block, block_cache, native=native_blocks))
             for name, fs in lowered.fmus.items()}

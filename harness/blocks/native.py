@@ -27,6 +27,7 @@ HERE = Path(__file__).resolve().parent
 C_SOURCES = ("native_blocks.c", "native_blocks.h")
 """The block layer's C files (in this folder), shipped in every native block's ``sources/``."""
 KIND_MACROS = {"sine": "BLOCK_SINE", "gain": "BLOCK_GAIN"}
+"""The block kinds with a native version, and their ``BLOCK_KIND`` in ``native_blocks.c``."""
 ROLES = {"parameter": "ROLE_PARAMETER", "input": "ROLE_INPUT", "output": "ROLE_OUTPUT"}
 CAPABILITIES = {
     "needsExecutionTool": "false",
@@ -63,7 +64,8 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     Raises
     ------
     fhobs.errors.BuildError
-        Without a C compiler on PATH, or if compiling fails.
+        For a kind without a native version (not in :data:`KIND_MACROS`), without a C
+        compiler on PATH, or if compiling fails.
 
     Examples
     --------
@@ -77,6 +79,9 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     from fhobs.errors import BuildError
     from fhobs.native.build import FMI_HEADERS, _fmi_headers, compile_binary
 
+    if kind_name not in KIND_MACROS:
+        raise BuildError(f"harness block {kind_name!r} has no native version (native blocks: "
+                         f"{', '.join(KIND_MACROS)})")
     kind = BLOCK_KINDS[kind_name]
     reference = block_fmu(kind_name, dims, cache_dir)  # checks kind_name and dims
     dims = tuple(int(d) for d in dims)

@@ -242,6 +242,15 @@ def test_wrong_guid_and_model_exchange_are_refused(fmus, tmp_path):
     assert not component and "co-simulation only" in messages[-1]
 
 
+def test_kinds_without_a_native_version_are_refused(cache):
+    from fhobs.errors import BuildError
+
+    from harness.blocks.native import native_block_fmu
+
+    with pytest.raises(BuildError, match="'ramp' has no native version"):
+        native_block_fmu("ramp", (1,), cache)
+
+
 def test_docstring_examples():
     result = doctest.testmod(harness.blocks.native, optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
