@@ -36,11 +36,12 @@ co-simulation per point of a sweep file and writes one table of their figures. A
     perturbation = "pendulum_perturbed"   # its max error (first window) on the x-axis
     noisy = "pendulum_noisy"              # its RMS error (first window, mean over seeds)
 
-Each point designs the observer of its spec (cached in the worker by the content hash of the
-spec, so equal designs are designed and built once per worker), builds its FMUs into a
-worker-local temporary folder (:func:`fhobs.native.build.build_native_fmus` or
-:func:`fhobs.build.build_fmus`: nothing but the point's data travels to a worker, no disk is
-shared), co-simulates the scenario (:func:`harness.master.run_system`) and returns its row: its
+Each distinct design (the content hash of the point's spec) is designed and its FMUs built
+once per sweep, by one worker (:func:`build_bundle`, a task the points of that design depend
+on; :func:`fhobs.native.build.build_native_fmus` or :func:`fhobs.build.build_fmus`, into that
+worker's temporary folder); the design and the FMU files' bytes travel to the workers that run
+its points, which write them into their own temporary folders (no disk is shared). Each point
+then co-simulates the scenario (:func:`harness.master.run_system`) and returns its row: its
 parameters, the figures of :func:`harness.results.error_figures` per estimator
 (``<estimator>.<figure>``), wall time, status and, when it failed, the reason. A scenario base
 runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_plant_system`
@@ -68,6 +69,7 @@ import socket
 import tempfile
 import time
 import tomllib
+import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -742,11 +744,22 @@ def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> d
     >>> sorted(point_fmus(gains, key, "native", {}))              # doctest: +SKIP
     ['kalman', 'luenberger', 'observer', 'plant']
     """
-    tag = _digest(json.dumps([key, flavour, options], sort_keys=True, default=float).encode())
+    tag = fmu_tag(key, flavour, options)
     if tag not in _FMU_DIRS:
         out = _workdir() / "fmus" / tag
         _FMU_DIRS[tag] = _build(gains, out, flavour, dict(options))
     return _FMU_DIRS[tag]
+
+
+def fmu_tag(key: str, flavour: str, options: dict[str, Any]) -> str:
+    """The hash FMUs are cached by: design key, flavour and build options.
+
+    Examples
+    --------
+    >>> fmu_tag("abc", "native", {}) == fmu_tag("abc", "native", {"kinds": None})
+    False
+    """
+    return _digest(json.dumps([key, flavour, options], sort_keys=True, default=float).encode())
 
 
 def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
@@ -772,6 +785,103 @@ def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict
     return fmus
 
 
+def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
+    """The keyword arguments of a point's FMU build: the kinds its system runs and, for a
+    plant-spec base, the start values ``harness plant`` builds with.
+
+    Examples
+    --------
+    >>> from fhobs.spec import spec_from_dict
+    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]]})
+    >>> build_options({"kind": "plant", "step": 1e-3}, spec)["kinds"]
+    ['plant', 'observer', 'luenberger', 'prescribed_time']
+    """
+    if job["kind"] != "plant":
+        return {"kinds": sorted(Path(fs.path).stem for fs in job["system"].fmus.values()
+                                if fs.path is not None
+                                and str(fs.path).startswith(FMU_PLACEHOLDER))}
+    noise, step = _plant_noise(spec), _plant_step(job, spec)
+    options: dict[str, Any] = {
+        "x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step,
+        "kinds": [k for k in PLANT_FMUS if (k != "kalman" or spec.noise is not None)
+                  and (k != "prescribed_time" or noise == 0.0)],  # it runs without noise
+    }
+    if noise == 0.0:
+        options["T0"] = float(spec.settling_time)
+    return options
+
+
+def _plant_noise(spec: Any) -> float:
+    """The plant FMU's uniform noise amplitude for the spec's ``[noise]`` table."""
+    return 0.0 if spec.noise is None else float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
+
+
+def _plant_step(job: dict[str, Any], spec: Any) -> float:
+    from harness.own_plant import STEP
+
+    return job["step"] or (spec.noise.sample_time if spec.noise is not None else STEP)
+
+
+def point_build(job: dict[str, Any]) -> tuple[Any, Any, dict[str, Path]]:
+    """The point's spec, design and FMUs (each made once per process).
+
+    Returns
+    -------
+    tuple
+        ``(PlantSpec, ObserverGains, {kind: path})``.
+
+    Examples
+    --------
+    >>> spec, gains, fmus = point_build(job)      # doctest: +SKIP
+    >>> sorted(fmus)                              # doctest: +SKIP
+    ['kalman', 'luenberger', 'observer', 'plant']
+    """
+    spec, gains, key = point_design(job)
+    return spec, gains, point_fmus(gains, key, job["fmus"], build_options(job, spec))
+
+
+def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
+    """Design and build a point's FMUs; the design and the FMU files' bytes, for the workers
+    that run the points of the same design (:func:`run_point`): one build per sweep.
+
+    Returns
+    -------
+    dict
+        ``design_key``, ``gains`` (ObserverGains), ``tag`` (:func:`fmu_tag`) and ``files``
+        (``{kind: (path relative to the FMU folder, bytes)}``).
+
+    Examples
+    --------
+    >>> bundle = build_bundle(job)                 # doctest: +SKIP
+    >>> run_point(other_job_of_the_same_design, bundle)["status"]  # doctest: +SKIP
+    'ok'
+    """
+    spec, gains, fmus = point_build(job)
+    key = design_key(job)
+    tag = fmu_tag(key, job["fmus"], build_options(job, spec))
+    root = _workdir() / "fmus" / tag
+    files = {kind: (str(path.relative_to(root)), path.read_bytes()) for kind, path in fmus.items()}
+    return {"design_key": key, "gains": gains, "tag": tag, "files": files}
+
+
+def install_bundle(job: dict[str, Any], bundle: dict[str, Any]) -> None:
+    """Take a bundle of :func:`build_bundle` into this process's caches (its FMUs written
+    into this worker's temporary folder), so that the point neither designs nor builds."""
+    from fhobs.spec import spec_from_dict
+
+    if bundle["design_key"] not in _DESIGNS:
+        spec = spec_from_dict(design_spec_data(job), source=f"spec of base {job['base']!r}")
+        _DESIGNS[bundle["design_key"]] = (spec, bundle["gains"])
+    if bundle["tag"] not in _FMU_DIRS:
+        root = _workdir() / "fmus" / bundle["tag"]
+        paths = {}
+        for kind, (relative, data) in bundle["files"].items():
+            paths[kind] = root / relative
+            paths[kind].parent.mkdir(parents=True, exist_ok=True)
+            paths[kind].write_bytes(data)
+        _FMU_DIRS[bundle["tag"]] = paths
+
+
 def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
     """The runnable system of a point (designed, FMUs built) and its stop time.
 
@@ -782,21 +892,21 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
     >>> point_system(job)[0].fmus["plant"].start["noise_seed"]           # doctest: +SKIP
     2
     """
+    from harness.own_plant import RUNS_PER_SETTLING_TIME, own_plant_system
     from harness.system import build_blocks
 
-    spec, gains, key = point_design(job)
+    spec, gains, fmus = point_build(job)
     if job["kind"] == "plant":
-        system, stop = _plant_system(job, spec, gains, key)
+        step = _plant_step(job, spec)
+        stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
+        stop = step * round(stop / step)
+        system = own_plant_system(gains, fmus, spec.state_scale, stop, step, _plant_noise(spec))
     else:
         system = job["system"]
         step = system.step if job["step"] is None else job["step"]
-        kinds = sorted(Path(fs.path).stem for fs in system.fmus.values()
-                       if fs.path is not None and str(fs.path).startswith(FMU_PLACEHOLDER))
-        fmus = point_fmus(gains, key, job["fmus"], {"kinds": kinds})
         system = replace(system, step=step, fmus=_placed(system, fmus, job["files"]))
         stop = job["stop_time"]
-        blocks = _workdir() / "blocks"
-        system = build_blocks(system, blocks)
+        system = build_blocks(system, _workdir() / "blocks")
     sets = {axis[4:]: value for axis, value in job["params"].items() if axis.startswith("set.")}
     if sets:
         system = system.with_start(sets)
@@ -808,26 +918,6 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
             system.evaluation, at=tuple(ev["at"]),
             windows=tuple(tuple(w) for w in ev["windows"])))
     return system, stop
-
-
-def _plant_system(job: dict[str, Any], spec: Any, gains: Any,
-                  key: str) -> tuple[SystemSpec, float]:
-    """The default closed loop of a plant spec, as ``harness plant`` runs it."""
-    from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
-
-    noise = 0.0
-    if spec.noise is not None:
-        noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
-    step = job["step"] or (spec.noise.sample_time if spec.noise is not None else STEP)
-    stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
-    stop = step * round(stop / step)
-    options = {"x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step}
-    options["kinds"] = [k for k in PLANT_FMUS if (k != "kalman" or gains.kalman is not None)
-                        and (k != "prescribed_time" or noise == 0.0)]  # it runs without noise
-    if noise == 0.0:
-        options["T0"] = float(spec.settling_time)
-    fmus = point_fmus(gains, key, job["fmus"], options)
-    return own_plant_system(gains, fmus, spec.state_scale, stop, step, noise), stop
 
 
 def _placed(system: SystemSpec, fmus: dict[str, Path],
@@ -853,13 +943,16 @@ def _placed(system: SystemSpec, fmus: dict[str, Path],
     return out
 
 
-def run_point(job: dict[str, Any]) -> dict[str, Any]:
+def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict[str, Any]:
     """Design, build and co-simulate one point; its row (a failure is a row too).
 
     Parameters
     ----------
     job : dict
         From :func:`make_job`.
+    bundle : dict, optional
+        The point's design and FMUs from :func:`build_bundle` (default: designed and built
+        here, once per process).
 
     Returns
     -------
@@ -883,6 +976,8 @@ def run_point(job: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {"status": STATUS_OK, "reason": "", "cosim_s": math.nan}
     try:
         with np.errstate(all="ignore"):
+            if bundle is not None:
+                install_bundle(job, bundle)
             system, stop = point_system(job)
             result = run_system(resolve_system(system), stop, progress=False)
         row["cosim_s"] = result.wall_time_s
@@ -1056,11 +1151,17 @@ def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Poin
     on, after the workers running it died, yields a failed row)."""
     from distributed import as_completed
 
-    futures = {}
+    futures, builds = {}, {}
+    token = uuid.uuid4().hex[:8]
     for point in todo:
         job = make_job(sweep.bases[point.params.get("base", sweep.settings["base"])],
                        point.params, sweep.settings)
-        future = client.submit(run_point, job, key=f"fhobs-sweep-{point.key}", pure=False)
+        group = build_group(job)
+        if group not in builds:
+            builds[group] = client.submit(build_bundle, job, key=f"fhobs-build-{group}-{token}",
+                                          pure=False)
+        future = client.submit(run_point, job, builds[group], key=f"fhobs-sweep-{point.key}",
+                               pure=False)
         futures[future.key] = (future, point)
     for future in as_completed([f for f, _ in futures.values()]):
         point = futures[future.key][1]
@@ -1070,6 +1171,22 @@ def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Poin
             row = {"status": STATUS_FAILED, "reason": one_paragraph(err)}
         future.release()
         yield point, row
+
+
+def build_group(job: dict[str, Any]) -> str:
+    """The points that share one design and FMU build (:func:`build_bundle`) share this hash:
+    the design key, the FMU flavour, the base (its FMU kinds) and a plant base's step.
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> jobs = [make_job(sweep.bases["pendulum_noisy"], p.params, sweep.settings)
+    ...         for p in sweep.points[1:]]
+    >>> len({build_group(job) for job in jobs})
+    1
+    """
+    data = [design_key(job), job["fmus"], job["base"], job["kind"] == "plant" and job["step"]]
+    return _digest(json.dumps(data, default=str).encode())
 
 
 def _full_row(sweep: Sweep, point: Point, row: dict[str, Any]) -> dict[str, Any]:

@@ -143,7 +143,7 @@ def test_local_cluster_runs_every_point_then_resumes(tmp_path):
     sweep = load_sweep(path)
     out = tmp_path / "out"
     report = run_sweep(sweep, out, workers=2, progress=False)
-    assert (report.ran, report.skipped, report.failed) == (4, 0, 1)
+    assert (report.ran, report.skipped, report.failed) == (4, 0, 1), report.rows
     table = pq.read_table(out / "sweep.parquet").to_pylist()
     csv = pa_csv.read_csv(out / "sweep.csv").to_pylist()
     assert [(r["key"], r["status"]) for r in csv] == [(r["key"], r["status"]) for r in table]
@@ -174,6 +174,29 @@ def test_local_cluster_runs_every_point_then_resumes(tmp_path):
     assert after[lost]["finished_at"] > before[lost]["finished_at"]
     assert after[lost]["homogeneous.rms_error_0_1_0_2"] == \
         before[lost]["homogeneous.rms_error_0_1_0_2"]
+
+
+@pytest.mark.slow
+def test_scenario_base_with_native_fmus_step_and_start_value_axes(tmp_path):
+    """The paper's nominal scenario, our pendulum design, native FMUs (built once for both
+    steps: they take any step): the step and the plant's x(0) as axes; the figures follow
+    the step (the homogeneous observer's error at 0.1 s is the same to 1e-3 relative) and
+    x(0) (a smaller initial error, a smaller error)."""
+    path = tmp_path / "nominal.toml"
+    path.write_text('base = "pendulum_nominal"\nstop_time = 0.2\n[evaluation]\nat = [0.1]\n'
+                    'windows = [[0.1, 0.2]]\n[grid]\nstep = [5e-5, 1e-4]\n'
+                    '"set.plant.x0" = [[2, 2, 1, 2], [0.2, 0.2, 0.1, 0.2]]\n')
+    report = run_sweep(load_sweep(path), tmp_path / "out", workers=1, progress=False)
+    assert report.failed == 0, [r["reason"] for r in report.rows]
+    rows = {(r["step"], r["set.plant.x0"][0]): r for r in report.rows}
+    assert rows[(5e-5, 2)]["steps"] == 4000 and rows[(1e-4, 2)]["steps"] == 2000
+    for x0 in (2, 0.2):
+        fine, coarse = (rows[(dt, x0)]["homogeneous.max_error_0_1_0_2"] for dt in (5e-5, 1e-4))
+        assert coarse == pytest.approx(fine, rel=1e-3, abs=1e-9)
+    assert rows[(5e-5, 0.2)]["linear.error_at_0_1"] < rows[(5e-5, 2)]["linear.error_at_0_1"]
+    assert len({r["pid"] for r in report.rows}) == 1
+    assert {p.name for p in (tmp_path / "out" / "plots").glob("*.png")} == {
+        "step.png", "set.plant.x0.png"}
 
 
 def _start(args: list[str], log: Path) -> subprocess.Popen:
