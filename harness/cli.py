@@ -12,7 +12,9 @@
 - ``plant SPEC --out DIR``: your own plant: designs its observer (the design's defaults where
   the spec is silent), builds its FMUs into ``DIR/fmus`` and runs the default scenario of
   :mod:`harness.own_plant` (x(0) = state_scale, observers at zero, u = K x on the true state,
-  three settling times); results and plots (errors, states against estimates) in DIR.
+  three settling times; the spec's ``[disturbance]`` fed to the plant's q, its ``[mismatch]``
+  or ``--mismatch`` perturbing the plant FMU's A and B); results (x and q errors over the
+  transient and the steady window) and plots (errors, states, q against its estimates) in DIR.
 - ``list``: the bundled scenarios.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
 - ``sweep SWEEP.toml --out DIR``: the points of a sweep file (design axes, spec entries, start
@@ -38,7 +40,14 @@ from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec
 
 from harness.master import CoSimResult, MasterError, run_system
-from harness.own_plant import RUNS_PER_SETTLING_TIME, STEP, own_plant_system
+from harness.own_plant import (
+    RUNS_PER_SETTLING_TIME,
+    STEP,
+    own_plant_system,
+    plant_table,
+    run_own_plant,
+    transient_end,
+)
 from harness.results import summary, write_csv, write_summary
 from harness.system import (
     DescriptionError,
@@ -150,6 +159,12 @@ def _parser() -> argparse.ArgumentParser:
     plant.add_argument("--native", action="store_true",
                        help="also build native FMUs for the step (fmus/native) and run them "
                             "(the prescribed-time observer has none: its pythonfmu FMU runs)")
+    plant.add_argument("--mismatch", type=float, metavar="SIZE",
+                       help="perturb the plant FMU's A and B by this relative size (0.1 = "
+                            "10 %%; the spec's [mismatch] distribution, default gaussian); the "
+                            "observers keep the nominal model")
+    plant.add_argument("--mismatch-seed", type=int, metavar="N",
+                       help="seed of the mismatch (default: the [mismatch] table's, else 0)")
     sub.add_parser("list", help="list the bundled scenarios")
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
@@ -392,11 +407,40 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def plant_mismatch(spec: PlantSpec, size: float | None, seed: int | None) -> PlantSpec:
+    """The spec with ``--mismatch SIZE`` / ``--mismatch-seed N`` applied to its ``[mismatch]``
+    table (SpecError for a bad value, or a seed without a size anywhere).
+
+    Examples
+    --------
+    >>> from fhobs.spec import plant_spec
+    >>> plant_mismatch(plant_spec([[0.0]], [[1.0]], [[1.0]]), 0.1, 7).mismatch
+    MismatchSpec(size=0.1, distribution='gaussian', seed=7)
+    """
+    from fhobs.spec import mismatch_spec
+
+    if size is None and seed is None:
+        return spec
+    table = spec.mismatch
+    if size is None and table is None:
+        raise SpecError("--mismatch-seed needs --mismatch SIZE or a [mismatch] table in "
+                        f"{spec.source}")
+    mismatch = mismatch_spec(
+        table.size if size is None else size,
+        "gaussian" if table is None else table.distribution,
+        (0 if table is None else table.seed) if seed is None else seed,
+        "--mismatch/--mismatch-seed")
+    return replace(spec, mismatch=mismatch)
+
+
 def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.build import build_fmus
+    from fhobs.spec import load_spec
 
     check_output_folder(args.out)
+    plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing
     spec, gains = design_spec_file(args.spec)
+    spec = plant_mismatch(spec, args.mismatch, args.mismatch_seed)
     noise = 0.0
     if spec.noise is not None:
         noise = float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
@@ -409,11 +453,30 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     if args.native:
         from fhobs.native.build import build_native_fmus
 
-        fmus |= build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,), **options)
-    system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise)
-    data = run_scenario(system, args.out, None, [args.seed] if noise else None, 1,
-                        not args.no_plots, csv_every(args, 1))
-    print(format_table({f"{args.spec.stem}": data}))
+        native = build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,), **options)
+        if spec.mismatch is not None:  # its A and B are compiled in: the pythonfmu plant runs
+            native.pop("plant")
+        fmus |= native
+    settled = transient_end(gains, spec.settling_time, step, stop_time)
+    plant, about = None, {}
+    if spec.mismatch is not None:
+        plant = spec.mismatch.perturb(gains.A, gains.B)
+        about["mismatch"] = {**vars(spec.mismatch), "A": plant[0].tolist(),
+                             "B": plant[1].tolist()}
+    if spec.disturbance is not None:
+        about["disturbance"] = {**vars(spec.disturbance), "size": spec.disturbance.size.tolist()}
+    system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise,
+                              disturbance=spec.disturbance, plant_matrices=plant,
+                              settled=settled)
+    system = build_blocks(system, args.block_cache)
+    data = run_own_plant(system, args.out, settled=settled,
+                         channels=0 if gains.E is None else gains.E.shape[1],
+                         seed=args.seed if noise else None, plots=not args.no_plots,
+                         csv_every=csv_every(args, 1), about=about)
+    print(plant_table(data))
+    steady = f"steady [{settled:g}, {stop_time:g}] s" if settled < stop_time else "no steady window"
+    print(f"windows: transient [0, {settled:g}] s, {steady}; {data['steps']} steps, "
+          f"{data['wall_time_s']:.2f} s")
     if not args.no_plots:
         print(f"plots: {', '.join(data['plots'])}")
     print(f"results in {args.out}, FMUs in {args.out / 'fmus'}")

@@ -7,6 +7,9 @@
   the co-simulated signals.
 - ``states.png`` (systems whose error signals all compare with one reference, e.g. ``plant.x``):
   each component of the reference and of every estimate over time.
+- The plant command (:mod:`harness.own_plant`) draws its own ``errors.png``
+  (:func:`plot_plant_errors`: ``||x - x_hat||`` and ``||q - q_hat||``, the transient shaded) and
+  ``disturbance.png`` (:func:`plot_disturbance`: each q channel and its estimates).
 """
 
 from __future__ import annotations
@@ -93,6 +96,128 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
         ax.set_ylabel(f"x[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
+                      q_hats: dict[str, np.ndarray], settled: float, path: Path) -> Path:
+    """``errors.png`` of the plant command: ``||x - x_hat||`` per estimator (top) and, when an
+    estimator has a disturbance model, ``||q - q_hat||`` (bottom), log scale; the transient
+    ``[t0, settled]`` shaded.
+
+    Parameters
+    ----------
+    result : CoSimResult
+        The run.
+    errors : dict
+        ``{label: (reference, estimate)}`` of the x errors (the evaluation's).
+    q : numpy.ndarray
+        The q the plant got (time x r).
+    q_hats : dict
+        ``{label: q_hat}`` (time x r) of the estimators with a disturbance model.
+    settled : float
+        End of the transient window.
+    path : Path
+        The PNG to write.
+
+    Returns
+    -------
+    Path
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> t = np.linspace(0.0, 1.0, 11)
+    >>> result = CoSimResult(t, ("p.x[1]", "o.x_hat[1]"),
+    ...                      np.column_stack([np.ones(11), 1 - np.exp(-5 * t)]), 10, 0.0)
+    >>> q = np.ones((11, 1))
+    >>> path = Path(tempfile.mkdtemp()) / "errors.png"
+    >>> q_hats = {"obs": 1 - np.exp(-3 * t)[:, None]}
+    >>> plot_plant_errors(result, {"obs": ("p.x", "o.x_hat")}, q, q_hats, 0.5,
+    ...                   path).stat().st_size > 1000
+    True
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = 2 if q_hats else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(7, 2.6 * rows + 0.8), sharex=True,
+                             layout="constrained", squeeze=False)
+    colours = {label: f"C{i}" for i, label in enumerate(errors)}
+    for label, (reference, estimate) in errors.items():
+        e = error_norm(result, reference, estimate)
+        axes[0, 0].semilogy(result.time, np.maximum(e, 1e-16), color=colours[label],
+                            label=f"{label}: ||x - x_hat||")
+    for label, q_hat in q_hats.items():
+        e = np.linalg.norm(q - q_hat, axis=1)
+        axes[1, 0].semilogy(result.time, np.maximum(e, 1e-16), color=colours.get(label),
+                            label=f"{label}: ||q - q_hat||")
+    for ax, what in zip(axes[:, 0], ("state error", "q error"), strict=False):
+        ax.axvspan(result.time[0], settled, color="0.92", zorder=0)
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize="small")
+    axes[0, 0].set_title("estimation errors (shaded: transient, up to the settling time)")
+    axes[-1, 0].set_xlim(result.time[0], result.time[-1])
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
+                     settled: float, path: Path) -> Path:
+    """``disturbance.png``: one panel per q channel with q (the plant's input) and every
+    estimator's ``q_hat`` of it; the transient shaded.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Sample times.
+    q : numpy.ndarray
+        The q the plant got (time x r).
+    q_hats : dict
+        ``{label: q_hat}`` (time x r).
+    settled : float
+        End of the transient window.
+    path : Path
+        The PNG to write.
+
+    Returns
+    -------
+    Path
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> t = np.linspace(0.0, 1.0, 11)
+    >>> path = Path(tempfile.mkdtemp()) / "disturbance.png"
+    >>> plot_disturbance(t, np.ones((11, 1)), {"obs": np.zeros((11, 1))}, 0.5,
+    ...                  path).stat().st_size > 1000
+    True
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    r = q.shape[1]
+    fig, axes = plt.subplots(r, 1, figsize=(7, 1.8 * r + 0.8), sharex=True,
+                             layout="constrained", squeeze=False)
+    for i, ax in enumerate(axes[:, 0]):
+        ax.plot(time, q[:, i], color="k", lw=2, label="q")
+        for label, q_hat in q_hats.items():
+            ax.plot(time, q_hat[:, i], lw=1, label=f"{label} q_hat")
+        ax.axvspan(time[0], settled, color="0.92", zorder=0)
+        ax.set_ylabel(f"q[{i + 1}]")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize="small", ncol=len(q_hats) + 1)
+    axes[-1, 0].set_xlim(time[0], time[-1])
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -28,6 +28,26 @@ Format::
     process_intensity = 3e-3  # intensity of the white noise driving q^(r) (q itself for r = 0)
     disturbance_order = 1     # r in 0..3; default: observer.disturbance_order
 
+    [disturbance]             # optional table: the unknown input q that `harness plant` feeds
+                              # the plant FMU (needs E); the design ignores it
+    shape = "step"            # "step", "ramp", "sine" or "random_walk"; q = 0 before start
+    size = [0.5]              # per q channel (r entries) or one number for all: the step's
+                              # height, the ramp's slope (per s), the sine's amplitude, the
+                              # random walk's intensity (q units per sqrt(s), >= 0)
+    start = 0.5               # s, when q starts (default 0)
+    frequency = 2.0           # Hz, shape = "sine" only (required there):
+                              # q = size sin(2 pi frequency (t - start))
+    seed = 0                  # shape = "random_walk" only (default 0): the increments
+                              # size sqrt(h) w_k, w_k ~ N(0, I) of numpy's default_rng(seed),
+                              # one per communication step h from start on
+
+    [mismatch]                # optional table: `harness plant`'s plant FMU gets A and B
+                              # perturbed entry by entry; the observers keep the nominal model
+    size = 0.1                # relative size s >= 0: A_ij (1 + s w_ij), B_ij (1 + s w_ij)
+    distribution = "gaussian" # w ~ N(0, 1) ("gaussian", the default) or U(-1, 1) ("uniform"),
+                              # drawn for A (row by row), then B, from numpy's default_rng(seed)
+    seed = 0                  # default 0
+
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
 
@@ -50,7 +70,7 @@ DEFAULT_SETTLING_TIME = 2.0
 OBJECTIVES = ("min_cond", "min_gain")
 """The LMI objectives a design accepts (:mod:`fhobs.lmi` implements them)."""
 DEFAULT_OBJECTIVE = "min_cond"
-TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise")
+TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise", "disturbance", "mismatch")
 OBSERVER_KEYS = (
     "nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order", "settling_time",
     "state_scale",
@@ -58,6 +78,11 @@ OBSERVER_KEYS = (
 NOISE_KEYS = ("measurement_std", "measurement_amplitude", "sample_time", "process_intensity",
               "disturbance_order")
 MAX_DISTURBANCE_ORDER = 3
+DISTURBANCE_KEYS = ("shape", "size", "start", "frequency", "seed")
+DISTURBANCE_SHAPES = ("step", "ramp", "sine", "random_walk")
+"""The shapes of the ``[disturbance]`` table (``harness.blocks``' signal block draws them)."""
+MISMATCH_KEYS = ("size", "distribution", "seed")
+MISMATCH_DISTRIBUTIONS = ("gaussian", "uniform")
 
 
 @dataclass(frozen=True)
@@ -81,6 +106,80 @@ class NoiseSpec:
     sample_time: float
     process_intensity: float
     disturbance_order: int
+
+
+@dataclass(frozen=True)
+class DisturbanceSpec:
+    """The ``[disturbance]`` table: the unknown input q fed to the plant in ``harness plant``.
+
+    Attributes
+    ----------
+    shape : str
+        One of :data:`DISTURBANCE_SHAPES`.
+    size : numpy.ndarray
+        (r,) per q channel: step height, ramp slope, sine amplitude or random-walk intensity.
+    start : float
+        Time (s) from which q is nonzero.
+    frequency : float or None
+        Hz, for the sine (None otherwise).
+    seed : int
+        Seed of the random walk's increments (0 for the other shapes).
+    """
+
+    shape: str
+    size: np.ndarray
+    start: float = 0.0
+    frequency: float | None = None
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class MismatchSpec:
+    """The ``[mismatch]`` table: how the plant FMU's A and B differ from the design's.
+
+    Attributes
+    ----------
+    size : float
+        Relative size s >= 0: each entry M_ij becomes M_ij (1 + s w_ij).
+    distribution : str
+        ``"gaussian"`` (w ~ N(0, 1)) or ``"uniform"`` (w ~ U(-1, 1)).
+    seed : int
+        Seed of numpy's ``default_rng`` that draws w for A (row by row), then for B.
+    """
+
+    size: float
+    distribution: str = "gaussian"
+    seed: int = 0
+
+    def perturb(self, A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The perturbed ``(A, B)``: ``M * (1 + size * W)`` entry by entry, W drawn for A
+        then for B (zero entries stay zero).
+
+        Parameters
+        ----------
+        A, B : array_like
+            The nominal matrices (n x n, n x m).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+
+        Examples
+        --------
+        >>> A, B = np.array([[0.0, 1.0], [-2.0, -3.0]]), np.array([[0.0], [1.0]])
+        >>> A_p, B_p = MismatchSpec(0.1, "uniform", seed=1).perturb(A, B)
+        >>> bool(A_p[0, 0] == 0.0 and abs(A_p[1, 0] / A[1, 0] - 1.0) <= 0.1)
+        True
+        >>> W = np.random.default_rng(1).uniform(-1.0, 1.0, size=6)
+        >>> bool(np.allclose(B_p.ravel(), B.ravel() * (1 + 0.1 * W[4:])))
+        True
+        """
+        A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+        rng = np.random.default_rng(self.seed)
+        draw = rng.standard_normal if self.distribution == "gaussian" else (
+            lambda size: rng.uniform(-1.0, 1.0, size=size))
+        W_A, W_B = draw(A.shape), draw(B.shape)
+        return A * (1.0 + self.size * W_A), B * (1.0 + self.size * W_B)
 
 
 @dataclass(frozen=True)
@@ -118,6 +217,10 @@ class PlantSpec:
         Typical size of each plant state (n entries).
     noise : NoiseSpec or None
         The ``[noise]`` table (the Kalman filter baseline), if given.
+    disturbance : DisturbanceSpec or None
+        The ``[disturbance]`` table (the q that ``harness plant`` feeds the plant), if given.
+    mismatch : MismatchSpec or None
+        The ``[mismatch]`` table (the plant FMU's perturbed A, B in ``harness plant``), if given.
     """
 
     A: np.ndarray
@@ -136,6 +239,8 @@ class PlantSpec:
     settling_time: float = DEFAULT_SETTLING_TIME
     state_scale: np.ndarray | None = None
     noise: NoiseSpec | None = None
+    disturbance: DisturbanceSpec | None = None
+    mismatch: MismatchSpec | None = None
 
 
 def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> PlantSpec:
@@ -231,10 +336,21 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     _reject_unknown(obs, OBSERVER_KEYS, source, "observer.")
     spec = plant_spec(data["A"], data["B"], data["C"], E=data.get("E"), L_lin=data.get("L_lin"),
                       source=source, prefix="observer.", **obs)
-    if "noise" not in data:
-        return spec
-    return replace(spec, noise=_noise(data, spec.A, spec.B, spec.C, spec.E,
-                                      spec.disturbance_order, source))
+    if "noise" in data:
+        spec = replace(spec, noise=_noise(data, spec.A, spec.B, spec.C, spec.E,
+                                          spec.disturbance_order, source))
+    if "disturbance" in data:
+        spec = replace(spec, disturbance=_disturbance(data["disturbance"], spec.E, source))
+    if "mismatch" in data:
+        table = _table(data["mismatch"], "mismatch", source)
+        _reject_unknown(table, MISMATCH_KEYS, source, "mismatch.")
+        if "size" not in table:
+            raise SpecError(f"{source}: mismatch.size is missing (the relative size of the "
+                            "perturbation of A and B, e.g. 0.1)")
+        spec = replace(spec, mismatch=mismatch_spec(
+            table["size"], table.get("distribution", "gaussian"), table.get("seed", 0),
+            source, "mismatch."))
+    return spec
 
 
 def plant_spec(
@@ -452,6 +568,116 @@ def _noise(data: dict[str, Any], A: np.ndarray, B: np.ndarray, C: np.ndarray,
                         "disturbance model (A, E, C) is not observable; "
                         + unobservable_text(A_model, C_model, A.shape[0], E.shape[1], order))
     return NoiseSpec(std, positive["sample_time"], positive["process_intensity"], order)
+
+
+def mismatch_spec(size: Any, distribution: Any = "gaussian", seed: Any = 0,
+                  source: str = "mismatch", prefix: str = "") -> MismatchSpec:
+    """Validate a model mismatch (the ``[mismatch]`` table, or ``harness plant --mismatch``).
+
+    Parameters
+    ----------
+    size : float
+        Relative size, finite and >= 0.
+    distribution : str
+        One of :data:`MISMATCH_DISTRIBUTIONS`.
+    seed : int
+        Non-negative seed.
+    source, prefix : str
+        Named in error messages (``prefix`` before each field name).
+
+    Returns
+    -------
+    MismatchSpec
+
+    Raises
+    ------
+    SpecError
+        Naming the field and the reason.
+
+    Examples
+    --------
+    >>> mismatch_spec(0.05, seed=3)
+    MismatchSpec(size=0.05, distribution='gaussian', seed=3)
+    >>> mismatch_spec(-0.1, source="--mismatch")
+    Traceback (most recent call last):
+    ...
+    fhobs.errors.SpecError: --mismatch: size = -0.1 must be >= 0 (a relative size, 0.1 = 10 %)
+    """
+    _check_entry(size, f"{prefix}size", source)
+    if size < 0:
+        raise SpecError(f"{source}: {prefix}size = {size!r} must be >= 0 (a relative size, "
+                        "0.1 = 10 %)")
+    if distribution not in MISMATCH_DISTRIBUTIONS:
+        raise SpecError(f"{source}: {prefix}distribution = {distribution!r} is not one of "
+                        f"{', '.join(MISMATCH_DISTRIBUTIONS)}")
+    return MismatchSpec(float(size), distribution, _seed(seed, f"{prefix}seed", source))
+
+
+def _table(value: Any, name: str, source: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise SpecError(f"{source}: {name} must be a table ([{name}]), got {type(value).__name__}")
+    return value
+
+
+def _seed(value: Any, label: str, source: str) -> int:
+    """A seed: an integer >= 0."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise SpecError(f"{source}: {label} = {value!r} must be an integer >= 0")
+    return int(value)
+
+
+def _disturbance(table: Any, E: np.ndarray | None, source: str) -> DisturbanceSpec:
+    """The ``[disturbance]`` table (module docstring), validated against E."""
+    table = _table(table, "disturbance", source)
+    _reject_unknown(table, DISTURBANCE_KEYS, source, "disturbance.")
+    if E is None:
+        raise SpecError(f"{source}: the [disturbance] table needs E (the unknown input q "
+                        "enters the plant through it)")
+    shape = table.get("shape")
+    if shape not in DISTURBANCE_SHAPES:
+        what = "is missing" if shape is None else f"= {shape!r} is not one of"
+        raise SpecError(f"{source}: disturbance.shape {what} "
+                        f"{', '.join(DISTURBANCE_SHAPES)}")
+    if "size" not in table:
+        raise SpecError(f"{source}: disturbance.size is missing (one number, or one per q "
+                        f"channel: {E.shape[1]})")
+    size = _disturbance_size(table["size"], E.shape[1], shape, source)
+    start = table.get("start", 0.0)
+    _check_entry(start, "disturbance.start", source)
+    if start < 0:
+        raise SpecError(f"{source}: disturbance.start = {start!r} must be >= 0 (s)")
+    frequency = table.get("frequency")
+    if shape == "sine":
+        if frequency is None:
+            raise SpecError(f"{source}: disturbance.frequency is missing (Hz; shape = 'sine' "
+                            "needs it)")
+        _check_entry(frequency, "disturbance.frequency", source)
+        if frequency <= 0:
+            raise SpecError(f"{source}: disturbance.frequency = {frequency!r} must be > 0 (Hz)")
+        frequency = float(frequency)
+    elif frequency is not None:
+        raise SpecError(f"{source}: disturbance.frequency applies to shape = 'sine' only, "
+                        f"not {shape!r}")
+    if "seed" in table and shape != "random_walk":
+        raise SpecError(f"{source}: disturbance.seed applies to shape = 'random_walk' only, "
+                        f"not {shape!r}")
+    seed = _seed(table.get("seed", 0), "disturbance.seed", source)
+    return DisturbanceSpec(shape, size, float(start), frequency, seed)
+
+
+def _disturbance_size(value: Any, r: int, shape: str, source: str) -> np.ndarray:
+    """``disturbance.size``: one finite number or r of them (>= 0 for a random walk)."""
+    entries = value if isinstance(value, list) else [value]
+    if len(entries) not in (1, r):
+        raise SpecError(f"{source}: disturbance.size has {len(entries)} entries, expected 1 or "
+                        f"{r} (the columns of E, one per q channel)")
+    for i, entry in enumerate(entries, start=1):
+        label = f"disturbance.size[{i}]" if isinstance(value, list) else "disturbance.size"
+        _check_entry(entry, label, source)
+        if shape == "random_walk" and entry < 0:
+            raise SpecError(f"{source}: {label} = {entry!r} must be >= 0 (the random walk's "
+                            "intensity)")
+    return np.broadcast_to(np.array(entries, dtype=float), (r,)).copy()
 
 
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):

@@ -23,22 +23,27 @@ SOURCE = Path(__file__).with_name("slaves.py")
 
 @dataclass(frozen=True)
 class BlockKind:
-    """A block template: the name of its FMUs' modules, its class in :data:`SOURCE` and the
-    names of its dimensions."""
+    """A block template: the name of its FMUs' modules, its class in its source file
+    (:data:`SOURCE` unless ``source_file`` names another module of this folder) and the names
+    of its dimensions."""
 
     module: str
     class_name: str
     dimensions: tuple[str, ...]
+    source_file: str = SOURCE.name
 
     @property
     def source(self) -> Path:
-        return SOURCE
+        return SOURCE.with_name(self.source_file)
 
 
 BLOCK_KINDS: dict[str, BlockKind] = {
     "sine": BlockKind("sine_source", "SineSource", ("n_outputs",)),
     "gain": BlockKind("matrix_gain", "MatrixGain", ("n_outputs", "n_inputs")),
+    "signal": BlockKind("signal_source", "SignalSource", ("n_outputs",), "signal_source.py"),
 }
+"""The block kinds; ``signal`` (a step, ramp, sine or seeded random walk from a start time,
+:mod:`harness.blocks.signal_source`) has no native version."""
 
 
 def default_cache_dir() -> Path:
@@ -67,7 +72,7 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
     Parameters
     ----------
     kind_name
-        A key of :data:`BLOCK_KINDS` (``"sine"``: ``(n_outputs,)``; ``"gain"``:
+        A key of :data:`BLOCK_KINDS` (``"sine"``, ``"signal"``: ``(n_outputs,)``; ``"gain"``:
         ``(n_outputs, n_inputs)``).
     dims
         Positive dimensions, one per name in the kind's ``dimensions``.
