@@ -43,6 +43,7 @@ from .core.kernel import SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
+from .fmu import call_rules
 from .fmu.modes import STATUS_VALUE_REFERENCE
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 
@@ -274,10 +275,11 @@ def _compile_wrapper(stage: Path, compiler: str) -> Path:
 
     source = PACKAGE_DIR / "fmu" / "status_wrapper.c"
     library = stage / "status_wrapper.so"
+    (stage / call_rules.HEADER).write_text(call_rules.c_header())
     command = [
         compiler, "-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
-        f"-I{Path(fmpy.__file__).parent / 'c-code'}", "-o", str(library), str(source), "-ldl",
-        "-lpthread",
+        f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{stage}", "-o", str(library),
+        str(source), "-ldl", "-lpthread",
     ]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:

@@ -304,7 +304,8 @@ def test_edited_L_pt_that_breaks_theorem1_fails_initialisation(open_pt, tuned_ga
     driver.fmu.enterInitializationMode()
     assert_error(driver, driver.fmu.exitInitializationMode, words="lmi_pt")
     assert "hurwitz_pt" in driver.messages[-1][1]
-    assert_error(driver, driver.fmu.doStep, 0.0, DT, words="doStep needs a successful")
+    assert_error(driver, driver.fmu.doStep, 0.0, DT,
+                 words="fmi2DoStep is not allowed in the state initialisation mode")
     driver.set("L_pt", g.L_pt)
     driver.fmu.exitInitializationMode()
     steps(driver, 1)

@@ -79,6 +79,9 @@ UNSUPPORTED: dict[str, str] = {
 }
 """Functions refused in every state, with the reason."""
 
+HEADER = "fhobs_call_rules.h"
+"""The file name of :func:`c_header`'s text where C code includes it."""
+
 FUNCTIONS = (*ALLOWED, *UNSUPPORTED)
 """Every function of the table, in the order of the C header's ``FHOBS_CALL_*`` numbers."""
 
@@ -113,7 +116,7 @@ def call_problem(function: str, state: str) -> str:
 
 
 def c_header() -> str:
-    """The C header of this table (``fhobs_call_rules.h``): ``FHOBS_STATE_*`` bit numbers,
+    """The C header of this table (:data:`HEADER`): ``FHOBS_STATE_*`` bit numbers,
     ``FHOBS_CALL_*`` function numbers, their masks and the refusal messages (with one ``%s``
     for the state's name where the call is merely out of sequence).
 
@@ -127,7 +130,8 @@ def c_header() -> str:
              "#ifndef FHOBS_CALL_RULES_H", "#define FHOBS_CALL_RULES_H", ""]
     for bit, state in enumerate(STATES):
         lines.append(f"#define FHOBS_STATE_{state.split()[0].upper()} {bit}")
-    lines.append("static const char *const FHOBS_STATE_NAMES[] = {"
+    lines.append(f"#define FHOBS_N_STATES {len(STATES)}")
+    lines.append("static const char *const FHOBS_STATE_NAMES[FHOBS_N_STATES] = {"
                  + ", ".join(f'"{state}"' for state in STATES) + "};")
     lines.append("")
     for number, function in enumerate(FUNCTIONS):

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from pythonfmu.enums import Fmi2Status
 
+from .call_rules import STATES
+
 STATUS_VALUE_REFERENCE = 0
 STATUS_OK = int(Fmi2Status.ok)
 STATUS_ERROR = int(Fmi2Status.error)
 
-INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED = (
-    "instantiated", "initialisation mode", "step mode", "terminated",
-)
-MODES = (INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED)
-"""The FMI 2.0 co-simulation states a slave tracks (``fmi2Reset`` creates a new slave)."""
+MODES = STATES
+"""The FMI 2.0 co-simulation states a slave tracks (``fmi2Reset`` creates a new slave), in the
+order of :data:`fhobs.fmu.call_rules.STATES` (the code the status wrapper reads)."""
+INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED = MODES

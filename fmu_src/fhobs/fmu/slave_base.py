@@ -63,10 +63,12 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverGains
 from ..core.runtime import SCHEMES
 from .access import AccessRules
+from .call_rules import call_problem
 from .fmu_state import FmuStates
 from .modes import (
     INITIALISATION,
     INSTANTIATED,
+    MODES,
     STATUS_ERROR,
     STATUS_OK,
     STEP_MODE,
@@ -195,6 +197,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             "inputs of larger magnitude are rejected as absurd",
         )
         self._pack_arrays()
+        self._mode_code = np.zeros(1, dtype=np.intc)  # the mode's index, read by the wrapper
         self._set_mode(INSTANTIATED)
         self._start_time = self._time = 0.0
         self.via_wrapper = self._register_with_wrapper()
@@ -215,6 +218,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def _set_mode(self, mode: str) -> None:
         """Enter FMI state ``mode``: Real parameters are writable before step mode only."""
         self._mode = mode
+        self._mode_code[0] = MODES.index(mode)
         self._writable[self._parameter_vrs] = mode in (INSTANTIATED, INITIALISATION)
         self._write_cache.clear()
 
@@ -245,6 +249,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
                          tolerance: float | None = None) -> None:
         """Record the start time: the first doStep's currentCommunicationPoint."""
         self.status = STATUS_OK
+        problem = call_problem("fmi2SetupExperiment", self._mode)
+        if problem:
+            self._refuse(problem)
+            return
         if not math.isfinite(start_time):
             self._refuse(f"fmi2SetupExperiment: startTime {number(start_time)} is not finite")
             return
@@ -253,9 +261,9 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def enter_initialization_mode(self) -> None:
         """Enter initialisation mode: once, right after instantiation or fmi2Reset."""
         self.status = STATUS_OK
-        if self._mode != INSTANTIATED:
-            self._refuse(f"fmi2EnterInitializationMode called in {self._mode}: an instance is "
-                         "initialised once (fmi2Reset first to start again)")
+        problem = call_problem("fmi2EnterInitializationMode", self._mode)
+        if problem:
+            self._refuse(problem)
             return
         self._set_mode(INITIALISATION)
 
@@ -270,9 +278,9 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         can cost tens of milliseconds). It is used at most once.
         """
         self.status = STATUS_OK
-        if self._mode != INITIALISATION:
-            self._refuse(f"fmi2ExitInitializationMode called in {self._mode}: it must follow "
-                         "fmi2EnterInitializationMode")
+        problem = call_problem("fmi2ExitInitializationMode", self._mode)
+        if problem:
+            self._refuse(problem)
             return
         start, self._start_model = self._start_model, None
         try:
@@ -291,6 +299,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def terminate(self) -> None:
         """End the run: no doStep afterwards (fmi2Reset to start again)."""
         self.status = STATUS_OK
+        problem = call_problem("fmi2Terminate", self._mode)
+        if problem:
+            self._refuse(problem)
+            return
         self._set_mode(TERMINATED)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
@@ -308,12 +320,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         """
         self.status = STATUS_OK
         if self._mode != STEP_MODE:
-            if self._mode == TERMINATED:
-                reason = "the instance was terminated (fmi2Terminate); fmi2Reset to start again"
-            else:
-                reason = (f"the instance is in {self._mode}; doStep needs a successful "
-                          "initialisation")
-            return self._fail(f"doStep at t = {number(current_time)} refused: {reason}")
+            return self._fail(call_problem("fmi2DoStep", self._mode))
         # One comparison accepts a valid call: math.hypot of the inputs is within 1 ulp of
         # their Euclidean norm (Python >= 3.10), which bounds each |input|, so a hypot strictly
         # below the bound bounds them all; it is NaN or inf when an input is not finite, which

@@ -91,6 +91,7 @@
 #include <unistd.h>
 
 #include "fmi2Functions.h"
+#include "fhobs_call_rules.h"
 
 #ifndef FHOBS_STATUS_VR
 #error "compile with -DFHOBS_STATUS_VR=<value reference of the status variable>"
@@ -125,6 +126,7 @@ typedef struct {
     double *values;          /* the slave's flat Real buffer; NULL: nothing registered */
     long long *position;     /* position[vr]: buffer index of Real variable vr, or -1 */
     const unsigned char *writable; /* writable[vr]: fmi2SetReal may write vr now (slave's) */
+    const int *mode;         /* the slave's FMI state, FHOBS_STATE_* (slave's) */
     size_t n_position;
     fhobs_step_fn *step;     /* the slave's doStep */
     fhobs_access_fn *access; /* the slave's check of a get/set call */
@@ -808,12 +810,12 @@ static int ensure_impl(const char *resources, int *just_loaded)
  * slave). Returns 1 if registered, 0 if no instance is being created by this thread or the
  * arguments are inconsistent (then every call goes through pythonfmu). */
 int fhobs_register(double *values, size_t n_values, const long long *position,
-    const unsigned char *writable, size_t n_position, fhobs_step_fn *step,
+    const unsigned char *writable, size_t n_position, const int *mode, fhobs_step_fn *step,
     fhobs_access_fn *access, fhobs_state_fn *check_state)
 {
     Instance *w = registering;
     if (w == NULL || values == NULL || position == NULL || writable == NULL || n_position == 0
-        || step == NULL || access == NULL || check_state == NULL) {
+        || mode == NULL || step == NULL || access == NULL || check_state == NULL) {
         return 0;
     }
     for (size_t i = 0; i < n_position; i++) {
@@ -829,6 +831,7 @@ int fhobs_register(double *values, size_t n_values, const long long *position,
     free(w->position);
     w->position = copy;
     w->writable = writable;
+    w->mode = mode;
     w->n_position = n_position;
     w->values = values;
     w->step = step;
@@ -844,16 +847,45 @@ static void unregister(Instance *w)
     w->access = NULL;
     w->check_state = NULL;
     w->writable = NULL;
+    w->mode = NULL;
     free(w->position);
     w->position = NULL;
     w->n_position = 0;
 }
 
+/* Whether ``call`` (FHOBS_CALL_*) is refused in the slave's FMI state (the table of
+ * fhobs.fmu.call_rules), its message then logged. Unsupported functions are refused always;
+ * without a registered slave the other calls go to pythonfmu. */
+static int refused(Instance *w, int call)
+{
+    unsigned mask = FHOBS_CALL_MASKS[call];
+    if (mask != 0 && w->mode == NULL) {
+        return 0;
+    }
+    int mode = w->mode != NULL ? *w->mode : 0;
+    if (mode >= 0 && mode < FHOBS_N_STATES && (mask >> mode & 1u)) {
+        return 0;
+    }
+    say(w->logger, w->environment, w->name, fmi2Error, FHOBS_CALL_MESSAGES[call],
+        mode >= 0 && mode < FHOBS_N_STATES ? FHOBS_STATE_NAMES[mode] : "an unknown state");
+    return 1;
+}
+
+/* The start of every function of an instance: a NULL component, or a call refused in its
+ * state, is answered with fmi2Error. */
+#define CHECK_CALL(w, call) \
+    do { \
+        if ((w) == NULL || refused((Instance *)(w), (call))) { \
+            return fmi2Error; \
+        } \
+    } while (0)
+
 /* Whether every value reference is a registered Real variable, writable now if ``write``
  * (then the buffer is used). */
 static int direct(const Instance *w, const fmi2ValueReference vr[], size_t n, int write)
 {
-    if (w == NULL || w->values == NULL || vr == NULL || n == 0) {
+    if (w == NULL || w->values == NULL || vr == NULL || n == 0
+        || !(FHOBS_CALL_MASKS[write ? FHOBS_CALL_SETREAL : FHOBS_CALL_GETREAL] >> *w->mode & 1u)) {
         return 0;
     }
     for (size_t i = 0; i < n; i++) {
@@ -948,22 +980,29 @@ static void withdraw(State *state)
     "fmi2DeSerializeFMUstate of an instance of it), or was freed"
 
 /* Forward ``name`` to pythonfmu's library with pythonfmu's component in place of ours. */
-#define FORWARD(name, params, args) \
+#define FORWARD(name, call, params, args) \
     fmi2Status name params \
     { \
         IMPL(name, fmi2Error) \
-        if (w == NULL) { \
-            return fmi2Error; \
-        } \
+        CHECK_CALL(w, call); \
         fmi2Component c = INNER(w); \
         return name##_impl args; \
     }
 
+/* A function these FMUs do not provide: fmi2Error with the table's reason. */
+#define UNSUPPORTED(name, call, params) \
+    fmi2Status name params \
+    { \
+        CHECK_CALL(w, call); \
+        return fmi2Error; \
+    }
+
 /* Forward a get/set call once the slave accepts it. */
-#define FORWARD_ACCESS(name, code, params, args) \
+#define FORWARD_ACCESS(name, code, call, params, args) \
     fmi2Status name params \
     { \
         IMPL(name, fmi2Error) \
+        CHECK_CALL(w, call); \
         fmi2Status answer; \
         if (!allowed(w, code, vr, n, v, &answer)) { \
             return answer; \
@@ -1043,9 +1082,7 @@ fmi2Status fmi2Reset(fmi2Component w)
 {
     /* pythonfmu replaces the Python slave: its new constructor registers its own buffer. */
     IMPL(fmi2Reset, fmi2Error)
-    if (w == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_RESET);
     Instance *self = w, *outer = registering;
     unregister(self);
     registering = self;
@@ -1057,27 +1094,21 @@ fmi2Status fmi2Reset(fmi2Component w)
 fmi2Status fmi2EnterInitializationMode(fmi2Component w)
 {
     IMPL(fmi2EnterInitializationMode, fmi2Error)
-    if (w == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_ENTERINITIALIZATIONMODE);
     return recorded(INNER(w), fmi2EnterInitializationMode_impl(INNER(w)));
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component w)
 {
     IMPL(fmi2ExitInitializationMode, fmi2Error)
-    if (w == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_EXITINITIALIZATIONMODE);
     return recorded(INNER(w), fmi2ExitInitializationMode_impl(INNER(w)));
 }
 
 fmi2Status fmi2Terminate(fmi2Component w)
 {
     IMPL(fmi2Terminate, fmi2Error)
-    if (w == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_TERMINATE);
     return recorded(INNER(w), fmi2Terminate_impl(INNER(w)));
 }
 
@@ -1085,9 +1116,7 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
 {
     Instance *self = w;
     IMPL(fmi2DoStep, fmi2Error)
-    if (self == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_DOSTEP);
     if (self->step != NULL) {
         switch (self->step(t, h)) {
         case FHOBS_STEP_OK:
@@ -1120,9 +1149,7 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
 fmi2Status fmi2GetRealStatus(fmi2Component w, const fmi2StatusKind k, fmi2Real *v)
 {
     const Instance *self = w;
-    if (self == NULL) {
-        return fmi2Error;
-    }
+    CHECK_CALL(w, FHOBS_CALL_GETREALSTATUS);
     if (self->own_time && k == fmi2LastSuccessfulTime && v != NULL) {
         *v = self->last_time;
         return fmi2OK;
@@ -1141,6 +1168,7 @@ fmi2Status fmi2GetReal(fmi2Component w, const fmi2ValueReference vr[], size_t n,
         return fmi2OK;
     }
     IMPL(fmi2GetReal, fmi2Error)
+    CHECK_CALL(w, FHOBS_CALL_GETREAL);
     fmi2Status answer;
     if (!allowed(w, FHOBS_GET_REAL, vr, n, v, &answer)) {
         return answer;
@@ -1159,6 +1187,7 @@ fmi2Status fmi2SetReal(fmi2Component w, const fmi2ValueReference vr[], size_t n,
         return fmi2OK;
     }
     IMPL(fmi2SetReal, fmi2Error)
+    CHECK_CALL(w, FHOBS_CALL_SETREAL);
     fmi2Status answer;
     if (!allowed(w, FHOBS_SET_REAL, vr, n, v, &answer)) {
         return answer;
@@ -1166,17 +1195,17 @@ fmi2Status fmi2SetReal(fmi2Component w, const fmi2ValueReference vr[], size_t n,
     return fmi2SetReal_impl(INNER(w), vr, n, v);
 }
 
-FORWARD_ACCESS(fmi2GetInteger, FHOBS_GET_INTEGER, (fmi2Component w,
+FORWARD_ACCESS(fmi2GetInteger, FHOBS_GET_INTEGER, FHOBS_CALL_GETINTEGER, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, fmi2Integer v[]), (c, vr, n, v))
-FORWARD_ACCESS(fmi2GetBoolean, FHOBS_GET_BOOLEAN, (fmi2Component w,
+FORWARD_ACCESS(fmi2GetBoolean, FHOBS_GET_BOOLEAN, FHOBS_CALL_GETBOOLEAN, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]), (c, vr, n, v))
-FORWARD_ACCESS(fmi2GetString, FHOBS_GET_STRING, (fmi2Component w,
+FORWARD_ACCESS(fmi2GetString, FHOBS_GET_STRING, FHOBS_CALL_GETSTRING, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, fmi2String v[]), (c, vr, n, v))
-FORWARD_ACCESS(fmi2SetInteger, FHOBS_SET_INTEGER, (fmi2Component w,
+FORWARD_ACCESS(fmi2SetInteger, FHOBS_SET_INTEGER, FHOBS_CALL_SETINTEGER, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, const fmi2Integer v[]), (c, vr, n, v))
-FORWARD_ACCESS(fmi2SetBoolean, FHOBS_SET_BOOLEAN, (fmi2Component w,
+FORWARD_ACCESS(fmi2SetBoolean, FHOBS_SET_BOOLEAN, FHOBS_CALL_SETBOOLEAN, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]), (c, vr, n, v))
-FORWARD_ACCESS(fmi2SetString, FHOBS_SET_STRING, (fmi2Component w,
+FORWARD_ACCESS(fmi2SetString, FHOBS_SET_STRING, FHOBS_CALL_SETSTRING, (fmi2Component w,
     const fmi2ValueReference vr[], size_t n, const fmi2String v[]), (c, vr, n, v))
 
 fmi2Status fmi2GetFMUstate(fmi2Component w, fmi2FMUstate *s)
@@ -1312,22 +1341,24 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component w, const fmi2Byte b[], size_t s
     return status;
 }
 
-FORWARD(fmi2SetDebugLogging, (fmi2Component w, fmi2Boolean on, size_t n, const fmi2String cat[]),
-    (c, on, n, cat))
-FORWARD(fmi2SetupExperiment, (fmi2Component w, fmi2Boolean tolDef, fmi2Real tol, fmi2Real t0,
-    fmi2Boolean stopDef, fmi2Real t1), (c, tolDef, tol, t0, stopDef, t1))
-FORWARD(fmi2GetDirectionalDerivative, (fmi2Component w, const fmi2ValueReference u[], size_t nu,
-    const fmi2ValueReference z[], size_t nz, const fmi2Real du[], fmi2Real dz[]),
-    (c, u, nu, z, nz, du, dz))
-FORWARD(fmi2SetRealInputDerivatives, (fmi2Component w, const fmi2ValueReference vr[], size_t n,
-    const fmi2Integer order[], const fmi2Real v[]), (c, vr, n, order, v))
-FORWARD(fmi2GetRealOutputDerivatives, (fmi2Component w, const fmi2ValueReference vr[], size_t n,
-    const fmi2Integer order[], fmi2Real v[]), (c, vr, n, order, v))
-FORWARD(fmi2CancelStep, (fmi2Component w), (c))
-FORWARD(fmi2GetStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Status *v), (c, k, v))
-FORWARD(fmi2GetIntegerStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Integer *v),
-    (c, k, v))
-FORWARD(fmi2GetBooleanStatus, (fmi2Component w, const fmi2StatusKind k, fmi2Boolean *v),
-    (c, k, v))
-FORWARD(fmi2GetStringStatus, (fmi2Component w, const fmi2StatusKind k, fmi2String *v),
-    (c, k, v))
+FORWARD(fmi2SetDebugLogging, FHOBS_CALL_SETDEBUGLOGGING, (fmi2Component w, fmi2Boolean on,
+    size_t n, const fmi2String cat[]), (c, on, n, cat))
+FORWARD(fmi2SetupExperiment, FHOBS_CALL_SETUPEXPERIMENT, (fmi2Component w, fmi2Boolean tolDef,
+    fmi2Real tol, fmi2Real t0, fmi2Boolean stopDef, fmi2Real t1),
+    (c, tolDef, tol, t0, stopDef, t1))
+FORWARD(fmi2GetBooleanStatus, FHOBS_CALL_GETBOOLEANSTATUS, (fmi2Component w,
+    const fmi2StatusKind k, fmi2Boolean *v), (c, k, v))
+UNSUPPORTED(fmi2GetDirectionalDerivative, FHOBS_CALL_GETDIRECTIONALDERIVATIVE, (fmi2Component w,
+    const fmi2ValueReference u[], size_t nu, const fmi2ValueReference z[], size_t nz,
+    const fmi2Real du[], fmi2Real dz[]))
+UNSUPPORTED(fmi2SetRealInputDerivatives, FHOBS_CALL_SETREALINPUTDERIVATIVES, (fmi2Component w,
+    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], const fmi2Real v[]))
+UNSUPPORTED(fmi2GetRealOutputDerivatives, FHOBS_CALL_GETREALOUTPUTDERIVATIVES, (fmi2Component w,
+    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], fmi2Real v[]))
+UNSUPPORTED(fmi2CancelStep, FHOBS_CALL_CANCELSTEP, (fmi2Component w))
+UNSUPPORTED(fmi2GetStatus, FHOBS_CALL_GETSTATUS, (fmi2Component w, const fmi2StatusKind k,
+    fmi2Status *v))
+UNSUPPORTED(fmi2GetIntegerStatus, FHOBS_CALL_GETINTEGERSTATUS, (fmi2Component w,
+    const fmi2StatusKind k, fmi2Integer *v))
+UNSUPPORTED(fmi2GetStringStatus, FHOBS_CALL_GETSTRINGSTATUS, (fmi2Component w,
+    const fmi2StatusKind k, fmi2String *v))
