@@ -169,6 +169,9 @@ def _parser() -> argparse.ArgumentParser:
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
     ssp.add_argument("--out", type=Path, required=True, help="the .ssp file")
+    ssp.add_argument("--native-blocks", action=argparse.BooleanOptionalAction, default=None,
+                     help="native harness blocks, so no FMU of the SSP needs Python (default: "
+                          "when the --fmu-dir FMUs are native)")
     sweep = sub.add_parser("sweep", help="run a sweep file's points on dask (harness/sweep.py)")
     sweep.add_argument("sweep", help="sweep file or bundled sweep name (harness/sweeps/)")
     sweep.add_argument("--out", type=Path, required=True,
@@ -510,7 +513,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise IsADirectoryError(f"--out {args.out}: is a folder, expected the .ssp file to write")
     check_output_folder(args.out.parent)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
-    print(export_ssp(spec, args.out, args.block_cache))
+    print(export_ssp(spec, args.out, args.block_cache, native_blocks=args.native_blocks))
     return 0
 
 
