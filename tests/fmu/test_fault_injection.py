@@ -364,7 +364,8 @@ def test_call_sequence_is_enforced(open_fmu):
     clean.fmu.doStep(2 * DT, DT)
     assert driver.get("x_hat", (4,)).tolist() == clean.get("x_hat", (4,)).tolist()
     driver.fmu.terminate()
-    assert_error(driver, driver.fmu.doStep, 3 * DT, DT, words="fmi2DoStep is not allowed in the state terminated")
+    assert_error(driver, driver.fmu.doStep, 3 * DT, DT,
+                 words="fmi2DoStep is not allowed in the state terminated")
     driver.fmu.reset()
     driver.start()
     driver.time = 0.0
