@@ -11,12 +11,14 @@ same work) runs through :func:`harness.sweep.run_sweep` on an embedded LocalClus
 ``--workers`` count, into a fresh folder. Printed per worker count:
 
 - the cluster's start and the whole sweep (s),
-- points per second, over the whole sweep and in steady state (the sum over the workers of
-  the points after each one's first, which designs and builds the FMUs, per second),
+- points per second, over the whole sweep (with the one design and FMU build) and in steady
+  state (the sum over the workers of the points after each one's first, per second; a
+  worker's first point waits for the build or installs the FMUs' bytes),
 - the engine's per-point overhead: the sweep's time times the workers, less the time the
-  points spent in :func:`harness.sweep.run_point`, per point (scheduling, transfer of the
-  point's data and row, writing the row, and workers idle at the end; the cluster's start
-  is apart).
+  points spent in :func:`harness.sweep.run_point` and the build task in
+  :func:`harness.sweep.build_bundle`, per point (scheduling, transfer of the point's data,
+  the FMUs' bytes and the row, writing the row, and workers idle while the build runs or at
+  the end; the cluster's start is apart).
 
 The same point run in this process (:func:`harness.sweep.run_point`, warm caches) gives the
 co-simulation's own time.
@@ -81,7 +83,8 @@ def on_cluster(path: Path, workers: int) -> dict[str, float]:
     steady = [r for done in by_worker.values() for r in done[1:]]
     rate = sum((len(done) - 1) / (done[-1]["finished_at"] - done[0]["finished_at"])
                for done in by_worker.values() if len(done) > 1)
-    busy = sum(r["wall_time_s"] for r in rows)
+    builds = {r["build_s"] for r in rows}  # one design: one build task
+    busy = sum(r["wall_time_s"] for r in rows) + sum(builds)
     return {
         "workers": workers, "cluster_s": cluster_s, "sweep_s": report.elapsed_s,
         "points_per_s": len(rows) / report.elapsed_s,

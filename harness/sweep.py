@@ -847,8 +847,9 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``design_key``, ``gains`` (ObserverGains), ``tag`` (:func:`fmu_tag`) and ``files``
-        (``{kind: (path relative to the FMU folder, bytes)}``).
+        ``design_key``, ``gains`` (ObserverGains), ``tag`` (:func:`fmu_tag`), ``files``
+        (``{kind: (path relative to the FMU folder, bytes)}``) and ``build_s`` (the time of
+        the design and the build, s).
 
     Examples
     --------
@@ -856,12 +857,14 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
     >>> run_point(other_job_of_the_same_design, bundle)["status"]  # doctest: +SKIP
     'ok'
     """
+    clock = time.perf_counter()
     spec, gains, fmus = point_build(job)
     key = design_key(job)
     tag = fmu_tag(key, job["fmus"], build_options(job, spec))
     root = _workdir() / "fmus" / tag
     files = {kind: (str(path.relative_to(root)), path.read_bytes()) for kind, path in fmus.items()}
-    return {"design_key": key, "gains": gains, "tag": tag, "files": files}
+    return {"design_key": key, "gains": gains, "tag": tag, "files": files,
+            "build_s": time.perf_counter() - clock}
 
 
 def install_bundle(job: dict[str, Any], bundle: dict[str, Any]) -> None:
@@ -959,6 +962,7 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
     dict
         The point's parameters, ``status`` (``ok`` or ``failed``), ``reason``, the figures
         ``<estimator>.<figure>``, ``wall_time_s`` (the whole point), ``cosim_s`` (its run),
+        ``build_s`` (its design and FMU build, shared with the points of the same design),
         ``started_at``/``finished_at`` (Unix time), ``worker`` and ``pid``.
 
     Examples
@@ -977,6 +981,7 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
     try:
         with np.errstate(all="ignore"):
             if bundle is not None:
+                row["build_s"] = bundle["build_s"]
                 install_bundle(job, bundle)
             system, stop = point_system(job)
             result = run_system(resolve_system(system), stop, progress=False)
