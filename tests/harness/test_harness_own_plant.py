@@ -24,6 +24,11 @@ def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     assert summary["steps"] == 4000 and summary["step"] == 1e-3
     assert summary["homogeneous"]["max_error_2_4"] <= 1e-9
     assert {"homogeneous", "linear"} <= set(summary)
+    # transient [0, 2] (the requested settling time, >= the predicted one), steady [2, 4]
+    assert summary["transient_end"] == 2.0
+    assert summary["homogeneous"]["x_max_steady"] == summary["homogeneous"]["max_error_2_4"]
+    assert summary["homogeneous"]["x_max_transient"] == summary["homogeneous"]["max_error_0_2"]
+    assert "windows: transient [0, 2] s, steady [2, 4] s" in out
     assert sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu")) == [
         "luenberger.fmu", "observer.fmu", "plant.fmu", "prescribed_time.fmu"]
     # the prescribed-time observer, T0 = the requested settling time (2 s): 1e-5 at T0 (from
