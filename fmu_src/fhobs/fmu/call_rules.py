@@ -1,5 +1,5 @@
-"""Which FMI 2.0 co-simulation function an instance accepts in which state: one table for both
-builds of every FMU kind.
+"""Which FMI 2.0 co-simulation function an instance accepts in which state, and at which time:
+one table for both builds of every FMU kind.
 
 The states are those of the FMI 2.0 co-simulation state machine that a synchronous FMU whose
 refused calls leave it unchanged can be in: ``instantiated`` (after fmi2Instantiate or
@@ -25,6 +25,8 @@ Examples
 """
 
 from __future__ import annotations
+
+import math
 
 STATES = ("instantiated", "initialisation mode", "step mode", "terminated")
 """The states, in the order of their bits in the C masks (bit i: ``STATES[i]``)."""
@@ -78,6 +80,43 @@ UNSUPPORTED: dict[str, str] = {
     "fmi2GetStringStatus": _SYNCHRONOUS,
 }
 """Functions refused in every state, with the reason."""
+
+TIME_TOLERANCE = 1e-9
+"""doStep's currentCommunicationPoint may differ from the FMU's own time (the start time, then
+the end of its last step) by this much relative to the larger of that time and the step size:
+far above the round-off of a host that accumulates time (t + h) or forms it as t0 + k h, far
+below a step."""
+
+
+def time_problem(current_time: float, own_time: float, step_size: float) -> str:
+    """Why a doStep from ``current_time`` does not continue an FMU whose time is ``own_time``
+    ('' if it does; any finite time does when ``own_time`` is NaN: after an FMU state was set).
+
+    Examples
+    --------
+    >>> time_problem(0.30000000000000004, 0.3, 0.1)
+    ''
+    >>> time_problem(0.0, 0.3, 0.1)[:44]
+    'currentCommunicationPoint 0.0 is not the FMU'
+    """
+    if not math.isfinite(current_time):
+        return f"currentCommunicationPoint {_number(current_time)} is not finite"
+    if math.isnan(own_time) or abs(current_time - own_time) <= TIME_TOLERANCE * max(
+            abs(own_time), step_size):
+        return ""
+    return TIME_MESSAGE % (_number(current_time), _number(own_time))
+
+
+TIME_MESSAGE = ("currentCommunicationPoint %s is not the FMU's time %s (the start time, or the "
+                f"end of its last step; a difference of up to {TIME_TOLERANCE:g} relative is "
+                "taken as the host's round-off)")
+"""The refusal of a time away from the FMU's (``%s``: the two times)."""
+
+
+def _number(value: float) -> str:
+    """A number as the messages show it (Python's repr of a float)."""
+    return repr(float(value))
+
 
 HEADER = "fhobs_call_rules.h"
 """The file name of :func:`c_header`'s text where C code includes it."""
@@ -149,5 +188,6 @@ def c_header() -> str:
             messages.append(f"{function} is not allowed in the state %s (only in {where})")
     lines.append("static const char *const FHOBS_CALL_MESSAGES[FHOBS_N_CALLS] = {")
     lines += [f'    "{message}",' for message in messages]
-    lines += ["};", "", "#endif", ""]
+    lines += ["};", "", f"#define FHOBS_TIME_TOLERANCE {TIME_TOLERANCE!r}",
+              f'#define FHOBS_TIME_MESSAGE "{TIME_MESSAGE}"', "", "#endif", ""]
     return "\n".join(lines)

@@ -63,7 +63,7 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverGains
 from ..core.runtime import SCHEMES
 from .access import AccessRules
-from .call_rules import call_problem
+from .call_rules import call_problem, time_problem
 from .fmu_state import FmuStates
 from .modes import (
     INITIALISATION,
@@ -109,34 +109,6 @@ class SlaveModel(Protocol):
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state returned by :meth:`get_state`."""
-
-
-TIME_TOLERANCE = 1e-9
-"""doStep's currentCommunicationPoint may differ from the FMU's own time (the end of its last
-step) by this much relative to the larger of that time and the step size: far above the
-round-off of a host that accumulates time (t + h) or forms it as t0 + k h, far below a
-step."""
-
-
-def time_problem(current_time: float, own_time: float, step_size: float) -> str:
-    """Why a doStep from ``current_time`` does not continue an FMU whose time is ``own_time``
-    ('' if it does; any finite time does when ``own_time`` is NaN: after an FMU state was set).
-
-    Examples
-    --------
-    >>> time_problem(0.30000000000000004, 0.3, 0.1)
-    ''
-    >>> time_problem(0.0, 0.3, 0.1)[:44]
-    'currentCommunicationPoint 0.0 is not the FMU'
-    """
-    if not math.isfinite(current_time):
-        return f"currentCommunicationPoint {number(current_time)} is not finite"
-    if math.isnan(own_time) or abs(current_time - own_time) <= TIME_TOLERANCE * max(
-            abs(own_time), step_size):
-        return ""
-    return (f"currentCommunicationPoint {number(current_time)} is not the FMU's time "
-            f"{number(own_time)} (the end of its last step, or the start time; a difference "
-            f"of up to {TIME_TOLERANCE:g} relative is taken as the host's round-off)")
 
 
 def zoh_problem(A: np.ndarray, step: float, what: str) -> str:

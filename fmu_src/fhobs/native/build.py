@@ -56,6 +56,7 @@ from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
 from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver
 from ..errors import BuildError
+from ..fmu import call_rules
 from . import planner
 
 HERE = Path(__file__).resolve().parent
@@ -383,6 +384,7 @@ def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
     data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
     sources["kernel.c"] = kernel.SOURCE.read_text()
+    sources[call_rules.HEADER] = call_rules.c_header()
     if kind == "plant":
         sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
     digest = hashlib.sha256(data.encode())

@@ -24,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fhobs_call_rules.h"
 #include "fmi2Functions.h"
 
 #define INSTANCE_MAGIC 0x6668696eu /* "fhin" */
@@ -35,9 +36,13 @@
 #define STATUS_OK 0
 #define STATUS_ERROR 3
 
-enum { INSTANTIATED, INITIALISATION, STEP_MODE, TERMINATED, MODE_COUNT };
-static const char *const MODE_NAMES[MODE_COUNT] = {
-    "instantiated", "initialisation mode", "step mode", "terminated"};
+/* the FMI states, numbered as in fhobs.fmu.call_rules.STATES */
+enum {
+    INSTANTIATED = FHOBS_STATE_INSTANTIATED,
+    INITIALISATION = FHOBS_STATE_INITIALISATION,
+    STEP_MODE = FHOBS_STATE_STEP,
+    TERMINATED = FHOBS_STATE_TERMINATED
+};
 static const char *const TYPE_NAMES[] = {"Real", "Integer", "Boolean", "String"};
 #define TYPE_BOOLEAN 2
 #define TYPE_STRING 3
@@ -54,6 +59,9 @@ typedef struct {
     fmi2CallbackFunctions callbacks;
     char *name;
     Values values;
+    double start_time; /* fmi2SetupExperiment's */
+    double time;       /* the end of the last step (the start time before one); NaN after an
+                          FMU state was set: the next doStep's time is taken as it comes */
     Work work;
 } Instance;
 
@@ -119,6 +127,26 @@ static Instance *instance(fmi2Component component)
     if (!c)                                                                                    \
         return fmi2Error;
 
+/* Whether `call` (FHOBS_CALL_*) is refused in the instance's state (fhobs.fmu.call_rules), the
+ * message then logged; functions these FMUs do not provide are refused in every state. */
+static int refused(Instance *c, int call)
+{
+    char msg[MESSAGE_SIZE];
+    int mode = c->values.mode;
+    if (FHOBS_CALL_MASKS[call] >> mode & 1u)
+        return 0;
+    snprintf(msg, sizeof msg, FHOBS_CALL_MESSAGES[call], FHOBS_STATE_NAMES[mode]);
+    fail(c, msg);
+    return 1;
+}
+
+/* The start of every function of an instance: a component that is not one, or a call out of
+ * sequence, is fmi2Error. */
+#define CHECK_CALL(component, call)                                                            \
+    INSTANCE_OR_ERROR(component)                                                               \
+    if (refused(c, call))                                                                      \
+        return fmi2Error;
+
 /* -- the model's values -------------------------------------------------------------------- */
 
 static void publish(Instance *c)
@@ -168,7 +196,7 @@ static int parameters_problem(const Values *v, char *msg, size_t len)
 static int values_problem(const Values *v, char *msg, size_t len)
 {
     char a[32];
-    if (v->mode < 0 || v->mode >= MODE_COUNT) {
+    if (v->mode < 0 || v->mode >= FHOBS_N_STATES) {
         snprintf(msg, len, "unknown FMI state %d", v->mode);
         return 1;
     }
@@ -192,7 +220,8 @@ static int values_problem(const Values *v, char *msg, size_t len)
     }
     if (v->mode == STEP_MODE || v->mode == TERMINATED)
         return parameters_problem(v, msg, len);
-    return 0;
+    double state[FHOBS_STATE_SIZE]; /* before initialisation: the initial state must be one */
+    return model_initial_state(v->real, state, msg, len);
 }
 
 /* -- instances ----------------------------------------------------------------------------- */
@@ -264,7 +293,7 @@ fmi2Status fmi2SetDebugLogging(fmi2Component component, fmi2Boolean loggingOn,
     (void)loggingOn;
     (void)nCategories;
     (void)categories;
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_SETDEBUGLOGGING);
     return ok(c); /* errors are always logged; there are no other messages */
 }
 
@@ -274,25 +303,22 @@ fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean toleranceDef
 {
     (void)toleranceDefined;
     (void)tolerance;
-    (void)startTime;
     (void)stopTimeDefined;
     (void)stopTime;
-    INSTANCE_OR_ERROR(component);
-    if (c->values.mode != INSTANTIATED)
-        return fail(c, "fmi2SetupExperiment: only before fmi2EnterInitializationMode");
+    char msg[MESSAGE_SIZE], a[32];
+    CHECK_CALL(component, FHOBS_CALL_SETUPEXPERIMENT);
+    if (!isfinite(startTime)) {
+        snprintf(msg, sizeof msg, "fmi2SetupExperiment: startTime %s is not finite",
+                 number(startTime, a, sizeof a));
+        return fail(c, msg);
+    }
+    c->start_time = startTime;
     return ok(c);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component component)
 {
-    char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
-    if (c->values.mode != INSTANTIATED) {
-        snprintf(msg, sizeof msg, "fmi2EnterInitializationMode called in %s: an instance is "
-                 "initialised once (fmi2Reset first to start again)",
-                 MODE_NAMES[c->values.mode]);
-        return fail(c, msg);
-    }
+    CHECK_CALL(component, FHOBS_CALL_ENTERINITIALIZATIONMODE);
     c->values.mode = INITIALISATION;
     return ok(c);
 }
@@ -300,13 +326,8 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component component)
 fmi2Status fmi2ExitInitializationMode(fmi2Component component)
 {
     char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_EXITINITIALIZATIONMODE);
     Values *v = &c->values;
-    if (v->mode != INITIALISATION) {
-        snprintf(msg, sizeof msg, "fmi2ExitInitializationMode called in %s: it must follow "
-                 "fmi2EnterInitializationMode", MODE_NAMES[v->mode]);
-        return fail(c, msg);
-    }
     double state[FHOBS_STATE_SIZE];
     if (parameters_problem(v, reason, sizeof reason) ||
         model_initial_state(v->real, state, reason, sizeof reason)) {
@@ -316,19 +337,21 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component component)
     memcpy(v->state, state, sizeof state);
     publish(c);
     v->mode = STEP_MODE;
+    c->time = c->start_time;
     return ok(c);
 }
 
 fmi2Status fmi2Terminate(fmi2Component component)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_TERMINATE);
     c->values.mode = TERMINATED;
     return ok(c);
 }
 
 fmi2Status fmi2Reset(fmi2Component component)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_RESET);
+    c->start_time = c->time = 0.0;
     work_init(&c->work);
     start_values(c);
     return ok(c);
@@ -376,7 +399,7 @@ static int access_problem(const Instance *c, const char *function, const fmi2Val
             snprintf(msg, len, "%s: %s (value reference %u) is a fixed parameter: it can be set "
                      "only before fmi2ExitInitializationMode (the instance is in %s; fmi2Reset "
                      "returns to the start values)", function, var->name, vr[i],
-                     MODE_NAMES[c->values.mode]);
+                     FHOBS_STATE_NAMES[c->values.mode]);
             return 1;
         }
         if (var->role == FHOBS_COMPILED && memcmp(&values[i], &var->start, sizeof(double))) {
@@ -393,7 +416,7 @@ fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], s
                        fmi2Real value[])
 {
     char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_GETREAL);
     if (access_problem(c, "fmi2GetReal", vr, nvr, FHOBS_REAL, 0, value, msg, sizeof msg))
         return fail(c, msg);
     for (size_t i = 0; i < nvr; i++)
@@ -405,7 +428,7 @@ fmi2Status fmi2SetReal(fmi2Component component, const fmi2ValueReference vr[], s
                        const fmi2Real value[])
 {
     char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_SETREAL);
     if (access_problem(c, "fmi2SetReal", vr, nvr, FHOBS_REAL, 1, value, msg, sizeof msg))
         return fail(c, msg);
     for (size_t i = 0; i < nvr; i++)
@@ -417,7 +440,7 @@ fmi2Status fmi2GetInteger(fmi2Component component, const fmi2ValueReference vr[]
                           fmi2Integer value[])
 {
     char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_GETINTEGER);
     static const double any = 0.0;
     if (access_problem(c, "fmi2GetInteger", vr, nvr, FHOBS_INTEGER, 0, value ? &any : NULL, msg,
                        sizeof msg))
@@ -433,7 +456,7 @@ fmi2Status fmi2SetInteger(fmi2Component component, const fmi2ValueReference vr[]
                           const fmi2Integer value[])
 {
     char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_SETINTEGER);
     static const double any = 0.0;
     if (access_problem(c, "fmi2SetInteger", vr, nvr, FHOBS_INTEGER, 1, value ? &any : NULL, msg,
                        sizeof msg))
@@ -444,12 +467,12 @@ fmi2Status fmi2SetInteger(fmi2Component component, const fmi2ValueReference vr[]
 }
 
 /* No Boolean or String variables: any reference is unknown or of another type. */
-static fmi2Status no_variables_of_type(fmi2Component component, const char *function,
+static fmi2Status no_variables_of_type(fmi2Component component, int call, const char *function,
                                        const fmi2ValueReference vr[], size_t nvr, int type,
                                        const void *value)
 {
     char msg[MESSAGE_SIZE];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, call);
     static const double any = 0.0;
     if (access_problem(c, function, vr, nvr, type, 0, value ? &any : NULL, msg, sizeof msg))
         return fail(c, msg);
@@ -459,25 +482,29 @@ static fmi2Status no_variables_of_type(fmi2Component component, const char *func
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[])
 {
-    return no_variables_of_type(c, "fmi2GetBoolean", vr, nvr, TYPE_BOOLEAN, value);
+    return no_variables_of_type(c, FHOBS_CALL_GETBOOLEAN, "fmi2GetBoolean", vr, nvr, TYPE_BOOLEAN,
+                                value);
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[])
 {
-    return no_variables_of_type(c, "fmi2SetBoolean", vr, nvr, TYPE_BOOLEAN, value);
+    return no_variables_of_type(c, FHOBS_CALL_SETBOOLEAN, "fmi2SetBoolean", vr, nvr, TYPE_BOOLEAN,
+                                value);
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[])
 {
-    return no_variables_of_type(c, "fmi2GetString", vr, nvr, TYPE_STRING, value);
+    return no_variables_of_type(c, FHOBS_CALL_GETSTRING, "fmi2GetString", vr, nvr, TYPE_STRING,
+                                value);
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[])
 {
-    return no_variables_of_type(c, "fmi2SetString", vr, nvr, TYPE_STRING, value);
+    return no_variables_of_type(c, FHOBS_CALL_SETSTRING, "fmi2SetString", vr, nvr, TYPE_STRING,
+                                value);
 }
 
 /* -- stepping ------------------------------------------------------------------------------- */
@@ -505,25 +532,31 @@ static int input_problem(const Instance *c, char *msg, size_t len)
     return 0;
 }
 
+/* Why a doStep from time t does not continue the instance (1 and the message) or 0
+ * (fhobs.fmu.call_rules.time_problem). */
+static int time_problem(const Instance *c, double t, double dt, char *msg, size_t len)
+{
+    char a[32], b[32];
+    if (!isfinite(t)) {
+        snprintf(msg, len, "currentCommunicationPoint %s is not finite", number(t, a, sizeof a));
+        return 1;
+    }
+    double scale = fabs(c->time) > dt ? fabs(c->time) : dt;
+    if (isnan(c->time) || fabs(t - c->time) <= FHOBS_TIME_TOLERANCE * scale)
+        return 0;
+    snprintf(msg, len, FHOBS_TIME_MESSAGE, number(t, a, sizeof a), number(c->time, b, sizeof b));
+    return 1;
+}
+
 fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentCommunicationPoint)
 {
     (void)noSetFMUStatePriorToCurrentCommunicationPoint;
     char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64], t[32];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_DOSTEP);
     Values *v = &c->values;
     double dt = communicationStepSize;
-    if (v->mode != STEP_MODE) {
-        number(currentCommunicationPoint, t, sizeof t);
-        if (v->mode == TERMINATED)
-            snprintf(msg, sizeof msg, "doStep at t = %s refused: the instance was terminated "
-                     "(fmi2Terminate); fmi2Reset to start again", t);
-        else
-            snprintf(msg, sizeof msg, "doStep at t = %s refused: the instance is in %s; doStep "
-                     "needs a successful initialisation", t, MODE_NAMES[v->mode]);
-        return fail(c, msg);
-    }
     double next[FHOBS_STATE_SIZE];
     int problem = 0;
     if (!(isfinite(dt) && dt > 0.0)) {
@@ -532,6 +565,7 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
                  "number", number(dt, a, sizeof a));
         problem = 1;
     }
+    problem = problem || time_problem(c, currentCommunicationPoint, dt, reason, sizeof reason);
     problem = problem || input_problem(c, reason, sizeof reason) ||
               model_step(&c->work, v->real, v->integer, v->state, next, dt, reason,
                          sizeof reason);
@@ -542,55 +576,63 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     }
     memcpy(v->state, next, sizeof next);
     publish(c);
+    c->time = currentCommunicationPoint + dt;
     return ok(c);
+}
+
+/* A function these FMUs do not provide: fmi2Error with the call rules' reason. */
+static fmi2Status unsupported(fmi2Component component, int call)
+{
+    INSTANCE_OR_ERROR(component);
+    refused(c, call); /* allowed in no state: refused with its reason */
+    return fmi2Error;
 }
 
 fmi2Status fmi2CancelStep(fmi2Component component)
 {
-    INSTANCE_OR_ERROR(component);
-    return fail(c, "fmi2CancelStep: doStep never runs asynchronously here");
-}
-
-static fmi2Status no_status(fmi2Component component)
-{
-    INSTANCE_OR_ERROR(component);
-    return fail(c, "fmi2Get*Status: doStep never runs asynchronously here, there is no status "
-                   "to report");
+    return unsupported(component, FHOBS_CALL_CANCELSTEP);
 }
 
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
     (void)s;
     (void)value;
-    return no_status(c);
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
-{
-    (void)s;
-    (void)value;
-    return no_status(c);
+    return unsupported(c, FHOBS_CALL_GETSTATUS);
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
     (void)s;
     (void)value;
-    return no_status(c);
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
-{
-    (void)s;
-    (void)value;
-    return no_status(c);
+    return unsupported(c, FHOBS_CALL_GETINTEGERSTATUS);
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
     (void)s;
     (void)value;
-    return no_status(c);
+    return unsupported(c, FHOBS_CALL_GETSTRINGSTATUS);
+}
+
+/* fmi2LastSuccessfulTime: the end of the last step (the start time before one). */
+fmi2Status fmi2GetRealStatus(fmi2Component component, const fmi2StatusKind s, fmi2Real *value)
+{
+    CHECK_CALL(component, FHOBS_CALL_GETREALSTATUS);
+    if (s != fmi2LastSuccessfulTime || !value)
+        return fail(c, "fmi2GetRealStatus: only fmi2LastSuccessfulTime, into a non-NULL value");
+    *value = c->time;
+    return ok(c);
+}
+
+/* fmi2Terminated: whether the FMU asks to end the run (never). */
+fmi2Status fmi2GetBooleanStatus(fmi2Component component, const fmi2StatusKind s,
+                                fmi2Boolean *value)
+{
+    CHECK_CALL(component, FHOBS_CALL_GETBOOLEANSTATUS);
+    if (s != fmi2Terminated || !value)
+        return fail(c, "fmi2GetBooleanStatus: only fmi2Terminated, into a non-NULL value");
+    *value = fmi2False;
+    return ok(c);
 }
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component component, const fmi2ValueReference vr[],
@@ -601,9 +643,7 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component component, const fmi2ValueR
     (void)nvr;
     (void)order;
     (void)value;
-    INSTANCE_OR_ERROR(component);
-    return fail(c, "fmi2SetRealInputDerivatives: the inputs are held over a step "
-                   "(canInterpolateInputs=false)");
+    return unsupported(component, FHOBS_CALL_SETREALINPUTDERIVATIVES);
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component component, const fmi2ValueReference vr[],
@@ -613,8 +653,7 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component component, const fmi2Value
     (void)nvr;
     (void)order;
     (void)value;
-    INSTANCE_OR_ERROR(component);
-    return fail(c, "fmi2GetRealOutputDerivatives: not provided (maxOutputDerivativeOrder=0)");
+    return unsupported(component, FHOBS_CALL_GETREALOUTPUTDERIVATIVES);
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component component,
@@ -628,9 +667,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component component,
     (void)nKnown;
     (void)dvKnown;
     (void)dvUnknown;
-    INSTANCE_OR_ERROR(component);
-    return fail(c, "fmi2GetDirectionalDerivative: not provided "
-                   "(providesDirectionalDerivative=false)");
+    return unsupported(component, FHOBS_CALL_GETDIRECTIONALDERIVATIVE);
 }
 
 /* -- FMU states ------------------------------------------------------------------------------ */
@@ -646,7 +683,7 @@ static Snapshot *snapshot(fmi2FMUstate state)
 
 fmi2Status fmi2GetFMUstate(fmi2Component component, fmi2FMUstate *state)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_GETFMUSTATE);
     if (!state)
         return fail(c, "fmi2GetFMUstate: NULL state pointer");
     Snapshot *s = *state ? snapshot(*state) : allocate(&c->callbacks, sizeof(Snapshot));
@@ -663,17 +700,23 @@ fmi2Status fmi2GetFMUstate(fmi2Component component, fmi2FMUstate *state)
 
 fmi2Status fmi2SetFMUstate(fmi2Component component, fmi2FMUstate state)
 {
-    INSTANCE_OR_ERROR(component);
+    char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64];
+    CHECK_CALL(component, FHOBS_CALL_SETFMUSTATE);
     Snapshot *s = snapshot(state);
     if (!s)
         return fail(c, "fmi2SetFMUstate rejected the state: not an FMU state of this FMU");
+    if (values_problem(&s->values, reason, sizeof reason)) {
+        snprintf(msg, sizeof msg, "fmi2SetFMUstate rejected the state: %s", reason);
+        return fail(c, msg);
+    }
     c->values = s->values;
+    c->time = NAN;
     return ok(c);
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component component, fmi2FMUstate *state)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_FREEFMUSTATE);
     if (!state || !*state)
         return ok(c);
     Snapshot *s = snapshot(*state);
@@ -687,7 +730,7 @@ fmi2Status fmi2FreeFMUstate(fmi2Component component, fmi2FMUstate *state)
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component component, fmi2FMUstate state, size_t *size)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_SERIALIZEDFMUSTATESIZE);
     if (!snapshot(state) || !size)
         return fail(c, "fmi2SerializedFMUstateSize: not an FMU state of this FMU");
     *size = SERIALIZED_SIZE;
@@ -709,7 +752,7 @@ static const unsigned char *get(const unsigned char *p, void *data, size_t size)
 fmi2Status fmi2SerializeFMUstate(fmi2Component component, fmi2FMUstate state,
                                  fmi2Byte serializedState[], size_t size)
 {
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_SERIALIZEFMUSTATE);
     Snapshot *s = snapshot(state);
     if (!s || !serializedState || size != SERIALIZED_SIZE)
         return fail(c, "fmi2SerializeFMUstate: not an FMU state of this FMU, or a buffer of "
@@ -733,7 +776,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
                                    size_t size, fmi2FMUstate *state)
 {
     char msg[MESSAGE_SIZE], reason[MESSAGE_SIZE - 64];
-    INSTANCE_OR_ERROR(component);
+    CHECK_CALL(component, FHOBS_CALL_DESERIALIZEFMUSTATE);
     char identity[IDENTITY_FIELD] = {0}, expected[IDENTITY_FIELD] = {0};
     strncpy(expected, FHOBS_IDENTITY, IDENTITY_FIELD - 1);
     const unsigned char *p = (const unsigned char *)serializedState;
