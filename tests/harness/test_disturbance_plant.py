@@ -192,3 +192,27 @@ def test_bad_disturbance_table_is_one_paragraph_exit_2(tmp_path, capsys, text, m
     assert code == 2 and "Traceback" not in err and err.count("\n") == 1
     assert err.startswith("error: ") and message in err, err
     assert not (tmp_path / "out" / "fmus").exists()
+
+
+@pytest.mark.slow
+def test_kalman_filter_with_a_disturbance_model_reports_q_hat(tmp_path, capsys):
+    """A [noise] table with disturbance_order 1: kalman.fmu's q_hat is in the table; over the
+    steady window its q error is a few % of the step (measurement noise 1e-5 on x[1]: a
+    steady-state filter of process intensity 1e-2 converges slower than the homogeneous
+    observer) and its mean over the last half second is the step's height within 2 %."""
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC + "[noise]\nmeasurement_std = [1e-5]\nsample_time = 1e-3\n"
+                           "process_intensity = 1e-2\n")
+    code = main(["plant", str(spec), "--out", str(tmp_path / "out"), "--stop-time", str(STOP),
+                 "--no-plots"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["seeds"] == [0] and "prescribed_time" not in summary
+    assert summary["homogeneous"]["q_rms_steady"] < 0.05 * 0.05
+    assert summary["kalman"]["q_rms_steady"] < 0.1 * 0.05
+    csv = read_csv(tmp_path / "out" / "results.csv")
+    last = csv["time"] >= STOP - 0.5
+    assert np.mean(csv["kalman.q_hat[1]"][last]) == pytest.approx(0.05, rel=0.02)
+    row = next(line for line in out.splitlines() if line.startswith("kalman")).split()
+    assert "-" not in row
