@@ -5,7 +5,10 @@ design of examples/pendulum.toml, with its Kalman filter) both ways in a tempora
 then times per communication step, for every kind, ``doStep`` alone and the whole exchange
 (setReal of the inputs + doStep + getReal of the outputs) through fmpy's ``FMU2Slave``, and
 ``fmi2DoStep`` called through ctypes without fmpy's wrapper (as the harness's master calls
-it), with seeded random-walk inputs. Prints a table in microseconds per step and the build times.
+it), with seeded random-walk inputs. Prints a table in microseconds per step and the build times,
+then, for every native kind, the time of the first ``fmi2DoStep`` at a step size the instance has
+not seen (its plan computed in C: the ZOH matrices, and for the filtering observer the tau scan
+of the gain level's floor and ceiling) against a step at a size already planned.
 """
 
 from __future__ import annotations
@@ -73,11 +76,45 @@ def time_kind(path: Path, steps: int, dt: float) -> tuple[float, float, float]:
     return alone, exchange, raw
 
 
+FIRST_STEP_SIZES = tuple(float(dt) for dt in np.geomspace(1.1e-5, 2.3e-3, 12))
+"""New step sizes (each planned at its first doStep) for :func:`time_first_steps`."""
+
+
+def time_first_steps(path: Path) -> tuple[float, float, float]:
+    """Seconds of the first doStep at each of :data:`FIRST_STEP_SIZES` (median and largest,
+    the plan included) and of a doStep at a step size already planned (median of 2000), called
+    through ctypes as the harness calls it."""
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="first")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    do_step = fmu.dll.fmi2DoStep
+    do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+    do_step.restype = ctypes.c_int
+    first, t = [], 0.0
+    for dt in FIRST_STEP_SIZES:
+        start = time.perf_counter()
+        assert do_step(fmu.component, t, dt, 1) == 0
+        first.append(time.perf_counter() - start)
+        t += dt
+    steady = []
+    for _ in range(2000):
+        start = time.perf_counter()
+        do_step(fmu.component, t, FIRST_STEP_SIZES[-1], 1)
+        steady.append(time.perf_counter() - start)
+        t += FIRST_STEP_SIZES[-1]
+    fmu.terminate()
+    fmu.freeInstance()
+    return float(np.median(first)), max(first), float(np.median(steady))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5000)
-    parser.add_argument("--dt", type=float, default=1e-3,
-                        help="communication step (one the native FMUs are built for)")
+    parser.add_argument("--dt", type=float, default=1e-3, help="communication step")
     args = parser.parse_args()
     gains = design_from_spec(load_spec(PENDULUM_SPEC))
     with tempfile.TemporaryDirectory() as tmp:
@@ -98,6 +135,14 @@ def main() -> None:
             b = time_kind(native[kind], args.steps, args.dt)
             print(f"| {kind} | " + " | ".join(f"{x * 1e6:.2f}" for pair in zip(a, b, strict=True)
                                              for x in pair) + " |", flush=True)
+        print(f"\nnative fmi2DoStep through ctypes: the first step at each of "
+              f"{len(FIRST_STEP_SIZES)} new step sizes (plan computed in C) and a steady step")
+        print("| FMU | first step, median (ms) | first step, largest (ms) | steady step (us) |")
+        print("|---|---|---|---|")
+        for kind in ("observer", "luenberger", "plant"):
+            median, largest, steady = time_first_steps(native[kind])
+            print(f"| {kind} | {median * 1e3:.3f} | {largest * 1e3:.3f} | {steady * 1e6:.2f} |",
+                  flush=True)
 
 
 if __name__ == "__main__":

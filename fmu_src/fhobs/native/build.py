@@ -197,7 +197,7 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
     ``steps`` must have a plan in the numpy runtime (:class:`BuildError` otherwise)."""
     if kind == "kalman":
         observer = KalmanObserver(gains)
-        return {"kalman": _captured_plan(observer, 1.0),  # one cycle; doStep sets the count
+        return {"kalman": captured_plan(observer, 1.0),  # one cycle; doStep sets the count
                 "Ts": float(gains.kalman.sample_time)}
     if kind == "plant":
         model = LTIPlant(gains.A, gains.B, gains.C, E=gains.E)
@@ -209,7 +209,7 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
                          "design (the injection flow has no eigen path): no native FMU")
     for dt in steps:
         try:
-            _captured_plan(model, dt)
+            captured_plan(model, dt)
         except ValueError as err:
             raise BuildError(f"--native-step {dt!r}: {err}") from err
     data = planner.design_data(kind, model)
@@ -217,11 +217,11 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
         data.update({"A": model.A, "B": model.B, "C": model.C, "E": model.E})
     else:
         euler = cls(gains, h=h, scheme="euler")
-        data["euler"] = _captured_plan(euler, h) if euler.compiled else None
+        data["euler"] = captured_plan(euler, h) if euler.compiled else None
     return data
 
 
-def _captured_plan(model: Any, dt: float) -> dict[str, Any]:
+def captured_plan(model: Any, dt: float) -> dict[str, Any]:
     """The fields of the kernel plan that ``model`` (a runtime model with a kernel stepper)
     registers for the step size dt: numbers as Python numbers, pointers as the arrays they
     point into (None for a NULL pointer).

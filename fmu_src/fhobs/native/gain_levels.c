@@ -12,17 +12,18 @@
 #include <float.h>
 #include <math.h>
 
-#define FHOBS_QR_ITERATIONS 60   /* QR sweeps per eigenvalue before the radius is unknown */
+#define FHOBS_QR_SWEEPS 30       /* times max(10, n): QR sweeps before the radius is unknown */
 #define FHOBS_BALANCE_SWEEPS 100 /* fhobs.core.linalg.BALANCE_SWEEPS */
 
-/* F = Phi + Gamma_inj C: Phi the first n columns of M (n x size), Gamma_inj its last k. */
+/* F = Phi + Gamma_inj C: Phi the first n columns of M (n x size), Gamma_inj its last k; the
+ * product's entries fused multiply-adds in sequence, as numpy's matrix product. */
 static void carry_matrix(const double *M, const double *C, int n, int size, int k, double *F)
 {
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
             double s = 0.0;
             for (int l = 0; l < k; l++)
-                s += M[(size_t)i * size + size - k + l] * C[(size_t)l * n + j];
+                s = fma(M[(size_t)i * size + size - k + l], C[(size_t)l * n + j], s);
             F[(size_t)i * n + j] = M[(size_t)i * size + j] + s;
         }
 }
@@ -133,14 +134,16 @@ static double block_radius(double a, double b, double c, double d)
 }
 
 /* Spectral radius of the upper Hessenberg H (n x n, destroyed) by Francis double-shift QR
- * sweeps on its unreduced trailing block, deflating 1 x 1 and 2 x 2 blocks; inf when a block
- * does not converge. */
+ * sweeps on its unreduced trailing block, deflating 1 x 1 and 2 x 2 blocks; the shifts are the
+ * eigenvalues of the trailing 2 x 2 block, or twice the one of them nearer its last diagonal
+ * entry when both are real, with exceptional shifts every 11th sweep; inf when the sweeps do
+ * not converge within FHOBS_QR_SWEEPS max(10, n) in all (the budget of LAPACK's dlahqr). */
 static double hessenberg_radius(double *H, int n)
 {
     double radius = 0.0, scale = 0.0;
     for (size_t i = 0; i < (size_t)n * n; i++)
         scale = fabs(H[i]) > scale ? fabs(H[i]) : scale;
-    int hi = n - 1, iterations = 0;
+    int hi = n - 1, iterations = 0, budget = FHOBS_QR_SWEEPS * (n > 10 ? n : 10);
     while (hi >= 0) {
         int lo = hi;
         while (lo > 0) { /* the first negligible subdiagonal entry above hi */
@@ -160,30 +163,39 @@ static double hessenberg_radius(double *H, int n)
                              H[(size_t)hi * n + lo], H[(size_t)hi * n + hi]);
             hi -= 2;
         } else {
-            if (++iterations > FHOBS_QR_ITERATIONS)
+            if (--budget < 0)
                 return INFINITY;
-            double a = H[(size_t)(hi - 1) * n + hi - 1], b = H[(size_t)(hi - 1) * n + hi];
-            double c = H[(size_t)hi * n + hi - 1], d = H[(size_t)hi * n + hi];
-            double trace = a + d, det = a * d - b * c;
-            if (iterations % 11 == 10) { /* exceptional shift against cycling */
-                double w = fabs(c) + fabs(H[(size_t)(hi - 1) * n + hi - 2]);
-                trace = 1.5 * w;
-                det = w * w;
+            iterations++;
+            /* the shifts: the eigenvalues of [[y, .], [., x]] with product w of the
+             * off-diagonal entries */
+            double y = H[(size_t)(hi - 1) * n + hi - 1], x = H[(size_t)hi * n + hi];
+            double w = H[(size_t)hi * n + hi - 1] * H[(size_t)(hi - 1) * n + hi];
+            double half = 0.5 * (y - x), disc = half * half + w;
+            if (iterations % 11 == 10) { /* exceptional shifts against cycling */
+                double e = fabs(H[(size_t)hi * n + hi - 1]) +
+                           fabs(H[(size_t)(hi - 1) * n + hi - 2]);
+                x = y = x + 0.75 * e;
+                w = -0.4375 * e * e;
+            } else if (disc >= 0.0) { /* real shifts: the one nearer x, twice */
+                x = y = x + half + (half > 0.0 ? -sqrt(disc) : sqrt(disc));
+                w = 0.0;
             }
+            /* the first column of (H - s1)(H - s2) at lo, divided by H[lo + 1][lo], in
+             * differences from the diagonal (no cancellation of the shifts) */
             const double *h0 = H + (size_t)lo * n, *h1 = h0 + n, *h2 = h1 + n;
-            double x[3] = {h0[lo] * h0[lo] + h0[lo + 1] * h1[lo] - trace * h0[lo] + det,
-                           h1[lo] * (h0[lo] + h1[lo + 1] - trace), h1[lo] * h2[lo + 1]};
-            double v[3];
+            double dx = x - h0[lo], dy = y - h0[lo], v[3];
+            double xv[3] = {(dx * dy - w) / h1[lo] + h0[lo + 1], h1[lo + 1] - h0[lo] - dx - dy,
+                            h2[lo + 1]};
             for (int k = lo; k < hi - 1; k++) {
-                householder(x, 3, v);
+                householder(xv, 3, v);
                 int c0 = k > lo ? k - 1 : lo, q1 = k + 3 < hi ? k + 3 : hi;
                 reflect(H, n, v, 3, k, c0, hi, lo, q1);
-                x[0] = H[(size_t)(k + 1) * n + k];
-                x[1] = H[(size_t)(k + 2) * n + k];
+                xv[0] = H[(size_t)(k + 1) * n + k];
+                xv[1] = H[(size_t)(k + 2) * n + k];
                 if (k < hi - 2)
-                    x[2] = H[(size_t)(k + 3) * n + k];
+                    xv[2] = H[(size_t)(k + 3) * n + k];
             }
-            householder(x, 2, v);
+            householder(xv, 2, v);
             reflect(H, n, v, 2, hi - 1, hi - 2, hi, lo, hi);
             continue;
         }

@@ -28,58 +28,77 @@ typedef struct {
     double contraction;  /* fhobs.core.runtime.CONTRACTION_LIMIT */
 } LevelScan;
 
-/* C = A B, all n x n row-major */
+/* C = A B, all n x n row-major, each entry a sequence of fused multiply-adds as numpy's
+ * matrix product forms it (OpenBLAS's dgemm on x86-64 with FMA): the squarings of expm
+ * amplify any difference in the rounding of the products by up to 2^squarings. */
 static void square_product(const double *A, const double *B, int n, double *C)
 {
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
             double s = 0.0;
             for (int l = 0; l < n; l++)
-                s += A[(size_t)i * n + l] * B[(size_t)l * n + j];
+                s = fma(A[(size_t)i * n + l], B[(size_t)l * n + j], s);
             C[(size_t)i * n + j] = s;
         }
 }
 
-/* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting, the row
- * exchanges and eliminations applied to B as they are made; A is destroyed, B becomes X.
- * 1 when a pivot is exactly zero (LAPACK's singular case), else 0. */
+/* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting in the order of
+ * numpy's solve (LAPACK's gesv as OpenBLAS computes it for small matrices): the columns of L
+ * and U formed left to right (each entry minus the dot product of the finished ones), the
+ * pivot the first entry of largest modulus, L's column scaled by the pivot's reciprocal; then
+ * L y = B and U X = y solved row by row, each solved entry (U's: times its diagonal's
+ * reciprocal) subtracted from the rows not yet solved. A becomes L and U, B becomes X; 1 when
+ * a pivot is exactly zero (LAPACK's singular case), else 0. */
 static int lu_solve(double *A, double *B, int n, int cols)
 {
-    for (int c = 0; c < n; c++) {
-        int pivot = c;
-        for (int i = c + 1; i < n; i++)
-            if (fabs(A[(size_t)i * n + c]) > fabs(A[(size_t)pivot * n + c]))
+#define LU_A(i, j) A[(size_t)(i) * n + (j)]
+#define LU_B(i, j) B[(size_t)(i) * cols + (j)]
+    for (int j = 0; j < n; j++) {
+        for (int i = 1; i < n; i++) {
+            int terms = i < j ? i : j;
+            double d = 0.0;
+            for (int l = 0; l < terms; l++)
+                d += LU_A(i, l) * LU_A(l, j);
+            LU_A(i, j) -= d;
+        }
+        int pivot = j;
+        for (int i = j + 1; i < n; i++)
+            if (fabs(LU_A(i, j)) > fabs(LU_A(pivot, j)))
                 pivot = i;
-        if (A[(size_t)pivot * n + c] == 0.0)
+        if (LU_A(pivot, j) == 0.0)
             return 1;
-        if (pivot != c) {
-            for (int j = 0; j < n; j++) {
-                double t = A[(size_t)c * n + j];
-                A[(size_t)c * n + j] = A[(size_t)pivot * n + j];
-                A[(size_t)pivot * n + j] = t;
+        if (pivot != j) {
+            for (int l = 0; l < n; l++) {
+                double t = LU_A(j, l);
+                LU_A(j, l) = LU_A(pivot, l);
+                LU_A(pivot, l) = t;
             }
-            for (int j = 0; j < cols; j++) {
-                double t = B[(size_t)c * cols + j];
-                B[(size_t)c * cols + j] = B[(size_t)pivot * cols + j];
-                B[(size_t)pivot * cols + j] = t;
+            for (int l = 0; l < cols; l++) {
+                double t = LU_B(j, l);
+                LU_B(j, l) = LU_B(pivot, l);
+                LU_B(pivot, l) = t;
             }
         }
-        for (int i = c + 1; i < n; i++) {
-            double f = A[(size_t)i * n + c] / A[(size_t)c * n + c];
-            for (int j = c + 1; j < n; j++)
-                A[(size_t)i * n + j] -= f * A[(size_t)c * n + j];
-            for (int j = 0; j < cols; j++)
-                B[(size_t)i * cols + j] -= f * B[(size_t)c * cols + j];
+        double reciprocal = 1.0 / LU_A(j, j);
+        for (int i = j + 1; i < n; i++)
+            LU_A(i, j) *= reciprocal;
+    }
+    for (int i = 0; i < n; i++)
+        for (int c = 0; c < cols; c++)
+            for (int r = i + 1; r < n; r++)
+                LU_B(r, c) -= LU_B(i, c) * LU_A(r, i);
+    for (int i = n - 1; i >= 0; i--) {
+        double reciprocal = 1.0 / LU_A(i, i);
+        for (int c = 0; c < cols; c++) {
+            double x = LU_B(i, c) * reciprocal;
+            LU_B(i, c) = x;
+            for (int r = 0; r < i; r++)
+                LU_B(r, c) -= x * LU_A(r, i);
         }
     }
-    for (int c = n - 1; c >= 0; c--)
-        for (int j = 0; j < cols; j++) {
-            double s = B[(size_t)c * cols + j];
-            for (int l = c + 1; l < n; l++)
-                s -= A[(size_t)c * n + l] * B[(size_t)l * cols + j];
-            B[(size_t)c * cols + j] = s / A[(size_t)c * n + c];
-        }
     return 0;
+#undef LU_A
+#undef LU_B
 }
 
 /* Pade(13) coefficients and theta_13 (fhobs.core.linalg._PADE13, _THETA13) */
