@@ -24,17 +24,18 @@ the same draws scaled to each size s):
   (``sum_j |C_ij| state_scale_j``) and a process intensity ``(0.1 a)^2 w^(2R-1)`` (a lumped
   input of 10 % of the excitation's amplitude a at its frequency w).
 
-The closed loop (in process, the numpy/kernel runtime that the FMUs run; dt = h = 1e-3): the plant
-starts at ``state_scale``, the estimators at zero; ``u = K_p x + v(t)``, K_p the LQR of the
-perturbed plant (the loop is a test rig that stays stable; the estimators see u and y), and
-``v_j(t) = a sin(w t + 2 pi j / m)`` a persistent excitation with ``w = 2 pi / settling_time``
-and ``a`` such that the nominal loop's steady oscillation has the size of ``state_scale`` (its
-largest ``sum_j |G_ij(jw)| a / state_scale_i`` is 1). Without excitation u = K_p x drives x, and
-the mismatch's effect, to zero. No measurement noise. The run lasts three settling times; the
-figure is the RMS over the steady window ``[T_s, t_end]`` (``T_s``:
-:func:`harness.own_plant.transient_end`, the larger of both designs') of the scaled error
-``||(x - x_hat) / state_scale||``. The table gives its median and 90th percentile over the draws
-per plant and size, then over all plants' draws.
+The closed loop (in process, the numpy/kernel runtime that the FMUs run; dt = h = 1e-3): the
+plant and the estimators start at ``state_scale`` (disturbance states at zero: no initial error,
+so that the figure is the mismatch's effect, not what remains of a slow or peaking transient);
+``u = K_p x + v(t)``, K_p the LQR of the perturbed plant (the loop is a test rig that stays
+stable; the estimators see u and y), and ``v_j(t) = a sin(w t + 2 pi j / m)`` a persistent
+excitation with ``w = 2 pi / settling_time`` and ``a`` such that the nominal loop's steady
+oscillation has the size of ``state_scale`` (its largest ``sum_j |G_ij(jw)| a / state_scale_i``
+is 1). Without excitation u = K_p x drives x, and the mismatch's effect, to zero. No
+measurement noise. The run lasts three settling times; the figure is the RMS over the steady
+window ``[T_s, t_end]`` (``T_s``: :func:`harness.own_plant.transient_end`, the larger of both
+designs') of the scaled error ``||(x - x_hat) / state_scale||``. The table gives its median and
+90th percentile over the draws per plant and size, then over all plants' draws.
 """
 
 from __future__ import annotations
@@ -97,36 +98,51 @@ def excitation(A: np.ndarray, B: np.ndarray, scale: np.ndarray,
 
 
 def designs(spec: PlantSpec, order: int, amplitude: float,
-            w: float) -> tuple[ObserverGains, ObserverGains | str]:
-    """The default design and the E = B disturbance-model design with its Kalman filter (or the
-    reason it does not exist)."""
+            w: float) -> tuple[ObserverGains, ObserverGains | None, ObserverGains | None, str]:
+    """The default design, the E = B disturbance-model design, the latter with its Kalman
+    filter (None where they do not exist) and why they do not."""
     nominal = design_for_spec(spec)
     try:
         lumped_spec = plant_spec(spec.A, spec.B, spec.C, E=spec.B, disturbance_order=order,
                                  settling_time=spec.settling_time, state_scale=spec.state_scale,
                                  source=f"{spec.source} with E = B")
         lumped = design_for_spec(lumped_spec)
-        y_scale = np.abs(spec.C) @ spec.state_scale
-        noise = NoiseSpec(MEASUREMENT_STD * y_scale, DT,
-                          (LUMPED_SIZE * amplitude) ** 2 * w ** (2 * order - 1), order)
-        return nominal, with_kalman(lumped, noise, "bench_mismatch: lumped input of 10 % of "
-                                                   "the excitation at its frequency")
-    except (ValueError, RuntimeError) as err:  # SpecError, LMIError, KalmanDesignError, ...
-        return nominal, f"{type(err).__name__}: {str(err).split(';')[0][:120]}"
+    except (ValueError, RuntimeError) as err:  # SpecError, LMIError, CertificateError
+        return nominal, None, None, f"no E = B design: {type(err).__name__}: {_short(err)}"
+    y_scale = np.abs(spec.C) @ spec.state_scale
+    noise = NoiseSpec(MEASUREMENT_STD * y_scale, DT,
+                      (LUMPED_SIZE * amplitude) ** 2 * w ** (2 * order - 1), order)
+    try:
+        kalman = with_kalman(lumped, noise, "bench_mismatch: lumped input of 10 % of the "
+                                            "excitation at its frequency")
+    except (ValueError, RuntimeError) as err:  # KalmanDesignError
+        return nominal, lumped, None, f"no Kalman filter: {type(err).__name__}: {_short(err)}"
+    return nominal, lumped, kalman, ""
 
 
-def run_draw(spec: PlantSpec, nominal: ObserverGains, lumped: ObserverGains | None,
+def _short(err: Exception) -> str:
+    text = str(err)
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
+def run_draw(spec: PlantSpec, gains: tuple[ObserverGains | None, ...],
              mismatch: MismatchSpec, amplitude: float, w: float, stop: float,
              settled: float) -> list[float]:
     """The steady-window RMS scaled error of each estimator (NaN where it does not exist) in
-    one closed-loop run with the perturbed plant."""
+    one closed-loop run with the perturbed plant; ``gains``: the default design, the E = B
+    design and the latter with its Kalman filter (:func:`designs`)."""
+    nominal, lumped, kalman = gains
     A_p, B_p = mismatch.perturb(spec.A, spec.B)
     K_p = state_feedback(A_p, B_p)
     m, scale = spec.B.shape[1], spec.state_scale
     plant = LTIPlant(A_p, B_p, spec.C, x0=scale)
-    estimators = [FilteringObserver(nominal, h=DT), None, LuenbergerObserver(nominal, h=DT), None]
+    estimators = [FilteringObserver(nominal, h=DT, z0=scale), None,
+                  LuenbergerObserver(nominal, h=DT, z0=scale), None]
     if lumped is not None:
-        estimators[1], estimators[3] = FilteringObserver(lumped, h=DT), KalmanObserver(lumped)
+        z0 = np.concatenate((scale, np.zeros(lumped.n_model - lumped.n)))
+        estimators[1] = FilteringObserver(lumped, h=DT, z0=z0)
+    if kalman is not None:
+        estimators[3] = KalmanObserver(kalman, z0=scale)
     steps = round(stop / DT)
     phases = 2.0 * math.pi * np.arange(m) / m
     squares = np.zeros(len(estimators))
@@ -154,13 +170,11 @@ def run_plant(name: str, sizes: tuple[float, ...], draws: int, order: int) -> di
     estimator] per draw]}}``."""
     spec = load_zoo_spec(zoo_paths()[name])
     amplitude, w = excitation(spec.A, spec.B, spec.state_scale, spec.settling_time)
-    nominal, lumped = designs(spec, order, amplitude, w)
-    note = lumped if isinstance(lumped, str) else ""
-    lumped = None if isinstance(lumped, str) else lumped
+    *gains, note = designs(spec, order, amplitude, w)
     stop = RUNS_PER_SETTLING_TIME * spec.settling_time
     settled = max(transient_end(g, spec.settling_time, DT, stop)
-                  for g in (nominal, lumped) if g is not None)
-    errors = {size: [run_draw(spec, nominal, lumped, MismatchSpec(size, "gaussian", seed),
+                  for g in gains[:2] if g is not None)
+    errors = {size: [run_draw(spec, tuple(gains), MismatchSpec(size, "gaussian", seed),
                               amplitude, w, stop, settled) for seed in range(draws)]
               for size in sizes}
     return {"name": name, "note": note, "errors": errors, "settled": settled, "stop": stop}
@@ -229,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     print(markdown(rows, sizes, args.order))
     for row in rows:
         if row["note"]:
-            print(f"\n{row['name']}: no E = B disturbance model: {row['note']}")
+            print(f"\n{row['name']}: {row['note']}")
     if args.json:
         args.json.write_text(json.dumps(
             [{**row, "errors": {str(k): v for k, v in row["errors"].items()}} for row in rows],
