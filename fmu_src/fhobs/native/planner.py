@@ -1,12 +1,13 @@
 """The native FMUs' step planner (``planner.c``): its design data and a ctypes entry to it.
 
 A native FMU computes the plan of a communication step size in C at the first step of that
-size (``planner.c``, ``gain_levels.c``): the ZOH matrices, and for the filtering observer the gain-level floor
-and ceiling of the tau scan. What the planner needs that does not depend on the step size is
-taken here from the numpy runtime's models and compiled into the FMU (:mod:`fhobs.native.build`):
-:func:`design_data`. :func:`c_plan` runs the same C planner through ctypes (``planner_api.c``
-compiled with ``kernel.c``, ``planner.c`` and ``gain_levels.c``), so the tests compare its plans with the numpy
-runtime's (``kernel.Stepper.plan``).
+size (``planner.c``, ``gain_levels.c``): the ZOH matrices, and for the filtering observer the
+gain-level floor and ceiling of the tau scan. What the planner needs that does not depend on
+the step size is taken here from the numpy runtime's models and compiled into the FMU
+(:mod:`fhobs.native.build`): :func:`design_data`. :func:`c_plan` runs the same C planner
+through ctypes (``planner_api.c`` compiled with ``kernel.c``, ``planner.c`` and
+``gain_levels.c``), so the tests compare its plans with the numpy runtime's
+(``kernel.Stepper.plan``).
 
 Examples
 --------
