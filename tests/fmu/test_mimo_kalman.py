@@ -15,7 +15,7 @@ from fhobs.core.plant import LTIPlant
 from fhobs.spec import spec_from_dict
 from fmpy import extract
 from fmu_fixtures import FmuDriver
-from test_kalman import BALL_BEAM, BALL_BEAM_NOISE
+from mimo_plants import BALL_BEAM, BALL_BEAM_NOISE
 
 
 @pytest.mark.slow

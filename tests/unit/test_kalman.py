@@ -20,6 +20,7 @@ from fhobs.paper import K_PAPER, X0_PAPER
 from fhobs.reference import accuracy_metrics, replay, simulate
 from fhobs.spec import spec_from_dict
 from fmu_fixtures import random_walk
+from mimo_plants import BALL_BEAM, BALL_BEAM_NOISE
 from reference_math import zoh
 from scipy.integrate import quad_vec
 
@@ -200,16 +201,6 @@ def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_gains):
 
 
 # -- a filter that the specified noise leaves unstable -----------------------------------------
-BALL_BEAM = {
-    "A": [[0, 1, 0, 0], [0, 0, -7, 0], [0, 0, 0, 1], [0, 0, 0, 0]], "B": [[0], [0], [0], [1]],
-    "C": [[1, 0, 0, 0], [0, 0, 1, 0]], "E": [[0], [1], [0], [0]],
-}
-"""The ball and beam measured in r and theta, q on the ball: noise through E never reaches the
-beam (theta'' = u), a double integrator that the filter would leave uncorrected."""
-BALL_BEAM_NOISE = {"measurement_std": [1e-3, 1e-3], "sample_time": 1e-3,
-                   "process_intensity": 1e-2}
-
-
 def ball_beam_model(order):
     """(A_model, C_model, G) of the ball and beam, written out here."""
     A, C, E = (np.array(BALL_BEAM[key], dtype=float) for key in ("A", "C", "E"))
