@@ -32,7 +32,8 @@ eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is t
 LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
 margin; ``r`` (reported as ``<P>_rounding``) bounds the rounding error of the computed figures,
 n eps cond(P) max(||H + rho G||, ||G||): a check passes only if it holds by more than the
-rounding could explain.
+rounding could explain. Before any figure, P_bar and P_pt must be symmetric to round-off
+(:func:`check_symmetry`): the figures use sym(P), which would hide an edited entry.
 """
 
 from __future__ import annotations
@@ -95,6 +96,96 @@ def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np
 def sym(M: np.ndarray) -> np.ndarray:
     """Symmetric part (M + M^T) / 2."""
     return 0.5 * (M + M.T)
+
+
+SYMMETRY_ROUNDING = 16.0
+"""Allowed asymmetry of a Lyapunov matrix, in units of n eps times the entries' scale."""
+
+
+def asymmetric_entries(P: np.ndarray) -> list[tuple[int, int]]:
+    """The index pairs (i, j), i < j and 0-based, where ``P[i, j]`` and ``P[j, i]`` differ by
+    more than round-off.
+
+    The scale of an off-diagonal pair is the largest of ``|P[i, j]|``, ``|P[j, i]|`` and
+    ``sqrt(|P[i, i] P[j, j]|)``; the pair may differ by ``SYMMETRY_ROUNDING * n * eps`` times
+    it. A NaN entry counts as asymmetric.
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        A square matrix.
+
+    Returns
+    -------
+    list of tuple of int
+        The asymmetric pairs, row by row.
+
+    Examples
+    --------
+    >>> asymmetric_entries(np.array([[2.0, 1.0], [1.0, 3.0]]))
+    []
+    >>> asymmetric_entries(np.array([[2.0, 2.0], [1.0, 3.0]]))
+    [(0, 1)]
+    """
+    P = np.asarray(P, dtype=float)
+    diagonal = np.sqrt(np.abs(np.diagonal(P)))
+    scale = np.maximum(np.maximum(np.abs(P), np.abs(P.T)), np.outer(diagonal, diagonal))
+    bound = SYMMETRY_ROUNDING * P.shape[0] * EPS * scale
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(P - P.T) <= bound)
+    return [(int(i), int(j)) for i, j in np.argwhere(np.triu(bad, 1))]
+
+
+def symmetry_problem(P: np.ndarray, name: str) -> str:
+    """Why the Lyapunov matrix ``P`` (called ``name``) is not symmetric to round-off, naming
+    its first asymmetric pair with 1-based indices as the FMU variables are named ('' if it
+    is symmetric).
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        The matrix.
+    name : str
+        Its name in the message (``"P_bar"``, ``"P_pt"``).
+
+    Returns
+    -------
+    str
+        The problem, or ''.
+
+    Examples
+    --------
+    >>> symmetry_problem(np.array([[2.0, 1.0], [1.0, 3.0]]), "P_bar")
+    ''
+    >>> print(symmetry_problem(np.array([[2.0, 2.0], [1.0, 3.0]]), "P_bar"))
+    P_bar is not symmetric: P_bar[1,2] = 2 but P_bar[2,1] = 1 (a Lyapunov matrix must be ...)
+    """
+    pairs = asymmetric_entries(P)
+    if not pairs:
+        return ""
+    i, j = pairs[0]
+    more = f" ({len(pairs) - 1} more pair(s) differ)" if len(pairs) > 1 else ""
+    return (f"{name} is not symmetric: {name}[{i + 1},{j + 1}] = {float(P[i, j]):.17g} but "
+            f"{name}[{j + 1},{i + 1}] = {float(P[j, i]):.17g}{more} "
+            "(a Lyapunov matrix must be symmetric)")
+
+
+def check_symmetry(**matrices: np.ndarray) -> None:
+    """Raise :class:`CertificateError` naming the first Lyapunov matrix that is not symmetric
+    to round-off (:func:`symmetry_problem`).
+
+    Examples
+    --------
+    >>> check_symmetry(P_bar=np.eye(2))
+    >>> check_symmetry(P_bar=np.array([[1.0, 0.5], [0.0, 1.0]]))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: P_bar is not symmetric: P_bar[1,2] = 0.5 but ...
+    """
+    for name, P in matrices.items():
+        problem = symmetry_problem(P, name)
+        if problem:
+            raise CertificateError(problem)
 
 
 def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
@@ -236,6 +327,7 @@ def certify_prescribed_time(
     problem = tuning_problem(gains.nu, gains.rho, None, gains.n_tilde)
     if problem:
         raise CertificateError(problem)
+    check_symmetry(P_pt=gains.P_pt)
     values = homogeneity_values(gains) | prescribed_time_lmi_values(gains)
     _judge(values, tolerance, margin)
     return values
@@ -366,7 +458,9 @@ def certify(
     Raises
     ------
     CertificateError
-        Naming every failed check with its value and bound.
+        Naming every failed check with its value and bound; first, naming the entry of a
+        Lyapunov matrix (P_bar, P_pt) that is not symmetric to round-off
+        (:func:`symmetry_problem`).
 
     Examples
     --------
@@ -380,6 +474,7 @@ def certify(
     ...
     fhobs.core.errors.CertificateError: ...hurwitz_luenberger...
     """
+    check_symmetry(P_bar=gains.P_bar, P_pt=gains.P_pt)
     values = certificate_values(gains)
     _judge(values, tolerance, margin)
     return values
