@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from fhobs.cli import check_output_folder
 from fhobs.core.gains import ObserverGains
-from fhobs.errors import BuildError, CertificateError, KalmanDesignError, LMIError, SpecError
+from fhobs.errors import FhobsError, SpecError
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec
 
@@ -561,8 +561,7 @@ def main(argv: list[str] | None = None) -> int:
                 "export-ssp": _cmd_export, "sweep": _cmd_sweep}
     try:
         return commands[args.command](args)
-    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,
-            KalmanDesignError, BuildError) as err:
+    except (FhobsError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "

@@ -35,6 +35,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+from fhobs.errors import FhobsError
 from fmpy import extract
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -57,7 +58,7 @@ LOG_LINES = 3
 """How many of the FMU's last log messages a MasterError quotes."""
 
 
-class MasterError(RuntimeError):
+class MasterError(FhobsError, RuntimeError):
     """An FMU answered a call with a status worse than warning (or raised in fmpy's wrapper).
 
     Attributes

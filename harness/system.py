@@ -70,6 +70,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fhobs.errors import FhobsError
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ScalarVariable
@@ -92,7 +93,7 @@ EVALUATION_KEYS = ("at", "windows", "errors")
 PLOTS_KEYS = ("figure", "signals")
 
 
-class DescriptionError(ValueError):
+class DescriptionError(FhobsError, ValueError):
     """An invalid system description (message names the offending item)."""
 
 

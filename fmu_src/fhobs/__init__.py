@@ -2,7 +2,8 @@
 
 The main functions are available here: :func:`design_observer` (a plant as arrays -> a certified
 design), :func:`load_spec` (a plant spec file), :func:`design_for_spec`, :func:`certify` and
-:func:`build_fmus`; they are imported on first use, so ``import fhobs`` stays light.
+:func:`build_fmus`, and :class:`FhobsError` (the base of every exception) with
+:class:`SpecError`; they are imported on first use, so ``import fhobs`` stays light.
 :mod:`fhobs.core` is numpy-only and runs inside the FMUs (with the slave classes of
 :mod:`fhobs.fmu`).
 
@@ -24,6 +25,8 @@ _PUBLIC = {
     "load_spec": "fhobs.spec",
     "certify": "fhobs.core.certificate",
     "build_fmus": "fhobs.build",
+    "FhobsError": "fhobs.errors",
+    "SpecError": "fhobs.errors",
 }
 __all__ = sorted(_PUBLIC)
 

@@ -5,31 +5,32 @@ print it and exit with code 2).
 
 Examples
 --------
->>> from fhobs.errors import SpecError
->>> issubclass(SpecError, ValueError)
+>>> from fhobs.errors import FhobsError, SpecError
+>>> issubclass(SpecError, FhobsError) and issubclass(SpecError, ValueError)
 True
 """
 
 from __future__ import annotations
 
-from .core.errors import CertificateError
+from .core.errors import CertificateError, FhobsError
 
 
-class SpecError(ValueError):
+class SpecError(FhobsError, ValueError):
     """A plant specification is malformed; the message names the field and the reason."""
 
 
-class LMIError(RuntimeError):
+class LMIError(FhobsError, RuntimeError):
     """The solver found no solution (infeasible, or numerical failure)."""
 
 
-class KalmanDesignError(ValueError):
+class KalmanDesignError(FhobsError, ValueError):
     """The Kalman filter cannot be designed (bad argument, no accurate stabilising Riccati
     solution)."""
 
 
-class BuildError(RuntimeError):
+class BuildError(FhobsError, RuntimeError):
     """The FMUs cannot be built (missing tool, another platform...)."""
 
 
-__all__ = ["BuildError", "CertificateError", "KalmanDesignError", "LMIError", "SpecError"]
+__all__ = ["BuildError", "CertificateError", "FhobsError", "KalmanDesignError", "LMIError",
+           "SpecError"]

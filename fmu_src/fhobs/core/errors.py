@@ -1,9 +1,15 @@
-"""The exception raised by the code inside the FMUs (re-exported by :mod:`fhobs.errors`)."""
+"""The base of every fhobs exception and the one raised by the code inside the FMUs (both
+re-exported by :mod:`fhobs.errors`)."""
 
 from __future__ import annotations
 
 
-class CertificateError(ValueError):
+class FhobsError(Exception):
+    """The base of fhobs' exceptions: a caller catches this one class. Each message names the
+    item at fault and the reason, in one paragraph."""
+
+
+class CertificateError(FhobsError, ValueError):
     """A design fails a check; the message names the check, the value and the bound.
 
     Attributes
