@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from fhobs.cli import check_output_folder
 from fhobs.core.gains import ObserverGains
-from fhobs.errors import FhobsError, SpecError
+from fhobs.errors import BuildError, CertificateError, KalmanDesignError, LMIError, SpecError
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec
 
@@ -157,8 +157,7 @@ def _parser() -> argparse.ArgumentParser:
     plant.add_argument("--seed", type=int, default=0, help="measurement noise seed")
     plant.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     plant.add_argument("--native", action="store_true",
-                       help="also build native FMUs for the step (fmus/native) and run them "
-                            "(the prescribed-time observer has none: its pythonfmu FMU runs)")
+                       help="also build native FMUs for the step (fmus/native) and run them")
     plant.add_argument("--mismatch", type=float, metavar="SIZE",
                        help="perturb the plant FMU's A and B by this relative size (0.1 = "
                             "10 %%; the spec's [mismatch] distribution, default gaussian); the "
@@ -456,7 +455,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     if args.native:
         from fhobs.native.build import build_native_fmus
 
-        native = build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,), **options)
+        native = build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,),
+                                   T0=spec.settling_time, **options)
         if spec.mismatch is not None:  # its A and B are compiled in: the pythonfmu plant runs
             native.pop("plant")
         fmus |= native
@@ -561,7 +561,8 @@ def main(argv: list[str] | None = None) -> int:
                 "export-ssp": _cmd_export, "sweep": _cmd_sweep}
     try:
         return commands[args.command](args)
-    except (FhobsError, OSError) as err:
+    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,
+            KalmanDesignError, BuildError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "

@@ -45,8 +45,7 @@ then co-simulates the scenario (:func:`harness.master.run_system`) and returns i
 parameters, the figures of :func:`harness.results.error_figures` per estimator
 (``<estimator>.<figure>``), wall time, status and, when it failed, the reason. A scenario base
 runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_plant_system`
-(as ``harness plant``). The prescribed-time observer has no native FMU: its pythonfmu FMU runs
-beside the native ones.
+(as ``harness plant``).
 
 Every finished row is written at once to ``DIR/points/<key>.json`` (the key is a hash of the
 point and of the files it depends on); a re-run of the same command skips the points that
@@ -727,11 +726,11 @@ def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> d
     key : str
         Its design key.
     flavour : str
-        ``"native"`` (:func:`fhobs.native.build.build_native_fmus`: any communication step;
-        no prescribed-time observer) or ``"pythonfmu"`` (:func:`fhobs.build.build_fmus`).
+        ``"native"`` (:func:`fhobs.native.build.build_native_fmus`: any communication step)
+        or ``"pythonfmu"`` (:func:`fhobs.build.build_fmus`).
     options : dict
         Keyword arguments of the build: ``kinds`` and start values (``x0``,
-        ``noise_amplitude``, ``h``; ``T0`` for the pythonfmu prescribed-time observer).
+        ``noise_amplitude``, ``h``; ``T0`` for the prescribed-time observer).
 
     Returns
     -------
@@ -763,8 +762,7 @@ def fmu_tag(key: str, flavour: str, options: dict[str, Any]) -> str:
 
 
 def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
-    """Build the FMUs; with ``native``, the kinds without a native FMU (the prescribed-time
-    observer) as pythonfmu FMUs, as ``harness plant --native`` runs them."""
+    """Build the FMUs; with ``native``, the kinds without a native FMU as pythonfmu FMUs."""
     from fhobs.build import build_fmus
 
     if flavour != "native":
@@ -777,10 +775,10 @@ def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict
     if gains.kalman is None and "kalman" in kinds:
         kinds.remove("kalman")
     others = [k for k in kinds if k not in KIND_NUMBERS]
+    extra = {} if T0 is None else {"T0": T0}
     fmus = build_native_fmus(gains, out, kinds=[k for k in kinds if k in KIND_NUMBERS],
-                             **options)
+                             **options, **extra)
     if others:
-        extra = {} if T0 is None else {"T0": T0}
         fmus |= build_fmus(gains, out / "pythonfmu", kinds=others, **options, **extra)
     return fmus
 

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from fhobs.core.gains import ObserverGains
 from fhobs.core.plant import LTIPlant
-from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
+from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.design import design_for_spec, paper_gains
 from fhobs.native.build import captured_plan
 from fhobs.native.planner import c_plan, design_data
@@ -44,7 +44,8 @@ ULP_FACTOR = 4
 STEPS = tuple(float(dt) for dt in np.geomspace(1e-6, 1e-1, 11))
 """Communication step sizes, log-spaced (none of them a step size the FMUs used to be built
 for)."""
-FIELDS = {"observer": ("M", "F", "floor_level", "ceiling"), "luenberger": ("M",),
+FIELDS = {"observer": ("M", "F", "floor_level", "ceiling"),
+          "prescribed_time": ("M", "F", "floor_level", "ceiling"), "luenberger": ("M",),
           "plant": ("Phi", "Gamma_B", "Gamma_E")}
 ZOO = zoo_spec_paths()
 RANDOM_CASES = [(0, 4, 2, 0), (1, 6, 3, 0), (2, 8, 2, 1), (4, 10, 3, 1), (7, 6, 2, 0)]
@@ -79,7 +80,8 @@ def random_design(seed: int, n: int, k: int, order: int) -> ObserverGains:
 def models(gains: ObserverGains) -> dict[str, object]:
     """The runtime models whose plans the native FMUs compute."""
     return {"observer": FilteringObserver(gains), "luenberger": LuenbergerObserver(gains),
-            "plant": LTIPlant(gains.A, gains.B, gains.C, E=gains.E)}
+            "plant": LTIPlant(gains.A, gains.B, gains.C, E=gains.E),
+            "prescribed_time": PrescribedTimeObserver(gains)}
 
 
 def relative(a: np.ndarray | float, b: np.ndarray | float) -> float:
@@ -145,7 +147,7 @@ def plan_errors(gains: ObserverGains, roundoff: tuple[int, ...] = ()
                 errors[kind, dt] = 0.0 if plan is reference else math.inf
                 continue
             error = zoh_error(kind, model, dt, plan, reference)
-            if kind == "observer":
+            if kind in ("observer", "prescribed_time"):
                 levels = ("floor_level",) if index in roundoff else ("floor_level", "ceiling")
                 error = max([error] + [relative(plan[name], reference[name]) / RTOL
                                        for name in levels])
@@ -170,6 +172,17 @@ def test_pendulum_plans_are_followed_at_every_step_size():
     for dt in STEPS:
         plan = c_plan("observer", observer, dt)
         assert 0.0 < plan["floor_level"] <= plan["ceiling"]
+
+
+def test_prescribed_time_refuses_what_the_runtime_refuses():
+    """dt = 0.1 for the paper's pendulum: the prescribed-time observer's scan finds no
+    contractive level in C as in numpy, and names the same smallest spectral radius."""
+    observer = PrescribedTimeObserver(paper_gains())
+    with pytest.raises(ValueError) as numpy_error:
+        captured_plan(observer, 0.1)
+    with pytest.raises(ValueError) as c_error:
+        c_plan("prescribed_time", observer, 0.1)
+    assert str(c_error.value) == str(numpy_error.value).split("; use")[0]
 
 
 @pytest.mark.parametrize("name", ["pendulum", "triple_integrator", "maglev"])

@@ -550,3 +550,173 @@ int fhobs_euler_step(const Call *call)
     }
     return all_finite(dst, size) ? FHOBS_OK : FHOBS_NONFINITE;
 }
+
+/* ---------------------------------------------------------------------------------------- */
+/* Prescribed-time observer (Theorem 1), split scheme                                       */
+
+/* Scratch doubles of a PrescribedPlan (n model states, k outputs). */
+#define FHOBS_PRESCRIBED_WORK(n, k) (4 * (k) + 3 * (n))
+
+typedef struct {
+    int n, k, m;              /* model states N, outputs, inputs */
+    int real_lam;             /* Q's eigenvalues all real (numpy's factors are then real) */
+    double nu, rho, dt;       /* degree, xi gain, communication step */
+    double floor_level, ceiling;
+    double tiny, series;      /* spectral factors: series below tau = tiny, |mu| < series */
+    const double *C;          /* k x n */
+    const double *M;          /* n x (n + m + k): ZOH prediction, (z, u, v) */
+    const double *F;          /* n x n: carries dz into z+ */
+    const cplx *Q_inv;        /* k x k: Q = C L_pt = V diag(lam) V^-1, V^-1 */
+    const cplx *Q_V;          /* k x k: V */
+    const cplx *lam;          /* k: eigenvalues of Q */
+    const cplx *V_g;          /* n x n: G_d = V_g diag(g) V_g^-1 */
+    const cplx *g;            /* n: eigenvalues of G_d */
+    const cplx *inverse_L;    /* n x k: V_g^-1 L_pt */
+    cplx *factors;            /* 2k: spectral factors of last_tau (cache, written here) */
+    double *last_tau;         /* 1 (cache, written here) */
+    double *work;             /* FHOBS_PRESCRIBED_WORK(n, k) (scratch, written here) */
+} PrescribedPlan;
+
+/* ExpmFamily.spectral_factors of the `size` eigenvalues lam: [exp(tau lam); tau phi1(tau lam)]
+ * into f (2 size). */
+static void family_factors(const cplx *lam, int size, int real_lam, double tiny, double series,
+                           double tau, cplx *f)
+{
+    if (tau > tiny) {
+        for (int i = 0; i < size; i++) {
+            cplx mu = {tau * lam[i].re, tau * lam[i].im};
+            cplx e = cexpm1_(mu);
+            f[i].re = e.re + 1.0;
+            f[i].im = e.im;
+            if (real_lam) {
+                f[size + i].re = e.re / lam[i].re;
+                f[size + i].im = 0.0;
+            } else {
+                f[size + i] = cdiv(e, lam[i]);
+            }
+        }
+        return;
+    }
+    for (int i = 0; i < size; i++) {
+        cplx mu = {tau * lam[i].re, tau * lam[i].im};
+        cplx phi;
+        f[i] = cexp_(mu);
+        if (hypot(mu.re, mu.im) < series) {
+            phi.re = 1.0 + 0.5 * mu.re;
+            phi.im = 0.5 * mu.im;
+        } else if (real_lam) {
+            phi.re = expm1(mu.re) / mu.re;
+            phi.im = 0.0;
+        } else {
+            phi = cdiv(cexpm1_(mu), mu);
+        }
+        f[size + i].re = tau * phi.re;
+        f[size + i].im = tau * phi.im;
+    }
+}
+
+/* Exact flow of dxi/dt = -rho |xi|^(1+nu) sign(xi) over dt (PrescribedTimeObserver._xi_exact):
+ * |xi|^-nu decreases linearly, reaches 0 and stays 0. */
+static double prescribed_xi(const PrescribedPlan *p, double xi)
+{
+    if (xi == 0.0)
+        return 0.0;
+    double base = pow(fabs(xi), -p->nu) + p->nu * p->rho * p->dt;
+    if (0.0 > base) /* Python's max(base, 0.0) */
+        base = 0.0;
+    return copysign(pow(base, -1.0 / p->nu), xi);
+}
+
+/* The gain level of xi: |xi| between the floor and the ceiling (PrescribedTimeObserver._level,
+ * Python's min(max(.)) order). */
+static double prescribed_level(const PrescribedPlan *p, double xi)
+{
+    double level = fabs(xi);
+    if (p->floor_level > level)
+        level = p->floor_level;
+    if (p->ceiling < level)
+        level = p->ceiling;
+    return level;
+}
+
+/* Exact flow over dt of dz = gain (C z - y) with x frozen at the level exp(log_x)
+ * (PrescribedTimeObserver._correct): dz = d(log_x) L_pt tau phi1(tau Q) v / level^(1+nu),
+ * tau = dt level^nu. Uses work[k .. 4k + 2n). */
+static void prescribed_correct(const PrescribedPlan *p, const double *v, double log_x,
+                               double *dz)
+{
+    const int n = p->n, k = p->k;
+    const double tau = p->dt * exp(p->nu * log_x);
+    const double scale_v = exp(-(1.0 + p->nu) * log_x);
+    cplx *c = (cplx *)(p->work + k);
+    double *phi = p->work + 3 * k;
+    cplx *w = (cplx *)(p->work + 4 * k);
+    for (int i = 0; i < k; i++) { /* c = V^-1 (v / level^(1+nu)) */
+        double re = 0.0, im = 0.0;
+        const cplx *a = p->Q_inv + (size_t)i * k;
+        for (int j = 0; j < k; j++) {
+            double r = v[j] * scale_v;
+            re += a[j].re * r;
+            im += a[j].im * r;
+        }
+        c[i].re = re;
+        c[i].im = im;
+    }
+    if (tau != *p->last_tau) {
+        family_factors(p->lam, k, p->real_lam, p->tiny, p->series, tau, p->factors);
+        *p->last_tau = tau;
+    }
+    for (int i = 0; i < k; i++) /* tau phi1(tau Q) r = V (factors[k:] c), real part */
+        c[i] = cmul(p->factors[k + i], c[i]);
+    for (int i = 0; i < k; i++) {
+        double re = 0.0;
+        const cplx *a = p->Q_V + (size_t)i * k;
+        for (int j = 0; j < k; j++)
+            re += a[j].re * c[j].re - a[j].im * c[j].im;
+        phi[i] = re;
+    }
+    for (int i = 0; i < n; i++) { /* Dilation.apply: V_g (exp(log_x g) * (V_g^-1 L_pt phi)) */
+        double re = 0.0, im = 0.0;
+        const cplx *a = p->inverse_L + (size_t)i * k;
+        for (int j = 0; j < k; j++) {
+            re += a[j].re * phi[j];
+            im += a[j].im * phi[j];
+        }
+        cplx scale = cexp_((cplx){log_x * p->g[i].re, log_x * p->g[i].im});
+        w[i] = cmul(scale, (cplx){re, im});
+    }
+    for (int i = 0; i < n; i++) {
+        double re = 0.0;
+        const cplx *a = p->V_g + (size_t)i * n;
+        for (int j = 0; j < n; j++)
+            re += a[j].re * w[j].re - a[j].im * w[j].im;
+        dz[i] = re;
+    }
+}
+
+/* One split step over dt of the prescribed-time observer: state (z, xi), inputs (y, u): the
+ * correction at the level of xi, xi's exact flow, then the prediction z+ = M (z, u, v) + F dz. */
+int fhobs_prescribed_step(const Call *call)
+{
+    const PrescribedPlan *p = call->plan;
+    const double *src = call->src, *inputs = call->inputs;
+    double *dst = call->dst;
+    const int n = p->n, k = p->k;
+    const double *z = src, *y = inputs, *u = inputs + k;
+    double *v = p->work, *dz = p->work + 4 * k + 2 * n;
+
+    matvec(p->C, z, k, n, v);
+    for (int i = 0; i < k; i++)
+        v[i] -= y[i];
+    prescribed_correct(p, v, log(prescribed_level(p, src[n])), dz);
+    dst[n] = prescribed_xi(p, src[n]);
+    matvec3(p->M, n, z, n, u, p->m, v, k, dst);
+    for (int i = 0; i < n; i++) {
+        const double *a = p->F + (size_t)i * n;
+        double s = 0.0;
+        for (int j = 0; j < n; j++)
+            s += a[j] * dz[j];
+        dst[i] += s;
+    }
+    return all_finite(dst, n + 1) ? FHOBS_OK : FHOBS_NONFINITE;
+}

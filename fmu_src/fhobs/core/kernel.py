@@ -3,11 +3,12 @@
 The numpy runtime (:mod:`fhobs.core.runtime`, :mod:`fhobs.core.plant`,
 :mod:`fhobs.core.kalman_filter`) is the reference implementation; when this kernel is available, the
 models make their common step in C instead: the plant's ZOH step (the noise stays numpy's), the
-split step and the explicit Euler substeps of the Luenberger and the filtering observers, the Kalman
-filter's cycles. The numpy side prepares everything (matrices, eigen-decompositions, gain-level
-floor and ceiling) once per design and step size, in a *plan*, and the kernel only does the per-step
-arithmetic, to about 1e-15 relative of the numpy step (the matrix-vector sums may be added in
-another order than numpy's BLAS).
+split step and the explicit Euler substeps of the Luenberger and the filtering observers, the
+split step of the prescribed-time observer, the Kalman filter's cycles. The numpy side prepares
+everything (matrices, eigen-decompositions, gain-level floor and ceiling) once per design and
+step size, in a *plan*, and the kernel only does the per-step arithmetic, to about 1e-15
+relative of the numpy step (the matrix-vector sums may be added in another order than numpy's
+BLAS).
 
 Where the library comes from (:func:`library`), in this order:
 
@@ -103,6 +104,31 @@ class EulerPlan(ctypes.Structure):
                 ("g", _DOUBLE_P), ("work", _DOUBLE_P)]
 
 
+class PrescribedPlan(ctypes.Structure):
+    """``PrescribedPlan`` of kernel.c (complex arrays as interleaved doubles)."""
+
+    _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
+                ("real_lam", ctypes.c_int),
+                ("nu", ctypes.c_double), ("rho", ctypes.c_double), ("dt", ctypes.c_double),
+                ("floor_level", ctypes.c_double), ("ceiling", ctypes.c_double),
+                ("tiny", ctypes.c_double), ("series", ctypes.c_double),
+                ("C", _DOUBLE_P), ("M", _DOUBLE_P), ("F", _DOUBLE_P),
+                ("Q_inv", _DOUBLE_P), ("Q_V", _DOUBLE_P), ("lam", _DOUBLE_P),
+                ("V_g", _DOUBLE_P), ("g", _DOUBLE_P), ("inverse_L", _DOUBLE_P),
+                ("factors", _DOUBLE_P), ("last_tau", _DOUBLE_P), ("work", _DOUBLE_P)]
+
+
+def prescribed_work_size(n: int, k: int) -> int:
+    """Scratch doubles of a ``PrescribedPlan`` (``FHOBS_PRESCRIBED_WORK`` of kernel.c).
+
+    Examples
+    --------
+    >>> prescribed_work_size(2, 1)
+    10
+    """
+    return 4 * k + 3 * n
+
+
 def library() -> ctypes.PyDLL | None:
     """The loaded kernel, or None when the numpy runtime must do without (module docstring).
 
@@ -165,7 +191,7 @@ def _open(path: Path) -> ctypes.PyDLL | None:
     try:
         lib = ctypes.PyDLL(str(path))
         for name in ("fhobs_plant_step", "fhobs_luenberger_step", "fhobs_kalman_step",
-                     "fhobs_filter_step", "fhobs_euler_step"):
+                     "fhobs_filter_step", "fhobs_euler_step", "fhobs_prescribed_step"):
             function = getattr(lib, name)
             function.restype = ctypes.c_int
             function.argtypes = None  # called with ctypes objects only: nothing to convert

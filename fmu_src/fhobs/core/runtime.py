@@ -682,6 +682,10 @@ class PrescribedTimeObserver(_Observer):
         Initial xi (nonzero); the prescribed time is ``T0 = |xi0|^(-nu) / (-nu rho)``.
     tau_max : float or None
         Gain cap ``dt |xi|^nu <= tau_max`` (dt the communication step); None: automatic.
+    kernel : bool
+        Run the split step in the compiled kernel when it is available
+        (:mod:`fhobs.core.kernel`; not with the expm fallbacks of ``C L_pt``'s exponential or
+        of the dilation); False: numpy only. The euler scheme always runs in numpy.
 
     Examples
     --------
@@ -701,12 +705,69 @@ class PrescribedTimeObserver(_Observer):
 
     def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
                  z0: np.ndarray | None = None, xi0: float = 1.0,
-                 tau_max: float | None = None) -> None:
+                 tau_max: float | None = None, kernel: bool = True) -> None:
         super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
         self._aux = as_finite_vector(xi0, 1, "xi0")
         self._dilation = Dilation(gains.G_d, right=gains.L_pt)
         self._Q = ExpmFamily(self._C @ gains.L_pt)
         self.tau_max = None if tau_max is None else float(tau_max)
+        if kernel and scheme == "split" and self.eigen:
+            self._use_kernel("fhobs_prescribed_step")
+
+    @property
+    def eigen(self) -> bool:
+        """Whether the correction runs on eigen data (``C L_pt``'s and the dilation's), which
+        the compiled kernel needs; False where either falls back to expm."""
+        return bool(self._Q.use_eig and self._dilation.use_eig)
+
+    def kernel_arrays(self) -> dict[str, np.ndarray | float | int]:
+        """The eigen data of the correction for the compiled kernel (:attr:`eigen` only),
+        complex128 and C-contiguous: ``Q_inv``, ``Q_V``, ``lam`` (``C L_pt = Q_V diag(lam)
+        Q_inv``), ``V_g``, ``g`` (``G_d = V_g diag(g) V_g^-1``), ``inverse_L`` (``V_g^-1
+        L_pt``); ``real_lam`` (numpy's spectral factors are then real) and ``tiny`` (below
+        this tau the factors use phi1's series where needed).
+
+        Examples
+        --------
+        >>> from fhobs.design import design_observer
+        >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+        >>> data = PrescribedTimeObserver(gains).kernel_arrays()
+        >>> data["Q_inv"].shape, data["V_g"].shape, data["inverse_L"].shape
+        ((1, 1), (2, 2), (2, 1))
+        """
+        family, dilation = self._Q, self._dilation
+
+        def complex_array(array: np.ndarray) -> np.ndarray:
+            return np.ascontiguousarray(array, dtype=complex)
+
+        return {"Q_inv": complex_array(family.eigenvectors_inverse),
+                "Q_V": complex_array(family.eigenvectors),
+                "lam": complex_array(family.eigenvalues),
+                "V_g": complex_array(dilation.eigenvectors),
+                "g": complex_array(dilation.eigenvalues),
+                "inverse_L": complex_array(dilation.inverse_right),
+                "real_lam": int(not np.iscomplexobj(family.eigenvalues)),
+                "tiny": float(family.tiny)}
+
+    def _kernel_plan(self, dt: float) -> None:
+        """The kernel's plan for dt: the ZOH prediction, the gain-level floor and ceiling and
+        the correction's eigen data."""
+        prediction = self._prediction(dt)
+        floor, ceiling = self._floor(dt), self._ceiling(dt)
+        data = self.kernel_arrays()
+        n, k = self._z.size, self._k
+        arrays = {"C": np.ascontiguousarray(self._C, dtype=float),
+                  "M": np.ascontiguousarray(prediction.M), "F": np.ascontiguousarray(prediction.F),
+                  **{name: data[name] for name in ("Q_inv", "Q_V", "lam", "V_g", "g",
+                                                   "inverse_L")},
+                  "factors": np.zeros(2 * k, dtype=complex), "last_tau": np.array([math.nan]),
+                  "work": np.zeros(compiled.prescribed_work_size(n, k))}
+        plan = compiled.PrescribedPlan(
+            n=n, k=k, m=self._m, real_lam=data["real_lam"], nu=self._nu,
+            rho=float(self.gains.rho), dt=dt, floor_level=floor, ceiling=ceiling,
+            tiny=data["tiny"], series=PHI1_SERIES,
+            **{name: compiled.pointer(array) for name, array in arrays.items()})
+        self._stepper.add_plan(dt, plan, *arrays.values())
 
     @property
     def T0(self) -> float:

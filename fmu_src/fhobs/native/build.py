@@ -1,10 +1,10 @@
 """Build native FMUs: FMI 2.0 co-simulation FMUs of compiled C, no Python at run time.
 
-Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.fmu``) has the
-interface of the pythonfmu FMU of the same kind (:mod:`fhobs.build`): the same variable names,
-value references, causalities, variabilities and start values, taken from the pythonfmu FMU
-built for the same design and options (its start values read from an instance, so they are
-exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
+Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.fmu``,
+``prescribed_time.fmu``) has the interface of the pythonfmu FMU of the same kind
+(:mod:`fhobs.build`): the same variable names, value references, causalities, variabilities
+and start values, taken from the pythonfmu FMU built for the same design and options (its
+start values read from an instance, so they are exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
 (``kernel.c``) with the step planner (``planner.c``), an FMI layer (``fmi2_layer.c``,
 ``models.c``) and the generated ``model_data.c``: the design and what the planner needs that
 does not depend on the step size (the injection flow's and the dilation's eigen data, the tau
@@ -54,24 +54,26 @@ from ..core.certificate import certify
 from ..core.gains import ObserverGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
-from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver
+from ..core.runtime import (DEFAULT_H, FilteringObserver, LuenbergerObserver,
+                            PrescribedTimeObserver)
 from ..errors import BuildError
 from ..fmu import call_rules
 from . import planner
 
 HERE = Path(__file__).resolve().parent
-KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4}
+KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4, "prescribed_time": 5}
 """``FHOBS_KIND_*`` of fhobs_native.h."""
 SETTABLE = {
     "observer": {"z0", "psi0", "xi0", "h", "scheme", "input_bound"},
     "luenberger": {"z0", "h", "scheme", "input_bound"},
     "plant": {"x0", "noise_amplitude", "noise_seed", "scheme", "input_bound"},
     "kalman": {"z0", "input_bound"},
+    "prescribed_time": {"z0", "T0", "h", "scheme", "input_bound"},
 }
 """Parameters that stay per-instance values (settable until fmi2ExitInitializationMode); every
 other parameter is design data, compiled in."""
 LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", "z0", "psi0",
-          "xi0", "x0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
+          "xi0", "x0", "T0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
 """Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
 C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "planner.c", "gain_levels.c",
              "models.c", "fmi2_layer.c")
@@ -106,12 +108,13 @@ def build_native_fmus(
         :class:`BuildError`. The FMUs take every step size either way; this makes sure before
         they are shipped that those a user means to run are followed. Default: none.
     kinds : iterable of str, optional
-        As for :func:`fhobs.build.build_fmus` (default: observer, luenberger, plant, and kalman
-        when the design has a Kalman filter).
+        As for :func:`fhobs.build.build_fmus` (default: observer, luenberger, plant, kalman
+        when the design has a Kalman filter, and prescribed_time when its correction has an
+        eigen path, :attr:`~fhobs.core.runtime.PrescribedTimeObserver.eigen`).
     **options
         Start values as for :func:`fhobs.build.build_fmus` (``h``, ``scheme``, ``z0``,
         ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``, ``noise_seed``, ``plant_scheme``,
-        ``input_bound``).
+        ``input_bound``, ``T0``).
 
     Returns
     -------
@@ -121,7 +124,8 @@ def build_native_fmus(
     ------
     BuildError
         Without a C compiler or the compiled kernel, for a design the native
-        observer cannot run (no eigen path of its injection flow), or for a step size of
+        observer cannot run (no eigen path of its injection flow; the prescribed-time
+        observer: of ``C L_pt``'s exponential or of the dilation), or for a step size of
         ``steps`` that the numpy runtime refuses.
 
     Examples
@@ -133,6 +137,8 @@ def build_native_fmus(
     """
     if kinds is None:
         kinds = ("observer", "luenberger", "plant") + (("kalman",) if gains.kalman else ())
+        if PrescribedTimeObserver(gains).eigen:
+            kinds += ("prescribed_time",)
     kinds = tuple(kinds)
     unknown = sorted(set(kinds) - set(KIND_NUMBERS))
     if unknown:
@@ -202,8 +208,13 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
     if kind == "plant":
         model = LTIPlant(gains.A, gains.B, gains.C, E=gains.E)
     else:
-        cls = FilteringObserver if kind == "observer" else LuenbergerObserver
+        cls = {"observer": FilteringObserver, "luenberger": LuenbergerObserver,
+               "prescribed_time": PrescribedTimeObserver}[kind]
         model = cls(gains, h=h)
+    if kind == "prescribed_time" and not model.eigen:
+        raise BuildError("the prescribed_time's split step does not run in the compiled kernel "
+                         "for this design (C L_pt's exponential or the dilation of G_d has no "
+                         "eigen path: ill-conditioned eigenvectors): no native FMU")
     if not model.compiled:
         raise BuildError(f"the {kind}'s split step does not run in the compiled kernel for this "
                          "design (the injection flow has no eigen path): no native FMU")
@@ -215,6 +226,8 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
     data = planner.design_data(kind, model)
     if kind == "plant":
         data.update({"A": model.A, "B": model.B, "C": model.C, "E": model.E})
+    elif kind == "prescribed_time":
+        data["euler"] = None  # split only: the euler scheme's gain level needs the tau scan
     else:
         euler = cls(gains, h=h, scheme="euler")
         data["euler"] = captured_plan(euler, h) if euler.compiled else None
@@ -330,6 +343,12 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
             fields = {**scan, "n_tau": scan["tau_grid"].size}
             body.append(f"static const LevelScan LEVEL_SCAN = "
                         f"{_plan_initializer(fields, arrays)};")
+        elif kind == "prescribed_time":
+            body.append(f"static const PrescribedPlan PRESCRIBED_BASE = "
+                        f"{_plan_initializer(data['base'], arrays)};")
+            fields = {**scan, "n_tau": scan["tau_grid"].size}
+            body.append(f"static const LevelScan LEVEL_SCAN = "
+                        f"{_plan_initializer(fields, arrays)};")
         elif kind == "luenberger":
             body.append(f"static const LinearPlan LINEAR_BASE = "
                         f"{_plan_initializer(data['base'], arrays)};")
@@ -371,7 +390,7 @@ def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, i
     n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
     r = 0 if gains.E is None else gains.E.shape[1]
     state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1,
-             "kalman": n_model + 1}.get(kind, n_model)
+             "kalman": n_model + 1, "prescribed_time": n_model + 1}.get(kind, n_model)
     return {"n": gains.n, "n_model": n_model, "k": gains.k, "m": gains.m, "r": r,
             "state_size": state}
 
@@ -494,12 +513,13 @@ def _documentation(kind: str, variables: list[dict[str, Any]], data: dict[str, A
                  "(canHandleVariableCommunicationStepSize). The plan of a step size (the "
                  "exact zero-order-hold matrices" + (
                      ", the gain level's floor and ceiling from the scan of the dilated error "
-                     "map's spectral radius" if kind == "observer" else "") +
+                     "map's spectral radius" if kind in ("observer", "prescribed_time")
+                     else "") +
                  ") is computed at the first step of that size, by the algorithms of the numpy "
                  "runtime (to 1e-12 relative of its plan), and kept for the 8 step sizes used "
                  "last; a step size is matched exactly, so a host that forms t_k+1 - t_k gets "
                  "the plan of the step it asked for.")
-        if kind == "observer":
+        if kind in ("observer", "prescribed_time"):
             steps += (" A step size for which no gain level makes the split step contractive "
                       "is refused with fmi2Error (the log names the smallest spectral radius), "
                       "the state unchanged: use a smaller communication step.")

@@ -14,6 +14,7 @@
 #define FHOBS_KIND_LUENBERGER 2
 #define FHOBS_KIND_PLANT 3
 #define FHOBS_KIND_KALMAN 4
+#define FHOBS_KIND_PRESCRIBED_TIME 5
 
 /* variable types */
 #define FHOBS_REAL 0

@@ -1,12 +1,13 @@
 /*
- * The filtering observer's plan of a communication step size (fhobs.core.runtime: _prediction,
- * the tau scan of _Observer._auto_taus with error_map and _dilated_radius, _step_size_plan):
- * M, F, the gain-level floor and ceiling. The spectral radius of the dilated error map is
- * computed by balancing, a Hessenberg reduction and Francis double-shift QR sweeps; it only
- * decides (the argmin over the tau grid, the contraction limit), so it needs the accuracy of
+ * The plan of a communication step size of the homogeneous observers, the filtering and the
+ * prescribed-time one (fhobs.core.runtime: _prediction, the tau scan of _Observer._auto_taus
+ * with error_map and _dilated_radius, _step_size_plan): M, F, the gain-level floor and
+ * ceiling; the scan is shared, each observer brings its dilated error map. The spectral
+ * radius of that map is computed by balancing, a Hessenberg reduction and Francis double-shift
+ * QR sweeps; it only decides (the argmin over the tau grid, the contraction limit), so it needs the accuracy of
  * numpy's eigenvalues, not their bits.
  *
- * Part of the translation unit fhobs_fmu.c of the observer FMU (after planner.c and
+ * Part of the translation unit fhobs_fmu.c of the observer FMUs (after planner.c and
  * model_data.c); also built with planner_api.c into a library for the tests.
  */
 #include <float.h>
@@ -220,46 +221,92 @@ static double spectral_radius(double *A, int n, double *work)
 }
 
 /* ---------------------------------------------------------------------------------------- */
-/* The filtering observer's gain-level floor and ceiling                                     */
+/* The tau scan of the gain-level floor and ceiling (any observer with a dilated error map)  */
 
-/* S = diag(level I_k, d(ln level)) (N = k + n square, row-major): the dilation of
- * (psi, z - x), d(s) = V_g diag(exp(s g)) V_g^-1 (fhobs.core.dilation.Dilation.matrix);
- * work: 2 n doubles. */
-static void error_scaling(const FilterPlan *p, const LevelScan *scan, double level, double *S,
-                          double *work)
+/* The radius of an observer's dilated error map at a frozen gain level (its plan, the scan's
+ * dilation data, the level, scratch): inf where the map cannot be formed. */
+typedef double (*LevelRadius)(const void *plan, const LevelScan *scan, double level,
+                              double *work);
+
+/* factor d(log_s) into the n x n block of S (N x N, row-major) that starts at row and column
+ * `offset`: d(s) = V_g diag(exp(s g)) V_g^-1 (fhobs.core.dilation.Dilation.matrix), each entry
+ * then multiplied by factor; work: 2 n doubles. */
+static void dilation_block(const cplx *V_g, const cplx *g, const cplx *Vg_inv, int n,
+                           double log_s, double factor, double *S, int N, int offset,
+                           double *work)
 {
-    const int n = p->n, k = p->k, N = n + k;
-    const double log_s = log(level);
     cplx *scale = (cplx *)work;
     for (int l = 0; l < n; l++)
-        scale[l] = cexp_((cplx){log_s * p->g[l].re, log_s * p->g[l].im});
-    for (size_t i = 0; i < (size_t)N * N; i++)
-        S[i] = 0.0;
-    for (int i = 0; i < k; i++)
-        S[(size_t)i * N + i] = level;
+        scale[l] = cexp_((cplx){log_s * g[l].re, log_s * g[l].im});
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
             double re = 0.0;
             for (int l = 0; l < n; l++) {
-                cplx t = cmul(scale[l], scan->Vg_inv[(size_t)l * n + j]);
-                re += p->V_g[(size_t)i * n + l].re * t.re - p->V_g[(size_t)i * n + l].im * t.im;
+                cplx t = cmul(scale[l], Vg_inv[(size_t)l * n + j]);
+                re += V_g[(size_t)i * n + l].re * t.re - V_g[(size_t)i * n + l].im * t.im;
             }
-            S[(size_t)(k + i) * N + k + j] = re;
+            S[(size_t)(offset + i) * N + offset + j] = factor * re;
         }
 }
 
+/* Spectral radius of S^-1 map (both N x N, destroyed), inf where S is singular or the result
+ * not finite; work: N doubles. */
+static double dilated_map_radius(double *S, double *map, int N, double *work)
+{
+    if (lu_solve(S, map, N, N))
+        return INFINITY;
+    return spectral_radius(map, N, work);
+}
+
+/* The tau scan of _Observer._auto_taus and the floor and ceiling of _step_size_plan for the
+ * step size dt: the radius of each tau of the grid at the level (tau / dt)^(1/nu); 0 with
+ * *floor_level and *ceiling set, or 1 when no tau contracts (*best: the smallest radius).
+ * work: n_tau doubles, then the radius function's. */
+static int scan_levels(const LevelScan *scan, double dt, double nu, LevelRadius radius,
+                       const void *plan, double *floor_level, double *ceiling, double *best,
+                       double *work)
+{
+    double *radii = work, *rest = work + scan->n_tau;
+    const double inverse_nu = 1.0 / nu;
+    int arg = 0;
+    for (int i = 0; i < scan->n_tau; i++) {
+        radii[i] = radius(plan, scan, pow(scan->tau_grid[i] / dt, inverse_nu), rest);
+        if (radii[i] < radii[arg])
+            arg = i;
+    }
+    *best = radii[arg];
+    if (!(radii[arg] < scan->contraction))
+        return 1;
+    int first = arg;
+    while (first > 0 && radii[first - 1] < scan->contraction)
+        first--;
+    double level = pow(scan->tau_grid[arg] / dt, inverse_nu);
+    *floor_level = scan->roundoff > level ? scan->roundoff : level;
+    *ceiling = first == 0 ? INFINITY : pow(scan->tau_grid[first] / dt, inverse_nu);
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* The filtering observer's plan                                                              */
+
 /* Spectral radius of the split step's map of the dilated error S^-1 (psi, z - x) at the
- * frozen gain level (fhobs.core.runtime._Observer.error_map with x = y = u = 0), inf where it
- * cannot be formed; work: 2 N^2 + 4 N + m + 4 doubles (N = n + k). */
-static double dilated_radius(const FilterPlan *p, const LevelScan *scan, double level,
+ * frozen gain level, S = diag(level I_k, d(ln level)) (fhobs.core.runtime._Observer.error_map
+ * with x = y = u = 0, FilteringObserver._error_scaling), inf where it cannot be formed; work:
+ * 2 N^2 + 4 N + m + 4 doubles (N = n + k). */
+static double dilated_radius(const void *plan, const LevelScan *scan, double level,
                              double *work)
 {
+    const FilterPlan *p = plan;
     const int n = p->n, k = p->k, N = n + k;
     const size_t NN = (size_t)N * N;
     double *S = work, *map = S + NN, *v = map + NN, *psi_new = v + k, *dz = psi_new + k + 1;
     double *z_new = dz + n, *u = z_new + n, *scratch = u + p->m + 1;
-    error_scaling(p, scan, level, S, scratch);
     const double log_s = log(level);
+    for (size_t i = 0; i < NN; i++)
+        S[i] = 0.0;
+    for (int i = 0; i < k; i++)
+        S[(size_t)i * N + i] = level;
+    dilation_block(p->V_g, p->g, scan->Vg_inv, n, log_s, 1.0, S, N, k, scratch);
     for (int i = 0; i < p->m; i++)
         u[i] = 0.0;
     for (int j = 0; j < N; j++) { /* the column e = S[:, j]: psi = e[:k], z = e[k:] */
@@ -281,40 +328,14 @@ static double dilated_radius(const FilterPlan *p, const LevelScan *scan, double 
         for (int i = 0; i < n; i++)
             map[(size_t)(k + i) * N + j] = z_new[i];
     }
-    if (lu_solve(S, map, N, N))
-        return INFINITY;
-    return spectral_radius(map, N, scratch);
-}
-
-/* The gain-level floor and ceiling of the plan p (its dt, M, F and spectral-factor cache
- * set) as _Observer._step_size_plan makes them with _auto_taus: 0, or 1 when no tau of the
- * grid contracts (*best: the smallest spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
-static int filter_levels(FilterPlan *p, const LevelScan *scan, double *best, double *work)
-{
-    double *radii = work, *rest = work + scan->n_tau;
-    const double dt = p->dt, inverse_nu = 1.0 / p->nu;
-    int arg = 0;
-    for (int i = 0; i < scan->n_tau; i++) {
-        radii[i] = dilated_radius(p, scan, pow(scan->tau_grid[i] / dt, inverse_nu), rest);
-        if (radii[i] < radii[arg])
-            arg = i;
-    }
-    *best = radii[arg];
-    if (!(radii[arg] < scan->contraction))
-        return 1;
-    int first = arg;
-    while (first > 0 && radii[first - 1] < scan->contraction)
-        first--;
-    double floor_level = pow(scan->tau_grid[arg] / dt, inverse_nu);
-    p->floor_level = scan->roundoff > floor_level ? scan->roundoff : floor_level;
-    p->ceiling = first == 0 ? INFINITY : pow(scan->tau_grid[first] / dt, inverse_nu);
-    return 0;
+    return dilated_map_radius(S, map, N, scratch);
 }
 
 /* The filtering observer's plan of the step size dt: base's fields, then M and F (into the
  * caller's arrays, n x (n + m + k) and n x n) from the ZOH of top = [A, B, L0], then the
  * floor and ceiling (plan's factors and last_tau: the caller's cache, reset here). 0, or 1
- * when the observer cannot follow dt (*best: the smallest spectral radius). */
+ * when the observer cannot follow dt (*best: the smallest spectral radius). work:
+ * FHOBS_PLAN_WORK_SIZE. */
 static int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
                        const double *top, double dt, double *M, double *F, double *best,
                        double *work)
@@ -331,5 +352,66 @@ static int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan
     carry_matrix(M, base->C, n, size, base->k, F);
     plan->M = M;
     plan->F = F;
-    return filter_levels(plan, scan, best, work);
+    return scan_levels(scan, dt, plan->nu, dilated_radius, plan, &plan->floor_level,
+                       &plan->ceiling, best, work);
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* The prescribed-time observer's plan                                                        */
+
+/* Spectral radius of the split step's map of the dilated error S^-1 (z - x) at the frozen
+ * gain level, S = level^-nu d(ln level) (PrescribedTimeObserver._error_scaling; xi plays no
+ * part), inf where it cannot be formed; work: 2 n^2 + 5 n + k + m + 1 doubles. */
+static double prescribed_radius(const void *plan, const LevelScan *scan, double level,
+                                double *work)
+{
+    const PrescribedPlan *p = plan;
+    const int n = p->n, k = p->k;
+    const size_t NN = (size_t)n * n;
+    double *S = work, *map = S + NN, *v = map + NN, *dz = v + k, *z_new = dz + n;
+    double *u = z_new + n, *z = u + p->m + 1, *scratch = z + n;
+    const double log_x = log(level);
+    dilation_block(p->V_g, p->g, scan->Vg_inv, n, log_x, pow(level, -p->nu), S, n, 0,
+                   scratch);
+    for (int i = 0; i < p->m; i++)
+        u[i] = 0.0;
+    for (int j = 0; j < n; j++) { /* the column z = S[:, j] */
+        for (int i = 0; i < n; i++)
+            z[i] = S[(size_t)i * n + j];
+        matvec(p->C, z, k, n, v);
+        prescribed_correct(p, v, log_x, dz);
+        matvec3(p->M, n, z, n, u, p->m, v, k, z_new);
+        for (int i = 0; i < n; i++) {
+            const double *a = p->F + (size_t)i * n;
+            double s = 0.0;
+            for (int l = 0; l < n; l++)
+                s += a[l] * dz[l];
+            map[(size_t)i * n + j] = z_new[i] + s;
+        }
+    }
+    return dilated_map_radius(S, map, n, scratch);
+}
+
+/* The prescribed-time observer's plan of the step size dt, as plan_filter's (plan's factors,
+ * last_tau and work: the caller's, the cache reset here). 0, or 1 when the observer cannot
+ * follow dt (*best: the smallest spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
+static int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
+                           const LevelScan *scan, const double *top, double dt, double *M,
+                           double *F, double *best, double *work)
+{
+    cplx *factors = plan->factors;
+    double *last_tau = plan->last_tau, *scratch = plan->work;
+    const int n = base->n, size = base->n + base->m + base->k;
+    *plan = *base;
+    plan->factors = factors;
+    plan->last_tau = last_tau;
+    plan->work = scratch;
+    *last_tau = NAN;
+    plan->dt = dt;
+    zoh_rows(top, n, size, dt, M, work);
+    carry_matrix(M, base->C, n, size, base->k, F);
+    plan->M = M;
+    plan->F = F;
+    return scan_levels(scan, dt, plan->nu, prescribed_radius, plan, &plan->floor_level,
+                       &plan->ceiling, best, work);
 }

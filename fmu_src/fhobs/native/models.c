@@ -9,6 +9,7 @@
  *
  * Part of the translation unit fhobs_fmu.c (after kernel.c, planner.c and model_data.c).
  */
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -35,7 +36,7 @@ static const char *number(double x, char *buf, size_t len)
 }
 
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER ||             \
-    FHOBS_KIND == FHOBS_KIND_PLANT
+    FHOBS_KIND == FHOBS_KIND_PLANT || FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
 #define FHOBS_PLAN_SLOTS 8 /* step sizes whose plans an instance keeps */
 #define FHOBS_ZOH_ROWS (FHOBS_N_MODEL * FHOBS_ZOH_SIZE)
 #define FHOBS_PLAN_WORK                                                                        \
@@ -507,6 +508,138 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
         real[VR_X_HAT + i] = state[i];
     for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
         real[VR_Q_HAT + i - FHOBS_N] = state[i];
+}
+#elif FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
+/* ---------------------------------------------------------------------------------------- */
+/* Prescribed-time observer (Theorem 1): split plans per step size; xi0 from T0              */
+
+typedef struct {
+    PlanKeys keys;
+    PrescribedPlan split[FHOBS_PLAN_SLOTS];
+    double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
+    double F[FHOBS_PLAN_SLOTS][FHOBS_N_MODEL * FHOBS_N_MODEL];
+    cplx factors[FHOBS_PLAN_SLOTS][2 * FHOBS_K]; /* spectral-factor caches of the split plans */
+    double last_tau[FHOBS_PLAN_SLOTS];
+    double step_work[FHOBS_PRESCRIBED_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* a step's scratch */
+    double scratch[FHOBS_PLAN_WORK];
+} Work;
+
+static void work_init(Work *w)
+{
+    plan_keys_init(&w->keys);
+}
+
+/* The split plan of the step size dt: kept from an earlier step, or computed now into the
+ * least recently used slot; NULL with the message when no gain level of the tau scan makes
+ * the split step contractive. */
+static const PrescribedPlan *prescribed_plan(Work *w, double dt, char *msg, size_t len)
+{
+    char a[32];
+    double best;
+    int fresh, i = plan_slot(&w->keys, dt, &fresh);
+    PrescribedPlan *plan = &w->split[i];
+    if (!fresh)
+        return plan;
+    plan->factors = w->factors[i];
+    plan->last_tau = &w->last_tau[i];
+    plan->work = w->step_work;
+    if (plan_prescribed(plan, &PRESCRIBED_BASE, &LEVEL_SCAN, ZOH_TOP, dt, w->M[i], w->F[i],
+                        &best, w->scratch)) {
+        w->keys.dt[i] = NAN;
+        snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
+                 "spectral radius %.6g); use a smaller communication step; state left unchanged",
+                 number(dt, a, sizeof a), best);
+        return NULL;
+    }
+    return plan;
+}
+
+static int model_parameters_problem(const double *real, const int *integer, char *msg,
+                                    size_t len)
+{
+    char a[32];
+    double h = real[VR_H];
+    int scheme = integer[VR_SCHEME];
+    if (!(isfinite(h) && h > 0.0)) {
+        snprintf(msg, len, "internal step h = %s is not a positive finite number",
+                 number(h, a, sizeof a));
+        return 1;
+    }
+    if (scheme < 0 || scheme > 1) {
+        snprintf(msg, len, "scheme = %d is not in 0..1 (('split', 'euler'))", scheme);
+        return 1;
+    }
+    if (scheme == FHOBS_SCHEME_EULER) {
+        snprintf(msg, len, "scheme = 1 (euler): this native FMU runs the split scheme only "
+                           "(use the pythonfmu FMU for the euler scheme)");
+        return 1;
+    }
+    return 0;
+}
+
+/* z0 (zeros for a disturbance model's states) and xi0 = (-nu rho T0)^(-1/nu) of the parameter
+ * T0 (fhobs.core.runtime.prescribed_xi0), with its checks and messages. */
+static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    char a[32], b[32];
+    const double T0 = real[VR_T0], nu = PRESCRIBED_BASE.nu, rho = PRESCRIBED_BASE.rho;
+    if (initial_z(real, state, msg, len))
+        return 1;
+    if (!(isfinite(T0) && T0 > 0.0)) {
+        snprintf(msg, len, "prescribed time T0 = %s is not a positive finite number",
+                 number(T0, a, sizeof a));
+        return 1;
+    }
+    double xi0 = pow(-nu * rho * T0, -1.0 / nu);
+    if (!(isfinite(xi0) && xi0 >= DBL_MIN)) {
+        snprintf(msg, len, "T0 = %s s gives xi0 = (-nu rho T0)^(-1/nu) = %s, outside the "
+                 "normal floating-point numbers", number(T0, a, sizeof a),
+                 number(xi0, b, sizeof b));
+        return 1;
+    }
+    state[FHOBS_N_MODEL] = xi0;
+    return 0;
+}
+
+static int model_step(Work *w, const double *real, const int *integer, const double *src,
+                      double *dst, double dt, char *msg, size_t len)
+{
+    (void)integer;
+    char a[32], b[32];
+    double inputs[FHOBS_K + FHOBS_M];
+    double h = real[VR_H];
+    double n_sub = ceil(dt / h * (1.0 - 1e-12));
+    if (n_sub < 1.0)
+        n_sub = 1.0;
+    if (n_sub > FHOBS_MAX_SUBSTEPS) {
+        snprintf(msg, len, "the step size %s is more than %d internal steps of h = %s; state "
+                 "left unchanged", number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
+                 number(h, b, sizeof b));
+        return 1;
+    }
+    const PrescribedPlan *plan = prescribed_plan(w, dt, msg, len);
+    if (!plan)
+        return 1;
+    read_vector(real, VR_Y, FHOBS_K, inputs);
+    read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
+    Call call = {plan, src, dst, inputs};
+    if (fhobs_prescribed_step(&call) != FHOBS_OK) {
+        snprintf(msg, len, "the split step diverged (non-finite state); state left unchanged");
+        return 1;
+    }
+    return 0;
+}
+
+/* x_hat, q_hat (with a disturbance model) and xi: the model state. */
+static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+{
+    (void)w;
+    (void)integer;
+    for (int i = 0; i < FHOBS_N; i++)
+        real[VR_X_HAT + i] = state[i];
+    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
+        real[VR_Q_HAT + i - FHOBS_N] = state[i];
+    real[VR_XI] = state[FHOBS_N_MODEL];
 }
 #else
 #error "model_data.c names no known FHOBS_KIND"

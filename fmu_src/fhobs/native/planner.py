@@ -56,7 +56,8 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     ----------
     kind : str
         ``observer`` (a :class:`~fhobs.core.runtime.FilteringObserver`), ``luenberger`` (a
-        :class:`~fhobs.core.runtime.LuenbergerObserver`) or ``plant`` (an
+        :class:`~fhobs.core.runtime.LuenbergerObserver`), ``prescribed_time`` (a
+        :class:`~fhobs.core.runtime.PrescribedTimeObserver`) or ``plant`` (an
         :class:`~fhobs.core.plant.LTIPlant`).
     model : object
         The model, split (or zoh) scheme.
@@ -65,9 +66,17 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     -------
     dict
         ``top``: the first rows ``[A, B, L_inj]`` (plant: ``[A, B, E]``) of the ZOH's
-        augmented matrix; observer: ``base`` (the plan's fields that do not depend on the step
-        size, as :meth:`FilteringObserver._kernel_plan` sets them) and ``scan`` (the
-        :class:`LevelScan` fields); Luenberger: ``base`` (``LinearPlan`` fields).
+        augmented matrix; observer and prescribed_time: ``base`` (the plan's fields that do
+        not depend on the step size, as the model's ``_kernel_plan`` sets them) and ``scan``
+        (the :class:`LevelScan` fields); Luenberger: ``base`` (``LinearPlan`` fields).
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> from fhobs.core.runtime import PrescribedTimeObserver
+    >>> data = design_data("prescribed_time", PrescribedTimeObserver(paper_gains()))
+    >>> sorted(data), data["top"].shape
+    (['base', 'scan', 'top'], (4, 7))
     """
     if kind == "plant":
         return {"top": np.hstack((model.A, model.B, model.E))}
@@ -76,16 +85,24 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     n, k, m = model._z.size, model._k, model._m
     if kind == "luenberger":
         return {"top": top, "base": {"n": n, "k": k, "m": m, "cycles": 1, "C": C}}
-    gains, flow = model.gains, model._flow.kernel_arrays()
-    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": float(gains.nu),
-            "gamma": float(gains.gamma), "p": model._p, "mismatch": LEVEL_MISMATCH,
-            "tiny": flow["tiny"], "series": PHI1_SERIES, "C": C,
-            **{name: flow[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")}}
+    gains = model.gains
     dilation = Dilation(gains.G_d)
     scan = {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
             "Vg_inv": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
             "roundoff": float(model._amplification_level()),
             "contraction": CONTRACTION_LIMIT}
+    if kind == "prescribed_time":
+        data = model.kernel_arrays()
+        base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"], "nu": float(gains.nu),
+                "rho": float(gains.rho), "tiny": data["tiny"], "series": PHI1_SERIES, "C": C,
+                **{name: data[name] for name in ("Q_inv", "Q_V", "lam", "V_g", "g",
+                                                 "inverse_L")}}
+        return {"top": top, "base": base, "scan": scan}
+    flow = model._flow.kernel_arrays()
+    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": float(gains.nu),
+            "gamma": float(gains.gamma), "p": model._p, "mismatch": LEVEL_MISMATCH,
+            "tiny": flow["tiny"], "series": PHI1_SERIES, "C": C,
+            **{name: flow[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")}}
     return {"top": top, "base": base, "scan": scan}
 
 
@@ -109,6 +126,7 @@ def library() -> ctypes.CDLL | None:
     lib = ctypes.CDLL(str(target))
     lib.fhobs_plan_work_size.restype = ctypes.c_int
     lib.fhobs_plan_filter.restype = ctypes.c_int
+    lib.fhobs_plan_prescribed.restype = ctypes.c_int
     lib.fhobs_plan_zoh.restype = None
     return lib
 
@@ -133,8 +151,8 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
     Returns
     -------
     dict
-        observer: ``M``, ``F``, ``floor_level``, ``ceiling``; luenberger: ``M``; plant:
-        ``Phi``, ``Gamma_B``, ``Gamma_E``.
+        observer, prescribed_time: ``M``, ``F``, ``floor_level``, ``ceiling``; luenberger:
+        ``M``; plant: ``Phi``, ``Gamma_B``, ``Gamma_E``.
 
     Raises
     ------
@@ -154,7 +172,7 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
     m = data["base"]["m"] if "base" in data else 0
     work = np.zeros(lib.fhobs_plan_work_size(n, k, m, size, TAU_GRID.size))
     M = np.zeros((n, size))
-    if kind != "observer":
+    if kind not in ("observer", "prescribed_time"):
         lib.fhobs_plan_zoh(kernel.pointer(top), n, size, ctypes.c_double(dt),
                            kernel.pointer(M), kernel.pointer(work))
         if kind == "luenberger":
@@ -163,14 +181,26 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
         Phi, Gamma_B, Gamma_E = np.split(M, widths, axis=1)
         return {"Phi": Phi, "Gamma_B": Gamma_B, "Gamma_E": Gamma_E}
     keep: list[np.ndarray] = []
-    base = _structure(kernel.FilterPlan, data["base"], keep)
     scan = _structure(LevelScan, {**data["scan"], "n_tau": TAU_GRID.size}, keep)
-    factors, last_tau = np.zeros(4 * k, dtype=complex), np.zeros(1)
-    plan = kernel.FilterPlan(factors=kernel.pointer(factors), last_tau=kernel.pointer(last_tau))
+    last_tau = np.zeros(1)
+    if kind == "observer":
+        base = _structure(kernel.FilterPlan, data["base"], keep)
+        factors = np.zeros(4 * k, dtype=complex)
+        plan = kernel.FilterPlan(factors=kernel.pointer(factors),
+                                 last_tau=kernel.pointer(last_tau))
+        function = lib.fhobs_plan_filter
+    else:
+        base = _structure(kernel.PrescribedPlan, data["base"], keep)
+        factors = np.zeros(2 * k, dtype=complex)
+        scratch = np.zeros(kernel.prescribed_work_size(n, k))
+        plan = kernel.PrescribedPlan(factors=kernel.pointer(factors),
+                                     last_tau=kernel.pointer(last_tau),
+                                     work=kernel.pointer(scratch))
+        function = lib.fhobs_plan_prescribed
     F, best = np.zeros((n, n)), ctypes.c_double()
-    refused = lib.fhobs_plan_filter(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan),
-                                    kernel.pointer(top), ctypes.c_double(dt), kernel.pointer(M),
-                                    kernel.pointer(F), ctypes.byref(best), kernel.pointer(work))
+    refused = function(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan),
+                       kernel.pointer(top), ctypes.c_double(dt), kernel.pointer(M),
+                       kernel.pointer(F), ctypes.byref(best), kernel.pointer(work))
     if refused:
         raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
                          f"(smallest spectral radius {best.value:.6g})")

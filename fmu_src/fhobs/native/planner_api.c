@@ -27,3 +27,12 @@ int fhobs_plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan 
 {
     return plan_filter(plan, base, scan, top, dt, M, F, best, work);
 }
+
+/* The prescribed-time observer's plan of dt (plan's factors, last_tau and work set by the
+ * caller): plan_prescribed. */
+int fhobs_plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
+                          const LevelScan *scan, const double *top, double dt, double *M,
+                          double *F, double *best, double *work)
+{
+    return plan_prescribed(plan, base, scan, top, dt, M, F, best, work);
+}
