@@ -33,9 +33,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.cli import check_output_folder
+from fhobs.cli import check_output_folder, program_name
 from fhobs.core.gains import ObserverGains
-from fhobs.errors import BuildError, CertificateError, KalmanDesignError, LMIError, SpecError
+from fhobs.errors import FhobsError, SpecError
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec
 
@@ -97,7 +97,7 @@ def parse_assignment(text: str) -> tuple[str, Any]:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m harness",
+        prog=program_name("python -m harness"),
         description="Co-simulate FMUs with fmpy: the paper's scenarios, your own plant, any "
                     "system description.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -561,8 +561,7 @@ def main(argv: list[str] | None = None) -> int:
                 "export-ssp": _cmd_export, "sweep": _cmd_sweep}
     try:
         return commands[args.command](args)
-    except (DescriptionError, MasterError, OSError, SpecError, LMIError, CertificateError,
-            KalmanDesignError, BuildError) as err:
+    except (FhobsError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         if isinstance(err, MasterError) and err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "

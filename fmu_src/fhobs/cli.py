@@ -20,10 +20,23 @@ from .limits import check_design_limits
 from .spec import OBJECTIVES, PlantSpec, load_spec
 
 
+def program_name(default: str) -> str:
+    """The name the usage line shows: the console script's (``fhobs-build``,
+    ``fhobs-harness``) when run as one, else ``default``.
+
+    Examples
+    --------
+    >>> program_name("build_fmu.py") in ("build_fmu.py", "fhobs-build", "fhobs-harness")
+    True
+    """
+    name = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    return name if name.startswith("fhobs-") else default
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """Parse the command line (see ``python build_fmu.py --help``)."""
     parser = argparse.ArgumentParser(
-        prog="build_fmu.py",
+        prog=program_name("build_fmu.py"),
         description="Design the filtering homogeneous observer for a plant spec (TOML) and "
         "write design.json and the FMUs (observer.fmu, luenberger.fmu, prescribed_time.fmu, "
         "plant.fmu, and kalman.fmu when the spec has a [noise] table).",
