@@ -21,6 +21,7 @@ import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.core.runtime import SCHEMES, FilteringObserver
+from fhobs.fmu.fmu_state import state_from_bytes, state_to_bytes
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FMI_ERROR, UNREADABLE, assert_error, names
@@ -199,10 +200,11 @@ def test_parameters_are_fixed_after_initialisation(open_fmu):
 
 
 def edited_state(driver, edit) -> bytes:
-    """The driver's serialized state, parsed, changed by ``edit`` and serialized again."""
-    state = json.loads(serialized(driver))
+    """The driver's serialized state, parsed, changed by ``edit`` and serialized again with a
+    valid checksum (a changed byte without one is refused at the checksum: test_host_safety)."""
+    state = state_from_bytes(serialized(driver))
     edit(state)
-    return json.dumps(state).encode()
+    return state_to_bytes(state)
 
 
 STATE_EDITS = {

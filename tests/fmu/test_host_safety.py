@@ -76,3 +76,67 @@ def test_round_off_asymmetry_is_accepted(open_paper, paper_design):
         driver.fmu.doStep(0.0, DT)
     except FMICallException as err:  # pragma: no cover - reported with the status
         pytest.fail(f"doStep failed with status {err.status} (fmi2Error is {FMI_ERROR})")
+
+
+# -- serialized FMU states with a flipped bit ---------------------------------------------------
+def stepped(driver: FmuDriver, steps: int, t0: float = 0.0) -> list[float]:
+    """``steps`` steps with fixed inputs from ``t0``; the outputs x_hat afterwards."""
+    for k in range(steps):
+        driver.fmu.setReal([driver.vr["y[1]"], driver.vr["u[1]"]], [0.3, 0.1])
+        driver.fmu.doStep(t0 + k * DT, DT)
+    return driver.fmu.getReal([driver.vr[f"x_hat[{i}]"] for i in range(1, 5)])
+
+
+def serialized(driver: FmuDriver) -> bytes:
+    """The instance's serialized FMU state (the state object freed again)."""
+    state = driver.fmu.getFMUstate()
+    data = bytes(driver.fmu.serializeFMUstate(state))
+    driver.fmu.freeFMUstate(state)
+    return data
+
+
+def flip_positions(data: bytes, header: int = 0) -> dict[str, int]:
+    """Byte positions to flip a bit at: the first, a middle and the last digit after
+    ``header`` bytes, the last byte, and one byte in the middle of the data."""
+    digits = [i for i in range(header, len(data)) if chr(data[i]).isdigit()]
+    return {"first digit": digits[0], "middle digit": digits[len(digits) // 2],
+            "last digit": digits[-1], "last byte": len(data) - 1,
+            "middle byte": (header + len(data)) // 2}
+
+
+def flipped(data: bytes, position: int, bit: int = 0) -> bytes:
+    """``data`` with bit ``bit`` of byte ``position`` inverted."""
+    changed = bytearray(data)
+    changed[position] ^= 1 << bit
+    return bytes(changed)
+
+
+def check_flips_refused(driver: FmuDriver, data: bytes, positions: dict[str, int]) -> None:
+    """Each one-bit flip of ``data`` is fmi2Error at fmi2DeSerializeFMUstate naming the
+    checksum, and the instance's own state is unchanged."""
+    before = serialized(driver)
+    for where, position in positions.items():
+        for bit in (0, 3):
+            message = assert_error(driver, driver.fmu.deSerializeFMUstate,
+                                   flipped(data, position, bit), words="checksum")
+            assert "not a serialized FMU state" in message, (where, message)
+    assert serialized(driver) == before
+
+
+def check_restores_bit_exactly(source: FmuDriver, target: FmuDriver, data: bytes) -> None:
+    """``target`` restores ``source``'s unmodified bytes: same serialized state, same run."""
+    state = target.fmu.deSerializeFMUstate(data)
+    target.fmu.setFMUstate(state)
+    target.fmu.freeFMUstate(state)
+    assert serialized(target) == data
+    assert stepped(target, 3, 5 * DT) == stepped(source, 3, 5 * DT)
+
+
+def test_pythonfmu_state_with_a_flipped_bit_is_refused(open_paper):
+    source, target = open_paper("observer", "source"), open_paper("observer", "target")
+    source.start({"xi0": 0.4})
+    target.start()
+    stepped(source, 5)
+    data = serialized(source)
+    check_flips_refused(target, data, flip_positions(data))
+    check_restores_bit_exactly(source, target, data)

@@ -1,10 +1,15 @@
 """FMU states: the complete state of a slave (parameters, inputs, the model's internal state)
-for ``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``, checked whole before any of it is used."""
+for ``fmi2GetFMUstate`` / ``fmi2SerializeFMUstate``, checked whole before any of it is used.
+
+A serialized state is the state's JSON object with one last member, ``"checksum"``: the 64-bit
+FNV-1a hash (16 hex digits) of every byte before that member. The checksum is verified on the
+bytes before they are parsed, so a changed byte anywhere is refused naming the checksum."""
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -14,10 +19,89 @@ from .modes import MODES, STATUS_OK, STEP_MODE, TERMINATED
 if TYPE_CHECKING:
     from .slave_base import SlaveModel
 
-STATE_FORMAT = 2
+STATE_FORMAT = 3
 """Version of the FMU state layout of :meth:`FhobsSlave._get_fmu_state`."""
 STATE_KEYS = {"format", "fmu", "mode", "arrays", "integers", "model"}
 """The entries of a state (:meth:`FhobsSlave._get_fmu_state`)."""
+_CHECKSUM_TAIL = re.compile(rb', "checksum": "([0-9a-f]{16})"\}\Z')
+"""The last member of a serialized state: its checksum."""
+_FNV_OFFSET, _FNV_PRIME, _MASK64 = 0xCBF29CE484222325, 0x100000001B3, (1 << 64) - 1
+
+
+def fnv1a64(data: bytes) -> int:
+    """The 64-bit FNV-1a hash of ``data``.
+
+    Examples
+    --------
+    >>> f"{fnv1a64(b''):016x}", f"{fnv1a64(b'a'):016x}"
+    ('cbf29ce484222325', 'af63dc4c8601ec8c')
+    """
+    value = _FNV_OFFSET
+    for byte in data:
+        value = ((value ^ byte) * _FNV_PRIME) & _MASK64
+    return value
+
+
+def state_to_bytes(state: dict[str, Any]) -> bytes:
+    """Serialize a state: its JSON object with the checksum of the bytes before it appended as
+    the last member (the module docstring).
+
+    Examples
+    --------
+    >>> state_to_bytes({"format": 3})
+    b'{"format": 3, "checksum": "3dd2e8bf3b826a7e"}'
+    >>> state_from_bytes(state_to_bytes({"format": 3}))
+    {'format': 3}
+    """
+    body = json.dumps(state).encode("utf-8")
+    if not (body.startswith(b"{") and body.endswith(b"}") and len(body) > 2):
+        raise ValueError("an FMU state is a non-empty JSON object")
+    head = body[:-1]
+    return head + b', "checksum": "%016x"}' % fnv1a64(head)
+
+
+def checksum_problem(data: bytes) -> str:
+    """Why ``data`` does not carry a valid checksum ('' if it does).
+
+    Examples
+    --------
+    >>> data = state_to_bytes({"format": 3})
+    >>> checksum_problem(data)
+    ''
+    >>> checksum_problem(data.replace(b"3", b"2", 1))
+    'its checksum does not match its contents (the bytes were changed after serialization)'
+    """
+    tail = _CHECKSUM_TAIL.search(data)
+    if tail is None:
+        return "its checksum is missing or damaged"
+    if int(tail.group(1), 16) != fnv1a64(data[:tail.start()]):
+        return ("its checksum does not match its contents (the bytes were changed after "
+                "serialization)")
+    return ""
+
+
+def state_from_bytes(data: bytes) -> Any:
+    """Parse a serialized state (:func:`state_to_bytes`) after checking its checksum.
+
+    Raises
+    ------
+    ValueError
+        If the checksum is missing or does not match (:func:`checksum_problem`), or the bytes
+        are not UTF-8 JSON (``UnicodeDecodeError`` and ``json.JSONDecodeError`` are
+        ValueErrors).
+
+    Examples
+    --------
+    >>> state_from_bytes(b'{"format": 2}')
+    Traceback (most recent call last):
+    ...
+    ValueError: its checksum is missing or damaged
+    """
+    problem = checksum_problem(data)
+    if problem:
+        raise ValueError(problem)
+    head = data[:_CHECKSUM_TAIL.search(data).start()]
+    return json.loads((head + b"}").decode("utf-8"))
 
 
 def _array_problem(value: Any, shape: tuple[int, ...], name: str, finite: bool = True) -> str:
@@ -41,9 +125,12 @@ class FmuStates:
 
     def _state_bytes_problem(self, data: bytes) -> str:
         """Why ``data`` is not a serialized state of this FMU ('' if it is)."""
+        problem = checksum_problem(data)
+        if problem:
+            return f"they are not a serialized FMU state of this FMU ({problem})"
         try:
             state = self._fmu_state_from_bytes(data)
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        except (ValueError, RecursionError) as err:
             return f"they are not a serialized FMU state of this FMU ({err})"
         return self._state_problem(state)
 
@@ -61,9 +148,15 @@ class FmuStates:
         }
 
     @staticmethod
+    def _fmu_state_to_bytes(state: dict[str, Any]) -> bytes:
+        """Serialize a state for pythonfmu's fmi2SerializeFMUstate (:func:`state_to_bytes`)."""
+        return state_to_bytes(state)
+
+    @staticmethod
     def _fmu_state_from_bytes(state: bytes) -> Any:
-        """Parse a serialized state (JSON, as pythonfmu writes it; checked by the caller)."""
-        return json.loads(state.decode("utf-8"))
+        """Parse a serialized state for pythonfmu's fmi2DeSerializeFMUstate
+        (:func:`state_from_bytes`: the checksum first; the rest checked by the caller)."""
+        return state_from_bytes(state)
 
     def _state_problem(self, state: Any) -> str:
         """Why ``state`` is not a complete, consistent state of this FMU ('' if it is):
