@@ -25,7 +25,7 @@ pytestmark = pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C co
 @pytest.fixture(scope="module")
 def noise_block(tmp_path_factory):
     target = tmp_path_factory.mktemp("noise") / "noise.so"
-    compile_source(NOISE_SOURCE, target, "cc", ("-O2", "-shared", "-fPIC"))
+    compile_source(NOISE_SOURCE, target, "cc", ("-O2", "-shared", "-fPIC", "-DFHOBS_EXPORT"))
     function = ctypes.CDLL(str(target)).fhobs_noise_block
     function.argtypes = [ctypes.c_uint32, ctypes.c_uint32, ctypes.c_size_t, ctypes.c_void_p]
     function.restype = None

@@ -209,7 +209,7 @@ class KalmanObserver:
 
     def _kernel_plan(self, cycles: float) -> None:
         """Register the kernel's plan of ``cycles`` filter cycles (its key in the stepper)."""
-        work = np.zeros(2 * self._z.size)
+        work = np.zeros(compiled.kalman_work_size(self._z.size, self._k))
         plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=int(cycles),
                                    M=compiled.pointer(self._cycle), work=compiled.pointer(work))
         self._stepper.add_plan(cycles, plan, self._cycle, work)

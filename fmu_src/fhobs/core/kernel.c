@@ -10,131 +10,14 @@
  * operation (same formulas, complex products and quotients as numpy forms them); only the
  * summation order of the matrix-vector products may differ from numpy's BLAS.
  *
- * Return codes: FHOBS_OK, FHOBS_NONFINITE (dst is not finite).
+ * Return codes: FHOBS_OK, FHOBS_NONFINITE (dst is not finite). The plans, the scratch sizes
+ * and the helpers shared with the native FMUs are in kernel.h; the scratch memory of a step
+ * (FHOBS_*_WORK) is the caller's, pointed to by its plan.
  */
-#include <math.h>
-#include <stddef.h>
-
-#define FHOBS_OK 0
-#define FHOBS_NONFINITE 2
-#define FHOBS_BISECTION_STEPS 40 /* fhobs.runtime.BISECTION_STEPS */
-#define FHOBS_BISECTION_TOL 0.05 /* fhobs.runtime.BISECTION_TOL */
-
-typedef struct {
-    double re, im;
-} cplx;
-
-/* One call of a step function (fhobs.core.kernel.Call). */
-typedef struct {
-    const void *plan;
-    const double *src;
-    double *dst;
-    const double *inputs;
-} Call;
-
-/* numpy's complex product */
-static cplx cmul(cplx a, cplx b)
-{
-    cplx r = {a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re};
-    return r;
-}
-
-/* numpy's complex quotient (Smith's algorithm) */
-static cplx cdiv(cplx a, cplx b)
-{
-    cplx r;
-    double rat, scl;
-    if (fabs(b.re) >= fabs(b.im)) {
-        rat = b.im / b.re;
-        scl = 1.0 / (b.re + b.im * rat);
-        r.re = (a.re + a.im * rat) * scl;
-        r.im = (a.im - a.re * rat) * scl;
-    } else {
-        rat = b.re / b.im;
-        scl = 1.0 / (b.im + b.re * rat);
-        r.re = (a.re * rat + a.im) * scl;
-        r.im = (a.im * rat - a.re) * scl;
-    }
-    return r;
-}
-
-static cplx cexp_(cplx a)
-{
-    cplx r;
-    double e = exp(a.re);
-    if (a.im == 0.0) {
-        r.re = e;
-        r.im = 0.0;
-    } else {
-        r.re = e * cos(a.im);
-        r.im = e * sin(a.im);
-    }
-    return r;
-}
-
-/* numpy's complex expm1 */
-static cplx cexpm1_(cplx a)
-{
-    cplx r;
-    if (a.im == 0.0) {
-        r.re = expm1(a.re);
-        r.im = 0.0;
-    } else {
-        double s = sin(a.im / 2.0);
-        r.re = expm1(a.re) * cos(a.im) - 2.0 * s * s;
-        r.im = exp(a.re) * sin(a.im);
-    }
-    return r;
-}
-
-static int all_finite(const double *x, int n)
-{
-    for (int i = 0; i < n; i++)
-        if (!isfinite(x[i]))
-            return 0;
-    return 1;
-}
-
-/* y[i] = sum_j A[i, j] x[j], A row-major rows x cols */
-static void matvec(const double *A, const double *x, int rows, int cols, double *y)
-{
-    for (int i = 0; i < rows; i++) {
-        const double *a = A + (size_t)i * cols;
-        double s = 0.0;
-        for (int j = 0; j < cols; j++)
-            s += a[j] * x[j];
-        y[i] = s;
-    }
-}
-
-/* y[i] = sum_j A[i, j] x[j] for a matrix A whose columns are split over the consecutive
- * vectors x0 (n0 entries), x1 (n1), x2 (n2): A (x0, x1, x2) without forming the stack. */
-static void matvec3(const double *A, int rows, const double *x0, int n0, const double *x1,
-                    int n1, const double *x2, int n2, double *y)
-{
-    int cols = n0 + n1 + n2;
-    for (int i = 0; i < rows; i++) {
-        const double *a = A + (size_t)i * cols;
-        double s = 0.0;
-        for (int j = 0; j < n0; j++)
-            s += a[j] * x0[j];
-        for (int j = 0; j < n1; j++)
-            s += a[n0 + j] * x1[j];
-        for (int j = 0; j < n2; j++)
-            s += a[n0 + n1 + j] * x2[j];
-        y[i] = s;
-    }
-}
+#include "kernel.h"
 
 /* ---------------------------------------------------------------------------------------- */
 /* Linear models: the plant's ZOH, the Luenberger observer, the Kalman filter               */
-
-typedef struct {
-    int n, m, r;           /* states, inputs u, perturbations q */
-    const double *Phi;     /* n x n */
-    const double *Gamma_B; /* n x m */
-    const double *Gamma_E; /* n x r */
-} PlantPlan;
 
 /* x+ = (Phi x + Gamma_B u) + Gamma_E q; inputs = (u, q). */
 int fhobs_plant_step(const Call *call)
@@ -158,21 +41,13 @@ int fhobs_plant_step(const Call *call)
     return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
 }
 
-typedef struct {
-    int n, k, m;     /* states, outputs y, inputs u */
-    int cycles;      /* Kalman: filter cycles per communication step */
-    const double *C; /* Luenberger: k x n */
-    const double *M; /* n x (n + m + k) (Luenberger) or n x (n + k + m) (Kalman) */
-    double *work;    /* Kalman: 2 n (scratch) */
-} LinearPlan;
-
 /* Luenberger split step: v = C z - y, z+ = M (z, u, v); inputs = (y, u). */
 int fhobs_luenberger_step(const Call *call)
 {
     const LinearPlan *p = call->plan;
     const double *src = call->src, *inputs = call->inputs;
     double *dst = call->dst;
-    double v[p->k];
+    double *v = p->work; /* k */
     const double *y = inputs, *u = inputs + p->k;
     matvec(p->C, src, p->k, p->n, v);
     for (int i = 0; i < p->k; i++)
@@ -198,39 +73,6 @@ int fhobs_kalman_step(const Call *call)
 
 /* ---------------------------------------------------------------------------------------- */
 /* Filtering homogeneous observer, split scheme                                             */
-
-typedef struct {
-    int n, k, m;              /* model states N, outputs, inputs */
-    int real_lam;             /* R's eigenvalues all real (numpy's factors are then real) */
-    double nu, gamma, p, dt;  /* degree, xi gain, nu/2 + 1, communication step */
-    double floor_level, ceiling, mismatch;
-    double tiny, series;      /* spectral factors: series below tau = tiny, |mu| < series */
-    const double *C;          /* k x n */
-    const double *M;          /* n x (n + m + k): ZOH prediction, (z, u, v) */
-    const double *F;          /* n x n: carries dz into z+ */
-    const cplx *V_inv;        /* 2k x 2k: R = V diag(lam) V^-1 */
-    const cplx *V_k;          /* k x 2k: V[:k] */
-    const cplx *WL;           /* n x 2k: V_g^-1 L V[:k] */
-    const cplx *V_g;          /* n x n: G_d = V_g diag(g) V_g^-1 */
-    const cplx *g;            /* n: eigenvalues of G_d */
-    const cplx *lam;          /* 2k: eigenvalues of R */
-    cplx *factors;            /* 4k: spectral factors of last_tau (cache, written here) */
-    double *last_tau;         /* 1 (cache, written here) */
-} FilterPlan;
-
-static double sigma_of(const double *psi, int k, double xi)
-{
-    double half = 0.0;
-    for (int i = 0; i < k; i++)
-        half += psi[i] * psi[i];
-    half = 0.5 * half;
-    double s = xi;
-    if (half > s)
-        s = half;
-    if (0.0 > s)
-        s = 0.0;
-    return sqrt(s);
-}
 
 /* ExpmFamily.spectral_factors: [exp(tau lam); tau phi1(tau lam)] */
 static void spectral_factors(const FilterPlan *p, double tau, cplx *f)
@@ -285,7 +127,7 @@ static void correct(const FilterPlan *p, const double *psi, double xi, const dou
 {
     const int n = p->n, k = p->k, k2 = 2 * p->k;
     const double tau = p->dt * exp(p->nu * log_s);
-    cplx c[k2], prod[2 * k2], out_n[n];
+    cplx *c = p->cwork, *prod = c + k2, *out_n = prod + 2 * k2; /* 2k, 4k, n */
 
     /* InjectionFlow.apply: r = (psi, v) scaled by (s^-1, s^-(1+nu)), its coefficients c */
     cplx scale_psi = cexp_((cplx){log_s * -1.0, 0.0});
@@ -352,6 +194,12 @@ static void correct(const FilterPlan *p, const double *psi, double xi, const dou
     *xi_new = signed_power_decay(w, p->gamma, p->p, p->dt) + half_new;
 }
 
+void fhobs_correct(const FilterPlan *p, const double *psi, double xi, const double *v,
+                   double log_s, double *psi_new, double *xi_new, double *dz)
+{
+    correct(p, psi, xi, v, log_s, psi_new, xi_new, dz);
+}
+
 /* Python's min(a, b): a unless b < a (so a NaN first argument is kept, as numpy's step does) */
 static double py_min(double a, double b)
 {
@@ -397,7 +245,7 @@ static void correct_own_level(const FilterPlan *p, const double *psi, double xi,
         lo = hi;
         hi = py_min(hi + 2.0, log_ceiling);
     }
-    double trial[k + 1], trial_dz[n];
+    double *trial = p->work + k + n, *trial_dz = trial + k + 1; /* k + 1, n */
     while (hi - lo > FHOBS_BISECTION_TOL) {
         double mid = 0.5 * (lo + hi);
         if (correct_at(p, psi, xi, v, mid, trial, trial + k, trial_dz)) {
@@ -421,7 +269,7 @@ int fhobs_filter_step(const Call *call)
     double *dst = call->dst;
     const int n = p->n, k = p->k;
     const double *z = src, *psi = src + n, *y = inputs, *u = inputs + k;
-    double v[k], dz[n];
+    double *v = p->work, *dz = v + k; /* k, n: trial, trial_dz follow (correct_own_level) */
 
     matvec(p->C, z, k, n, v);
     for (int i = 0; i < k; i++)
@@ -443,19 +291,6 @@ int fhobs_filter_step(const Call *call)
 /* ---------------------------------------------------------------------------------------- */
 /* Explicit Euler scheme of the filtering and Luenberger observers                          */
 
-typedef struct {
-    int n, k, m, n_sub;       /* model states, outputs, inputs, substeps */
-    int homogeneous;          /* the filtering observer (psi, xi, gain term); else Luenberger */
-    int real_g;               /* the dilation's eigen data real (numpy's products then real) */
-    double hs, nu, gamma, p, guard;
-    const double *A, *B, *C, *L_inj; /* n x n, n x m, k x n, n x k */
-    const double *L_tilde;    /* k x k */
-    const cplx *V_d;          /* n x n: G_d = V_d diag(g) V_d^-1 */
-    const cplx *inverse_L;    /* n x k: V_d^-1 L */
-    const cplx *g;            /* n */
-    double *work;             /* 2 (n + k + 1) (scratch) */
-} EulerPlan;
-
 /* sum_i a[i] b[i] as numpy's dot of a short vector (fused multiply-adds in sequence) */
 static double dot_fma(const double *a, const double *b, int k)
 {
@@ -475,7 +310,7 @@ static void euler_rates(const EulerPlan *p, const double *psi, double xi, const 
     if (sigma > 0.0) {
         double log_s = log(sigma > p->guard ? sigma : p->guard);
         double gain = exp((p->nu - 1.0) * log_s), level = exp(p->nu * log_s);
-        cplx c[n];
+        cplx *c = p->cwork; /* n */
         for (int i = 0; i < n; i++) { /* Dilation.apply: V (exp(s g) * (V^-1 L psi)) */
             double re = 0.0, im = 0.0;
             const cplx *a = p->inverse_L + (size_t)i * k;
@@ -520,12 +355,14 @@ int fhobs_euler_step(const Call *call)
     const int n = p->n, k = p->k, size = n + (p->homogeneous ? k + 1 : 0);
     const double *y = call->inputs, *u = call->inputs + k, *src = call->src;
     double *dst = call->dst;
-    double v[k], dpsi[k], dz_gain[n], rate[n], az[n], bu[n], lv[n], dxi = 0.0;
+    /* work: two substep states of n + k + 1, then v, dpsi (k), dz_gain, rate, az, bu, lv (n) */
+    double *v = p->work + 2 * (n + k + 1), *dpsi = v + k, *dz_gain = dpsi + k;
+    double *rate = dz_gain + n, *az = rate + n, *bu = az + n, *lv = bu + n, dxi = 0.0;
 
     for (int s = 0; s < p->n_sub; s++) {
         /* read from src, then from the last written scratch; the last substep writes dst */
-        const double *x = s == 0 ? src : p->work + (size_t)((s - 1) % 2) * size;
-        double *out = s == p->n_sub - 1 ? dst : p->work + (size_t)(s % 2) * size;
+        const double *x = s == 0 ? src : p->work + (size_t)((s - 1) % 2) * (n + k + 1);
+        double *out = s == p->n_sub - 1 ? dst : p->work + (size_t)(s % 2) * (n + k + 1);
         matvec(p->C, x, k, n, v);
         for (int i = 0; i < k; i++)
             v[i] -= y[i];
@@ -553,29 +390,6 @@ int fhobs_euler_step(const Call *call)
 
 /* ---------------------------------------------------------------------------------------- */
 /* Prescribed-time observer (Theorem 1), split scheme                                       */
-
-/* Scratch doubles of a PrescribedPlan (n model states, k outputs). */
-#define FHOBS_PRESCRIBED_WORK(n, k) (4 * (k) + 3 * (n))
-
-typedef struct {
-    int n, k, m;              /* model states N, outputs, inputs */
-    int real_lam;             /* Q's eigenvalues all real (numpy's factors are then real) */
-    double nu, rho, dt;       /* degree, xi gain, communication step */
-    double floor_level, ceiling;
-    double tiny, series;      /* spectral factors: series below tau = tiny, |mu| < series */
-    const double *C;          /* k x n */
-    const double *M;          /* n x (n + m + k): ZOH prediction, (z, u, v) */
-    const double *F;          /* n x n: carries dz into z+ */
-    const cplx *Q_inv;        /* k x k: Q = C L_pt = V diag(lam) V^-1, V^-1 */
-    const cplx *Q_V;          /* k x k: V */
-    const cplx *lam;          /* k: eigenvalues of Q */
-    const cplx *V_g;          /* n x n: G_d = V_g diag(g) V_g^-1 */
-    const cplx *g;            /* n: eigenvalues of G_d */
-    const cplx *inverse_L;    /* n x k: V_g^-1 L_pt */
-    cplx *factors;            /* 2k: spectral factors of last_tau (cache, written here) */
-    double *last_tau;         /* 1 (cache, written here) */
-    double *work;             /* FHOBS_PRESCRIBED_WORK(n, k) (scratch, written here) */
-} PrescribedPlan;
 
 /* ExpmFamily.spectral_factors of the `size` eigenvalues lam: [exp(tau lam); tau phi1(tau lam)]
  * into f (2 size). */
@@ -696,6 +510,12 @@ static void prescribed_correct(const PrescribedPlan *p, const double *v, double 
 
 /* One split step over dt of the prescribed-time observer: state (z, xi), inputs (y, u): the
  * correction at the level of xi, xi's exact flow, then the prediction z+ = M (z, u, v) + F dz. */
+void fhobs_prescribed_correct(const PrescribedPlan *p, const double *v, double log_x,
+                              double *dz)
+{
+    prescribed_correct(p, v, log_x, dz);
+}
+
 int fhobs_prescribed_step(const Call *call)
 {
     const PrescribedPlan *p = call->plan;

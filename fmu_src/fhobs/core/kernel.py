@@ -48,11 +48,16 @@ from typing import TypeVar
 import numpy as np
 
 SOURCE = Path(__file__).resolve().with_name("kernel.c")
+HEADER = SOURCE.with_name("kernel.h")
+"""The kernel's declarations (plans, scratch sizes, shared helpers), included by kernel.c."""
 SHIPPED = Path(__file__).resolve().with_name("kernel_linux64.so")
 """The library inside an FMU (compiled by :mod:`fhobs.build`)."""
 DISABLE_ENV = "FHOBS_NO_KERNEL"
 COMPILE_FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off")
 """No contraction into fused multiply-adds: each product is rounded, as in numpy."""
+LIBRARY_FLAGS = (*COMPILE_FLAGS, "-DFHOBS_EXPORT")
+"""The kernel compiled alone for ctypes: its step functions exported (kernel.h's FHOBS_HIDDEN
+hides them inside a native FMU)."""
 OK, NONFINITE = 0, 2
 """Return codes of the kernel's step functions (``kernel.c``)."""
 PLAN_CACHE_SIZE = 16
@@ -89,7 +94,7 @@ class FilterPlan(ctypes.Structure):
                 ("C", _DOUBLE_P), ("M", _DOUBLE_P), ("F", _DOUBLE_P),
                 ("V_inv", _DOUBLE_P), ("V_k", _DOUBLE_P), ("WL", _DOUBLE_P), ("V_g", _DOUBLE_P),
                 ("g", _DOUBLE_P), ("lam", _DOUBLE_P), ("factors", _DOUBLE_P),
-                ("last_tau", _DOUBLE_P)]
+                ("last_tau", _DOUBLE_P), ("work", _DOUBLE_P), ("cwork", _DOUBLE_P)]
 
 
 class EulerPlan(ctypes.Structure):
@@ -101,7 +106,36 @@ class EulerPlan(ctypes.Structure):
                 ("p", ctypes.c_double), ("guard", ctypes.c_double),
                 ("A", _DOUBLE_P), ("B", _DOUBLE_P), ("C", _DOUBLE_P), ("L_inj", _DOUBLE_P),
                 ("L_tilde", _DOUBLE_P), ("V_d", _DOUBLE_P), ("inverse_L", _DOUBLE_P),
-                ("g", _DOUBLE_P), ("work", _DOUBLE_P)]
+                ("g", _DOUBLE_P), ("work", _DOUBLE_P), ("cwork", _DOUBLE_P)]
+
+
+def luenberger_work_size(n: int, k: int) -> int:
+    """Scratch doubles of the Luenberger split step's ``LinearPlan`` (``FHOBS_LUENBERGER_WORK``
+    of kernel.h; n model states, k outputs)."""
+    return k
+
+
+def kalman_work_size(n: int, k: int) -> int:
+    """Scratch doubles of the Kalman filter's ``LinearPlan`` (``FHOBS_KALMAN_WORK``)."""
+    return 2 * n
+
+
+def filter_work_size(n: int, k: int) -> tuple[int, int]:
+    """Scratch doubles and complex numbers of a ``FilterPlan`` (``FHOBS_FILTER_WORK``,
+    ``FHOBS_FILTER_CWORK``).
+
+    Examples
+    --------
+    >>> filter_work_size(5, 2)
+    (15, 17)
+    """
+    return 2 * n + 2 * k + 1, n + 6 * k
+
+
+def euler_work_size(n: int, k: int) -> tuple[int, int]:
+    """Scratch doubles and complex numbers of an ``EulerPlan`` (``FHOBS_EULER_WORK``,
+    ``FHOBS_EULER_CWORK``): two substep states of n + k + 1 and the rates."""
+    return 7 * n + 4 * k + 2, n
 
 
 class PrescribedPlan(ctypes.Structure):
@@ -150,26 +184,30 @@ def _load() -> ctypes.PyDLL | None:
         return None
     if SHIPPED.exists():
         return _open(SHIPPED)
-    return cached_library(SOURCE, "fhobs_kernel", COMPILE_FLAGS, ("-lm",), _open)
+    return cached_library(SOURCE, "fhobs_kernel", LIBRARY_FLAGS, ("-lm",), _open,
+                          depends=(HEADER,))
 
 
 def cached_library(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[str, ...],
-                   open_library: Callable[[Path], T | None]) -> T | None:
+                   open_library: Callable[[Path], T | None],
+                   depends: tuple[Path, ...] = ()) -> T | None:
     """``open_library`` of ``source`` compiled with ``cc`` (or ``gcc``) into :func:`cache_dir`,
-    under a name that hashes the source, the flags, the compiler and the machine; into a
+    under a name that hashes the source (and the headers ``depends``), the flags, the compiler
+    and the machine; into a
     private temporary folder when the cache cannot be written. None without a compiler or when
     the compilation fails.
 
     Examples
     --------
-    >>> lib = cached_library(SOURCE, "fhobs_kernel", COMPILE_FLAGS, ("-lm",), _open)
+    >>> lib = cached_library(SOURCE, "fhobs_kernel", LIBRARY_FLAGS, ("-lm",), _open)
     >>> lib is None or hasattr(lib, "fhobs_plant_step")
     True
     """
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None or not source.exists():
         return None
-    tag = hashlib.sha256(source.read_bytes() + " ".join(flags).encode()
+    tag = hashlib.sha256(b"".join(path.read_bytes() for path in (source, *depends))
+                         + " ".join(flags).encode()
                          + compiler.encode() + platform.machine().encode()).hexdigest()
     name = f"{prefix}_{tag[:16]}.so"
     try:
@@ -221,13 +259,14 @@ def compile_library(target: Path, compiler: str) -> None:
     --------
     >>> compile_library(Path("build/kernel_linux64.so"), "cc")  # doctest: +SKIP
     """
-    compile_source(SOURCE, target, compiler, COMPILE_FLAGS, ("-lm",))
+    compile_source(SOURCE, target, compiler, LIBRARY_FLAGS, ("-lm",))
 
 
-def compile_source(source: Path, target: Path, compiler: str, flags: tuple[str, ...],
-                   libs: tuple[str, ...] = ()) -> None:
-    """Compile a C ``source`` into the shared library ``target`` (written under another name,
-    then renamed, so that concurrent processes never load a partial file).
+def compile_source(source: Path | tuple[Path, ...], target: Path, compiler: str,
+                   flags: tuple[str, ...], libs: tuple[str, ...] = ()) -> None:
+    """Compile a C ``source`` (or several, linked together) into the shared library ``target``
+    (written under another name, then renamed, so that concurrent processes never load a
+    partial file).
 
     Raises
     ------
@@ -241,7 +280,8 @@ def compile_source(source: Path, target: Path, compiler: str, flags: tuple[str, 
     fd, partial = tempfile.mkstemp(suffix=".so", dir=target.parent)
     os.close(fd)
     try:
-        subprocess.run([compiler, *flags, "-o", partial, str(source), *libs],
+        sources = (source,) if isinstance(source, Path) else source
+        subprocess.run([compiler, *flags, "-o", partial, *map(str, sources), *libs],
                        check=True, capture_output=True, timeout=120)
         os.replace(partial, target)
     finally:

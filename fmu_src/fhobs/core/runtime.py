@@ -264,7 +264,8 @@ class _Observer:
         """Register the kernel's plan of the euler scheme for dt (n_sub substeps)."""
         arrays = {name: np.ascontiguousarray(matrix, dtype=float) for name, matrix in
                   (("A", self._A), ("B", self._B), ("C", self._C), ("L_inj", self._L_inj))}
-        arrays["work"] = np.zeros(2 * (self._z.size + self._aux.size))
+        work, cwork = compiled.euler_work_size(self._z.size, self._k)
+        arrays["work"], arrays["cwork"] = np.zeros(work), np.zeros(cwork, dtype=complex)
         gain, values = self._euler_gain_data()
         arrays.update(gain)
         plan = compiled.EulerPlan(n=self._z.size, k=self._k, m=self._m, n_sub=n_sub,
@@ -582,6 +583,8 @@ class FilteringObserver(_Observer):
                   **{name: data[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")},
                   "factors": np.zeros(4 * self._k, dtype=complex),
                   "last_tau": np.array([math.nan])}
+        work, cwork = compiled.filter_work_size(self._z.size, self._k)
+        arrays["work"], arrays["cwork"] = np.zeros(work), np.zeros(cwork, dtype=complex)
         plan = compiled.FilterPlan(
             n=self._z.size, k=self._k, m=self._m, real_lam=int(data["real_lam"]), nu=self._nu,
             gamma=float(self.gains.gamma), p=self._p, dt=dt, floor_level=floor,
@@ -843,6 +846,8 @@ class LuenbergerObserver(_Observer):
         """The kernel's plan for dt: ``z+ = M (z, u, C z - y)``."""
         C = np.ascontiguousarray(self._C, dtype=float)
         M = np.ascontiguousarray(self._prediction(dt).M)
+        work = np.zeros(compiled.luenberger_work_size(self._z.size, self._k))
         plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
-                                   C=compiled.pointer(C), M=compiled.pointer(M))
-        self._stepper.add_plan(dt, plan, C, M)
+                                   C=compiled.pointer(C), M=compiled.pointer(M),
+                                   work=compiled.pointer(work))
+        self._stepper.add_plan(dt, plan, C, M, work)

@@ -6,7 +6,7 @@ Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.f
 and start values, taken from the pythonfmu FMU built for the same design and options (its
 start values read from an instance, so they are exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
 (``kernel.c``) with the step planner (``planner.c``), an FMI layer (``fmi2_layer.c``,
-``models.c``) and the generated ``model_data.c``: the design and what the planner needs that
+``models.c``) and the generated ``model_data.h`` and ``model_data.c``: the design and what the planner needs that
 does not depend on the step size (the injection flow's and the dilation's eigen data, the tau
 grid, the gain level's round-off floor; :mod:`fhobs.native.planner`). Every positive finite
 communication step is taken: the plan of a step size (ZOH matrices, the filtering observer's
@@ -14,8 +14,10 @@ gain-level floor and ceiling) is computed in C at its first use by the numpy run
 algorithms, to 1e-12 relative of the numpy runtime's plan, and kept per instance for the 8
 step sizes used last. A step size the filtering observer cannot follow (no gain level
 contracts) is refused with fmi2Error, as the numpy runtime refuses it. ``sources/`` holds
-every C file and the FMI headers, listed in the modelDescription's ``<SourceFiles>``, so an
-importer can compile the FMU for another platform.
+every C file and the FMI headers; each ``.c`` file is a translation unit of its own (C99, no
+variable-length arrays), all listed in the modelDescription's ``<SourceFiles>``, so an
+importer can compile the FMU for another platform (``cc -O2 -shared -fPIC -ffp-contract=off
+-Isources -o <id>.so sources/*.c -lm``). The library exports the fmi2 functions only.
 
 Design parameters (the plant matrices, the gains, nu, gamma, rho, Ts...) are compiled in: they
 keep their names and value references, and writing a value bit-equal to the built one is
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import re
 import shutil
 import subprocess
 import sys
@@ -75,15 +78,21 @@ other parameter is design data, compiled in."""
 LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", "z0", "psi0",
           "xi0", "x0", "T0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
 """Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
-C_SOURCES = ("fhobs_fmu.c", "fhobs_native.h", "kernel.c", "planner.c", "gain_levels.c",
+C_SOURCES = ("fhobs_native.h", "planner.h", "planner.c", "gain_levels.c", "model.h",
              "models.c", "fmi2_layer.c")
-"""Sources of every native FMU (with the generated model_data.c; the plant adds noise.c)."""
+"""Sources of every native FMU from this folder (with the kernel's, :data:`KERNEL_SOURCES`,
+and the generated model_data.h, model_data.c and fhobs_call_rules.h; the plant adds
+:data:`NOISE_SOURCES`)."""
+KERNEL_SOURCES = (kernel.SOURCE, kernel.HEADER)
+"""The step kernel (``core/kernel.c``, ``core/kernel.h``), copied into every native FMU."""
 NOISE_SOURCES = ("noise.c", "noise.h")
 """The plant's measurement noise (numpy's generator in C)."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-SCRATCH_FIELDS = {"factors", "last_tau", "work"}
+SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
-COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=gnu11")
+COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=c99")
+"""``-fvisibility=hidden`` only confirms what the sources say (kernel.h's FHOBS_HIDDEN): the
+library exports the fmi2 functions alone either way."""
 
 
 def build_native_fmus(
@@ -279,6 +288,7 @@ class _Arrays:
 
     def __init__(self) -> None:
         self.lines: list[str] = []
+        self.types: dict[str, tuple[str, int]] = {}
         self._names: dict[tuple[str, bytes], str] = {}
 
     def name(self, array: np.ndarray) -> str:
@@ -293,7 +303,9 @@ class _Arrays:
             else:
                 items = [c_number(v) for v in array.ravel()] or ["0.0"]
                 ctype = "double"
-            self.lines.append(f"static const {ctype} {name}[] = {{{', '.join(items)}}};")
+            self.lines.append(f"static const {ctype} {name}[{max(array.size, 1)}] = "
+                              f"{{{', '.join(items)}}};")
+            self.types[name] = (ctype, max(array.size, 1))
         return self._names[key]
 
 
@@ -313,9 +325,11 @@ def _plan_initializer(plan: dict[str, Any], arrays: _Arrays) -> str:
 
 
 def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any],
-               sizes: dict[str, int]) -> str:
-    """The text of model_data.c (without its identity line): sizes, value references, the
-    variable table and the design data of the kind (:func:`_native_data`)."""
+               sizes: dict[str, int]) -> tuple[str, str]:
+    """The texts of model_data.h and model_data.c (without their comments and identity): sizes,
+    value references, the variable table and the design data of the kind
+    (:func:`_native_data`). The header has the ``#define``s and declares the named data, which
+    the source defines (hidden: not exported by the FMU's library)."""
     arrays = _Arrays()
     first_vr = {}
     for var in variables:
@@ -360,7 +374,30 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
             if data["euler"] is not None:
                 body.append(f"static const EulerPlan EULER_PLAN = "
                             f"{_plan_initializer(data['euler'], arrays)};")
-    return "\n".join([*lines, "", *table, "", *arrays.lines, "", *body, ""])
+    return _split_data([*lines, "", *table, "", *arrays.lines, "", *body], arrays.types)
+
+
+def _split_data(lines: list[str], types: dict[str, tuple[str, int]]) -> tuple[str, str]:
+    """model_data.h and model_data.c of the generated lines: ``#define``s to the header, named
+    constants (``static const T NAME = ...;``) defined in the source and declared in the
+    header, a ``#define NAME DATA_i`` of an array as a named pointer to it."""
+    header, source = [], []
+    for line in lines:
+        array = re.fullmatch(r"#define (\w+) (DATA_\d+)", line)
+        named = re.match(r"static const (\w+) (\w+)(\[\w*\])? = ", line)
+        if array:
+            ctype = types[array.group(2)][0]
+            header.append(f"FHOBS_HIDDEN extern const {ctype} *const {array.group(1)};")
+            source.append(f"const {ctype} *const {array.group(1)} = {array.group(2)};")
+        elif line.startswith("#define"):
+            header.append(line)
+        elif named and not named.group(2).startswith("DATA_"):
+            header.append(f"FHOBS_HIDDEN extern const {named.group(1)} {named.group(2)}"
+                          f"{named.group(3) or ''};")
+            source.append(line[len("static "):])
+        else:
+            source.append(line)
+    return "\n".join(header) + "\n", "\n".join(source).strip("\n") + "\n"
 
 
 # -- one FMU ------------------------------------------------------------------------------------
@@ -400,22 +437,29 @@ def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
     """Generate the sources of one native FMU, compile them, write its modelDescription and
     documentation and zip it into ``dest``."""
     variables = _variables(kind, interface)
-    data = _model_data(kind, variables, native, sizes)
-    sources = {name: (HERE / name).read_text() for name in C_SOURCES if name != "kernel.c"}
-    sources["kernel.c"] = kernel.SOURCE.read_text()
+    header, data = _model_data(kind, variables, native, sizes)
+    sources = {name: (HERE / name).read_text() for name in C_SOURCES}
+    sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
     sources[call_rules.HEADER] = call_rules.c_header()
     if kind == "plant":
         sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
-    digest = hashlib.sha256(data.encode())
+    digest = hashlib.sha256(header.encode() + data.encode())
     for name in sorted(sources):
         digest.update(name.encode() + sources[name].encode())
     guid = str(uuid.UUID(bytes=digest.digest()[:16]))
     identifier = f"fhobs_{kind}_{digest.hexdigest()[:12]}"
+    sources["model_data.h"] = (
+        f"/* Generated by fhobs.native.build for a {kind} FMU: its sizes, value references and\n"
+        " * the declarations of its design data (model_data.c). Do not edit (rebuild with\n"
+        " * build_fmu.py --native). */\n"
+        "#ifndef FHOBS_MODEL_DATA_H\n#define FHOBS_MODEL_DATA_H\n\n"
+        '#include "fhobs_native.h"\n#include "kernel.h"\n#include "planner.h"\n\n'
+        f'#define FHOBS_IDENTITY "{guid}"\n' + header + "\n#endif\n")
     sources["model_data.c"] = (
         f"/* Generated by fhobs.native.build for a {kind} FMU: its design data and what its\n"
-        " * step planner needs, from the numpy runtime, doubles in hexadecimal (exact). Included"
-        "\n * by fhobs_fmu.c; do not edit (rebuild with build_fmu.py --native). */\n"
-        f'#define FHOBS_IDENTITY "{guid}"\n' + data)
+        " * step planner needs, from the numpy runtime, doubles in hexadecimal (exact). Do not\n"
+        " * edit (rebuild with build_fmu.py --native). */\n"
+        '#include <math.h>\n\n#include "model_data.h"\n\n' + data)
     root = stage / "fmu"
     (root / "sources").mkdir(parents=True)
     for name, text in sources.items():
@@ -423,8 +467,8 @@ def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
     for name in FMI_HEADERS:
         shutil.copy(_fmi_headers() / name, root / "sources" / name)
     binary = root / "binaries" / "linux64" / f"{identifier}.so"
-    compile_binary(root / "sources", binary, compiler)
-    compiled_files = ["fhobs_fmu.c"] + (["noise.c"] if kind == "plant" else [])
+    compiled_files = sorted(name for name in sources if name.endswith(".c"))
+    compile_binary(root / "sources", binary, compiler, compiled_files)
     tree = _model_description(interface["xml"], variables, identifier, guid, compiled_files)
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
@@ -444,9 +488,10 @@ def _fmi_headers() -> Path:
     return Path(fmpy.__file__).parent / "c-code"
 
 
-def compile_binary(sources: Path, target: Path, compiler: str) -> None:
-    """Compile the sources of a native FMU (``fhobs_fmu.c``, and ``noise.c`` when present)
-    into the shared library ``target``.
+def compile_binary(sources: Path, target: Path, compiler: str,
+                   files: Iterable[str] = ("fhobs_fmu.c",)) -> None:
+    """Compile the C files ``files`` of the folder ``sources`` (translation units linked
+    together) into the shared library ``target``.
 
     Raises
     ------
@@ -455,11 +500,11 @@ def compile_binary(sources: Path, target: Path, compiler: str) -> None:
 
     Examples
     --------
-    >>> compile_binary(Path("sources"), Path("binaries/linux64/id.so"), "cc")  # doctest: +SKIP
+    >>> compile_binary(Path("sources"), Path("binaries/linux64/id.so"), "cc",
+    ...                ["kernel.c", "models.c"])  # doctest: +SKIP
     """
     target.parent.mkdir(parents=True, exist_ok=True)
-    files = [str(sources / name) for name in ("fhobs_fmu.c", "noise.c")
-             if (sources / name).exists()]
+    files = [str(sources / name) for name in files]
     command = [compiler, *COMPILE_FLAGS, f"-I{sources}", "-o", str(target), *files, "-lm"]
     result = subprocess.run(command, capture_output=True, text=True, check=False, timeout=300)
     if result.returncode != 0:
@@ -539,8 +584,9 @@ with fmi2Error: rebuild with <code>python build_fmu.py SPEC --native</code> to c
 again at run time. Caller mistakes (unknown value references, wrong types, non-finite or
 too large inputs, calls out of sequence, foreign FMU states) are answered with fmi2Error and a
 log message, the instance unchanged.</p>
-<p>sources/ holds every C file and the FMI headers; the modelDescription lists the files to
-compile (SourceFiles), e.g. <code>cc -O2 -shared -fPIC -ffp-contract=off -Isources -o
-binaries/linux64/&lt;modelIdentifier&gt;.so sources/fhobs_fmu.c [sources/noise.c] -lm</code>.</p>
+<p>sources/ holds every C file (C99, each a translation unit of its own) and the FMI
+headers; the modelDescription lists the files to compile (SourceFiles), e.g. <code>cc -O2
+-shared -fPIC -ffp-contract=off -Isources -o binaries/linux64/&lt;modelIdentifier&gt;.so
+sources/*.c -lm</code>.</p>
 </body></html>
 """

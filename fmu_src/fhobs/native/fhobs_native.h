@@ -1,13 +1,17 @@
 /*
- * Types shared by the generated data (model_data.c), the model steps (models.c) and the FMI
- * layer (fmi2_layer.c) of a native fhobs FMU. The FMU is compiled as one translation unit,
- * fhobs_fmu.c, plus noise.c (with noise.h) for the plant.
+ * Types shared by the generated data (model_data.h, model_data.c), the model steps (models.c)
+ * and the FMI layer (fmi2_layer.c) of a native fhobs FMU. Each .c file of the FMU's sources
+ * is a translation unit of its own (kernel.c, planner.c, gain_levels.c, model_data.c,
+ * models.c, fmi2_layer.c, and noise.c for the plant), linked into one library that exports
+ * only the fmi2 functions.
  */
 #ifndef FHOBS_NATIVE_H
 #define FHOBS_NATIVE_H
 
 #include <stddef.h>
 #include <stdint.h>
+
+#include "kernel.h"
 
 /* FMU kinds (FHOBS_KIND of model_data.c) */
 #define FHOBS_KIND_OBSERVER 1

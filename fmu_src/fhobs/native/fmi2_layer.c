@@ -17,15 +17,19 @@
  *   - an FMU state (in memory or serialized) carries the FMU's identity (its GUID) and is
  *     checked completely before any of it is used.
  * Every instance owns all its data (no globals but constant ones): many instances of one or
- * several native FMUs run in one process.
- *
- * Part of the translation unit fhobs_fmu.c (after models.c).
+ * several native FMUs run in one process. The model (models.c, the generated model_data.c)
+ * is reached through model.h; the fmi2 functions are the only symbols the library exports.
  */
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fhobs_call_rules.h"
 #include "fmi2Functions.h"
+#include "kernel.h"
+#include "model.h"
 
 #define INSTANCE_MAGIC 0x6668696eu /* "fhin" */
 #define SNAPSHOT_MAGIC 0x66687374u /* "fhst" */
@@ -62,7 +66,7 @@ typedef struct {
     double start_time; /* fmi2SetupExperiment's */
     double time;       /* the end of the last step (the start time before one); NaN after an
                           FMU state was set: the next doStep's time is taken as it comes */
-    Work work;
+    Work *work;        /* the model's plans and scratch (model_work_size() bytes) */
 } Instance;
 
 typedef struct {
@@ -151,7 +155,7 @@ static int refused(Instance *c, int call)
 
 static void publish(Instance *c)
 {
-    model_outputs(&c->work, c->values.real, c->values.integer, c->values.state);
+    model_outputs(c->work, c->values.real, c->values.integer, c->values.state);
 }
 
 /* The start values, the initial state of the start parameters and its outputs. */
@@ -177,13 +181,13 @@ static int parameters_problem(const Values *v, char *msg, size_t len)
         if (VARIABLES[i].role == FHOBS_SETTABLE && VARIABLES[i].type == FHOBS_REAL &&
             !isfinite(v->real[i])) {
             snprintf(msg, len, "parameter %s = %s is not finite", VARIABLES[i].name,
-                     number(v->real[i], a, sizeof a));
+                     fhobs_number(v->real[i], a, sizeof a));
             return 1;
         }
     }
     if (!(v->real[VR_INPUT_BOUND] > 0.0)) {
         snprintf(msg, len, "parameter input_bound = %s must be > 0",
-                 number(v->real[VR_INPUT_BOUND], a, sizeof a));
+                 fhobs_number(v->real[VR_INPUT_BOUND], a, sizeof a));
         return 1;
     }
     return model_parameters_problem(v->real, v->integer, msg, len);
@@ -206,7 +210,7 @@ static int values_problem(const Values *v, char *msg, size_t len)
             continue;
         if (var->role == FHOBS_COMPILED && memcmp(&v->real[i], &var->start, sizeof(double))) {
             snprintf(msg, len, "its parameter %s = %s is not the value compiled into this FMU",
-                     var->name, number(v->real[i], a, sizeof a));
+                     var->name, fhobs_number(v->real[i], a, sizeof a));
             return 1;
         }
         if (var->role == FHOBS_OUTPUT && !isfinite(v->real[i])) {
@@ -270,8 +274,15 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         return NULL;
     }
     memcpy(c->name, probe.name, length);
+    c->work = allocate(functions, model_work_size());
+    if (!c->work) {
+        release(functions, c->name);
+        release(functions, c);
+        return NULL;
+    }
+    memset(c->work, 0, model_work_size());
     c->magic = INSTANCE_MAGIC;
-    work_init(&c->work);
+    work_init(c->work);
     start_values(c);
     return c;
 }
@@ -283,6 +294,7 @@ void fmi2FreeInstance(fmi2Component component)
         return;
     fmi2CallbackFunctions callbacks = c->callbacks;
     c->magic = 0;
+    release(&callbacks, c->work);
     release(&callbacks, c->name);
     release(&callbacks, c);
 }
@@ -309,7 +321,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean toleranceDef
     CHECK_CALL(component, FHOBS_CALL_SETUPEXPERIMENT);
     if (!isfinite(startTime)) {
         snprintf(msg, sizeof msg, "fmi2SetupExperiment: startTime %s is not finite",
-                 number(startTime, a, sizeof a));
+                 fhobs_number(startTime, a, sizeof a));
         return fail(c, msg);
     }
     c->start_time = startTime;
@@ -352,7 +364,7 @@ fmi2Status fmi2Reset(fmi2Component component)
 {
     CHECK_CALL(component, FHOBS_CALL_RESET);
     c->start_time = c->time = 0.0;
-    work_init(&c->work);
+    work_init(c->work);
     start_values(c);
     return ok(c);
 }
@@ -405,7 +417,7 @@ static int access_problem(const Instance *c, const char *function, const fmi2Val
         if (var->role == FHOBS_COMPILED && memcmp(&values[i], &var->start, sizeof(double))) {
             snprintf(msg, len, "%s: parameter %s = %s is compiled into the native FMU (its value "
                      "is %s); rebuild with build_fmu.py to change it", function, var->name,
-                     number(values[i], a, sizeof a), number(var->start, b, sizeof b));
+                     fhobs_number(values[i], a, sizeof a), fhobs_number(var->start, b, sizeof b));
             return 1;
         }
     }
@@ -520,12 +532,12 @@ static int input_problem(const Instance *c, char *msg, size_t len)
         double value = c->values.real[i];
         if (!isfinite(value)) {
             snprintf(msg, len, "input %s = %s is not finite", VARIABLES[i].name,
-                     number(value, a, sizeof a));
+                     fhobs_number(value, a, sizeof a));
             return 1;
         }
         if (fabs(value) > bound) {
             snprintf(msg, len, "input %s = %s exceeds input_bound = %s", VARIABLES[i].name,
-                     number(value, a, sizeof a), number(bound, b, sizeof b));
+                     fhobs_number(value, a, sizeof a), fhobs_number(bound, b, sizeof b));
             return 1;
         }
     }
@@ -538,13 +550,13 @@ static int time_problem(const Instance *c, double t, double dt, char *msg, size_
 {
     char a[32], b[32];
     if (!isfinite(t)) {
-        snprintf(msg, len, "currentCommunicationPoint %s is not finite", number(t, a, sizeof a));
+        snprintf(msg, len, "currentCommunicationPoint %s is not finite", fhobs_number(t, a, sizeof a));
         return 1;
     }
     double scale = fabs(c->time) > dt ? fabs(c->time) : dt;
     if (isnan(c->time) || fabs(t - c->time) <= FHOBS_TIME_TOLERANCE * scale)
         return 0;
-    snprintf(msg, len, FHOBS_TIME_MESSAGE, number(t, a, sizeof a), number(c->time, b, sizeof b));
+    snprintf(msg, len, FHOBS_TIME_MESSAGE, fhobs_number(t, a, sizeof a), fhobs_number(c->time, b, sizeof b));
     return 1;
 }
 
@@ -562,16 +574,16 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     if (!(isfinite(dt) && dt > 0.0)) {
         char a[32];
         snprintf(reason, sizeof reason, "communication step size %s is not a positive finite "
-                 "number", number(dt, a, sizeof a));
+                 "number", fhobs_number(dt, a, sizeof a));
         problem = 1;
     }
     problem = problem || time_problem(c, currentCommunicationPoint, dt, reason, sizeof reason);
     problem = problem || input_problem(c, reason, sizeof reason) ||
-              model_step(&c->work, v->real, v->integer, v->state, next, dt, reason,
+              model_step(c->work, v->real, v->integer, v->state, next, dt, reason,
                          sizeof reason);
     if (problem) {
         snprintf(msg, sizeof msg, "doStep at t = %s rejected: %s",
-                 number(currentCommunicationPoint, t, sizeof t), reason);
+                 fhobs_number(currentCommunicationPoint, t, sizeof t), reason);
         return fail(c, msg);
     }
     memcpy(v->state, next, sizeof next);

@@ -7,11 +7,13 @@
  * QR sweeps; it only decides (the argmin over the tau grid, the contraction limit), so it needs the accuracy of
  * numpy's eigenvalues, not their bits.
  *
- * Part of the translation unit fhobs_fmu.c of the observer FMUs (after planner.c and
- * model_data.c); also built with planner_api.c into a library for the tests.
+ * Compiled into every native FMU (planner.h); also built with planner_api.c into a library
+ * for the tests.
  */
 #include <float.h>
 #include <math.h>
+
+#include "planner.h"
 
 #define FHOBS_QR_SWEEPS 30       /* times max(10, n): QR sweeps before the radius is unknown */
 #define FHOBS_BALANCE_SWEEPS 100 /* fhobs.core.linalg.BALANCE_SWEEPS */
@@ -314,7 +316,7 @@ static double dilated_radius(const void *plan, const LevelScan *scan, double lev
         for (int i = 0; i < N; i++)
             psi[i] = S[(size_t)i * N + j];
         matvec(p->C, z, k, n, v);
-        correct(p, psi, 0.0, v, log_s, psi_new, psi_new + k, dz);
+        fhobs_correct(p, psi, 0.0, v, log_s, psi_new, psi_new + k, dz);
         matvec3(p->M, n, z, n, u, p->m, v, k, z_new);
         for (int i = 0; i < n; i++) {
             const double *a = p->F + (size_t)i * n;
@@ -336,16 +338,17 @@ static double dilated_radius(const void *plan, const LevelScan *scan, double lev
  * floor and ceiling (plan's factors and last_tau: the caller's cache, reset here). 0, or 1
  * when the observer cannot follow dt (*best: the smallest spectral radius). work:
  * FHOBS_PLAN_WORK_SIZE. */
-static int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
-                       const double *top, double dt, double *M, double *F, double *best,
-                       double *work)
+int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+                const double *top, double dt, double *M, double *F, double *best, double *work)
 {
-    cplx *factors = plan->factors;
-    double *last_tau = plan->last_tau;
+    cplx *factors = plan->factors, *cscratch = plan->cwork;
+    double *last_tau = plan->last_tau, *scratch = plan->work;
     const int n = base->n, size = base->n + base->m + base->k;
     *plan = *base;
     plan->factors = factors;
     plan->last_tau = last_tau;
+    plan->work = scratch;
+    plan->cwork = cscratch;
     *last_tau = NAN;
     plan->dt = dt;
     zoh_rows(top, n, size, dt, M, work);
@@ -379,7 +382,7 @@ static double prescribed_radius(const void *plan, const LevelScan *scan, double 
         for (int i = 0; i < n; i++)
             z[i] = S[(size_t)i * n + j];
         matvec(p->C, z, k, n, v);
-        prescribed_correct(p, v, log_x, dz);
+        fhobs_prescribed_correct(p, v, log_x, dz);
         matvec3(p->M, n, z, n, u, p->m, v, k, z_new);
         for (int i = 0; i < n; i++) {
             const double *a = p->F + (size_t)i * n;
@@ -395,9 +398,9 @@ static double prescribed_radius(const void *plan, const LevelScan *scan, double 
 /* The prescribed-time observer's plan of the step size dt, as plan_filter's (plan's factors,
  * last_tau and work: the caller's, the cache reset here). 0, or 1 when the observer cannot
  * follow dt (*best: the smallest spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
-static int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
-                           const LevelScan *scan, const double *top, double dt, double *M,
-                           double *F, double *best, double *work)
+int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base, const LevelScan *scan,
+                    const double *top, double dt, double *M, double *F, double *best,
+                    double *work)
 {
     cplx *factors = plan->factors;
     double *last_tau = plan->last_tau, *scratch = plan->work;

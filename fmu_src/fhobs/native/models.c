@@ -5,15 +5,18 @@
  * plan of a communication step size (ZOH matrices, the filtering observer's gain-level floor
  * and ceiling) is computed by planner.c at the first step of that size from the design data
  * compiled in (model_data.c) and kept per instance for the FHOBS_PLAN_SLOTS step sizes used
- * last, so nothing here depends on numpy.
- *
- * Part of the translation unit fhobs_fmu.c (after kernel.c, planner.c and model_data.c).
+ * last, so nothing here depends on numpy. The FMI layer calls it through model.h; its Work is
+ * fixed in size by the generated model_data.h (no variable-length arrays).
  */
 #include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "kernel.h"
+#include "model.h"
+#include "planner.h"
 
 #define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.runtime.MAX_SUBSTEPS */
 #define FHOBS_MAX_CYCLES 1000000   /* fhobs.kalman_filter.MAX_CYCLES */
@@ -23,7 +26,7 @@
 
 /* A number as the pythonfmu FMUs' messages show it (Python's repr, for most numbers): the
  * shortest %g that reads back as the same double. */
-static const char *number(double x, char *buf, size_t len)
+const char *fhobs_number(double x, char *buf, size_t len)
 {
     for (int digits = 1; digits <= 17; digits++) {
         snprintf(buf, len, "%.*g", digits, x);
@@ -130,7 +133,7 @@ typedef LinearPlan SplitPlan;
 #define SPLIT_STEP fhobs_luenberger_step
 #endif
 
-typedef struct {
+struct Work {
     PlanKeys keys;
     SplitPlan split[FHOBS_PLAN_SLOTS];
     double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
@@ -138,20 +141,26 @@ typedef struct {
     double F[FHOBS_PLAN_SLOTS][FHOBS_N_MODEL * FHOBS_N_MODEL];
     cplx factors[FHOBS_PLAN_SLOTS][4 * FHOBS_K]; /* spectral-factor caches of the split plans */
     double last_tau[FHOBS_PLAN_SLOTS];
+    double split_work[FHOBS_FILTER_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* the split plans' scratch */
+    cplx split_cwork[FHOBS_FILTER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
+#else
+    double split_work[FHOBS_LUENBERGER_WORK(FHOBS_N_MODEL, FHOBS_K)];
 #endif
     double scratch[FHOBS_PLAN_WORK];
 #if FHOBS_HAS_EULER
     EulerPlan euler;
-    double euler_work[2 * FHOBS_STATE_SIZE];
+    double euler_work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
+    cplx euler_cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
 #endif
-} Work;
+};
 
-static void work_init(Work *w)
+void work_init(Work *w)
 {
     plan_keys_init(&w->keys);
 #if FHOBS_HAS_EULER
     w->euler = EULER_PLAN;
     w->euler.work = w->euler_work;
+    w->euler.cwork = w->euler_cwork;
 #endif
 }
 
@@ -169,33 +178,36 @@ static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
     double best;
     plan->factors = w->factors[i];
     plan->last_tau = &w->last_tau[i];
+    plan->work = w->split_work;
+    plan->cwork = w->split_cwork;
     if (plan_filter(plan, &FILTER_BASE, &LEVEL_SCAN, ZOH_TOP, dt, w->M[i], w->F[i], &best,
                     w->scratch)) {
         w->keys.dt[i] = NAN;
         snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
                  "spectral radius %.6g); use a smaller communication step; state left unchanged",
-                 number(dt, a, sizeof a), best);
+                 fhobs_number(dt, a, sizeof a), best);
         return NULL;
     }
 #else
     (void)msg;
     (void)len;
     *plan = LINEAR_BASE;
+    plan->work = w->split_work;
     zoh_rows(ZOH_TOP, FHOBS_N_MODEL, FHOBS_ZOH_SIZE, dt, w->M[i], w->scratch);
     plan->M = w->M[i];
 #endif
     return plan;
 }
 
-static int model_parameters_problem(const double *real, const int *integer, char *msg,
-                                    size_t len)
+int model_parameters_problem(const double *real, const int *integer, char *msg,
+                             size_t len)
 {
     char a[32];
     double h = real[VR_H];
     int scheme = integer[VR_SCHEME];
     if (!(isfinite(h) && h > 0.0)) {
         snprintf(msg, len, "internal step h = %s is not a positive finite number",
-                 number(h, a, sizeof a));
+                 fhobs_number(h, a, sizeof a));
         return 1;
     }
     if (scheme < 0 || scheme > 1) {
@@ -211,7 +223,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
     return 0;
 }
 
-static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     if (initial_z(real, state, msg, len))
         return 1;
@@ -223,8 +235,8 @@ static int model_initial_state(const double *real, double *state, char *msg, siz
     return 0;
 }
 
-static int model_step(Work *w, const double *real, const int *integer, const double *src,
-                      double *dst, double dt, char *msg, size_t len)
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
 {
     char a[32], b[32];
     double inputs[FHOBS_K + FHOBS_M];
@@ -234,8 +246,8 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
         n_sub = 1.0;
     if (n_sub > FHOBS_MAX_SUBSTEPS) {
         snprintf(msg, len, "the step size %s is more than %d internal steps of h = %s; state "
-                 "left unchanged", number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
-                 number(h, b, sizeof b));
+                 "left unchanged", fhobs_number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
+                 fhobs_number(h, b, sizeof b));
         return 1;
     }
     read_vector(real, VR_Y, FHOBS_K, inputs);
@@ -268,7 +280,7 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
     return 0;
 }
 
-static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     (void)w;
     (void)integer;
@@ -290,7 +302,7 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 /* Plant: ZOH plans per step size, explicit Euler from A, B, E; noise from (seed, step)     */
 #include "noise.h"
 
-typedef struct {
+struct Work {
     double noise[FHOBS_NOISE_BLOCK * FHOBS_K]; /* draws of the block `block` of `seed` */
     long long block;                           /* -1: none drawn */
     int seed;
@@ -301,9 +313,9 @@ typedef struct {
     double Gamma_E[FHOBS_PLAN_SLOTS][FHOBS_N * FHOBS_R + 1];
     double rows[FHOBS_ZOH_ROWS]; /* [Phi, Gamma_B, Gamma_E] of the plan being made */
     double scratch[FHOBS_PLAN_WORK];
-} Work;
+};
 
-static void work_init(Work *w)
+void work_init(Work *w)
 {
     w->block = -1;
     w->seed = -1;
@@ -337,8 +349,8 @@ static const PlantPlan *zoh_plan(Work *w, double dt)
     return plan;
 }
 
-static int model_parameters_problem(const double *real, const int *integer, char *msg,
-                                    size_t len)
+int model_parameters_problem(const double *real, const int *integer, char *msg,
+                             size_t len)
 {
     char a[32];
     double amplitude = real[VR_NOISE_AMPLITUDE];
@@ -349,7 +361,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
     }
     if (!(amplitude >= 0.0 && isfinite(amplitude))) {
         snprintf(msg, len, "noise_amplitude must be finite and >= 0, got %s",
-                 number(amplitude, a, sizeof a));
+                 fhobs_number(amplitude, a, sizeof a));
         return 1;
     }
     if (integer[VR_NOISE_SEED] < 0) {
@@ -359,7 +371,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
     return 0;
 }
 
-static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     if (read_finite(real, VR_X0, FHOBS_N, "x0", state, msg, len))
         return 1;
@@ -367,8 +379,8 @@ static int model_initial_state(const double *real, double *state, char *msg, siz
     return 0;
 }
 
-static int model_step(Work *w, const double *real, const int *integer, const double *src,
-                      double *dst, double dt, char *msg, size_t len)
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
 {
     double u[FHOBS_M + FHOBS_R + 1];
     read_vector(real, VR_U, FHOBS_M, u);
@@ -398,7 +410,7 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
 
 /* y = C x + eta_k, eta_k = noise_amplitude * draws[k mod NOISE_BLOCK] of block k / NOISE_BLOCK
  * (fhobs.plant.uniform_noise); x */
-static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     double amplitude = real[VR_NOISE_AMPLITUDE];
     long long k = (long long)state[FHOBS_N];
@@ -428,19 +440,19 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 /* ---------------------------------------------------------------------------------------- */
 /* Kalman filter: the cycle matrix; one cycle per sample instant inside a step              */
 
-typedef struct {
+struct Work {
     LinearPlan plan;
-    double work[2 * FHOBS_N_MODEL];
-} Work;
+    double work[FHOBS_KALMAN_WORK(FHOBS_N_MODEL, FHOBS_K)];
+};
 
-static void work_init(Work *w)
+void work_init(Work *w)
 {
     w->plan = KALMAN_PLAN;
     w->plan.work = w->work;
 }
 
-static int model_parameters_problem(const double *real, const int *integer, char *msg,
-                                    size_t len)
+int model_parameters_problem(const double *real, const int *integer, char *msg,
+                             size_t len)
 {
     (void)real;
     (void)integer;
@@ -449,7 +461,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
     return 0;
 }
 
-static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     state[FHOBS_N_MODEL] = 0.0; /* the offset to the next sample instant */
     return initial_z(real, state, msg, len);
@@ -470,8 +482,8 @@ static double samples_in_step(double offset, double dt, double *next)
 
 /* One cycle per sample instant inside the step, y and u held; the estimate held between
  * samples. State: z, then the offset to the next sample instant. */
-static int model_step(Work *w, const double *real, const int *integer, const double *src,
-                      double *dst, double dt, char *msg, size_t len)
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
 {
     (void)integer;
     char a[32], b[32];
@@ -479,8 +491,8 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
     double n = samples_in_step(src[FHOBS_N_MODEL], dt, &offset);
     if (n > FHOBS_MAX_CYCLES) {
         snprintf(msg, len, "the step size %s holds %.0f samples of Ts = %s, more than %d; "
-                 "state left unchanged", number(dt, a, sizeof a), n,
-                 number(KALMAN_TS, b, sizeof b), FHOBS_MAX_CYCLES);
+                 "state left unchanged", fhobs_number(dt, a, sizeof a), n,
+                 fhobs_number(KALMAN_TS, b, sizeof b), FHOBS_MAX_CYCLES);
         return 1;
     }
     if (n == 0.0) {
@@ -500,7 +512,7 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
     return 0;
 }
 
-static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     (void)w;
     (void)integer;
@@ -513,7 +525,7 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 /* ---------------------------------------------------------------------------------------- */
 /* Prescribed-time observer (Theorem 1): split plans per step size; xi0 from T0              */
 
-typedef struct {
+struct Work {
     PlanKeys keys;
     PrescribedPlan split[FHOBS_PLAN_SLOTS];
     double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
@@ -522,9 +534,9 @@ typedef struct {
     double last_tau[FHOBS_PLAN_SLOTS];
     double step_work[FHOBS_PRESCRIBED_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* a step's scratch */
     double scratch[FHOBS_PLAN_WORK];
-} Work;
+};
 
-static void work_init(Work *w)
+void work_init(Work *w)
 {
     plan_keys_init(&w->keys);
 }
@@ -548,21 +560,21 @@ static const PrescribedPlan *prescribed_plan(Work *w, double dt, char *msg, size
         w->keys.dt[i] = NAN;
         snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
                  "spectral radius %.6g); use a smaller communication step; state left unchanged",
-                 number(dt, a, sizeof a), best);
+                 fhobs_number(dt, a, sizeof a), best);
         return NULL;
     }
     return plan;
 }
 
-static int model_parameters_problem(const double *real, const int *integer, char *msg,
-                                    size_t len)
+int model_parameters_problem(const double *real, const int *integer, char *msg,
+                             size_t len)
 {
     char a[32];
     double h = real[VR_H];
     int scheme = integer[VR_SCHEME];
     if (!(isfinite(h) && h > 0.0)) {
         snprintf(msg, len, "internal step h = %s is not a positive finite number",
-                 number(h, a, sizeof a));
+                 fhobs_number(h, a, sizeof a));
         return 1;
     }
     if (scheme < 0 || scheme > 1) {
@@ -579,7 +591,7 @@ static int model_parameters_problem(const double *real, const int *integer, char
 
 /* z0 (zeros for a disturbance model's states) and xi0 = (-nu rho T0)^(-1/nu) of the parameter
  * T0 (fhobs.core.runtime.prescribed_xi0), with its checks and messages. */
-static int model_initial_state(const double *real, double *state, char *msg, size_t len)
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     char a[32], b[32];
     const double T0 = real[VR_T0], nu = PRESCRIBED_BASE.nu, rho = PRESCRIBED_BASE.rho;
@@ -587,22 +599,22 @@ static int model_initial_state(const double *real, double *state, char *msg, siz
         return 1;
     if (!(isfinite(T0) && T0 > 0.0)) {
         snprintf(msg, len, "prescribed time T0 = %s is not a positive finite number",
-                 number(T0, a, sizeof a));
+                 fhobs_number(T0, a, sizeof a));
         return 1;
     }
     double xi0 = pow(-nu * rho * T0, -1.0 / nu);
     if (!(isfinite(xi0) && xi0 >= DBL_MIN)) {
         snprintf(msg, len, "T0 = %s s gives xi0 = (-nu rho T0)^(-1/nu) = %s, outside the "
-                 "normal floating-point numbers", number(T0, a, sizeof a),
-                 number(xi0, b, sizeof b));
+                 "normal floating-point numbers", fhobs_number(T0, a, sizeof a),
+                 fhobs_number(xi0, b, sizeof b));
         return 1;
     }
     state[FHOBS_N_MODEL] = xi0;
     return 0;
 }
 
-static int model_step(Work *w, const double *real, const int *integer, const double *src,
-                      double *dst, double dt, char *msg, size_t len)
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
 {
     (void)integer;
     char a[32], b[32];
@@ -613,8 +625,8 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
         n_sub = 1.0;
     if (n_sub > FHOBS_MAX_SUBSTEPS) {
         snprintf(msg, len, "the step size %s is more than %d internal steps of h = %s; state "
-                 "left unchanged", number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
-                 number(h, b, sizeof b));
+                 "left unchanged", fhobs_number(dt, a, sizeof a), FHOBS_MAX_SUBSTEPS,
+                 fhobs_number(h, b, sizeof b));
         return 1;
     }
     const PrescribedPlan *plan = prescribed_plan(w, dt, msg, len);
@@ -631,7 +643,7 @@ static int model_step(Work *w, const double *real, const int *integer, const dou
 }
 
 /* x_hat, q_hat (with a disturbance model) and xi: the model state. */
-static void model_outputs(Work *w, double *real, const int *integer, const double *state)
+void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     (void)w;
     (void)integer;
@@ -644,3 +656,8 @@ static void model_outputs(Work *w, double *real, const int *integer, const doubl
 #else
 #error "model_data.c names no known FHOBS_KIND"
 #endif
+
+size_t model_work_size(void)
+{
+    return sizeof(Work);
+}

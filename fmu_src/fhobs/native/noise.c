@@ -24,7 +24,39 @@
 #define MIX_MULT_R 0x4973f715u
 #define XSHIFT 16
 
-typedef unsigned __int128 u128;
+/* Unsigned 128-bit integers as two 64-bit halves (ISO C has no 128-bit type). */
+typedef struct {
+    uint64_t hi, lo;
+} u128;
+
+static u128 u128_make(uint64_t hi, uint64_t lo)
+{
+    u128 r;
+    r.hi = hi;
+    r.lo = lo;
+    return r;
+}
+
+static u128 u128_add(u128 a, u128 b)
+{
+    u128 r;
+    r.lo = a.lo + b.lo;
+    r.hi = a.hi + b.hi + (r.lo < a.lo);
+    return r;
+}
+
+/* a b modulo 2^128 */
+static u128 u128_mul(u128 a, u128 b)
+{
+    const uint64_t mask = 0xffffffffu;
+    uint64_t a0 = a.lo & mask, a1 = a.lo >> 32, b0 = b.lo & mask, b1 = b.lo >> 32;
+    uint64_t p00 = a0 * b0, p01 = a0 * b1, p10 = a1 * b0, p11 = a1 * b1;
+    uint64_t middle = (p00 >> 32) + (p01 & mask) + (p10 & mask);
+    u128 r;
+    r.lo = (middle << 32) | (p00 & mask);
+    r.hi = p11 + (p01 >> 32) + (p10 >> 32) + (middle >> 32) + a.hi * b.lo + a.lo * b.hi;
+    return r;
+}
 
 static uint32_t hashmix(uint32_t value, uint32_t *hash_const)
 {
@@ -74,31 +106,29 @@ typedef struct {
     u128 state, inc;
 } Pcg64;
 
-static const u128 PCG_MULTIPLIER =
-    ((u128)2549297995355413924ULL << 64) | (u128)4865540595714422341ULL;
+static const u128 PCG_MULTIPLIER = {2549297995355413924ULL, 4865540595714422341ULL};
 
 static void pcg_step(Pcg64 *rng)
 {
-    rng->state = rng->state * PCG_MULTIPLIER + rng->inc;
+    rng->state = u128_add(u128_mul(rng->state, PCG_MULTIPLIER), rng->inc);
 }
 
 /* pcg64_set_seed: state and increment from the four generated words (high word first). */
 static void pcg_seed(Pcg64 *rng, const uint64_t words[4])
 {
-    u128 initstate = ((u128)words[0] << 64) | words[1];
-    u128 initseq = ((u128)words[2] << 64) | words[3];
-    rng->state = 0;
-    rng->inc = (initseq << 1) | 1u;
+    u128 initstate = u128_make(words[0], words[1]);
+    rng->state = u128_make(0, 0);
+    rng->inc = u128_make(words[2] << 1 | words[3] >> 63, words[3] << 1 | 1u); /* initseq << 1 | 1 */
     pcg_step(rng);
-    rng->state += initstate;
+    rng->state = u128_add(rng->state, initstate);
     pcg_step(rng);
 }
 
 static uint64_t pcg_next64(Pcg64 *rng)
 {
     pcg_step(rng);
-    uint64_t x = (uint64_t)(rng->state >> 64) ^ (uint64_t)rng->state;
-    unsigned rot = (unsigned)(rng->state >> 122);
+    uint64_t x = rng->state.hi ^ rng->state.lo;
+    unsigned rot = (unsigned)(rng->state.hi >> 58);
     return (x >> rot) | (x << ((64u - rot) & 63u));
 }
 

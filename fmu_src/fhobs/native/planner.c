@@ -9,24 +9,12 @@
  *   - the filtering observer's gain-level floor and ceiling: gain_levels.c.
  *
  * Every function takes its scratch memory from the caller (no variable-length arrays): see
- * FHOBS_PLAN_WORK_SIZE. Part of the translation unit fhobs_fmu.c (after kernel.c); also built
- * with planner_api.c into a library for the tests.
+ * FHOBS_PLAN_WORK_SIZE (planner.h). Compiled into every native FMU; also built with
+ * planner_api.c into a library for the tests.
  */
 #include <math.h>
 
-/* Scratch doubles needed by plan_filter (model states n, outputs k, inputs m, the ZOH's
- * augmented size z, taus scanned) and, a fortiori, by zoh_rows of size z. */
-#define FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus)                                                 \
-    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + (taus) + 8)
-
-/* The tau scan of the filtering observer (fhobs.core.runtime._Observer._auto_taus). */
-typedef struct {
-    const double *tau_grid; /* fhobs.core.runtime.TAU_GRID, increasing */
-    int n_tau;
-    const cplx *Vg_inv;  /* n x n: inverse of the eigenvectors V_g of G_d (FilterPlan.V_g) */
-    double roundoff;     /* the round-off floor of the gain level (independent of dt) */
-    double contraction;  /* fhobs.core.runtime.CONTRACTION_LIMIT */
-} LevelScan;
+#include "planner.h"
 
 /* C = A B, all n x n row-major, each entry a sequence of fused multiply-adds as numpy's
  * matrix product forms it (OpenBLAS's dgemm on x86-64 with FMA): the squarings of expm
@@ -49,7 +37,7 @@ static void square_product(const double *A, const double *B, int n, double *C)
  * L y = B and U X = y solved row by row, each solved entry (U's: times its diagonal's
  * reciprocal) subtracted from the rows not yet solved. A becomes L and U, B becomes X; 1 when
  * a pivot is exactly zero (LAPACK's singular case), else 0. */
-static int lu_solve(double *A, double *B, int n, int cols)
+int lu_solve(double *A, double *B, int n, int cols)
 {
 #define LU_A(i, j) A[(size_t)(i) * n + (j)]
 #define LU_B(i, j) B[(size_t)(i) * cols + (j)]
@@ -183,7 +171,7 @@ static void expm(const double *M, int n, double *E, double *work)
 /* The first n rows of expm(h aug), aug = [[top], [0]] (size x size, top = [A, B_1, ...]
  * n x size): [Phi, Gamma_1, ...] (fhobs.core.linalg.zoh_blocks), into out (n x size);
  * work: 9 size^2 doubles. */
-static void zoh_rows(const double *top, int n, int size, double h, double *out, double *work)
+void zoh_rows(const double *top, int n, int size, double h, double *out, double *work)
 {
     const size_t ss = (size_t)size * size;
     double *aug = work, *E = aug + ss;

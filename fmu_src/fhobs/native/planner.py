@@ -39,6 +39,7 @@ HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "planner.c"
 LEVELS_SOURCE = HERE / "gain_levels.c"
 API_SOURCE = HERE / "planner_api.c"
+HEADERS = (kernel.HEADER, HERE / "planner.h")
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
 
@@ -113,14 +114,14 @@ def library() -> ctypes.CDLL | None:
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         return None
-    sources = [kernel.SOURCE, SOURCE, LEVELS_SOURCE, API_SOURCE]
+    sources = (kernel.SOURCE, SOURCE, LEVELS_SOURCE, API_SOURCE)
     flags = (*kernel.COMPILE_FLAGS, f"-I{kernel.SOURCE.parent}", f"-I{HERE}")
-    tag = hashlib.sha256(b"".join(path.read_bytes() for path in sources)
+    tag = hashlib.sha256(b"".join(path.read_bytes() for path in (*sources, *HEADERS))
                          + " ".join(flags[:4]).encode() + compiler.encode()).hexdigest()
     target = kernel.cache_dir() / f"fhobs_planner_{tag[:16]}.so"
     if not target.exists():
         try:
-            kernel.compile_source(API_SOURCE, target, compiler, flags, ("-lm",))
+            kernel.compile_source(sources, target, compiler, flags, ("-lm",))
         except (OSError, subprocess.SubprocessError):
             return None
     lib = ctypes.CDLL(str(target))
@@ -186,8 +187,11 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
     if kind == "observer":
         base = _structure(kernel.FilterPlan, data["base"], keep)
         factors = np.zeros(4 * k, dtype=complex)
+        work_size, cwork_size = kernel.filter_work_size(n, k)
+        scratch, cscratch = np.zeros(work_size), np.zeros(cwork_size, dtype=complex)
         plan = kernel.FilterPlan(factors=kernel.pointer(factors),
-                                 last_tau=kernel.pointer(last_tau))
+                                 last_tau=kernel.pointer(last_tau),
+                                 work=kernel.pointer(scratch), cwork=kernel.pointer(cscratch))
         function = lib.fhobs_plan_filter
     else:
         base = _structure(kernel.PrescribedPlan, data["base"], keep)

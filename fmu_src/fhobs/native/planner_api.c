@@ -1,11 +1,19 @@
 /*
  * The step planner of the native FMUs (planner.c, gain_levels.c, with the kernel they drive) as a shared
  * library with exported entry points, for the tests that compare it with the numpy runtime's
- * plans (fhobs.native.planner). Not part of any FMU.
+ * plans (fhobs.native.planner), linked with kernel.c, planner.c and gain_levels.c. Not part
+ * of any FMU.
  */
-#include "kernel.c"
-#include "planner.c"
-#include "gain_levels.c"
+#include "planner.h"
+
+int fhobs_plan_work_size(int n, int k, int m, int z, int taus);
+void fhobs_plan_zoh(const double *top, int n, int size, double h, double *out, double *work);
+int fhobs_plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+                      const double *top, double dt, double *M, double *F, double *best,
+                      double *work);
+int fhobs_plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
+                          const LevelScan *scan, const double *top, double dt, double *M,
+                          double *F, double *best, double *work);
 
 /* Scratch doubles the entry points below need (FHOBS_PLAN_WORK_SIZE). */
 int fhobs_plan_work_size(int n, int k, int m, int z, int taus)
@@ -19,8 +27,8 @@ void fhobs_plan_zoh(const double *top, int n, int size, double h, double *out, d
     zoh_rows(top, n, size, h, out, work);
 }
 
-/* The filtering observer's plan of dt (plan's factors and last_tau set by the caller):
- * plan_filter. */
+/* The filtering observer's plan of dt (plan's factors, last_tau, work and cwork set by the
+ * caller): plan_filter. */
 int fhobs_plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
                       const double *top, double dt, double *M, double *F, double *best,
                       double *work)

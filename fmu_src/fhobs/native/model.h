@@ -1,0 +1,36 @@
+/*
+ * The model of a native fhobs FMU as its FMI layer (fmi2_layer.c) sees it: the sizes, value
+ * references and variable table of the generated model_data.h / model_data.c, and the
+ * functions of models.c for the kind compiled in. The model's per-instance data (Work: its
+ * plan cache and scratch memory) is opaque here: the layer allocates model_work_size() bytes.
+ */
+#ifndef FHOBS_MODEL_H
+#define FHOBS_MODEL_H
+
+#include <stddef.h>
+
+#include "fhobs_native.h"
+#include "model_data.h"
+
+typedef struct Work Work;
+
+/* Bytes of a Work (allocated by the layer, zeroed, then work_init). */
+FHOBS_HIDDEN size_t model_work_size(void);
+/* An empty plan cache, the plans' scratch pointers set. */
+FHOBS_HIDDEN void work_init(Work *w);
+/* Why the per-instance parameters cannot start a run (1, message) or 0. */
+FHOBS_HIDDEN int model_parameters_problem(const double *real, const int *integer, char *msg,
+                                          size_t len);
+/* The initial state from the parameters into state (FHOBS_STATE_SIZE); 1 with a message. */
+FHOBS_HIDDEN int model_initial_state(const double *real, double *state, char *msg, size_t len);
+/* One communication step dt from src into dst (FHOBS_STATE_SIZE each); 1 with a message, dst
+ * then unspecified. */
+FHOBS_HIDDEN int model_step(Work *w, const double *real, const int *integer, const double *src,
+                            double *dst, double dt, char *msg, size_t len);
+/* The outputs of the state into the variables. */
+FHOBS_HIDDEN void model_outputs(Work *w, double *real, const int *integer, const double *state);
+
+/* A number as the pythonfmu FMUs' messages show it (Python's repr, for most numbers). */
+FHOBS_HIDDEN const char *fhobs_number(double x, char *buf, size_t len);
+
+#endif

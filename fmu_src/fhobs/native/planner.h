@@ -1,0 +1,49 @@
+/*
+ * The step planner of the native FMUs: the plan of a communication step size computed in C at
+ * its first use (planner.c: the zero-order hold by expm; gain_levels.c: the filtering
+ * observer's gain-level floor and ceiling). Every function takes its scratch memory from the
+ * caller (FHOBS_PLAN_WORK_SIZE).
+ */
+#ifndef FHOBS_PLANNER_H
+#define FHOBS_PLANNER_H
+
+#include "kernel.h"
+
+/* Scratch doubles needed by plan_filter (model states n, outputs k, inputs m, the ZOH's
+ * augmented size z, taus scanned) and, a fortiori, by zoh_rows of size z. */
+#define FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus)                                                 \
+    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + (taus) + 8)
+
+/* The tau scan of the filtering observer (fhobs.core.runtime._Observer._auto_taus). */
+typedef struct {
+    const double *tau_grid; /* fhobs.core.runtime.TAU_GRID, increasing */
+    int n_tau;
+    const cplx *Vg_inv;  /* n x n: inverse of the eigenvectors V_g of G_d (FilterPlan.V_g) */
+    double roundoff;     /* the round-off floor of the gain level (independent of dt) */
+    double contraction;  /* fhobs.core.runtime.CONTRACTION_LIMIT */
+} LevelScan;
+
+/* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting in numpy's order
+ * of operations; A becomes L and U, B becomes X; 1 when a pivot is exactly zero, else 0. */
+FHOBS_HIDDEN int lu_solve(double *A, double *B, int n, int cols);
+
+/* The first n rows of expm(h [[top], [0]]) (top n x size) into out (n x size): [Phi,
+ * Gamma_1, ...] (fhobs.core.linalg.zoh_blocks); work: 9 size^2 doubles. */
+FHOBS_HIDDEN void zoh_rows(const double *top, int n, int size, double h, double *out,
+                           double *work);
+
+/* The filtering observer's plan of the step size dt (gain_levels.c): base's fields, M and F
+ * (the caller's arrays), the gain-level floor and ceiling; plan's factors, last_tau, work and
+ * cwork are the caller's. 0, or 1 when the observer cannot follow dt (*best: the smallest
+ * spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
+FHOBS_HIDDEN int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+                             const double *top, double dt, double *M, double *F, double *best,
+                             double *work);
+
+/* The prescribed-time observer's plan of the step size dt (gain_levels.c), as plan_filter's
+ * (plan's factors, last_tau and work: the caller's). */
+FHOBS_HIDDEN int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
+                                 const LevelScan *scan, const double *top, double dt, double *M,
+                                 double *F, double *best, double *work);
+
+#endif
