@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 from fhobs.errors import FhobsError
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
+from fhobs.spec import unknown_key_text
 from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ScalarVariable
 
@@ -90,6 +91,8 @@ TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evalu
 RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
 CONNECTION_KEYS = ("from", "to", "gain")
 EVALUATION_KEYS = ("at", "windows", "errors")
+MAX_STEPS = 10**9
+"""The most communication steps of one run (every step is a recorded row)."""
 PLOTS_KEYS = ("figure", "signals")
 
 
@@ -286,6 +289,13 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
         for key, default in (("step", 1e-3), ("start_time", 0.0), ("stop_time", 1.0))
     )
     check_timing(step, start_time, stop_time, f"{where}: [run]")
+    evaluation = _evaluation(_table(data, "evaluation", where), f"{where}: [evaluation]")
+    outside = evaluation_outside(evaluation, start_time, stop_time)
+    if outside:
+        raise DescriptionError(
+            f"{where}: [evaluation] {outside[0]} lies outside the run [{start_time:g}, "
+            f"{stop_time:g}] s of [run]: it would have no figures; change it or run.stop_time"
+        )
     seed = run.get("seed")
     if seed is not None and not isinstance(seed, str):
         raise DescriptionError(f"{where}: run.seed = {seed!r} must name a variable ('fmu.var')")
@@ -299,7 +309,7 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
         start_time=start_time,
         record=tuple(_string(r, f"{where}: run.record") for r in _list(run, "record", where)),
         seed=seed,
-        evaluation=_evaluation(_table(data, "evaluation", where), f"{where}: [evaluation]"),
+        evaluation=evaluation,
         figure=_figure_spec(_table(data, "plots", where), f"{where}: [plots]"),
         source=path,
     )
@@ -308,14 +318,23 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
 def _read_description(path: Path, extending: tuple[Path, ...]) -> dict[str, Any]:
     """The TOML data of ``path``, merged onto the description it ``extends`` (recursively);
     ``extending`` are the files that extend this one (a cycle is an error)."""
+    extended = f" (extended by {extending[-1]})" if extending else ""
+    if path.is_dir():
+        raise DescriptionError(f"system description {path} is a folder, not a file{extended}: "
+                               "give a .toml system description or a bundled scenario's name")
     if not path.is_file():
-        raise DescriptionError(f"system description {path} does not exist"
-                               + (f" (extended by {extending[-1]})" if extending else ""))
+        raise DescriptionError(f"system description {path} does not exist{extended}")
     try:
         with path.open("rb") as f:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as err:
         raise DescriptionError(f"{path}: invalid TOML: {err}") from None
+    except UnicodeDecodeError as err:
+        raise DescriptionError(
+            f"system description {path}{extended} is not a text file: byte {err.start} "
+            f"(0x{err.object[err.start]:02x}) is not UTF-8 text; a system description is a "
+            "TOML text file"
+        ) from None
     base = data.pop("extends", None)
     if base is None:
         return data
@@ -428,7 +447,8 @@ def check_timing(step: float, start_time: float, stop_time: float, where: str) -
     Raises
     ------
     DescriptionError
-        If h <= 0, t_end <= t0 or t_end - t0 is not a whole number of steps.
+        If h <= 0, t_end <= t0, t_end - t0 is not a whole number of steps or more than
+        ``MAX_STEPS`` of them.
 
     Examples
     --------
@@ -444,7 +464,14 @@ def check_timing(step: float, start_time: float, stop_time: float, where: str) -
         raise DescriptionError(
             f"{where}: stop_time = {stop_time!r} must be after start_time = {start_time!r}"
         )
-    steps = int(round((stop_time - start_time) / step))
+    count = (stop_time - start_time) / step
+    if count > MAX_STEPS:
+        raise DescriptionError(
+            f"{where}: stop_time - start_time = {stop_time - start_time:g} s at step = "
+            f"{step:g} s is {count:.3g} steps, more than a run can record (at most "
+            f"{MAX_STEPS:.0e}); shorten the run or enlarge the step"
+        )
+    steps = int(round(count))
     if steps < 1 or abs(start_time + steps * step - stop_time) > 1e-9 * max(1.0, abs(stop_time)):
         raise DescriptionError(
             f"{where}: step = {step!r} does not divide stop_time - start_time = "
@@ -453,12 +480,44 @@ def check_timing(step: float, start_time: float, stop_time: float, where: str) -
     return steps
 
 
+def evaluation_outside(evaluation: Evaluation, start_time: float, stop_time: float) -> list[str]:
+    """The ``[evaluation]`` instants and windows that do not lie within ``[start_time,
+    stop_time]`` (to 1e-9 relative), as they are written in the file.
+
+    Parameters
+    ----------
+    evaluation
+        The instants (``at``) and windows of the figures.
+    start_time, stop_time
+        The run's t0 and t_end.
+
+    Returns
+    -------
+    list of str
+        ``"at = 10"``, ``"window [1, 3]"``, ...; empty if every entry lies within the run.
+
+    Examples
+    --------
+    >>> ev = Evaluation(at=(1.5, 10.0), windows=((1.0, 3.0),))
+    >>> evaluation_outside(ev, 0.0, 3.0)
+    ['at = 10']
+    >>> evaluation_outside(ev, 0.0, 0.05)
+    ['at = 1.5', 'at = 10', 'window [1, 3]']
+    """
+    tol = 1e-9 * max(1.0, abs(start_time), abs(stop_time))
+
+    def inside(t: float) -> bool:
+        return start_time - tol <= t <= stop_time + tol
+
+    return ([f"at = {t:g}" for t in evaluation.at if not inside(t)]
+            + [f"window [{a:g}, {b:g}]" for a, b in evaluation.windows
+               if not (inside(a) and inside(b))])
+
+
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
     unknown = sorted(set(table) - set(allowed))
     if unknown:
-        raise DescriptionError(
-            f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})"
-        )
+        raise DescriptionError(f"{where}: {unknown_key_text(unknown[0], allowed, quote=True)}")
 
 
 def _table(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:

@@ -53,6 +53,7 @@ Every defect raises :class:`SpecError` naming the field and the reason.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -680,12 +681,26 @@ def _disturbance_size(value: Any, r: int, shape: str, source: str) -> np.ndarray
     return np.broadcast_to(np.array(entries, dtype=float), (r,)).copy()
 
 
+def unknown_key_text(key: str, allowed: tuple[str, ...], prefix: str = "",
+                     quote: bool = False) -> str:
+    """The message of an unknown key: its name (``repr`` with ``quote``), the closest allowed
+    key if one is close, and the allowed keys.
+
+    Examples
+    --------
+    >>> unknown_key_text("setling_time", ("settling_time", "rho"), "observer.")
+    'unknown key observer.setling_time (did you mean settling_time? allowed: settling_time, rho)'
+    """
+    close = difflib.get_close_matches(key, allowed, n=1)
+    show = (lambda name: repr(name)) if quote else (lambda name: name)  # noqa: E731
+    hint = f"did you mean {show(close[0])}? " if close else ""
+    return f"unknown key {show(prefix + key)} ({hint}allowed: {', '.join(allowed)})"
+
+
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], source: str, prefix: str):
     unknown = sorted(set(table) - set(allowed))
     if unknown:
-        raise SpecError(
-            f"{source}: unknown key {prefix}{unknown[0]} (allowed: {', '.join(allowed)})"
-        )
+        raise SpecError(f"{source}: {unknown_key_text(unknown[0], allowed, prefix)}")
 
 
 def _matrix(
