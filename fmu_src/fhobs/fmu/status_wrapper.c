@@ -93,6 +93,17 @@
 #include "fmi2Functions.h"
 #include "fhobs_call_rules.h"
 
+/* snprintf into buf (size bytes); 1 when the text was cut to fit (a path too long for the buffer
+ * then names no file, a message is shortened), else 0. */
+static int bounded_format(char *buf, size_t size, const char *format, ...)
+{
+    va_list args;
+    va_start(args, format);
+    int written = vsnprintf(buf, size, format, args);
+    va_end(args);
+    return written < 0 || (size_t)written >= size;
+}
+
 #ifndef FHOBS_STATUS_VR
 #error "compile with -DFHOBS_STATUS_VR=<value reference of the status variable>"
 #endif
@@ -185,12 +196,36 @@ static void *impl(const char *name)
     return impl_handle ? dlsym(impl_handle, name) : NULL;
 }
 
+/* A function pointer from a symbol's address (dlsym's result: POSIX guarantees that it converts;
+ * ISO C has no conversion between object and function pointers, so its bytes are copied). */
+typedef void (*AnyFunction)(void);
+static AnyFunction as_function(void *symbol)
+{
+    AnyFunction f;
+    memcpy(&f, &symbol, sizeof f);
+    return f;
+}
+
+/* A function's address as dladdr takes it (the converse of as_function). */
+static void *function_address(AnyFunction f)
+{
+    void *address;
+    memcpy(&address, &f, sizeof address);
+    return address;
+}
+
+/* Marks the parameters of a function that ignores them as used. */
+static void ignore_arguments(int count, ...)
+{
+    (void)count;
+}
+
 /* The entry point ``name`` of pythonfmu's library, looked up once (a benign race: every thread
  * that looks it up stores the same pointer); ``failed`` is returned when there is none. */
 #define IMPL(name, failed) \
     static name##TYPE *name##_impl = NULL; \
     if (name##_impl == NULL) { \
-        name##_impl = (name##TYPE *)impl(#name); \
+        name##_impl = (name##TYPE *)as_function(impl(#name)); \
         if (name##_impl == NULL) { \
             return failed; \
         } \
@@ -225,7 +260,7 @@ static int is_file(const char *path)
 
 static void copy(char *out, size_t size, const char *text)
 {
-    snprintf(out, size, "%s", text != NULL ? text : "");
+    (void)bounded_format(out, size, "%s", text != NULL ? text : "");
 }
 
 /* Drop the last component of ``path`` in place ("/a/b" -> "/a", "/a" -> "/", "a" -> "."). */
@@ -257,11 +292,11 @@ typedef struct {
 static int stdlib_at(const char *prefix, const char *version)
 {
     char path[PATH_MAX + 64];
-    snprintf(path, sizeof path, "%s/lib/python%s/encodings/__init__.py", prefix, version);
+    (void)bounded_format(path, sizeof path, "%s/lib/python%s/encodings/__init__.py", prefix, version);
     if (is_file(path)) {
         return 1;
     }
-    snprintf(path, sizeof path, "%s/lib64/python%s/encodings/__init__.py", prefix, version);
+    (void)bounded_format(path, sizeof path, "%s/lib64/python%s/encodings/__init__.py", prefix, version);
     return is_file(path);
 }
 
@@ -286,7 +321,7 @@ static int prefix_of(const char *library, const char *version, char *out, size_t
 static int has_numpy(const char *dir)
 {
     char path[PATH_MAX + 32];
-    snprintf(path, sizeof path, "%s/numpy/__init__.py", dir);
+    (void)bounded_format(path, sizeof path, "%s/numpy/__init__.py", dir);
     return dir[0] != '\0' && is_file(path);
 }
 
@@ -306,9 +341,9 @@ static int on_path_already(const char *dir, const char *home, const char *execut
     copy(venv, sizeof venv, executable);
     parent(venv);
     parent(venv);
-    snprintf(config, sizeof config, "%s/pyvenv.cfg", venv);
+    (void)bounded_format(config, sizeof config, "%s/pyvenv.cfg", venv);
     size_t used = strlen(venv);
-    snprintf(venv + used, sizeof venv - used, "/lib/python%s/site-packages", version);
+    (void)bounded_format(venv + used, sizeof venv - used, "/lib/python%s/site-packages", version);
     int in_venv = is_file(config);
     if (in_venv && same_dir(venv, dir)) {
         return 1;
@@ -331,7 +366,7 @@ static int on_path_already(const char *dir, const char *home, const char *execut
         "%s/lib/python3/dist-packages%.0s" };
     for (size_t i = 0; i < sizeof sites / sizeof *sites; i++) {
         char site[PATH_MAX + 64];
-        snprintf(site, sizeof site, sites[i], home, version);
+        (void)bounded_format(site, sizeof site, sites[i], home, version);
         if (same_dir(site, dir)) {
             return 1;
         }
@@ -365,7 +400,7 @@ static int find_numpy(const char *home, const char *version, const char *site, c
         "%s/lib/python3/dist-packages%.0s" };
     for (size_t i = 0; i < sizeof sites / sizeof *sites; i++) {
         char dir[PATH_MAX + 64];
-        snprintf(dir, sizeof dir, sites[i], home, version);
+        (void)bounded_format(dir, sizeof dir, sites[i], home, version);
         if (has_numpy(dir)) {
             copy(out, size, dir);
             return 1;
@@ -383,9 +418,9 @@ static void prepare_interpreter(const char *executable, const char *home, const 
     const char *version)
 {
     void (*set_program_name)(const wchar_t *)
-        = (void (*)(const wchar_t *))dlsym(RTLD_DEFAULT, "Py_SetProgramName");
+        = (void (*)(const wchar_t *))as_function(dlsym(RTLD_DEFAULT, "Py_SetProgramName"));
     wchar_t *(*decode)(const char *, size_t *)
-        = (wchar_t * (*)(const char *, size_t *)) dlsym(RTLD_DEFAULT, "Py_DecodeLocale");
+        = (wchar_t * (*)(const char *, size_t *))as_function(dlsym(RTLD_DEFAULT, "Py_DecodeLocale"));
     if (set_program_name != NULL && decode != NULL && executable[0] != '\0') {
         static wchar_t *program = NULL; /* kept: the interpreter may keep the pointer */
         if (program == NULL) {
@@ -403,7 +438,7 @@ static void prepare_interpreter(const char *executable, const char *home, const 
             size_t size = strlen(old) + strlen(numpy_dir) + 2;
             char *joined = malloc(size);
             if (joined != NULL) {
-                snprintf(joined, size, "%s:%s", old, numpy_dir);
+                (void)bounded_format(joined, size, "%s:%s", old, numpy_dir);
                 setenv("PYTHONPATH", joined, 1);
                 free(joined);
             }
@@ -420,7 +455,7 @@ static void executable_of(const Python *p, const char *home, const char *version
     if (p->executable[0] != '\0' && is_file(p->executable)) {
         copy(out, size, p->executable);
     } else {
-        snprintf(out, size, "%s/bin/python%s", home, version);
+        (void)bounded_format(out, size, "%s/bin/python%s", home, version);
     }
 }
 
@@ -472,7 +507,7 @@ static int try_python(const char *origin, const Python *p, const char *version,
     char executable[PATH_MAX + 32];
     executable_of(p, home, version, executable, sizeof executable);
     prepare_interpreter(executable, home, numpy_dir, version);
-    snprintf(loaded_python, sizeof loaded_python, "%s as %s (numpy in %s; %s)", p->library,
+    (void)bounded_format(loaded_python, sizeof loaded_python, "%s as %s (numpy in %s; %s)", p->library,
         executable, numpy_dir, origin);
     return 1;
 }
@@ -482,7 +517,7 @@ static int library_in(const char *dir, const char *version, char *out, size_t si
 {
     static const char *names[] = { "%s/libpython%s.so.1.0", "%s/libpython%s.so" };
     for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
-        snprintf(out, size, names[i], dir, version);
+        (void)bounded_format(out, size, names[i], dir, version);
         if (is_file(out)) {
             return 1;
         }
@@ -501,26 +536,26 @@ static int try_path(const char *version, const char *user_home)
     }
     char dirs[8192], names[2][32];
     copy(dirs, sizeof dirs, path);
-    snprintf(names[0], sizeof names[0], "python%s", version);
-    snprintf(names[1], sizeof names[1], "python3");
+    (void)bounded_format(names[0], sizeof names[0], "python%s", version);
+    (void)bounded_format(names[1], sizeof names[1], "python3");
     int seen = 0;
     for (char *dir = strtok(dirs, ":"); dir != NULL; dir = strtok(NULL, ":")) {
         for (int n = 0; n < 2; n++) {
             char exe[PATH_MAX + 40], real[PATH_MAX], prefix[PATH_MAX], origin[PATH_MAX + 64];
-            snprintf(exe, sizeof exe, "%s/%s", dir, names[n]);
+            (void)bounded_format(exe, sizeof exe, "%s/%s", dir, names[n]);
             if (!is_file(exe) || access(exe, X_OK) != 0) {
                 continue;
             }
             seen = 1;
             Python p = { .version = "" };
-            snprintf(origin, sizeof origin, "%s on PATH", exe);
+            (void)bounded_format(origin, sizeof origin, "%s on PATH", exe);
             copy(p.executable, sizeof p.executable, exe);
             char venv[PATH_MAX + 40], config[PATH_MAX + 64];
             copy(venv, sizeof venv, dir);
             parent(venv);
-            snprintf(config, sizeof config, "%s/pyvenv.cfg", venv);
+            (void)bounded_format(config, sizeof config, "%s/pyvenv.cfg", venv);
             if (is_file(config)) {
-                snprintf(p.site, sizeof p.site, "%s/lib/python%s/site-packages", venv, version);
+                (void)bounded_format(p.site, sizeof p.site, "%s/lib/python%s/site-packages", venv, version);
             }
             if (realpath(exe, real) == NULL) {
                 continue;
@@ -532,7 +567,7 @@ static int try_path(const char *version, const char *user_home)
             int found = 0;
             for (size_t i = 0; i < sizeof libdirs / sizeof *libdirs && !found; i++) {
                 char libdir[PATH_MAX + 32];
-                snprintf(libdir, sizeof libdir, "%s/%s", prefix, libdirs[i]);
+                (void)bounded_format(libdir, sizeof libdir, "%s/%s", prefix, libdirs[i]);
                 found = library_in(libdir, version, p.library, sizeof p.library);
             }
             if (!found) {
@@ -559,11 +594,11 @@ static int try_standard_places(const char *version, const char *user_home)
     char dirs[8192] = "";
     const char *extra = getenv("LD_LIBRARY_PATH");
     if (extra != NULL && extra[0] != '\0') {
-        snprintf(dirs, sizeof dirs, "%s:", extra);
+        (void)bounded_format(dirs, sizeof dirs, "%s:", extra);
     }
     for (size_t i = 0; i < sizeof standard / sizeof *standard; i++) {
         size_t used = strlen(dirs);
-        snprintf(dirs + used, sizeof dirs - used, "%s%s", standard[i],
+        (void)bounded_format(dirs + used, sizeof dirs - used, "%s%s", standard[i],
             i + 1 < sizeof standard / sizeof *standard ? ":" : "");
     }
     int seen = 0;
@@ -574,7 +609,7 @@ static int try_standard_places(const char *version, const char *user_home)
             continue;
         }
         seen = 1;
-        snprintf(origin, sizeof origin, "standard place %s", dir);
+        (void)bounded_format(origin, sizeof origin, "standard place %s", dir);
         if (try_python(origin, &p, version, user_home)) {
             return 1;
         }
@@ -594,17 +629,17 @@ static int python_in_process(const Python *record, const char *version, const ch
     if (symbol == NULL) {
         return 0;
     }
-    int (*initialized)(void) = (int (*)(void))symbol;
+    int (*initialized)(void) = (int (*)(void))as_function(symbol);
     Dl_info info;
     const char *library = dladdr(symbol, &info) != 0 && info.dli_fname != NULL
         ? info.dli_fname : "the process";
     if (initialized()) {
-        snprintf(loaded_python, sizeof loaded_python, "the interpreter running in %s", library);
+        (void)bounded_format(loaded_python, sizeof loaded_python, "the interpreter running in %s", library);
         return 1;
     }
     char home[PATH_MAX], numpy_dir[PATH_MAX] = "", executable[PATH_MAX + 32];
     if (!prefix_of(library, version, home, sizeof home)) {
-        snprintf(loaded_python, sizeof loaded_python, "%s, already in the process", library);
+        (void)bounded_format(loaded_python, sizeof loaded_python, "%s, already in the process", library);
         return 1; /* the interpreter finds its prefix itself */
     }
     if (record->home[0] != '\0' && same_dir(record->home, home)) {
@@ -614,7 +649,7 @@ static int python_in_process(const Python *record, const char *version, const ch
         executable_of(&(Python) { .version = "" }, home, version, executable, sizeof executable);
     }
     prepare_interpreter(executable, user_home != NULL ? user_home : home, numpy_dir, version);
-    snprintf(loaded_python, sizeof loaded_python, "%s as %s, already in the process", library,
+    (void)bounded_format(loaded_python, sizeof loaded_python, "%s as %s, already in the process", library,
         executable);
     return 1;
 }
@@ -658,13 +693,13 @@ static int read_record(const char *resources, Python *record, char *where, size_
     Dl_info info;
     char candidates[2][PATH_MAX + 64];
     int n = 0;
-    if (dladdr((void *)&read_record, &info) != 0 && info.dli_fname != NULL) {
+    if (dladdr(function_address((AnyFunction)&read_record), &info) != 0 && info.dli_fname != NULL) {
         char root[PATH_MAX];
         copy(root, sizeof root, info.dli_fname);
         parent(root);
         parent(root);
         parent(root);
-        snprintf(candidates[n++], sizeof candidates[0], "%s/resources/%s", root, PYTHON_RECORD);
+        (void)bounded_format(candidates[n++], sizeof candidates[0], "%s/resources/%s", root, PYTHON_RECORD);
     }
     if (resource_file(resources, PYTHON_RECORD, candidates[n], sizeof candidates[0])) {
         n++;
@@ -708,7 +743,7 @@ static int read_record(const char *resources, Python *record, char *where, size_
  * then resets the destroyed object (use after free, a double free of its control block). */
 static void release_python_at_exit(void)
 {
-    void (*finalize)(void) = (void (*)(void))impl("finalizePythonInterpreter");
+    void (*finalize)(void) = (void (*)(void))as_function(impl("finalizePythonInterpreter"));
     if (finalize != NULL) {
         finalize();
     }
@@ -734,7 +769,7 @@ static void load_impl(const char *resources)
     }
     int found;
     void *is_initialized = dlsym(RTLD_DEFAULT, "Py_IsInitialized");
-    int running = is_initialized != NULL && ((int (*)(void))is_initialized)();
+    int running = is_initialized != NULL && ((int (*)(void))as_function(is_initialized))();
     if (!running && user_home != NULL && !stdlib_at(user_home, version)) {
         found = 0; /* Py_Initialize would abort the host */
         note("PYTHONHOME=%s has no lib/python%s/encodings (Python would abort the host; for a "
@@ -757,7 +792,7 @@ static void load_impl(const char *resources)
         }
     }
     if (!found) {
-        snprintf(load_error, sizeof load_error, "no usable Python %s with numpy for "
+        (void)bounded_format(load_error, sizeof load_error, "no usable Python %s with numpy for "
             "pythonfmu's library (this FMU runs Python code). Tried: %s. Install Python %s "
             "with numpy, or start the host with LD_PRELOAD=<prefix>/lib/libpython%s.so and "
             "PYTHONHOME=<prefix>, or use the native FMUs (build_fmu.py --native)", version,
@@ -765,19 +800,19 @@ static void load_impl(const char *resources)
         return;
     }
     Dl_info info;
-    if (dladdr((void *)&load_impl, &info) == 0 || info.dli_fname == NULL
+    if (dladdr(function_address((AnyFunction)&load_impl), &info) == 0 || info.dli_fname == NULL
         || strlen(info.dli_fname) < 3) {
         copy(load_error, sizeof load_error, "cannot find the path of this library");
         return;
     }
     size_t len = strlen(info.dli_fname);
     char path[PATH_MAX + sizeof IMPL_SUFFIX];
-    snprintf(path, sizeof path, "%.*s%s", (int)(len - 3), info.dli_fname, IMPL_SUFFIX);
+    (void)bounded_format(path, sizeof path, "%.*s%s", (int)(len - 3), info.dli_fname, IMPL_SUFFIX);
     /* Never unloaded (its interpreter cannot be started twice in a process). */
     impl_handle = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (impl_handle == NULL) {
         const char *why = dlerror();
-        snprintf(load_error, sizeof load_error, "cannot load pythonfmu's library with %s: %s",
+        (void)bounded_format(load_error, sizeof load_error, "cannot load pythonfmu's library with %s: %s",
             loaded_python, why != NULL ? why : path);
         return;
     }
@@ -990,9 +1025,10 @@ static void withdraw(State *state)
     }
 
 /* A function these FMUs do not provide: fmi2Error with the table's reason. */
-#define UNSUPPORTED(name, call, params) \
+#define UNSUPPORTED(name, call, params, args) \
     fmi2Status name params \
     { \
+        ignore_arguments args; \
         CHECK_CALL(w, call); \
         return fmi2Error; \
     }
@@ -1038,7 +1074,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         say(logger, environment, instanceName, fmi2OK, "fhobs status wrapper: Python: %s",
             loaded_python);
     }
-    fmi2InstantiateTYPE *instantiate = (fmi2InstantiateTYPE *)impl("fmi2Instantiate");
+    fmi2InstantiateTYPE *instantiate = (fmi2InstantiateTYPE *)as_function(impl("fmi2Instantiate"));
     if (instantiate == NULL) {
         say(logger, environment, instanceName, fmi2Error,
             "fhobs status wrapper: pythonfmu's library has no fmi2Instantiate");
@@ -1069,7 +1105,7 @@ void fmi2FreeInstance(fmi2Component w)
     if (w == NULL) {
         return;
     }
-    fmi2FreeInstanceTYPE *free_instance = (fmi2FreeInstanceTYPE *)impl("fmi2FreeInstance");
+    fmi2FreeInstanceTYPE *free_instance = (fmi2FreeInstanceTYPE *)as_function(impl("fmi2FreeInstance"));
     if (free_instance != NULL) {
         free_instance(INNER(w));
     }
@@ -1350,15 +1386,17 @@ FORWARD(fmi2GetBooleanStatus, FHOBS_CALL_GETBOOLEANSTATUS, (fmi2Component w,
     const fmi2StatusKind k, fmi2Boolean *v), (c, k, v))
 UNSUPPORTED(fmi2GetDirectionalDerivative, FHOBS_CALL_GETDIRECTIONALDERIVATIVE, (fmi2Component w,
     const fmi2ValueReference u[], size_t nu, const fmi2ValueReference z[], size_t nz,
-    const fmi2Real du[], fmi2Real dz[]))
+    const fmi2Real du[], fmi2Real dz[]), (6, u, nu, z, nz, du, dz))
 UNSUPPORTED(fmi2SetRealInputDerivatives, FHOBS_CALL_SETREALINPUTDERIVATIVES, (fmi2Component w,
-    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], const fmi2Real v[]))
+    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], const fmi2Real v[]),
+    (4, vr, n, order, v))
 UNSUPPORTED(fmi2GetRealOutputDerivatives, FHOBS_CALL_GETREALOUTPUTDERIVATIVES, (fmi2Component w,
-    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], fmi2Real v[]))
-UNSUPPORTED(fmi2CancelStep, FHOBS_CALL_CANCELSTEP, (fmi2Component w))
+    const fmi2ValueReference vr[], size_t n, const fmi2Integer order[], fmi2Real v[]),
+    (4, vr, n, order, v))
+UNSUPPORTED(fmi2CancelStep, FHOBS_CALL_CANCELSTEP, (fmi2Component w), (0))
 UNSUPPORTED(fmi2GetStatus, FHOBS_CALL_GETSTATUS, (fmi2Component w, const fmi2StatusKind k,
-    fmi2Status *v))
+    fmi2Status *v), (2, k, v))
 UNSUPPORTED(fmi2GetIntegerStatus, FHOBS_CALL_GETINTEGERSTATUS, (fmi2Component w,
-    const fmi2StatusKind k, fmi2Integer *v))
+    const fmi2StatusKind k, fmi2Integer *v), (2, k, v))
 UNSUPPORTED(fmi2GetStringStatus, FHOBS_CALL_GETSTRINGSTATUS, (fmi2Component w,
-    const fmi2StatusKind k, fmi2String *v))
+    const fmi2StatusKind k, fmi2String *v), (2, k, v))
