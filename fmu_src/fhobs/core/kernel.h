@@ -27,10 +27,10 @@
 #endif
 #endif
 
-#define FHOBS_OK 0
-#define FHOBS_NONFINITE 2
-#define FHOBS_BISECTION_STEPS 40 /* fhobs.runtime.BISECTION_STEPS */
-#define FHOBS_BISECTION_TOL 0.05 /* fhobs.runtime.BISECTION_TOL */
+#define FHOBS_OK 0        /* fhobs.core.kernel.OK */
+#define FHOBS_NONFINITE 2 /* fhobs.core.kernel.NONFINITE */
+#define FHOBS_BISECTION_STEPS 40 /* fhobs.core.runtime.BISECTION_STEPS */
+#define FHOBS_BISECTION_TOL 0.05 /* fhobs.core.runtime.BISECTION_TOL */
 
 typedef struct {
     double re, im;

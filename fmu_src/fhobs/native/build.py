@@ -4,10 +4,11 @@ Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.f
 ``prescribed_time.fmu``) has the interface of the pythonfmu FMU of the same kind
 (:mod:`fhobs.build`): the same variable names, value references, causalities, variabilities
 and start values, taken from the pythonfmu FMU built for the same design and options (its
-start values read from an instance, so they are exact). Its binary ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel
-(``kernel.c``) with the step planner (``planner.c``), an FMI layer (``fmi2_layer.c``,
-``models.c``) and the generated ``model_data.h`` and ``model_data.c``: the design and what the planner needs that
-does not depend on the step size (the injection flow's and the dilation's eigen data, the tau
+start values read from an instance, so they are exact). Its binary
+``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel (``kernel.c``) with the
+step planner (``planner.c``), an FMI layer (``fmi2_layer.c``, ``models.c``) and the generated
+``model_data.h`` and ``model_data.c``: the design and what the planner needs that does not
+depend on the step size (the injection flow's and the dilation's eigen data, the tau
 grid, the gain level's round-off floor; :mod:`fhobs.native.planner`). Every positive finite
 communication step is taken: the plan of a step size (ZOH matrices, the filtering observer's
 gain-level floor and ceiling) is computed in C at its first use by the numpy runtime's
@@ -57,8 +58,7 @@ from ..core.certificate import certify
 from ..core.gains import ObserverGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
-from ..core.runtime import (DEFAULT_H, FilteringObserver, LuenbergerObserver,
-                            PrescribedTimeObserver)
+from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from ..errors import BuildError
 from ..fmu import call_rules
 from . import planner

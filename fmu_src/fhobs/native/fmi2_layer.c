@@ -37,8 +37,8 @@
 #define STATE_FORMAT 1u
 #define IDENTITY_FIELD 48
 #define MESSAGE_SIZE 1024
-#define STATUS_OK 0
-#define STATUS_ERROR 3
+#define STATUS_OK 0    /* fhobs.fmu.modes.STATUS_OK */
+#define STATUS_ERROR 3 /* fhobs.fmu.modes.STATUS_ERROR */
 
 /* the FMI states, numbered as in fhobs.fmu.call_rules.STATES */
 enum {

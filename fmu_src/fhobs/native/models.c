@@ -18,11 +18,11 @@
 #include "model.h"
 #include "planner.h"
 
-#define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.runtime.MAX_SUBSTEPS */
-#define FHOBS_MAX_CYCLES 1000000   /* fhobs.kalman_filter.MAX_CYCLES */
-#define FHOBS_SAMPLE_SLACK 1e-6    /* fhobs.kalman_filter.SAMPLE_SLACK */
-#define FHOBS_NOISE_BLOCK 1024     /* fhobs.plant.NOISE_BLOCK */
-#define FHOBS_SCHEME_EULER 1       /* index of "euler" in fhobs.runtime.SCHEMES and PLANT_SCHEMES */
+#define FHOBS_MAX_SUBSTEPS 1000000 /* fhobs.core.runtime.MAX_SUBSTEPS */
+#define FHOBS_MAX_CYCLES 1000000   /* fhobs.core.kalman_filter.MAX_CYCLES */
+#define FHOBS_SAMPLE_SLACK 1e-6    /* fhobs.core.kalman_filter.SAMPLE_SLACK */
+#define FHOBS_NOISE_BLOCK 1024     /* fhobs.core.plant.NOISE_BLOCK */
+#define FHOBS_SCHEME_EULER 1 /* "euler" in fhobs.core.runtime.SCHEMES and plant.PLANT_SCHEMES */
 
 /* A number as the pythonfmu FMUs' messages show it (Python's repr, for most numbers): the
  * shortest %g that reads back as the same double. */
