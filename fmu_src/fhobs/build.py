@@ -39,7 +39,7 @@ import numpy as np
 
 from .core.certificate import certify
 from .core.gains import ObserverGains
-from .core.kernel import SHIPPED, SOURCE, compile_library
+from .core.kernel import HEADER, SHIPPED, SOURCE, compile_library
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
@@ -205,7 +205,8 @@ def _vector(value: Iterable[float] | None, size: int) -> list[float]:
 def build_tag(extra: str) -> str:
     """Hash of the code shipped in the FMUs and of ``extra`` (design + options), 12 hex digits."""
     digest = hashlib.sha256(extra.encode())
-    for path in sorted(_shipped_files()) + [PACKAGE_DIR / "fmu" / "status_wrapper.c", SOURCE]:
+    for path in sorted(_shipped_files()) + [PACKAGE_DIR / "fmu" / "status_wrapper.c", SOURCE,
+                                            HEADER]:
         digest.update(path.relative_to(PACKAGE_DIR).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
@@ -230,7 +231,7 @@ def ship_package(package: Path, kernel_library: Path | None) -> None:
     )
     for sub in SHIPPED_PACKAGES:
         shutil.copytree(PACKAGE_DIR / sub, package / sub,
-                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so", "*.c"))
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so", "*.c", "*.h"))
     if kernel_library is not None:
         shutil.copy2(kernel_library, package / "core" / SHIPPED.name)
 
