@@ -491,7 +491,9 @@ def _fmi_headers() -> Path:
 def compile_binary(sources: Path, target: Path, compiler: str,
                    files: Iterable[str] = ("fhobs_fmu.c",)) -> None:
     """Compile the C files ``files`` of the folder ``sources`` (translation units linked
-    together) into the shared library ``target``.
+    together) into the shared library ``target``. The default is the one generated unit of a
+    native harness block (:mod:`harness.blocks.native`); a native FMU passes its
+    ``<SourceFiles>``.
 
     Raises
     ------
