@@ -30,11 +30,8 @@ from fmpy.fmi2 import FMU2Slave
 
 import harness
 
-pytestmark = [
-    pytest.mark.skipif(sys.platform != "linux" or shutil.which("gcc") is None,
-                       reason="native FMUs are built for linux64 with gcc"),
-    pytest.mark.slow,
-]
+needs_gcc = pytest.mark.skipif(sys.platform != "linux" or shutil.which("gcc") is None,
+                               reason="native FMUs are built for linux64 with gcc")
 
 KINDS = ("observer", "plant", "kalman", "luenberger")
 COMPILERS = tuple(name for name in ("gcc", "clang") if shutil.which(name))
@@ -63,6 +60,8 @@ def native_set(tmp_path_factory, tuned_gains, pendulum_spec) -> dict[str, Path]:
     return folders
 
 
+@pytest.mark.slow
+@needs_gcc
 @pytest.mark.parametrize("compiler", COMPILERS)
 @pytest.mark.parametrize("kind", KINDS)
 def test_each_source_compiles_alone_warning_free(native_set, kind, compiler, tmp_path):
@@ -102,6 +101,8 @@ def outputs(folder: Path, binary: Path | None, steps: int = 40) -> np.ndarray:
     return np.array(rows)
 
 
+@pytest.mark.slow
+@needs_gcc
 @pytest.mark.parametrize("compiler", COMPILERS)
 @pytest.mark.parametrize("kind", KINDS)
 def test_sources_link_into_a_binary_with_the_shipped_results(native_set, kind, compiler,
@@ -121,6 +122,8 @@ def test_sources_link_into_a_binary_with_the_shipped_results(native_set, kind, c
     np.testing.assert_array_equal(outputs(folder, library), shipped)
 
 
+@pytest.mark.slow
+@needs_gcc
 @pytest.mark.parametrize("compiler", COMPILERS)
 def test_other_c_files_compile_warning_free(compiler, tmp_path):
     """The status wrapper (with its generated header and the value reference it is built
@@ -194,3 +197,25 @@ def test_scratch_sizes_of_kernel_h_are_kernel_py(n, k):
     assert (size("FHOBS_FILTER_WORK"), size("FHOBS_FILTER_CWORK")) \
         == kernel.filter_work_size(n, k)
     assert (size("FHOBS_EULER_WORK"), size("FHOBS_EULER_CWORK")) == kernel.euler_work_size(n, k)
+
+
+def c_struct_fields(name: str) -> list[str]:
+    """The field names of ``typedef struct {...} name;`` in kernel.h, in order."""
+    text = kernel.HEADER.read_text()
+    end = text.index("\n} " + name + ";")
+    body = text[text.rindex("typedef struct {\n", 0, end) + len("typedef struct {\n"):end]
+    fields = []
+    for line in body.splitlines():
+        declaration = re.sub(r"/\*.*?\*/", "", line).strip().rstrip(";")
+        if declaration:
+            names = declaration.split(" ", 1)[1] if not declaration.startswith("const ") \
+                else declaration.split(" ", 2)[2]
+            fields += [part.strip().lstrip("*") for part in names.split(",")]
+    return fields
+
+
+@pytest.mark.parametrize("name", ["PlantPlan", "LinearPlan", "FilterPlan", "EulerPlan",
+                                  "PrescribedPlan", "Call"])
+def test_ctypes_structures_follow_kernel_h(name):
+    """kernel.py's Structures name kernel.h's fields in kernel.h's order."""
+    assert [field for field, _ in getattr(kernel, name)._fields_] == c_struct_fields(name)
