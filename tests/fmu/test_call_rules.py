@@ -19,7 +19,7 @@ from fmpy import extract
 from fmu_fixtures import FmuDriver
 
 OK, ERROR = 0, 3
-KINDS = ("observer", "plant")
+KINDS = ("observer", "plant", "prescribed_time")
 CHANGES_STATE = {"fmi2FreeInstance", "fmi2SetupExperiment", "fmi2EnterInitializationMode",
                  "fmi2ExitInitializationMode", "fmi2Terminate", "fmi2Reset", "fmi2DoStep"}
 """Called on an instance of their own (the others share one instance per state)."""
