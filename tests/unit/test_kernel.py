@@ -246,10 +246,13 @@ def test_non_finite_step_is_refused_state_kept():
 def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_gains):
     assert FilteringObserver(tuned_gains).compiled
     assert FilteringObserver(tuned_gains, scheme="euler").compiled
-    assert not PrescribedTimeObserver(tuned_gains).compiled  # no kernel step
+    assert PrescribedTimeObserver(tuned_gains).compiled
+    assert not PrescribedTimeObserver(tuned_gains, scheme="euler").compiled  # split step only
     assert not FilteringObserver(tuned_gains, kernel=False).compiled
+    assert not PrescribedTimeObserver(tuned_gains, kernel=False).compiled
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
     assert not FilteringObserver(tuned_gains).compiled
+    assert not PrescribedTimeObserver(tuned_gains).compiled
     assert not LTIPlant(tuned_gains.A, tuned_gains.B, tuned_gains.C).compiled
 
 

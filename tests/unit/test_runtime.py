@@ -191,7 +191,9 @@ def test_luenberger_euler_is_explicit_euler(paper_design):
 @pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
 def test_xi_invariant_after_t_delta(request, design):
     """xi >= |psi|^2/2 once w = xi - |psi|^2/2 has reached 0 (T_delta = |w0|^(1-p)/((1-p) gamma)
-    for w0 < 0, p = nu/2 + 1), and it is then kept exactly by the split scheme."""
+    for w0 < 0, p = nu/2 + 1), and it is then kept by the split scheme to round-off: the
+    kernel sums |psi|^2 with fused multiply-adds, numpy's dot of a short vector may not, so
+    the two can differ by an ulp or two."""
     g, h = request.getfixturevalue(design), 5e-5
     p = g.nu / 2 + 1
     xi0 = -1e-4
@@ -204,7 +206,8 @@ def test_xi_invariant_after_t_delta(request, design):
         plant.step(u, None, h)
         obs.step(y, u, h)
         d = obs.diagnostics()
-        gaps.append((k + 1) * h > t_delta and d["xi"] < 0.5 * d["psi"] @ d["psi"])
+        half = 0.5 * d["psi"] @ d["psi"]
+        gaps.append((k + 1) * h > t_delta and d["xi"] < half - 4 * np.spacing(half))
     assert 0.3 < t_delta < 0.6 and not any(gaps)
 
 
