@@ -26,8 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -54,6 +58,7 @@ from harness.system import (
     SystemSpec,
     build_blocks,
     check_timing,
+    evaluation_outside,
     load_system,
     resolve_system,
 )
@@ -242,7 +247,9 @@ def run_scenario(
     failure and a summary.json marked ``"incomplete": true`` with the error, then raises the
     :class:`~harness.master.MasterError`.
     """
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_folder(out)
+    if stop_time is not None:
+        note_clipped_evaluation(spec, stop_time)
     try:
         results = (
             run_seeds(spec, seeds, stop_time, jobs)
@@ -251,7 +258,7 @@ def run_scenario(
         )
     except MasterError as err:
         if err.partial is not None:
-            write_incomplete(err, spec, out)
+            write_incomplete(err, spec, out, csv_every)
         raise
     write_csv(results[0], out / "results.csv", csv_every)
     data = mean_summary(results, spec, seeds)
@@ -263,11 +270,42 @@ def run_scenario(
     return data
 
 
-def write_incomplete(err: MasterError, spec: SystemSpec, out: Path) -> None:
-    """results.csv of the rows recorded before a failure and a summary.json marked incomplete."""
-    write_csv(err.partial, out / "results.csv")
+def make_output_folder(out: Path) -> None:
+    """Create the results folder ``out`` (with its parents), or raise an OSError that says it
+    is the output folder that cannot be created.
+
+    Examples
+    --------
+    >>> make_output_folder(Path("/proc/x"))
+    Traceback (most recent call last):
+    ...
+    FileNotFoundError: cannot create the output folder --out /proc/x: No such file or directory
+    """
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        reason = err.strerror or str(err)
+        raise type(err)(f"cannot create the output folder --out {out}: {reason}") from None
+
+
+def note_clipped_evaluation(spec: SystemSpec, stop_time: float) -> None:
+    """Print a note naming the ``[evaluation]`` entries that ``--stop-time`` puts beyond the
+    run: they have no figures in summary.json."""
+    outside = evaluation_outside(spec.evaluation, spec.start_time, stop_time)
+    if outside:
+        print(f"note: --stop-time {stop_time:g} ends {spec.name} before its [evaluation] "
+              f"{', '.join(outside)}: no figures for them", flush=True)
+
+
+def write_incomplete(err: MasterError, spec: SystemSpec, out: Path, every: int = 1) -> None:
+    """results.csv of the rows recorded before a failure or an interruption (every
+    ``every``-th and the last, as for a complete run) and a summary.json marked incomplete,
+    with the reason (``"interrupted"`` or ``"failed"``)."""
+    write_csv(err.partial, out / "results.csv", every)
     data = summary(err.partial, spec.evaluation, scenario=spec.name, step=spec.step)
-    data |= {"incomplete": True, "error": str(err), "stop_time": float(err.partial.time[-1])}
+    reason = "interrupted" if err.interrupted is not None else "failed"
+    data |= {"incomplete": True, "reason": reason, "error": str(err),
+             "stop_time": float(err.partial.time[-1])}
     write_summary(data, out / "summary.json")
 
 
@@ -554,19 +592,72 @@ def main(argv: list[str] | None = None) -> int:
     Exit 2 for an invalid system description or option, an unusable ``--out``, an FMU that
     refuses its start values or fails during the run (its own log messages quoted; what was
     recorded before a failure is written, marked incomplete), and as a last resort for any
-    other failure: never a traceback.
+    other failure: never a traceback. SIGINT and SIGTERM end the command with one line on
+    stderr and exit 130 and 143; during a run, after the chunk of steps in progress, with the
+    rows recorded so far written as for a failure (summary.json's ``reason``:
+    ``"interrupted"``).
     """
     args = _parser().parse_args(argv)
     commands = {"run": _cmd_run, "paper": _cmd_paper, "plant": _cmd_plant, "list": _cmd_list,
                 "export-ssp": _cmd_export, "sweep": _cmd_sweep}
     try:
-        return commands[args.command](args)
-    except (FhobsError, OSError) as err:
+        with terminate_as_interrupt():
+            return commands[args.command](args)
+    except MasterError as err:
+        if err.interrupted is not None:
+            return _interrupted(err.interrupted, err, args)
         print(f"error: {err}", file=sys.stderr)
-        if isinstance(err, MasterError) and err.partial is not None:
+        if err.partial is not None:
             print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "
                   f"{args.out} (summary.json marked incomplete)", file=sys.stderr)
         return 2
+    except (FhobsError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except Interrupted as err:
+        return _interrupted(err.signum, None, args)
+    except KeyboardInterrupt:
+        return _interrupted(signal.SIGINT, None, args)
     except Exception as err:  # noqa: BLE001 - last resort: a message, never a traceback
         print(f"error: {args.command} failed: {type(err).__name__}: {err}", file=sys.stderr)
         return 2
+
+
+class Interrupted(BaseException):
+    """SIGTERM outside a run (:func:`terminate_as_interrupt`); ``signum`` the signal."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`Interrupted` (as SIGINT raises KeyboardInterrupt) inside the
+    block, so that the command ends with its message and exit code rather than being killed;
+    the previous handler is back on exit. During a run, the master defers both signals to the
+    end of its chunk of steps (:func:`harness.master.deferred_signals`)."""
+    def raise_interrupted(signum: int, frame: object) -> None:
+        raise Interrupted(signum)
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, raise_interrupted)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(signum: int, err: MasterError | None, args: argparse.Namespace) -> int:
+    """Print the one line of an interrupted command; its exit code, 128 + the signal's
+    number (130 for SIGINT, 143 for SIGTERM)."""
+    name = signal.Signals(signum).name
+    if err is not None and err.partial is not None:
+        where = (f"the rows up to t = {float(err.partial.time[-1])!r} were written to "
+                 f"{args.out} (summary.json marked incomplete)")
+    else:
+        where = "nothing of the run in progress was written"
+    print(f"interrupted by {name}: {where}", file=sys.stderr, flush=True)
+    return 128 + int(signum)

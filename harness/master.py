@@ -21,13 +21,19 @@ function (:mod:`harness.native`), else from Python. Every FMI status is checked:
 anything worse raises :class:`MasterError` naming the FMU, the call, the time and the FMU's own
 log messages (every FMU is instantiated with logging on). A failure during the run keeps what
 was recorded up to it: the error carries the partial :class:`CoSimResult` (``partial``).
+
+SIGINT and SIGTERM during a run (in the main thread) are deferred: they are noted, never
+raised inside an FMU's code, and the run stops after the chunk of steps in progress with a
+:class:`MasterError` whose ``interrupted`` is the signal, its ``partial`` every row recorded.
 """
 
 from __future__ import annotations
 
 import ctypes
 import shutil
+import signal
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -69,6 +75,9 @@ class MasterError(FhobsError, RuntimeError):
         Index k of the failed step (the one from t_k), None before the first step.
     partial : CoSimResult or None
         The rows recorded before the failure (t_0 .. t_k), when it happened during the run.
+    interrupted : int or None
+        The signal (``signal.SIGINT``, ``signal.SIGTERM``) that stopped the run, None for a
+        failure.
     """
 
     def __init__(
@@ -77,12 +86,63 @@ class MasterError(FhobsError, RuntimeError):
         slave: str | None = None,
         step: int | None = None,
         partial: CoSimResult | None = None,
+        interrupted: int | None = None,
     ) -> None:
         super().__init__(message)
         self.slave, self.step, self.partial = slave, step, partial
+        self.interrupted = interrupted
 
     def __reduce__(self):  # noqa: ANN204 - keeps the attributes across process pools
-        return (type(self), (str(self), self.slave, self.step, self.partial))
+        return (type(self), (str(self), self.slave, self.step, self.partial, self.interrupted))
+
+
+DEFERRED_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals a run defers to the end of its chunk of steps."""
+
+
+@contextmanager
+def deferred_signals() -> Iterator[list[int]]:
+    """Note SIGINT and SIGTERM in the yielded list instead of acting on them; the previous
+    handlers are back on exit. Outside the main thread (where Python cannot set handlers)
+    nothing is deferred and the list stays empty.
+
+    Examples
+    --------
+    >>> import os
+    >>> with deferred_signals() as received:
+    ...     os.kill(os.getpid(), signal.SIGINT)
+    ...     time.sleep(0.01)
+    >>> received == [signal.SIGINT]
+    True
+    """
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def note(signum: int, frame: object) -> None:
+        received.append(signum)
+
+    previous = {signum: signal.signal(signum, note) for signum in DEFERRED_SIGNALS}
+    try:
+        yield received
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _recording(steps: int, signals: int, name: str) -> np.ndarray:
+    """The (steps + 1) x signals array of recorded rows, or a MasterError saying why a run of
+    that length cannot be recorded."""
+    try:
+        return np.empty((steps + 1, signals))
+    except (MemoryError, ValueError):
+        size = (steps + 1) * max(signals, 1) * 8
+        raise MasterError(
+            f"system {name!r}: a run of {steps} steps recording {signals} signals needs "
+            f"{size / 2**30:.3g} GiB of memory, more than there is; shorten the run, enlarge "
+            "the step or record fewer signals"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -258,44 +318,65 @@ class Master:
         t0, h = spec.start_time, spec.step
         t_end = spec.stop_time if stop_time is None else stop_time
         steps = check_timing(h, t0, t_end, f"system {spec.name!r}")
-        values = np.empty((steps + 1, len(self.names)))
+        values = _recording(steps, len(self.names), spec.name)
         started = time.perf_counter()
         self._logs: dict[str, deque[str]] = {}
+        done = -1  # the last step whose row is recorded (-1: not even t0's)
         try:
-            with self._slaves(t0, t_end) as slaves:
+            with deferred_signals() as received, self._slaves(t0, t_end) as slaves:
                 outputs = np.zeros(len(self.names))
                 inputs = np.zeros(len(self.inputs))
                 self._bind(slaves, outputs, inputs)
                 self._read_outputs(slaves, t0)
                 values[0] = outputs
+                done = 0
                 show = sys.stderr.isatty() if progress is None else progress
                 buffers = (values, outputs, inputs)
                 for k0 in self._chunks(steps, show):
+                    if received:
+                        break
                     k1 = min(k0 + PROGRESS_CHUNK, steps)
                     if k0 == 0 and self.first_inputs == "zero":
                         unconnected = Connections(np.zeros_like(self.matrix))
                         self._steps(slaves, 0, 1, t0, h, *buffers, unconnected)
                         k0 = 1
                     self._steps(slaves, k0, k1, t0, h, *buffers, self.connections)
+                    done = k1
         except MasterError as err:
             raise self._explained(err, values, t0, h, time.perf_counter() - started) from None
+        if received:
+            err = self._interrupted(received[0], done)
+            raise self._explained(err, values, t0, h, time.perf_counter() - started)
         wall = time.perf_counter() - started
         return CoSimResult(t0 + h * np.arange(steps + 1), self.names, values, steps, wall)
+
+    def _interrupted(self, signum: int, done: int) -> MasterError:
+        """The MasterError of a run stopped by ``signum`` after step ``done`` (-1: before the
+        first row was recorded)."""
+        name = signal.Signals(signum).name
+        spec = self.system.spec
+        if done < 0:
+            return MasterError(f"interrupted by {name} before the first step", None, None,
+                               None, signum)
+        t = spec.start_time + done * spec.step
+        return MasterError(f"interrupted by {name} at t = {t!r}", None, done, None, signum)
 
     def _explained(
         self, err: MasterError, values: np.ndarray, t0: float, h: float, wall: float
     ) -> MasterError:
-        """``err`` with the FMU's last log messages and the rows recorded before it."""
-        logged = list(self._logs.get(err.slave or "", ()))
-        message = str(err) + (
-            "; the FMU says: " + " | ".join(logged) if logged else "; the FMU logged nothing"
-        )
+        """``err`` with the FMU's last log messages (not for an interruption) and the rows
+        recorded before it."""
+        message = str(err)
+        if err.interrupted is None:
+            logged = list(self._logs.get(err.slave or "", ()))
+            message += ("; the FMU says: " + " | ".join(logged) if logged
+                        else "; the FMU logged nothing")
         partial = None
         if err.step is not None:
             k = err.step
             partial = CoSimResult(t0 + h * np.arange(k + 1), self.names, values[: k + 1].copy(),
                                   k, wall)
-        return MasterError(message, err.slave, err.step, partial)
+        return MasterError(message, err.slave, err.step, partial, err.interrupted)
 
     @staticmethod
     def _chunks(steps: int, show: bool) -> Iterator[int]:
