@@ -239,19 +239,32 @@ def ship_package(package: Path, kernel_library: Path | None) -> None:
 def _write_script(stage: Path, kind: str, tag: str) -> Path:
     """The slave script: a build-unique subclass of the kind's slave class in the package.
 
-    pythonfmu 0.7.0 runs the script a second time, in the module's namespace, at every
-    instantiation and releases one reference to that namespace too many; the functions the
-    script defines hold references to it, so the subclass defines one (``__init__``).
+    pythonfmu 0.7.0 runs the script again, in the module's namespace, at every instantiation,
+    keeps the class it finds there, inserts the resources folder into ``sys.path`` once more
+    and releases one reference to the namespace too many. So that an instantiate/free cycle
+    leaves nothing of ours behind, the script defines the class only on its first run (a class
+    per run stayed alive, about 6 KB each), removes the repeated folder from ``sys.path`` and
+    takes back the released reference (``Py_IncRef`` of the namespace) at every run.
     """
     base = SLAVE_CLASSES[kind]
     script = stage / f"slave_{kind}_{tag}.py"
     script.write_text(
-        f'"""The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`."""\n\n'
-        f"from {package_name(kind, tag)}.fmu.{kind} import {base}\n\n\n"
-        f"class {base}_{tag}({base}):\n"
-        f'    """{base} under a class name unique to this build."""\n\n'
-        f"    def __init__(self, **kwargs):\n"
-        f"        super().__init__(**kwargs)\n"
+        f'"""The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`.\n\n'
+        "pythonfmu runs this script at every instantiation, in this module's namespace, and\n"
+        "releases one reference to the namespace too many: the class is defined once, the\n"
+        'reference taken back and the resources folder kept once in sys.path."""\n\n'
+        "import ctypes\n"
+        "import sys\n\n"
+        "ctypes.pythonapi.Py_IncRef(ctypes.py_object(globals()))\n"
+        "while sys.path.count(sys.path[0]) > 1:\n"
+        "    sys.path.remove(sys.path[0])\n"
+        "try:\n"
+        f"    {base}_{tag}\n"
+        "except NameError:\n"
+        f"    from {package_name(kind, tag)}.fmu import {kind} as _slaves\n\n"
+        f"    class {base}_{tag}(_slaves.{base}):\n"
+        f'        """{base} under a class name unique to this build."""\n'
+        f"{base}_{tag} = {base}_{tag}  # the one class pythonfmu finds in this run's names\n"
     )
     return script
 
