@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
+from fhobs.native.build import build_native_fmus
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FMI_ERROR, FmuDriver, assert_error
@@ -140,3 +141,34 @@ def test_pythonfmu_state_with_a_flipped_bit_is_refused(open_paper):
     data = serialized(source)
     check_flips_refused(target, data, flip_positions(data))
     check_restores_bit_exactly(source, target, data)
+
+
+def test_a_changed_bit_of_a_native_state_is_refused(kalman_gains, tmp_path):
+    """The native observer's serialized state carries a checksum: a flipped bit anywhere in it
+    is fmi2Error naming the checksum, the instance unchanged; the bytes as serialized restore
+    bit for bit."""
+    path = build_native_fmus(kalman_gains, tmp_path, kinds=["observer"])["observer"]
+    driver = FmuDriver(path, extract(str(path)))
+    try:
+        driver.start()
+        for k in range(3):
+            driver.set("y", np.array([0.1 * k, -0.2]))
+            driver.fmu.doStep(k * 1e-3, 1e-3)
+        state = driver.fmu.getFMUstate()
+        data = bytes(driver.fmu.serializeFMUstate(state))
+        before = driver.get("x_hat", (4,)).tolist()
+        for position in (0, 20, len(data) // 2, len(data) - 9, len(data) - 1):
+            for bit in (0, 6):
+                flipped = bytearray(data)
+                flipped[position] ^= 1 << bit
+                words = "header" if position < 8 else ("another FMU" if position < 60
+                                                       else "checksum")
+                assert_error(driver, driver.fmu.deSerializeFMUstate, bytes(flipped), words=words)
+        assert driver.get("x_hat", (4,)).tolist() == before
+        restored = driver.fmu.deSerializeFMUstate(data)
+        driver.fmu.setFMUstate(restored)
+        assert driver.get("x_hat", (4,)).tolist() == before
+        driver.fmu.freeFMUstate(restored)
+        driver.fmu.freeFMUstate(state)
+    finally:
+        driver.fmu.freeInstance()

@@ -123,6 +123,14 @@ def run(driver: FmuDriver, kind: str, signals: dict[str, np.ndarray], dt: float,
     return np.array(rows)
 
 
+def fnv1a(data: bytes) -> int:
+    """64-bit FNV-1a, written out here (the native FMUs' state checksum)."""
+    value = 14695981039346656037
+    for byte in data:
+        value = ((value ^ byte) * 1099511628211) % 2**64
+    return value
+
+
 # -- interface -------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", KINDS)
 def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned_gains):
@@ -310,6 +318,7 @@ def test_caller_mistakes_are_errors_with_the_state_kept(open_pair, pendulum_fmus
     foreign_python = bytes(python.fmu.serializeFMUstate(python.fmu.getFMUstate()))
     tampered = bytearray(own)
     tampered[80:88] = np.float64(123.0).tobytes()  # a compiled-in parameter's value
+    resigned = bytes(tampered[:-8]) + fnv1a(bytes(tampered[:-8])).to_bytes(8, "little")
     cases = [
         (fmu.getReal, ([count + 5],), "is not a variable of this FMU"),
         (fmu.getInteger, ([vr["x_hat[1]"]],), "is of type Real, not Integer"),
@@ -325,7 +334,8 @@ def test_caller_mistakes_are_errors_with_the_state_kept(open_pair, pendulum_fmus
         (fmu.deSerializeFMUstate, (foreign_native,), "another FMU"),
         (fmu.deSerializeFMUstate, (foreign_python,), "not a serialized FMU state"),
         (fmu.deSerializeFMUstate, (own[:-8],), "not a serialized FMU state"),
-        (fmu.deSerializeFMUstate, (bytes(tampered),), "not the value compiled into this FMU"),
+        (fmu.deSerializeFMUstate, (bytes(tampered),), "checksum does not match"),
+        (fmu.deSerializeFMUstate, (resigned,), "not the value compiled into this FMU"),
         (fmu.setFMUstate, (foreign_state,), "not an FMU state of this FMU"),
     ]
     for _ in range(3):  # repeated mistakes: the same answers, the host unharmed

@@ -34,7 +34,7 @@
 #define INSTANCE_MAGIC 0x6668696eu /* "fhin" */
 #define SNAPSHOT_MAGIC 0x66687374u /* "fhst" */
 #define STATE_HEADER "FHOBSNAT"
-#define STATE_FORMAT 1u
+#define STATE_FORMAT 2u
 #define IDENTITY_FIELD 48
 #define MESSAGE_SIZE 1024
 #define STATUS_OK 0    /* fhobs.fmu.modes.STATUS_OK */
@@ -76,10 +76,11 @@ typedef struct {
     Values values;
 } Snapshot;
 
-/* serialized: header, format, identity, then the Values' fields */
+/* serialized: header, format, identity, the Values' fields, then a 64-bit FNV-1a checksum of
+ * everything before it */
 #define SERIALIZED_SIZE                                                                        \
     (8 + 4 + IDENTITY_FIELD + 4 + 8 * FHOBS_N_VARIABLES + 4 * FHOBS_N_VARIABLES +              \
-     8 * FHOBS_STATE_SIZE)
+     8 * FHOBS_STATE_SIZE + 8)
 
 /* -- memory and messages ------------------------------------------------------------------ */
 
@@ -761,6 +762,17 @@ static const unsigned char *get(const unsigned char *p, void *data, size_t size)
     return p + size;
 }
 
+/* 64-bit FNV-1a of n bytes (the serialized state's checksum) */
+static uint64_t fnv1a(const unsigned char *bytes, size_t n)
+{
+    uint64_t hash = 14695981039346656037u;
+    for (size_t i = 0; i < n; i++) {
+        hash ^= bytes[i];
+        hash *= 1099511628211u;
+    }
+    return hash;
+}
+
 fmi2Status fmi2SerializeFMUstate(fmi2Component component, fmi2FMUstate state,
                                  fmi2Byte serializedState[], size_t size)
 {
@@ -780,7 +792,9 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component component, fmi2FMUstate state,
     p = put(p, &mode, 4);
     p = put(p, s->values.real, sizeof s->values.real);
     p = put(p, s->values.integer, sizeof s->values.integer);
-    put(p, s->values.state, sizeof s->values.state);
+    p = put(p, s->values.state, sizeof s->values.state);
+    uint64_t checksum = fnv1a((const unsigned char *)serializedState, SERIALIZED_SIZE - 8);
+    put(p, &checksum, 8);
     return ok(c);
 }
 
@@ -806,6 +820,11 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
     if (size != SERIALIZED_SIZE)
         return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: they are not a serialized "
                        "FMU state of this FMU (wrong size)");
+    uint64_t checksum;
+    memcpy(&checksum, serializedState + SERIALIZED_SIZE - 8, 8);
+    if (checksum != fnv1a((const unsigned char *)serializedState, SERIALIZED_SIZE - 8))
+        return fail(c, "fmi2DeSerializeFMUstate rejected the bytes: their checksum does not "
+                       "match (the bytes were changed after fmi2SerializeFMUstate)");
     p = get(p, &mode, 4);
     values.mode = mode;
     p = get(p, values.real, sizeof values.real);
