@@ -103,7 +103,7 @@ def test_own_plant_with_native_fmus_gives_the_same_results(tmp_path, capsys):
         assert main(["plant", spec, "--out", str(tmp_path / folder), "--stop-time", "1",
                      "--no-plots", *extra]) == 0, capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "native" / "fmus" / "native").glob("*.fmu")) == [
-        "luenberger.fmu", "observer.fmu", "plant.fmu"]
+        "luenberger.fmu", "observer.fmu", "plant.fmu", "prescribed_time.fmu"]
     python, native = ((tmp_path / folder / "results.csv").read_text()
                       for folder in ("python", "native"))
     assert python == native and "prescribed_time.x_hat[1]" in native
