@@ -65,6 +65,7 @@ import math
 import os
 import shutil
 import socket
+import sys
 import tempfile
 import time
 import tomllib
@@ -1041,10 +1042,23 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             yield client
         return
     n = workers or os.cpu_count() or 1
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
-            Client(cluster) as client:
+    with _without_fmu_paths(), LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _without_fmu_paths() -> Iterator[None]:
+    """``sys.path`` without FMU resource folders while the local workers start: spawned
+    processes inherit it, and the slave modules of pythonfmu FMUs this process ran would
+    shadow those that the workers' builds import."""
+    saved = list(sys.path)
+    sys.path[:] = [entry for entry in saved if Path(entry).name != "resources"]
+    try:
+        yield
+    finally:
+        sys.path[:] = saved
 
 
 def read_rows(points_dir: Path) -> dict[str, dict[str, Any]]:

@@ -189,6 +189,7 @@ def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
     slave = FMU2Slave(guid=description.guid, unzipDirectory=str(unzip_dir),
                       modelIdentifier=description.coSimulation.modelIdentifier,
                       instanceName="interface")
+    path, modules = list(sys.path), set(sys.modules)
     slave.instantiate()
     try:
         start = {}
@@ -200,6 +201,12 @@ def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
                 start[vr] = int(slave.getInteger([vr])[0])
     finally:
         slave.freeInstance()
+        # pythonfmu leaves the FMU's resources in sys.path and its modules imported: a later
+        # build of the same design in this process (or in a process spawned from it, which
+        # inherits sys.path) would import them from this temporary folder
+        sys.path[:] = path
+        for name in set(sys.modules) - modules:
+            del sys.modules[name]
     return {"xml": ET.parse(unzip_dir / "modelDescription.xml"), "start": start}
 
 
