@@ -67,7 +67,7 @@ def variable_steps(seed: int, count: int) -> np.ndarray:
 
 
 PATTERNS = {"accumulated 2e-4 to 1 s": accumulated_steps(2e-4, 1.0),
-            "variable": variable_steps(5, 300)}
+            "variable": variable_steps(5, 80)}
 
 
 def signals(kind: str, steps: int, seed: int = 0) -> dict[str, np.ndarray]:

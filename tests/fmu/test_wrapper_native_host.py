@@ -257,13 +257,14 @@ def test_host_exits_cleanly_after_a_run(host, folders, kind, preload, tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("preload", [False, True], ids=["loaded_by_wrapper", "ld_preload"])
-def test_forty_runs_none_killed(host, folders, preload, tmp_path):
-    """40 child runs (observer, plant and kalman in turn) with captured output: none killed."""
+def test_repeated_runs_none_killed(host, folders, preload, tmp_path):
+    """15 child runs (observer, plant and kalman in turn) with captured output: none killed
+    (before the fix every such run of the observer was: 30 of 30)."""
     env = preloaded() if preload else None
     kinds = ["observer", "plant", "kalman"]
     codes = [run_kind(host, folders[kinds[i % 3]], kinds[i % 3], tmp_path, env=env).returncode
-             for i in range(40)]
-    assert codes == [0] * 40
+             for i in range(15)]
+    assert codes == [0] * 15
 
 
 @pytest.mark.slow

@@ -6,6 +6,7 @@ from __future__ import annotations
 import fhobs
 import fhobs.errors
 import pytest
+
 from harness.master import MasterError
 from harness.sweep import SweepError
 from harness.system import DescriptionError
