@@ -63,7 +63,7 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverGains
 from ..core.runtime import SCHEMES
 from .access import AccessRules
-from .call_rules import call_problem, time_problem
+from .call_rules import TIME_TOLERANCE, call_problem, time_problem
 from .fmu_state import FmuStates
 from .modes import (
     INITIALISATION,
@@ -172,6 +172,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._mode_code = np.zeros(1, dtype=np.intc)  # the mode's index, read by the wrapper
         self._set_mode(INSTANTIATED)
         self._start_time = self._time = 0.0
+        self._time_slack = 0.0  # the next doStep's time passes the fast path within this
         self.via_wrapper = self._register_with_wrapper()
         self.model: SlaveModel = self._make_model()
         # the start model and the parameters it was built from, until initialisation uses it
@@ -297,7 +298,8 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         # their Euclidean norm (Python >= 3.10), which bounds each |input|, so a hypot strictly
         # below the bound bounds them all; it is NaN or inf when an input is not finite, which
         # fails the comparison. Anything else (also |input| = bound) gets the exact checks.
-        if not (step_size == self._accepted_step and current_time == self._time
+        if not (step_size == self._accepted_step
+                and abs(current_time - self._time) <= self._time_slack
                 and _hypot(*self._inputs.tolist()) < self._bound.item()):
             problem = (time_problem(current_time, self._time, step_size)
                        or self._step_size_problem(step_size) or self._input_problem())
@@ -319,6 +321,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             return self._fail(f"doStep at t = {number(current_time)} rejected: {err}")
         self._outputs[...] = outputs
         self._time = current_time + step_size
+        self._time_slack = TIME_TOLERANCE * max(abs(self._time), step_size)
         return True
 
     def _check_all_parameters(self) -> None:
