@@ -63,7 +63,7 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverGains
 from ..core.runtime import SCHEMES
 from .access import AccessRules
-from .call_rules import TIME_TOLERANCE, call_problem, time_problem
+from .call_rules import TIME_TOLERANCE, call_problem, number, time_problem
 from .fmu_state import FmuStates
 from .modes import (
     INITIALISATION,
@@ -74,7 +74,7 @@ from .modes import (
     STEP_MODE,
     TERMINATED,
 )
-from .variables import KINDS, Variables, element_names, number
+from .variables import KINDS, Variables, element_names
 from .wrapper import WrapperCalls
 
 DESIGN_FILE = "design.json"

@@ -29,11 +29,6 @@ INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
 
 
-def number(value: float) -> str:
-    """A number as a message shows it: ``repr`` of a Python float (never ``np.float64(...)``)."""
-    return repr(float(value))
-
-
 def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
     """FMI names of the elements of an array, row-major, 1-based (``A[1,1]``, ``A[1,2]``...).
 
