@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 from fhobs.core.gains import ObserverGains
+from fhobs.fmu.kinds import ESTIMATORS
 from fhobs.scenarios_zoo import state_feedback
 from fhobs.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 
@@ -51,9 +52,6 @@ RUNS_PER_SETTLING_TIME = 3.0
 """The default stop time, in requested settling times."""
 STEP = 1e-3
 """The default communication step (s)."""
-ESTIMATORS = {"observer": "homogeneous", "prescribed_time": "prescribed_time",
-              "luenberger": "linear", "kalman": "kalman"}
-"""FMU kind -> the estimator's label in the figures (the order of the table's rows)."""
 DISTURBANCE_BLOCK = "disturbance"
 """The name of the q signal block in the system."""
 FIGURES = ("x_max_transient", "x_rms_transient", "x_max_steady", "x_rms_steady",

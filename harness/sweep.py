@@ -91,8 +91,6 @@ FLAVOURS = ("native", "pythonfmu")
 RUN_AXES = ("base", "seed", "step", "stop_time")
 """Axes that are not spec entries or start values."""
 DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
-PLANT_FMUS = ("plant", "observer", "luenberger", "kalman", "prescribed_time")
-"""The FMU names of a plant-spec base's system (:func:`harness.own_plant.own_plant_system`)."""
 STATUS_OK, STATUS_FAILED = "ok", "failed"
 
 
@@ -554,6 +552,7 @@ def _describe(params: dict[str, Any]) -> str:
 
 def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
     from fhobs.errors import SpecError
+    from fhobs.fmu.kinds import KINDS
     from fhobs.spec import spec_from_dict
 
     digest = design_key(job)
@@ -567,7 +566,7 @@ def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
             spec_from_dict(design_spec_data(job), source=f"the spec of base {job['base']!r}")
         except SpecError as err:
             raise SweepError(f"{label}: {err}") from None
-    fmus = set(job["system"].fmus) if job["system"] is not None else set(PLANT_FMUS)
+    fmus = set(job["system"].fmus) if job["system"] is not None else set(KINDS)
     for axis in job["params"]:
         if axis.startswith("set.") and axis.split(".")[1] not in fmus:
             raise SweepError(f"{label}: axis {axis!r}: no FMU {axis.split('.')[1]!r} in base "
@@ -763,25 +762,16 @@ def fmu_tag(key: str, flavour: str, options: dict[str, Any]) -> str:
 
 
 def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
-    """Build the FMUs; with ``native``, the kinds without a native FMU as pythonfmu FMUs."""
+    """Build the FMUs, native ones with the ``native`` flavour (the design's Kalman filter's
+    FMU only when it has one)."""
     from fhobs.build import build_fmus
-
-    if flavour != "native":
-        return build_fmus(gains, out, **options)
-    from fhobs.native.build import KIND_NUMBERS, build_native_fmus
+    from fhobs.native.build import build_native_fmus
 
     kinds = options.pop("kinds", None)
-    T0 = options.pop("T0", None)
-    kinds = list(KIND_NUMBERS if kinds is None else kinds)
-    if gains.kalman is None and "kalman" in kinds:
-        kinds.remove("kalman")
-    others = [k for k in kinds if k not in KIND_NUMBERS]
-    extra = {} if T0 is None else {"T0": T0}
-    fmus = build_native_fmus(gains, out, kinds=[k for k in kinds if k in KIND_NUMBERS],
-                             **options, **extra)
-    if others:
-        fmus |= build_fmus(gains, out / "pythonfmu", kinds=others, **options, **extra)
-    return fmus
+    if kinds is not None and gains.kalman is None:
+        kinds = [kind for kind in kinds if kind != "kalman"]
+    build = build_native_fmus if flavour == "native" else build_fmus
+    return build(gains, out, kinds=kinds, **options)
 
 
 def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
@@ -793,8 +783,10 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     >>> from fhobs.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]]})
     >>> build_options({"kind": "plant", "step": 1e-3}, spec)["kinds"]
-    ['plant', 'observer', 'luenberger', 'prescribed_time']
+    ['observer', 'prescribed_time', 'luenberger', 'plant']
     """
+    from fhobs.fmu.kinds import KINDS
+
     if job["kind"] != "plant":
         return {"kinds": sorted(Path(fs.path).stem for fs in job["system"].fmus.values()
                                 if fs.path is not None
@@ -802,7 +794,7 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     noise, step = _plant_noise(spec), _plant_step(job, spec)
     options: dict[str, Any] = {
         "x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step,
-        "kinds": [k for k in PLANT_FMUS if (k != "kalman" or spec.noise is not None)
+        "kinds": [k for k in KINDS if (k != "kalman" or spec.noise is not None)
                   and (k != "prescribed_time" or noise == 0.0)],  # it runs without noise
     }
     if noise == 0.0:

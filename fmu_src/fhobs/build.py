@@ -34,6 +34,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,18 +45,13 @@ from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
 from .fmu import call_rules
+from .fmu.kinds import KINDS
 from .fmu.modes import STATUS_VALUE_REFERENCE
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 
 PACKAGE_DIR = Path(__file__).resolve().parent
-SLAVE_CLASSES = {"observer": "FhobsObserver", "luenberger": "FhobsLuenberger",
-                 "prescribed_time": "FhobsPrescribedTime", "plant": "FhobsPlant",
-                 "kalman": "FhobsKalman"}
-"""The slave class of each FMU kind, defined in ``fhobs.fmu.<kind>``."""
 SHIPPED_PACKAGES = ("core", "fmu")
 """The subpackages of fhobs copied whole into each FMU."""
-DEFAULT_KINDS = ("observer", "luenberger", "prescribed_time", "plant")
-"""Built by default; ``kalman`` too when the design has a Kalman filter."""
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
 PYTHON_RECORD = "resources/fhobs_python.txt"
@@ -67,19 +63,9 @@ def build_fmus(
     out_dir: Path,
     *,
     kinds: Iterable[str] | None = None,
-    h: float = DEFAULT_H,
-    scheme: str | None = None,
-    z0: Iterable[float] | None = None,
-    psi0: Iterable[float] | None = None,
-    xi0: float = 0.0,
-    T0: float = 1.0,
-    x0: Iterable[float] | None = None,
-    noise_amplitude: float = 0.0,
-    noise_seed: int = 0,
-    plant_scheme: str = "zoh",
-    input_bound: float = DEFAULT_INPUT_BOUND,
     status_wrapper: bool | None = None,
     kernel: bool | None = None,
+    **options: Any,
 ) -> dict[str, Path]:
     """Build the requested FMUs into ``out_dir`` and return ``{kind: path}``.
 
@@ -90,26 +76,8 @@ def build_fmus(
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
     kinds : iterable of str, optional
-        Among ``SLAVE_CLASSES``: observer, luenberger, prescribed_time, plant, kalman.
-        Default: ``DEFAULT_KINDS``, plus ``kalman`` when ``gains.kalman`` is set.
-    h : float
-        Start value of the observers' internal step.
-    scheme : str, optional
-        Start value of the observers' integration scheme (default: the runtime's first).
-    z0, psi0, xi0 : optional
-        Start values of the observers' initial state (default zero; the Kalman filter's
-        disturbance states start at zero).
-    T0 : float
-        Start value of the prescribed-time observer's convergence time (s), from which it
-        derives its initial xi.
-    x0 : iterable of float, optional
-        Start value of the plant's initial state (default zero).
-    noise_amplitude, noise_seed : float, int
-        Start values of the plant's measurement noise.
-    plant_scheme : str
-        Start value of the plant's step scheme (``fhobs.core.plant.PLANT_SCHEMES``).
-    input_bound : float
-        Start value of every FMU's ``input_bound`` (larger inputs are rejected).
+        Among :data:`fhobs.fmu.kinds.KINDS`: observer, luenberger, plant, kalman,
+        prescribed_time. Default: all, ``kalman`` only when ``gains.kalman`` is set.
     status_wrapper : bool, optional
         Put the ``fmi2Error`` wrapper in front of pythonfmu's linux64 binary. Default: when
         a C compiler is found. True without a compiler raises :class:`BuildError`.
@@ -117,6 +85,10 @@ def build_fmus(
         Ship the compiled step kernel (linux64). Default: on Linux when a C compiler is found.
         True without a compiler or on another platform raises :class:`BuildError`; False
         builds FMUs that run the numpy runtime alone.
+    **options
+        Start values of the setting parameters, as for :func:`fmu_options` (``h``,
+        ``scheme``, ``z0``, ``psi0``, ``xi0``, ``T0``, ``x0``, ``noise_amplitude``,
+        ``noise_seed``, ``plant_scheme``, ``input_bound``).
 
     Returns
     -------
@@ -132,18 +104,10 @@ def build_fmus(
     >>> sorted(path.name for path in built.values())
     ['observer.fmu', 'plant.fmu']
     """
-    if kinds is None:
-        kinds = DEFAULT_KINDS + (("kalman",) if gains.kalman is not None else ())
-    kinds = tuple(kinds)
-    unknown = set(kinds) - set(SLAVE_CLASSES)
+    kinds = tuple(default_kinds(gains) if kinds is None else kinds)
+    unknown = set(kinds) - set(KINDS)
     if unknown:
-        raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(SLAVE_CLASSES)}")
-    if "kalman" in kinds and gains.kalman is None:
-        raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
-                         "give the spec a [noise] table)")
-    certify(gains)
-    if "prescribed_time" in kinds:
-        prescribed_xi0(T0, gains.nu, gains.rho)  # ValueError naming T0 if it gives no xi0
+        raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(KINDS)}")
     compiler = shutil.which("cc") or shutil.which("gcc")
     if status_wrapper is None:
         status_wrapper = compiler is not None
@@ -153,25 +117,9 @@ def build_fmus(
         kernel = compiler is not None and sys.platform == "linux"
     if kernel and (compiler is None or sys.platform != "linux"):
         raise BuildError("kernel=True needs Linux and a C compiler (cc or gcc) on PATH")
-    config = {
-        "status_wrapper": status_wrapper,
-        "kernel": kernel,
-        "input_bound": float(input_bound),
-        "h": float(h),
-        "scheme": SCHEMES[0] if scheme is None else scheme,
-        "z0": _vector(z0, gains.n),
-        "psi0": _vector(psi0, gains.k),
-        "xi0": float(xi0),
-        "T0": float(T0),
-        "x0": _vector(x0, gains.n),
-        "noise_amplitude": float(noise_amplitude),
-        "noise_seed": int(noise_seed),
-        "plant_scheme": plant_scheme,
-    }
-    if config["scheme"] not in SCHEMES:
-        raise ValueError(f"scheme {config['scheme']!r} is not one of {SCHEMES}")
-    if plant_scheme not in PLANT_SCHEMES:
-        raise ValueError(f"plant_scheme {plant_scheme!r} is not one of {PLANT_SCHEMES}")
+    certify(gains)
+    config = {"status_wrapper": status_wrapper, "kernel": kernel,
+              **fmu_options(gains, kinds, **options)}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fhobs_build_") as tmp:
@@ -194,11 +142,109 @@ def build_fmus(
     return built
 
 
-def _vector(value: Iterable[float] | None, size: int) -> list[float]:
+def default_kinds(gains: ObserverGains) -> tuple[str, ...]:
+    """The kinds built by default: every kind of :data:`~fhobs.fmu.kinds.KINDS`, ``kalman``
+    only when the design has a Kalman filter.
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> default_kinds(paper_gains())
+    ('observer', 'prescribed_time', 'luenberger', 'plant')
+    """
+    return tuple(kind for kind in KINDS if kind != "kalman" or gains.kalman is not None)
+
+
+def fmu_options(
+    gains: ObserverGains,
+    kinds: Iterable[str],
+    *,
+    h: float = DEFAULT_H,
+    scheme: str | None = None,
+    z0: Iterable[float] | None = None,
+    psi0: Iterable[float] | None = None,
+    xi0: float = 0.0,
+    T0: float = 1.0,
+    x0: Iterable[float] | None = None,
+    noise_amplitude: float = 0.0,
+    noise_seed: int = 0,
+    plant_scheme: str = "zoh",
+    input_bound: float = DEFAULT_INPUT_BOUND,
+) -> dict[str, Any]:
+    """The start values of the FMUs' setting parameters (``fmu_config.json``; the
+    :attr:`~fhobs.fmu.kinds.Variable.option` keys), checked, for both builds.
+
+    Parameters
+    ----------
+    gains : ObserverGains
+        The design.
+    kinds : iterable of str
+        The kinds to build (a prescribed-time FMU needs a T0 that gives an initial xi; a
+        Kalman FMU a design with a Kalman filter).
+    h : float
+        Start value of the observers' internal step.
+    scheme : str, optional
+        Start value of the observers' integration scheme (default: the runtime's first).
+    z0, psi0, xi0 : optional
+        Start values of the observers' initial state (default zero; the Kalman filter's
+        disturbance states start at zero).
+    T0 : float
+        Start value of the prescribed-time observer's convergence time (s), from which it
+        derives its initial xi.
+    x0 : iterable of float, optional
+        Start value of the plant's initial state (default zero).
+    noise_amplitude, noise_seed : float, int
+        Start values of the plant's measurement noise.
+    plant_scheme : str
+        Start value of the plant's step scheme (``fhobs.core.plant.PLANT_SCHEMES``).
+    input_bound : float
+        Start value of every FMU's ``input_bound`` (larger inputs are rejected).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ValueError
+        Naming the option and the reason.
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> fmu_options(paper_gains(), ["observer"], z0=[1, 0, 0, 0])["z0"]
+    [1.0, 0.0, 0.0, 0.0]
+    """
+    if "kalman" in kinds and gains.kalman is None:
+        raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
+                         "give the spec a [noise] table)")
+    if "prescribed_time" in kinds:
+        prescribed_xi0(T0, gains.nu, gains.rho)  # ValueError naming T0 if it gives no xi0
+    scheme = SCHEMES[0] if scheme is None else scheme
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme {scheme!r} is not one of {SCHEMES}")
+    if plant_scheme not in PLANT_SCHEMES:
+        raise ValueError(f"plant_scheme {plant_scheme!r} is not one of {PLANT_SCHEMES}")
+    return {
+        "input_bound": float(input_bound),
+        "h": float(h),
+        "scheme": scheme,
+        "z0": _vector(z0, gains.n, "z0"),
+        "psi0": _vector(psi0, gains.k, "psi0"),
+        "xi0": float(xi0),
+        "T0": float(T0),
+        "x0": _vector(x0, gains.n, "x0"),
+        "noise_amplitude": float(noise_amplitude),
+        "noise_seed": int(noise_seed),
+        "plant_scheme": plant_scheme,
+    }
+
+
+def _vector(value: Iterable[float] | None, size: int, name: str) -> list[float]:
     """A start vector as a list of floats (zeros by default), its length checked."""
     vector = np.zeros(size) if value is None else np.asarray(list(value), dtype=float)
     if vector.shape != (size,):
-        raise ValueError(f"expected {size} values, got {vector.shape}")
+        raise ValueError(f"{name}: expected {size} values, got {vector.shape}")
     return vector.tolist()
 
 
@@ -246,7 +292,7 @@ def _write_script(stage: Path, kind: str, tag: str) -> Path:
     per run stayed alive, about 6 KB each), removes the repeated folder from ``sys.path`` and
     takes back the released reference (``Py_IncRef`` of the namespace) at every run.
     """
-    base = SLAVE_CLASSES[kind]
+    base = KINDS[kind].slave
     script = stage / f"slave_{kind}_{tag}.py"
     script.write_text(
         f'"""The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`.\n\n'

@@ -381,8 +381,8 @@ def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_gains, tmp_pat
 
 def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_gains, tmp_path):
     with pytest.raises(BuildError, match="no native FMU of kind sampled: native FMUs are built "
-                                         "for observer, luenberger, plant, kalman, "
-                                         "prescribed_time"):
+                                         "for observer, prescribed_time, luenberger, "
+                                         "kalman, plant"):
         build_native_fmus(tuned_gains, tmp_path, kinds=["observer", "sampled"])
     assert not any(tmp_path.iterdir())
 

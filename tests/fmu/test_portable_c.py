@@ -24,7 +24,7 @@ from fhobs.core.plant import PLANT_SCHEMES
 from fhobs.core.runtime import SCHEMES
 from fhobs.fmu import call_rules
 from fhobs.kalman import with_kalman
-from fhobs.native.build import FMI_HEADERS, KIND_NUMBERS, _fmi_headers, build_native_fmus
+from fhobs.native.build import FMI_HEADERS, _fmi_headers, build_native_fmus
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
@@ -178,9 +178,6 @@ def test_constants_pinned_to_python_values():
     models = c_defines(NATIVE / "models.c")
     euler = int(models["FHOBS_SCHEME_EULER"])
     assert SCHEMES[euler] == "euler" and PLANT_SCHEMES[euler] == "euler"
-    kinds = c_defines(NATIVE / "fhobs_native.h")
-    assert {kind: int(kinds[f"FHOBS_KIND_{kind.upper()}"]) for kind in KIND_NUMBERS} \
-        == KIND_NUMBERS
 
 
 @pytest.mark.parametrize("n, k", [(1, 1), (4, 2), (7, 3)])

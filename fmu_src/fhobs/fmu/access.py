@@ -7,6 +7,7 @@ from collections.abc import Sequence
 
 from pythonfmu import Boolean, Fmi2Causality, Integer, Real, String
 
+from .call_rules import ACCESS_MESSAGES
 from .modes import INITIALISATION, INSTANTIATED
 
 ACCESS_FUNCTIONS = (
@@ -29,24 +30,20 @@ class AccessRules:
         for vr in vrs:
             var = self.vars.get(vr)
             if var is None:
-                return (f"{function}: value reference {vr} is not a variable of this FMU "
-                        f"(its value references are 0..{len(self.vars) - 1})")
-            label = f"{var.name} (value reference {vr})"
+                return ACCESS_MESSAGES["unknown"] % (function, vr, len(self.vars) - 1)
             if not isinstance(var, kind):
-                return (f"{function}: {label} is of type {type(var).__name__}, "
-                        f"not {kind.__name__}")
+                return ACCESS_MESSAGES["type"] % (function, var.name, vr, type(var).__name__,
+                                                  kind.__name__)
             if not function.startswith("fmi2Set"):
                 continue
             if var.causality == Fmi2Causality.output:
-                return f"{function}: {label} is an output: the FMU computes it, it cannot be set"
+                return ACCESS_MESSAGES["output"] % (function, var.name, vr)
             if var.causality == Fmi2Causality.local:
-                return f"{function}: {label} is a local variable: it cannot be set"
+                return ACCESS_MESSAGES["local"] % (function, var.name, vr)
             if var.causality == Fmi2Causality.parameter and self._mode not in (
                 INSTANTIATED, INITIALISATION
             ):
-                return (f"{function}: {label} is a fixed parameter: it can be set only before "
-                        f"fmi2ExitInitializationMode (the instance is in {self._mode}; "
-                        "fmi2Reset returns to the start values)")
+                return ACCESS_MESSAGES["fixed"] % (function, var.name, vr, self._mode)
         return ""
 
     def _checked_access(self, function: str, vrs: Sequence[int]) -> None:

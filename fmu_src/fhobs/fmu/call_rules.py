@@ -124,6 +124,21 @@ def number(value: float) -> str:
     return repr(float(value))
 
 
+ACCESS_MESSAGES: dict[str, str] = {
+    "unknown": "%s: value reference %u is not a variable of this FMU (its value references "
+               "are 0..%u)",
+    "type": "%s: %s (value reference %u) is of type %s, not %s",
+    "output": "%s: %s (value reference %u) is an output: the FMU computes it, it cannot be set",
+    "local": "%s: %s (value reference %u) is a local variable: it cannot be set",
+    "fixed": "%s: %s (value reference %u) is a fixed parameter: it can be set only before "
+             "fmi2ExitInitializationMode (the instance is in %s; fmi2Reset returns to the start "
+             "values)",
+}
+"""The refusals of a get/set call (``printf`` formats, also for Python's ``%``): an unknown
+value reference (function, reference, last reference), another type (function, variable,
+reference, its type, the function's type), a write to an output or to ``status``, a write to a
+parameter after initialisation (function, variable, reference, state)."""
+
 HEADER = "fhobs_call_rules.h"
 """The file name of :func:`c_header`'s text where C code includes it."""
 
@@ -163,7 +178,8 @@ def call_problem(function: str, state: str) -> str:
 def c_header() -> str:
     """The C header of this table (:data:`HEADER`): ``FHOBS_STATE_*`` bit numbers,
     ``FHOBS_CALL_*`` function numbers, their masks and the refusal messages (with one ``%s``
-    for the state's name where the call is merely out of sequence).
+    for the state's name where the call is merely out of sequence), the get/set refusals
+    (``FHOBS_ACCESS_*``, :data:`ACCESS_MESSAGES`) and the time check.
 
     Examples
     --------
@@ -194,6 +210,9 @@ def c_header() -> str:
             messages.append(f"{function} is not allowed in the state %s (only in {where})")
     lines.append("static const char *const FHOBS_CALL_MESSAGES[FHOBS_N_CALLS] = {")
     lines += [f'    "{message}",' for message in messages]
-    lines += ["};", "", f"#define FHOBS_TIME_TOLERANCE {TIME_TOLERANCE!r}",
+    lines += ["};", ""]
+    lines += [f'#define FHOBS_ACCESS_{name.upper()} "{text}"'
+              for name, text in ACCESS_MESSAGES.items()]
+    lines += ["", f"#define FHOBS_TIME_TOLERANCE {TIME_TOLERANCE!r}",
               f'#define FHOBS_TIME_MESSAGE "{TIME_MESSAGE}"', "", "#endif", ""]
     return "\n".join(lines)

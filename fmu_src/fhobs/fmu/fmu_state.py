@@ -175,7 +175,7 @@ class FmuStates:
             return "its variables are not this FMU's"
         for name, current in self._arrays.items():
             problem = _array_problem(arrays[name], current.shape, name,
-                                     finite=name not in self._kinds["input"])
+                                     finite=name not in self._causal["input"])
             if problem:
                 return problem
         if not isinstance(integers, dict) or set(integers) != set(self._integers):
@@ -201,8 +201,8 @@ class FmuStates:
             saved_values, saved_integers = self._values.copy(), dict(self._integers)
             self._values[...] = np.concatenate([
                 np.ravel(np.asarray(state["arrays"][name], dtype=float))
-                for name in (*self._kinds["input"], *self._output_names,
-                             *self._kinds["parameter"])
+                for name in (*self._causal["input"], *self._output_names,
+                             *self._causal["parameter"])
             ])
             self._integers.update(state["integers"])
             model, problem = self._model_for_state(state)

@@ -8,14 +8,12 @@ samples. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from ..core.disturbance import extended_model
-from ..core.gains import KalmanGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.linalg import expm
+from .kinds import KINDS
 from .slave_base import ObserverSlave, positive_parameter
 
 
@@ -23,36 +21,14 @@ class FhobsKalman(ObserverSlave):
     """Kalman filter; its error map Phi (I - M C) must stay Schur stable when parameters are
     edited."""
 
-    description = "Steady-state discrete Kalman filter (exact ZOH model, disturbance model)"
-
-    def _declare_gains(self) -> None:
-        kalman = self.design.kalman
-        if kalman is None:
-            raise ValueError("the design record has no Kalman filter (its 'kalman' is null)")
-        # N: states of the filter's model (n, or n + r q-states with a disturbance model)
-        self.add_array("kalman_gain", kalman.gain, "parameter",
-                       "measurement-update gain M = P C^T (C P C^T + R)^-1 (N x k)")
-        self._declare_q_hat()
-
-    def _model_size(self) -> int:
-        """States of the filter's model (its own disturbance model, which may differ from the
-        homogeneous observer's)."""
-        return self.design.kalman.gain.shape[0]
-
-    def _declare_timing(self) -> None:
-        self.add_array("Ts", self.design.kalman.sample_time, "parameter",
-                       "sample time of the filter (s): one cycle per sample instant inside a step")
+    kind = KINDS["kalman"]
 
     def _check_timing(self) -> None:
         positive_parameter(self, "Ts", "sample time Ts")
 
-    def _kalman(self) -> KalmanGains:
-        """The design's Kalman record with the current ``kalman_gain`` and ``Ts``."""
-        return dataclasses.replace(self.design.kalman, gain=self.array("kalman_gain"),
-                                   sample_time=float(self.array("Ts")))
-
     def _check_gains(self) -> None:
-        design, kalman = self.edited_design(), self._kalman()
+        design = self.edited_design()
+        kalman = design.kalman
         A, _, C = extended_model(design.A, design.B, design.C, design.E,
                                  kalman.disturbance_order)
         Phi = expm(kalman.sample_time * A)
@@ -64,11 +40,8 @@ class FhobsKalman(ObserverSlave):
             )
 
     def _make_model(self) -> KalmanObserver:
-        return KalmanObserver(self.edited_design(), z0=self._padded_z0(), kalman=self._kalman())
-
-    def _output_layout(self) -> list[str]:
-        """The model state z = (x_hat, q_hat) (no q_hat without a disturbance model)."""
-        return self._state_layout()
+        design = self.edited_design()
+        return KalmanObserver(design, z0=self._padded_z0(), kalman=design.kalman)
 
     def _model_outputs(self) -> list[float]:
         """``[x_hat, q_hat]``: the model state z (the prediction for the next sample)."""

@@ -8,16 +8,14 @@ from __future__ import annotations
 
 from ..core.certificate import check_luenberger
 from ..core.runtime import LuenbergerObserver
+from .kinds import KINDS
 from .slave_base import ObserverSlave
 
 
 class FhobsLuenberger(ObserverSlave):
     """Luenberger observer; A + L_lin C must stay Hurwitz when parameters are edited."""
 
-    description = "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)"
-
-    def _declare_gains(self) -> None:
-        self.add_array("L_lin", self.design.L_lin, "parameter", "observer gain (n x k)")
+    kind = KINDS["luenberger"]
 
     def _check_gains(self) -> None:
         check_luenberger(self.edited_design())

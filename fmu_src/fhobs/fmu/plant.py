@@ -6,40 +6,15 @@ dx/dt = A x + B u + E q, y = C x + eta, with eta uniform in [-a, a], a function 
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.plant import PLANT_SCHEMES, LTIPlant
+from .kinds import KINDS
 from .slave_base import FhobsSlave, zoh_problem
 
 
 class FhobsPlant(FhobsSlave):
     """The plant of the spec, stepped exactly (zero-order hold) by the numpy runtime."""
 
-    description = "LTI plant dx/dt = A x + B u + E q, y = C x + noise"
-
-    def _declare(self) -> None:
-        design, config = self.design, self.config
-        self.add_array("A", design.A, "parameter", "state matrix (n x n)")
-        self.add_array("B", design.B, "parameter", "input matrix (n x m)")
-        self.add_array("C", design.C, "parameter", "output matrix (k x n)")
-        if design.E is not None:
-            self.add_array("E", design.E, "parameter", "perturbation matrix (n x r)")
-        self.add_array("x0", config["x0"], "parameter", "initial state")
-        self.add_array(
-            "noise_amplitude", config["noise_amplitude"], "parameter",
-            "measurement noise is uniform in [-noise_amplitude, noise_amplitude]",
-        )
-        self.add_integer("noise_seed", config["noise_seed"], "seed of the measurement noise")
-        self.add_integer(
-            "scheme",
-            PLANT_SCHEMES.index(config["plant_scheme"]),
-            "plant step: " + ", ".join(f"{i} = {s}" for i, s in enumerate(PLANT_SCHEMES)),
-        )
-        self.add_array("u", np.zeros(design.m), "input", "control input")
-        if design.E is not None:
-            self.add_array("q", np.zeros(design.E.shape[1]), "input", "perturbation (through E)")
-        self.add_array("y", np.zeros(design.k), "output", "measured output C x + noise")
-        self.add_array("x", np.zeros(design.n), "output", "true state")
+    kind = KINDS["plant"]
 
     def _check_parameters(self) -> None:
         """LTIPlant itself rejects a negative noise amplitude or seed (ValueError)."""
@@ -60,10 +35,6 @@ class FhobsPlant(FhobsSlave):
             seed=self.integer("noise_seed"),
             scheme=self.choice("scheme", PLANT_SCHEMES),
         )
-
-    def _model_step_arguments(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """``(u, q)``; q is None without a perturbation input (``LTIPlant.advance`` takes it so)."""
-        return self._arrays["u"], self._arrays.get("q")
 
     def _model_outputs(self) -> list[float]:
         """``[y, x]`` (declaration order)."""

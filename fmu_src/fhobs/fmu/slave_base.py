@@ -46,7 +46,6 @@ Only numpy, the standard library, pythonfmu and :mod:`fhobs.core` are imported h
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import sys
@@ -65,6 +64,7 @@ from ..core.runtime import SCHEMES
 from .access import AccessRules
 from .call_rules import TIME_TOLERANCE, call_problem, number, time_problem
 from .fmu_state import FmuStates
+from .kinds import Kind, edited_design
 from .modes import (
     INITIALISATION,
     INSTANTIATED,
@@ -74,7 +74,7 @@ from .modes import (
     STEP_MODE,
     TERMINATED,
 )
-from .variables import KINDS, Variables, element_names
+from .variables import CAUSALITIES, Variables, element_names
 from .wrapper import WrapperCalls
 
 DESIGN_FILE = "design.json"
@@ -132,16 +132,22 @@ def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
 class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     """Common base of the fhobs slaves (abstract: subclasses define the model).
 
-    Subclasses implement :meth:`_declare`, :meth:`_check_parameters`, :meth:`_make_model`
-    and :meth:`_model_outputs`, and override :meth:`_model_step_arguments` if the model's
-    ``advance`` does not take the input arrays in declaration order and :meth:`_output_layout` if
-    the model's outputs do not come in declaration order. The design record and the
-    build options are read from the instance's own ``resources`` folder, never from module
-    globals, so that two FMUs sharing Python modules in one process stay independent.
+    Subclasses name their :attr:`kind` (whose declaration gives the variables, in
+    value-reference order, and the output layout) and implement :meth:`_check_parameters`,
+    :meth:`_make_model` and :meth:`_model_outputs`. The design record and the build options
+    are read from the instance's own ``resources`` folder, never from module globals, so that
+    two FMUs sharing Python modules in one process stay independent.
     """
 
     author = "fhobs"
     license = "MIT"
+    kind: Kind
+    """The slave's FMU kind (:mod:`fhobs.fmu.kinds`): its variables and output layout."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "kind" in cls.__dict__:
+            cls.description = cls.kind.description  # pythonfmu reads the class attribute
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -152,22 +158,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._arrays: dict[str, np.ndarray] = {}
         self._first_vr: dict[str, int] = {}
         self._integers: dict[str, int] = {}
-        self._kinds: dict[str, list[str]] = {kind: [] for kind in KINDS}
+        self._causal: dict[str, list[str]] = {causality: [] for causality in CAUSALITIES}
+        self._design_fields: dict[str, str] = {}  # design parameter -> its field of the record
         self.status = STATUS_OK
-        self.register_variable(
-            Integer(
-                "status",
-                causality=Fmi2Causality.local,
-                variability=Fmi2Variability.discrete,
-                initial=Fmi2Initial.exact,
-                description="status of the last call the slave answered (0 ok, 3 error)",
-            )
-        )
         self._declare()
-        self.add_array(
-            "input_bound", float(self.config["input_bound"]), "parameter",
-            "inputs of larger magnitude are rejected as absurd",
-        )
         self._pack_arrays()
         self._mode_code = np.zeros(1, dtype=np.intc)  # the mode's index, read by the wrapper
         self._set_mode(INSTANTIATED)
@@ -196,18 +190,36 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._write_cache.clear()
 
     def edited_design(self) -> ObserverGains:
-        """The design record with every design field replaced by its current parameter value."""
-        changes: dict[str, Any] = {}
-        for field in dataclasses.fields(ObserverGains):
-            if field.name in self._kinds["parameter"]:
-                value = self.array(field.name)
-                changes[field.name] = float(value) if value.ndim == 0 else value
-        return dataclasses.replace(self.design, **changes)
+        """The design record with every design parameter replaced by its current value."""
+        values = {}
+        for name, field in self._design_fields.items():
+            value = self.array(name)
+            values[field] = float(value) if value.ndim == 0 else value
+        return edited_design(self.design, values)
+
+    def _declare(self) -> None:
+        """Register the variables of :attr:`kind` present for the design, in its order (their
+        value references), with their start values from the design and the build options."""
+        causality = {"input": "input", "output": "output", "design": "parameter",
+                     "setting": "parameter"}
+        for variable, start in self.kind.starts(self.design, self.config):
+            if variable.role == "local":
+                self.register_variable(Integer(
+                    variable.name, causality=Fmi2Causality.local,
+                    variability=Fmi2Variability.discrete, initial=Fmi2Initial.exact,
+                    description=variable.description))
+            elif variable.integer:
+                self.add_integer(variable.name, start, variable.description)
+            else:
+                self.add_array(variable.name, start, causality[variable.role],
+                               variable.description)
+                if variable.role == "design":
+                    self._design_fields[variable.name] = variable.field
 
     # -- FMI lifecycle -------------------------------------------------------------------
     def _parameters(self) -> tuple:
         """The exact current values of every parameter (what :meth:`_make_model` reads)."""
-        arrays = tuple(self._arrays[name].tobytes() for name in self._kinds["parameter"])
+        arrays = tuple(self._arrays[name].tobytes() for name in self._causal["parameter"])
         return arrays, tuple(self._integers.items())
 
     def _refuse(self, message: str) -> None:
@@ -335,7 +347,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
 
     def _check_finite_parameters(self) -> None:
         """Raise ValueError naming the first parameter element that is not finite."""
-        for name in self._kinds["parameter"]:
+        for name in self._causal["parameter"]:
             for label, value in self._elements(name):
                 if not math.isfinite(value):
                     raise ValueError(f"parameter {label} = {number(value)} is not finite")
@@ -355,7 +367,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def _input_problem(self) -> str:
         """Describe what is wrong with the inputs ('' when nothing is)."""
         bound = float(self._bound)
-        for name in self._kinds["input"]:
+        for name in self._causal["input"]:
             for label, value in self._elements(name):
                 if not math.isfinite(value):
                     return f"input {label} = {number(value)} is not finite"
@@ -382,10 +394,6 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
 
     # -- what a slave defines ------------------------------------------------------------
     @abstractmethod
-    def _declare(self) -> None:
-        """Register the slave's parameters, inputs and outputs (start values from the design)."""
-
-    @abstractmethod
     def _check_parameters(self) -> None:
         """Raise ValueError, naming the check and the amount, if the parameters are unusable."""
 
@@ -399,14 +407,16 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         return ""
 
     def _model_step_arguments(self) -> tuple[np.ndarray | None, ...]:
-        """The arguments of the model's ``advance`` before the step size: by default the input
-        variables (views of the buffer, read during the step) in declaration order."""
-        return tuple(self._arrays[name] for name in self._kinds["input"])
+        """The arguments of the model's ``advance`` before the step size: the input variables
+        of :attr:`kind` in declaration order (views of the buffer, read during the step; None
+        for an input absent for this design, such as the plant's q without E)."""
+        return tuple(self._arrays.get(variable.name) for variable in self.kind.variables
+                     if variable.role == "input")
 
     def _output_layout(self) -> list[str]:
         """Names of the output arrays in the order in which :meth:`_model_outputs` gives their
-        elements (and the buffer holds them); by default the declaration order."""
-        return list(self._kinds["output"])
+        elements (and the buffer holds them): :attr:`Kind.outputs` of those present."""
+        return [name for name in self.kind.outputs if name in self._arrays]
 
     @abstractmethod
     def _model_outputs(self) -> Sequence[float]:
@@ -424,41 +434,18 @@ def positive_parameter(slave: FhobsSlave, name: str, what: str) -> float:
 
 
 class ObserverSlave(FhobsSlave):
-    """Base of the observer slaves: plant matrices, z0, timing, inputs y, u, output x_hat.
+    """Base of the observer slaves: the timing checks, the ZOH check of a step size and the
+    model's initial state.
 
-    Subclasses add their gains with :meth:`_declare_gains` and may add outputs. The timing
-    parameters are by default those of :mod:`fhobs.core.runtime` (internal step ``h`` and
-    ``scheme``); a sampled-data observer replaces them (:meth:`_declare_timing`,
-    :meth:`_check_timing`). An observer whose model has disturbance states (more than the
-    plant's n, :meth:`_model_size`) estimates them in the output ``q_hat``
-    (:meth:`_declare_q_hat`), starts them at zero (:meth:`_padded_z0`) and gives them after
-    x_hat (:meth:`_state_layout`).
+    The timing parameters are by default those of :mod:`fhobs.core.runtime` (internal step
+    ``h`` and ``scheme``); a sampled-data observer replaces their check
+    (:meth:`_check_timing`). An observer whose model has disturbance states (its output
+    ``q_hat``) starts them at zero (:meth:`_padded_z0`).
     """
-
-    def _declare(self) -> None:
-        design, config = self.design, self.config
-        self.add_array("A", design.A, "parameter", "plant state matrix (n x n)")
-        self.add_array("B", design.B, "parameter", "plant input matrix (n x m)")
-        self.add_array("C", design.C, "parameter", "plant output matrix (k x n)")
-        self._declare_gains()
-        self.add_array("z0", config["z0"], "parameter", "initial state estimate")
-        self._declare_timing()
-        self.add_array("y", np.zeros(design.k), "input", "measured plant output")
-        self.add_array("u", np.zeros(design.m), "input", "plant input")
-        self.add_array("x_hat", np.zeros(design.n), "output", "state estimate z")
 
     def scheme_name(self) -> str:
         """Name of the selected integration scheme; ValueError if the index is unknown."""
         return self.choice("scheme", SCHEMES)
-
-    def _declare_timing(self) -> None:
-        """Register the internal step ``h`` and the integration ``scheme``."""
-        self.add_array("h", self.config["h"], "parameter", "internal integration step (s)")
-        self.add_integer(
-            "scheme",
-            SCHEMES.index(self.config["scheme"]),
-            "integration scheme: " + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
-        )
 
     def _check_timing(self) -> None:
         """Raise ValueError if ``h`` is not a positive finite number or ``scheme`` unknown."""
@@ -475,31 +462,11 @@ class ObserverSlave(FhobsSlave):
         (the runtime steps by min(h, step))."""
         return zoh_problem(self.edited_design().model[0], step_size, "the observer's model")
 
-    def _model_size(self) -> int:
-        """States of the observer's model: n, plus the disturbance states of a disturbance
-        model (default: those of the design's model)."""
-        return self.design.n_model
-
-    def _declare_q_hat(self) -> None:
-        """Register the output ``q_hat`` of the disturbance states (none without them)."""
-        size = self._model_size() - self.design.n
-        if size:
-            self.add_array("q_hat", np.zeros(size), "output",
-                           "disturbance-model estimates: q, then its derivatives")
-
     def _padded_z0(self) -> np.ndarray:
         """The model's initial state: the parameter z0 (the plant's states), then zeros (the
-        disturbance states)."""
-        return np.concatenate((self.array("z0"), np.zeros(self._model_size() - self.design.n)))
-
-    def _state_layout(self) -> list[str]:
-        """The outputs of the model's state z = (x_hat, q_hat): no q_hat without disturbance
-        states."""
-        return ["x_hat", "q_hat"] if self._model_size() > self.design.n else ["x_hat"]
-
-    @abstractmethod
-    def _declare_gains(self) -> None:
-        """Register the observer's gain parameters."""
+        disturbance states, as many as ``q_hat`` has)."""
+        q_states = self._arrays["q_hat"].size if "q_hat" in self._arrays else 0
+        return np.concatenate((self.array("z0"), np.zeros(q_states)))
 
     @abstractmethod
     def _check_gains(self) -> None:

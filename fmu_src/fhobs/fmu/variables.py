@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real
 
-KINDS: dict[str, dict[str, Any]] = {
+CAUSALITIES: dict[str, dict[str, Any]] = {
     "parameter": {"causality": Fmi2Causality.parameter, "variability": Fmi2Variability.fixed},
     "input": {"causality": Fmi2Causality.input, "variability": Fmi2Variability.continuous},
     "output": {
@@ -24,6 +24,7 @@ KINDS: dict[str, dict[str, Any]] = {
         "initial": Fmi2Initial.exact,
     },
 }
+"""pythonfmu's attributes of an array element by its causality."""
 
 INDEX_CACHE_SIZE = 64
 """Cached index arrays of lists of value references (cleared when it holds this many)."""
@@ -61,7 +62,7 @@ class Variables:
     :class:`fhobs.fmu.slave_base.FhobsSlave`, whose other parts it uses: ``_output_layout``,
     ``_model_step_arguments``, ``_checked_access``)."""
 
-    def add_array(self, name: str, value: Any, kind: str, description: str) -> None:
+    def add_array(self, name: str, value: Any, causality: str, description: str) -> None:
         """Register a float array (or scalar) as consecutive row-major scalar variables.
 
         Parameters
@@ -70,13 +71,13 @@ class Variables:
             Base name (``A``, ``y``, ``nu``...).
         value : array_like
             Start value; its shape fixes the variables.
-        kind : {"parameter", "input", "output"}
+        causality : {"parameter", "input", "output"}
         description : str
         """
         array = np.array(value, dtype=float)
         self._arrays[name] = array
         self._first_vr[name] = len(self.vars)
-        self._kinds[kind].append(name)
+        self._causal[causality].append(name)
         labels = element_names(name, array.shape)
         for index, label in zip(np.ndindex(*array.shape), labels, strict=True):
             self.register_variable(
@@ -85,7 +86,7 @@ class Variables:
                     description=description,
                     getter=lambda n=name, i=index: float(self._arrays[n][i]),
                     setter=lambda v, n=name, i=index: self._arrays[n].__setitem__(i, v),
-                    **KINDS[kind],
+                    **CAUSALITIES[causality],
                 )
             )
 
@@ -95,13 +96,13 @@ class Variables:
         then the parameters. Precompute the value-reference -> buffer-position map, the views
         of all inputs and of all outputs, and the model step's arguments."""
         self._output_names = self._output_layout()
-        if sorted(self._output_names) != sorted(self._kinds["output"]):
+        if sorted(self._output_names) != sorted(self._causal["output"]):
             raise ValueError(f"output layout {self._output_names} is not a permutation of the "
-                             f"outputs {self._kinds['output']}")
+                             f"outputs {self._causal['output']}")
         self._values = np.zeros(sum(a.size for a in self._arrays.values()))
         self._position: dict[int, int] = {}
         start = 0
-        for name in (*self._kinds["input"], *self._output_names, *self._kinds["parameter"]):
+        for name in (*self._causal["input"], *self._output_names, *self._causal["parameter"]):
             array = self._arrays[name]
             view = self._values[start:start + array.size].reshape(array.shape)
             view[...] = array
@@ -109,8 +110,8 @@ class Variables:
             first = self._first_vr[name]
             self._position.update({first + i: start + i for i in range(array.size)})
             start += array.size
-        n_inputs = sum(self._arrays[name].size for name in self._kinds["input"])
-        n_outputs = sum(self._arrays[name].size for name in self._kinds["output"])
+        n_inputs = sum(self._arrays[name].size for name in self._causal["input"])
+        n_outputs = sum(self._arrays[name].size for name in self._causal["output"])
         self._inputs = self._values[:n_inputs]
         self._outputs = self._values[n_inputs:n_inputs + n_outputs]
         self._bound = self._arrays["input_bound"]
@@ -121,8 +122,8 @@ class Variables:
         size = max(self._position, default=-1) + 1
         # 1 where fmi2SetReal may write now (kept up to date by _set_mode; read by the wrapper)
         self._writable = np.zeros(size, dtype=np.uint8)
-        self._input_vrs = [vr for name in self._kinds["input"] for vr in self._vrs(name)]
-        self._parameter_vrs = [vr for name in self._kinds["parameter"] for vr in self._vrs(name)]
+        self._input_vrs = [vr for name in self._causal["input"] for vr in self._vrs(name)]
+        self._parameter_vrs = [vr for name in self._causal["parameter"] for vr in self._vrs(name)]
         self._writable[self._input_vrs] = 1
         self._accepted_step = math.nan  # the step size whose checks passed last (none yet)
         self._certified: tuple | None = None  # the parameters of the last initialisation
@@ -190,9 +191,13 @@ class Variables:
                 description=description,
                 getter=lambda n=name: self._integers[n],
                 setter=lambda v, n=name: self._integers.__setitem__(n, int(v)),
-                **KINDS["parameter"],
+                **CAUSALITIES["parameter"],
             )
         )
+
+    def has(self, name: str) -> bool:
+        """Whether the slave has the variable ``name`` (an optional one may be absent)."""
+        return name in self._arrays or name in self._integers
 
     def array(self, name: str) -> np.ndarray:
         """Current value of an array variable (a copy)."""

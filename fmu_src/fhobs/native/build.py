@@ -2,9 +2,9 @@
 
 Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.fmu``,
 ``prescribed_time.fmu``) has the interface of the pythonfmu FMU of the same kind
-(:mod:`fhobs.build`): the same variable names, value references, causalities, variabilities
-and start values, taken from the pythonfmu FMU built for the same design and options (its
-start values read from an instance, so they are exact). Its binary
+(:mod:`fhobs.build`): both are written from the kind's declaration
+(:mod:`fhobs.fmu.kinds`), so they have the same variable names, value references,
+causalities, variabilities and start values (exact: hexadecimal in the C data). Its binary
 ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel (``kernel.c``) with the
 step planner (``planner.c``), an FMI layer (``fmi2_layer.c``, ``models.c``) and the generated
 ``model_data.h`` and ``model_data.c``: the design and what the planner needs that does not
@@ -24,8 +24,9 @@ Design parameters (the plant matrices, the gains, nu, gamma, rho, Ts...) are com
 keep their names and value references, and writing a value bit-equal to the built one is
 accepted (importers write start values), any other value is refused with fmi2Error. The
 per-instance values (initial states, ``h``, ``scheme``, ``input_bound``, the plant's noise
-amplitude and seed) are parameters as in the pythonfmu FMUs (:data:`SETTABLE`). The design is
-certified here, before anything is built; since it cannot change, the FMU does not re-check it.
+amplitude and seed: the declaration's ``setting`` role) are parameters as in the pythonfmu
+FMUs. The design is certified here, before anything is built; since it cannot change, the FMU
+does not re-check it.
 
 Examples
 --------
@@ -38,6 +39,8 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import importlib
+import json
 import re
 import shutil
 import subprocess
@@ -52,32 +55,29 @@ from typing import Any
 
 import numpy as np
 
-from ..build import build_fmus
+from ..build import default_kinds, fmu_options
 from ..core import kernel
 from ..core.certificate import certify
 from ..core.gains import ObserverGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
-from ..core.runtime import DEFAULT_H, FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from ..core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from ..errors import BuildError
 from ..fmu import call_rules
+from ..fmu.kinds import KINDS, Kind
+from ..fmu.slave_base import CONFIG_FILE, DESIGN_FILE
+from ..fmu.variables import element_names
 from . import planner
 
 HERE = Path(__file__).resolve().parent
-KIND_NUMBERS = {"observer": 1, "luenberger": 2, "plant": 3, "kalman": 4, "prescribed_time": 5}
-"""``FHOBS_KIND_*`` of fhobs_native.h."""
-SETTABLE = {
-    "observer": {"z0", "psi0", "xi0", "h", "scheme", "input_bound"},
-    "luenberger": {"z0", "h", "scheme", "input_bound"},
-    "plant": {"x0", "noise_amplitude", "noise_seed", "scheme", "input_bound"},
-    "kalman": {"z0", "input_bound"},
-    "prescribed_time": {"z0", "T0", "h", "scheme", "input_bound"},
-}
-"""Parameters that stay per-instance values (settable until fmi2ExitInitializationMode); every
-other parameter is design data, compiled in."""
-LAYOUT = ("status", "y", "u", "q", "x_hat", "q_hat", "psi", "xi", "sigma", "x", "z0", "psi0",
-          "xi0", "x0", "T0", "h", "scheme", "input_bound", "noise_amplitude", "noise_seed")
-"""Variables whose first value reference model_data.c names (``VR_<NAME>``, -1 if absent)."""
+C_ROLES = {"local": "LOCAL", "input": "INPUT", "output": "OUTPUT", "design": "COMPILED",
+           "setting": "SETTABLE"}
+"""The C role (``FHOBS_<ROLE>`` of fhobs_native.h) of each role of :mod:`fhobs.fmu.kinds`:
+design parameters are compiled in, settings stay per-instance values."""
+LAYOUT = tuple(dict.fromkeys(variable.name for kind in KINDS.values()
+                             for variable in kind.variables if variable.role != "design"))
+"""Variables whose first value reference model_data.h names (``VR_<NAME>``, -1 if absent):
+every signal and setting of every kind (the C model reads them by these names)."""
 C_SOURCES = ("fhobs_native.h", "planner.h", "planner.c", "gain_levels.c", "model.h",
              "models.c", "fmi2_layer.c")
 """Sources of every native FMU from this folder (with the kernel's, :data:`KERNEL_SOURCES`,
@@ -145,14 +145,13 @@ def build_native_fmus(
     {'observer': PosixPath('out/observer.fmu')}
     """
     if kinds is None:
-        kinds = ("observer", "luenberger", "plant") + (("kalman",) if gains.kalman else ())
-        if PrescribedTimeObserver(gains).eigen:
-            kinds += ("prescribed_time",)
+        kinds = tuple(kind for kind in default_kinds(gains)
+                      if kind != "prescribed_time" or PrescribedTimeObserver(gains).eigen)
     kinds = tuple(kinds)
-    unknown = sorted(set(kinds) - set(KIND_NUMBERS))
+    unknown = sorted(set(kinds) - set(KINDS))
     if unknown:
         raise BuildError(f"no native FMU of kind {', '.join(unknown)}: native FMUs are built for "
-                         f"{', '.join(KIND_NUMBERS)}")
+                         f"{', '.join(KINDS)}")
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None or sys.platform != "linux" or kernel.library() is None:
         raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
@@ -165,49 +164,15 @@ def build_native_fmus(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     built = {}
+    config = fmu_options(gains, kinds, **options)
     with tempfile.TemporaryDirectory(prefix="fhobs_native_") as tmp:
         stage = Path(tmp)
-        reference = build_fmus(gains, stage / "pythonfmu", kinds=kinds, status_wrapper=False,
-                               kernel=False, **options)
         for kind in kinds:
-            interface = _read_interface(reference[kind], stage / f"{kind}_unzipped")
-            data = _native_data(kind, gains, steps, float(options.get("h", DEFAULT_H)))
-            built[kind] = _build_one(kind, interface, data, _sizes(kind, gains, data),
+            variables = _variables(KINDS[kind], gains, config)
+            data = _native_data(kind, gains, steps, config["h"])
+            built[kind] = _build_one(kind, variables, data, _sizes(kind, gains, data),
                                      stage / kind, compiler, out_dir / f"{kind}.fmu")
     return built
-
-
-# -- the interface of the pythonfmu FMU -------------------------------------------------------
-def _read_interface(fmu: Path, unzip_dir: Path) -> dict[str, Any]:
-    """The modelDescription of a pythonfmu FMU (an ElementTree) and the exact start value of
-    every variable, read from an instance of it (``{"xml": tree, "start": {vr: value}}``)."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
-    description = read_model_description(str(fmu))
-    extract(str(fmu), str(unzip_dir))
-    slave = FMU2Slave(guid=description.guid, unzipDirectory=str(unzip_dir),
-                      modelIdentifier=description.coSimulation.modelIdentifier,
-                      instanceName="interface")
-    path, modules = list(sys.path), set(sys.modules)
-    slave.instantiate()
-    try:
-        start = {}
-        for variable in description.modelVariables:
-            vr = variable.valueReference
-            if variable.type == "Real":
-                start[vr] = float(slave.getReal([vr])[0])
-            else:
-                start[vr] = int(slave.getInteger([vr])[0])
-    finally:
-        slave.freeInstance()
-        # pythonfmu leaves the FMU's resources in sys.path and its modules imported: a later
-        # build of the same design in this process (or in a process spawned from it, which
-        # inherits sys.path) would import them from this temporary folder
-        sys.path[:] = path
-        for name in set(sys.modules) - modules:
-            del sys.modules[name]
-    return {"xml": ET.parse(unzip_dir / "modelDescription.xml"), "start": start}
 
 
 # -- the design data of the planner ----------------------------------------------------------------
@@ -341,7 +306,8 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
     first_vr = {}
     for var in variables:
         first_vr.setdefault(var["name"].split("[")[0], var["vr"])
-    lines = [f"#define FHOBS_KIND {KIND_NUMBERS[kind]}",
+    lines = [f"#define FHOBS_KIND_{other.upper()} {KINDS[other].number}" for other in KINDS]
+    lines += [f"#define FHOBS_KIND FHOBS_KIND_{kind.upper()}",
              f"#define FHOBS_N_VARIABLES {len(variables)}"]
     lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]
     lines += [f"#define VR_{name.upper()} {first_vr.get(name, -1)}" for name in LAYOUT]
@@ -408,24 +374,43 @@ def _split_data(lines: list[str], types: dict[str, tuple[str, int]]) -> tuple[st
 
 
 # -- one FMU ------------------------------------------------------------------------------------
-def _variables(kind: str, interface: dict[str, Any]) -> list[dict[str, Any]]:
-    """Name, value reference, type, role and exact start of every variable, by reference."""
+def _variables(kind: Kind, gains: ObserverGains,
+               options: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every scalar variable of the FMU of ``kind`` for ``gains`` and the build ``options``,
+    in value-reference order (:meth:`fhobs.fmu.kinds.Kind.starts`): name, value reference,
+    type, C role, causality, description and exact start value (of an output: the model's
+    output at its initial state, :func:`_start_outputs`)."""
     variables = []
-    for element in interface["xml"].getroot().iterfind("ModelVariables/ScalarVariable"):
-        vr = int(element.get("valueReference"))
-        causality = element.get("causality")
-        if causality == "parameter":
-            base = element.get("name").split("[")[0]
-            role = "settable" if base in SETTABLE[kind] else "compiled"
-        else:
-            role = causality
-        typ = "real" if element.find("Real") is not None else "integer"
-        variables.append({"name": element.get("name"), "vr": vr, "type": typ, "role": role,
-                          "start": interface["start"][vr]})
-    variables.sort(key=lambda var: var["vr"])
-    if [var["vr"] for var in variables] != list(range(len(variables))):
-        raise BuildError("the pythonfmu FMU's value references are not 0..N-1")
+    outputs = _start_outputs(kind, gains, options)
+    for variable, start in kind.starts(gains, options):
+        start = outputs.get(variable.name, start)
+        values = np.asarray(start, dtype=float)
+        for name, value in zip(element_names(variable.name, values.shape), values.flat,
+                               strict=True):
+            variables.append({"name": name, "vr": len(variables),
+                              "type": "integer" if variable.integer else "real",
+                              "role": C_ROLES[variable.role],
+                              "causality": variable.role if variable.role in (
+                                  "local", "input", "output") else "parameter",
+                              "description": variable.description,
+                              "start": int(value) if variable.integer else float(value)})
     return variables
+
+
+def _start_outputs(kind: Kind, gains: ObserverGains,
+                   options: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The start values of the outputs: what the pythonfmu slave of ``kind`` publishes when it
+    is instantiated (the model's outputs at its initial state), from an instance made in this
+    process (no FMU built, no status wrapper)."""
+    with tempfile.TemporaryDirectory(prefix="fhobs_interface_") as tmp:
+        resources = Path(tmp)
+        (resources / DESIGN_FILE).write_text(json.dumps(gains.to_dict()))
+        config = {"status_wrapper": False, "kernel": False, **options}
+        (resources / CONFIG_FILE).write_text(json.dumps(config))
+        module = importlib.import_module(f"{__package__.rpartition('.')[0]}.fmu.{kind.name}")
+        slave = getattr(module, kind.slave)(instance_name="interface", resources=str(resources))
+        return {variable.name: slave.array(variable.name) for variable in kind.variables
+                if variable.role == "output" and slave.has(variable.name)}
 
 
 def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, int]:
@@ -439,11 +424,10 @@ def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, i
             "state_size": state}
 
 
-def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
+def _build_one(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
                sizes: dict[str, int], stage: Path, compiler: str, dest: Path) -> Path:
     """Generate the sources of one native FMU, compile them, write its modelDescription and
     documentation and zip it into ``dest``."""
-    variables = _variables(kind, interface)
     header, data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES}
     sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
@@ -476,7 +460,7 @@ def _build_one(kind: str, interface: dict[str, Any], native: dict[str, Any],
     binary = root / "binaries" / "linux64" / f"{identifier}.so"
     compiled_files = sorted(name for name in sources if name.endswith(".c"))
     compile_binary(root / "sources", binary, compiler, compiled_files)
-    tree = _model_description(interface["xml"], variables, identifier, guid, compiled_files)
+    tree = _model_description(KINDS[kind], variables, identifier, guid, compiled_files)
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
     (root / "documentation" / "index.html").write_text(_documentation(kind, variables, native))
@@ -520,44 +504,61 @@ def compile_binary(sources: Path, target: Path, compiler: str,
         raise BuildError(f"compiling the native FMU failed:\n{result.stderr}")
 
 
-def _model_description(reference: ET.ElementTree, variables: list[dict[str, Any]],
-                       identifier: str, guid: str,
-                       compiled_files: list[str]) -> ET.ElementTree:
-    """The pythonfmu FMU's modelDescription (its default experiment, if any, included) with
-    this FMU's identity, capabilities, exact start values and source files."""
-    tree = ET.ElementTree(ET.fromstring(ET.tostring(reference.getroot())))
-    root = tree.getroot()
-    root.set("modelName", identifier)
-    root.set("guid", guid)
-    root.set("generationTool", "fhobs.native.build (compiled C, no Python at run time)")
-    root.set("description", root.get("description", "") + " -- native FMU")
-    cosim = root.find("CoSimulation")
-    for name, value in (("modelIdentifier", identifier), ("needsExecutionTool", "false"),
-                        ("canHandleVariableCommunicationStepSize", "true"),
-                        ("canInterpolateInputs", "false"),
-                        ("canBeInstantiatedOnlyOncePerProcess", "false"),
-                        ("canNotUseMemoryManagementFunctions", "false"),
-                        ("canGetAndSetFMUstate", "true"), ("canSerializeFMUstate", "true"),
-                        ("providesDirectionalDerivative", "false")):
-        cosim.set(name, value)
-    for child in list(cosim):
-        cosim.remove(child)
+LOG_CATEGORIES = ("logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal",
+                  "logAll")
+"""The log categories the modelDescription lists (those of the pythonfmu FMUs)."""
+CAPABILITIES = (("needsExecutionTool", "false"),
+                ("canHandleVariableCommunicationStepSize", "true"),
+                ("canInterpolateInputs", "false"),
+                ("canBeInstantiatedOnlyOncePerProcess", "false"),
+                ("canNotUseMemoryManagementFunctions", "false"),
+                ("canGetAndSetFMUstate", "true"), ("canSerializeFMUstate", "true"),
+                ("providesDirectionalDerivative", "false"))
+
+
+def _model_description(kind: Kind, variables: list[dict[str, Any]], identifier: str,
+                       guid: str, compiled_files: list[str]) -> ET.ElementTree:
+    """The modelDescription of the native FMU of ``kind``: its identity, capabilities, source
+    files and variables (exact start values; every output depends on no input)."""
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0", "modelName": identifier, "guid": guid,
+        "generationTool": "fhobs.native.build (compiled C, no Python at run time)",
+        "variableNamingConvention": "structured",
+        "description": f"{kind.description} -- native FMU", "author": "fhobs", "license": "MIT"})
+    cosim = ET.SubElement(root, "CoSimulation", {"modelIdentifier": identifier,
+                                                 **dict(CAPABILITIES)})
     files = ET.SubElement(cosim, "SourceFiles")
     for name in compiled_files:
         ET.SubElement(files, "File", name=name)
-    for element, var in zip(root.iterfind("ModelVariables/ScalarVariable"), variables,
-                            strict=True):
-        value = element.find("Real" if var["type"] == "real" else "Integer")
-        value.set("start", repr(float(var["start"])) if var["type"] == "real"
-                  else str(int(var["start"])))
+    categories = ET.SubElement(root, "LogCategories")
+    for name in LOG_CATEGORIES:
+        ET.SubElement(categories, "Category", name=name)
+    model_variables = ET.SubElement(root, "ModelVariables")
+    for var in variables:
+        attributes = {"name": var["name"], "valueReference": str(var["vr"]),
+                      "description": var["description"], "causality": var["causality"],
+                      "variability": {"local": "discrete", "input": "continuous",
+                                      "output": "continuous"}.get(var["causality"], "fixed")}
+        if var["causality"] in ("local", "output"):
+            attributes["initial"] = "exact"
+        element = ET.SubElement(model_variables, "ScalarVariable", attributes)
+        if var["type"] == "real":
+            ET.SubElement(element, "Real", start=repr(var["start"]))
+        else:
+            ET.SubElement(element, "Integer", start=str(var["start"]))
+    outputs = ET.SubElement(ET.SubElement(root, "ModelStructure"), "Outputs")
+    for var in variables:
+        if var["causality"] == "output":
+            ET.SubElement(outputs, "Unknown", index=str(var["vr"] + 1), dependencies="")
+    tree = ET.ElementTree(root)
     ET.indent(tree, "\t")
     return tree
 
 
 def _documentation(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]) -> str:
     """documentation/index.html: what the FMU runs, its step sizes and its parameters."""
-    compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "compiled"})
-    settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "settable"})
+    compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "COMPILED"})
+    settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "SETTABLE"})
     if kind == "kalman":
         steps = (f"Any communication step: one filter cycle for every sample instant (a "
                  f"multiple of Ts = {data['Ts']!r} from the start) inside the step, the "

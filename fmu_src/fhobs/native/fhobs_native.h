@@ -13,13 +13,6 @@
 
 #include "kernel.h"
 
-/* FMU kinds (FHOBS_KIND of model_data.c) */
-#define FHOBS_KIND_OBSERVER 1
-#define FHOBS_KIND_LUENBERGER 2
-#define FHOBS_KIND_PLANT 3
-#define FHOBS_KIND_KALMAN 4
-#define FHOBS_KIND_PRESCRIBED_TIME 5
-
 /* variable types */
 #define FHOBS_REAL 0
 #define FHOBS_INTEGER 1

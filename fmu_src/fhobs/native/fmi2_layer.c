@@ -385,33 +385,29 @@ static int access_problem(const Instance *c, const char *function, const fmi2Val
     }
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= FHOBS_N_VARIABLES) {
-            snprintf(msg, len, "%s: value reference %u is not a variable of this FMU (its value "
-                     "references are 0..%d)", function, vr[i], FHOBS_N_VARIABLES - 1);
+            snprintf(msg, len, FHOBS_ACCESS_UNKNOWN, function, vr[i],
+                     (unsigned)(FHOBS_N_VARIABLES - 1));
             return 1;
         }
         const FhobsVariable *var = &VARIABLES[vr[i]];
         if (var->type != type) {
-            snprintf(msg, len, "%s: %s (value reference %u) is of type %s, not %s", function,
-                     var->name, vr[i], TYPE_NAMES[var->type], TYPE_NAMES[type]);
+            snprintf(msg, len, FHOBS_ACCESS_TYPE, function, var->name, vr[i],
+                     TYPE_NAMES[var->type], TYPE_NAMES[type]);
             return 1;
         }
         if (!write)
             continue;
         if (var->role == FHOBS_OUTPUT) {
-            snprintf(msg, len, "%s: %s (value reference %u) is an output: the FMU computes it, "
-                     "it cannot be set", function, var->name, vr[i]);
+            snprintf(msg, len, FHOBS_ACCESS_OUTPUT, function, var->name, vr[i]);
             return 1;
         }
         if (var->role == FHOBS_LOCAL) {
-            snprintf(msg, len, "%s: %s (value reference %u) is a local variable: it cannot be "
-                     "set", function, var->name, vr[i]);
+            snprintf(msg, len, FHOBS_ACCESS_LOCAL, function, var->name, vr[i]);
             return 1;
         }
         int parameter = var->role == FHOBS_COMPILED || var->role == FHOBS_SETTABLE;
         if (parameter && c->values.mode != INSTANTIATED && c->values.mode != INITIALISATION) {
-            snprintf(msg, len, "%s: %s (value reference %u) is a fixed parameter: it can be set "
-                     "only before fmi2ExitInitializationMode (the instance is in %s; fmi2Reset "
-                     "returns to the start values)", function, var->name, vr[i],
+            snprintf(msg, len, FHOBS_ACCESS_FIXED, function, var->name, vr[i],
                      FHOBS_STATE_NAMES[c->values.mode]);
             return 1;
         }

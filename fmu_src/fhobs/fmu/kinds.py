@@ -1,0 +1,353 @@
+"""The FMU kinds, each declared once: its variables, its output layout, its native number.
+
+A kind (``observer``, ``luenberger``, ``prescribed_time``, ``kalman``, ``plant``) is one
+:class:`Kind`: the variables of its FMU in value-reference order, each with its role and where
+its start value comes from. Everything else is derived from it:
+
+- the pythonfmu slave (:mod:`fhobs.fmu.slave_base`) registers the variables of its kind in
+  this order (so the value references are these), maps the design parameters back to the
+  design record at initialisation (:func:`edited_design`) and lays its output buffer out as
+  :attr:`Kind.outputs`;
+- :mod:`fhobs.build` finds the slave class and the default kinds here;
+- :mod:`fhobs.native.build` writes the native FMU's modelDescription, its value references
+  (``VR_<NAME>``), its variable table and its kind number (``FHOBS_KIND_<NAME>``) from the same
+  declaration, without building the pythonfmu FMU: both builds of a kind have one interface;
+- the harness labels an estimator's figures with :attr:`Kind.label`.
+
+Roles: ``input`` and ``output`` signals; ``design`` parameters, a field of the design record
+(:attr:`Variable.field`), re-certified by the pythonfmu FMUs when edited and compiled into the
+native FMUs; ``setting`` parameters, per-instance values from the build options
+(:attr:`Variable.option`: initial states, internal step, scheme, noise, ``input_bound``),
+settable in both builds until fmi2ExitInitializationMode; and the ``local`` Integer ``status``
+(value reference 0), the status wrapper's channel.
+
+This module runs inside the pythonfmu FMUs: numpy and the shipped core only.
+
+Examples
+--------
+>>> [v.name for v in KINDS["luenberger"].variables]
+['status', 'A', 'B', 'C', 'L_lin', 'z0', 'h', 'scheme', 'y', 'u', 'x_hat', 'input_bound']
+>>> KINDS["plant"].number, KINDS["observer"].label
+(3, 'homogeneous')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..core.gains import ObserverGains
+from ..core.plant import PLANT_SCHEMES
+from ..core.runtime import SCHEMES
+
+ROLES = ("local", "input", "output", "design", "setting")
+"""The roles of a variable (see the module docstring)."""
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One variable of a kind: a float array (or scalar) or an Integer.
+
+    Attributes
+    ----------
+    name : str
+        Base name; an array's elements are ``name[i]`` / ``name[i,j]``.
+    role : str
+        One of :data:`ROLES`.
+    description : str
+        The modelDescription's text.
+    field : str
+        ``design`` role: the attribute of the design record it is (``"L0"``,
+        ``"kalman.gain"``: a field of a record held by the design).
+    option : str
+        ``setting`` role: the key of the build options (``fmu_config.json``) holding its start.
+    shape : callable, optional
+        ``input`` / ``output`` role: the shape from the design (zeros are the start value;
+        a shape with no element leaves the variable out).
+    choices : tuple of str
+        An Integer ``setting`` that selects one of ``choices`` (its start is the index of the
+        option's value).
+    integer : bool
+        An Integer variable (``status``, a choice, ``noise_seed``), else Real.
+    """
+
+    name: str
+    role: str
+    description: str
+    field: str = ""
+    option: str = ""
+    shape: Callable[[ObserverGains], tuple[int, ...]] | None = None
+    choices: tuple[str, ...] = ()
+    integer: bool = False
+
+    def start(self, design: ObserverGains, options: Mapping[str, Any]) -> Any:
+        """The start value for ``design`` and the build ``options`` (None: left out).
+
+        Examples
+        --------
+        >>> from fhobs.design import paper_gains
+        >>> KINDS["observer"].variable("L_tilde").start(paper_gains(), {}).shape  # k x k
+        (2, 2)
+        """
+        if self.role == "local":
+            return 0
+        if self.role == "design":
+            return design_field(design, self.field)
+        if self.role == "setting":
+            value = options[self.option]
+            return self.choices.index(value) if self.choices else value
+        shape = self.shape(design)
+        return np.zeros(shape) if int(np.prod(shape)) or not shape else None
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One FMU kind.
+
+    Attributes
+    ----------
+    name : str
+        The kind (and the FMU's file name without ``.fmu``).
+    number : int
+        ``FHOBS_KIND_<NAME>`` of the native FMUs.
+    slave : str
+        The pythonfmu slave class, in ``fhobs.fmu.<name>``.
+    description : str
+        The modelDescription's description.
+    label : str
+        The estimator's label in the harness's figures ('' for the plant).
+    variables : tuple of Variable
+        In value-reference order.
+    outputs : tuple of str
+        The output arrays in the order the runtime model gives them (the slave's buffer).
+    """
+
+    name: str
+    number: int
+    slave: str
+    description: str
+    label: str
+    variables: tuple[Variable, ...]
+    outputs: tuple[str, ...]
+
+    def variable(self, name: str) -> Variable:
+        """The variable called ``name`` (KeyError if the kind has none)."""
+        for variable in self.variables:
+            if variable.name == name:
+                return variable
+        raise KeyError(f"the {self.name} FMU has no variable {name!r}")
+
+    def starts(self, design: ObserverGains,
+               options: Mapping[str, Any]) -> list[tuple[Variable, Any]]:
+        """The variables present for ``design`` with their start values, in value-reference
+        order (a variable whose start is None, such as ``q_hat`` without a disturbance model
+        or ``E`` of a plant without one, is left out).
+
+        Examples
+        --------
+        >>> from fhobs.design import paper_gains
+        >>> options = {"x0": [0.0] * 4, "noise_amplitude": 0.0, "noise_seed": 0,
+        ...            "plant_scheme": "zoh", "input_bound": 1e8}
+        >>> [v.name for v, _ in KINDS["plant"].starts(paper_gains(), options)][:6]
+        ['status', 'A', 'B', 'C', 'E', 'x0']
+        """
+        present = []
+        for variable in self.variables:
+            value = variable.start(design, options)
+            if value is not None:
+                present.append((variable, value))
+        return present
+
+
+def design_field(design: ObserverGains, path: str) -> Any:
+    """The attribute ``path`` of the design record (``"L0"``, ``"kalman.gain"``).
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> design_field(paper_gains(), "nu") == paper_gains().nu
+    True
+    """
+    value: Any = design
+    parts = path.split(".")
+    for depth, part in enumerate(parts):
+        if value is None:
+            raise ValueError(f"the design record has no {'.'.join(parts[:depth])} (it is null)")
+        value = getattr(value, part)
+    return value
+
+
+def edited_design(design: ObserverGains, values: Mapping[str, Any]) -> ObserverGains:
+    """``design`` with the fields of ``values`` (``{path: value}`` as :attr:`Variable.field`)
+    replaced: a new record, ``design`` unchanged.
+
+    Examples
+    --------
+    >>> from fhobs.design import paper_gains
+    >>> edited_design(paper_gains(), {"rho": 3.0}).rho
+    3.0
+    """
+    changes: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    for path, value in values.items():
+        record, _, field = path.rpartition(".")
+        if record:
+            nested.setdefault(record, {})[field] = value
+        else:
+            changes[field] = value
+    for record, fields in nested.items():
+        changes[record] = dataclasses.replace(design_field(design, record), **fields)
+    return dataclasses.replace(design, **changes)
+
+
+def _disturbance_states(design: ObserverGains) -> tuple[int, ...]:
+    return (design.n_model - design.n,)
+
+
+def _kalman_disturbance_states(design: ObserverGains) -> tuple[int, ...]:
+    return (design_field(design, "kalman.gain").shape[0] - design.n,)
+
+
+def _perturbations(design: ObserverGains) -> tuple[int, ...]:
+    return (0 if design.E is None else design.E.shape[1],)
+
+
+STATUS = Variable("status", "local", "status of the last call the slave answered (0 ok, 3 error)",
+                  integer=True)
+INPUT_BOUND = Variable("input_bound", "setting",
+                       "inputs of larger magnitude are rejected as absurd", option="input_bound")
+PLANT_MATRICES = (
+    Variable("A", "design", "plant state matrix (n x n)", field="A"),
+    Variable("B", "design", "plant input matrix (n x m)", field="B"),
+    Variable("C", "design", "plant output matrix (k x n)", field="C"),
+)
+ESTIMATOR_SIGNALS = (
+    Variable("y", "input", "measured plant output", shape=lambda d: (d.k,)),
+    Variable("u", "input", "plant input", shape=lambda d: (d.m,)),
+    Variable("x_hat", "output", "state estimate z", shape=lambda d: (d.n,)),
+)
+Z0 = Variable("z0", "setting", "initial state estimate", option="z0")
+TIMING = (
+    Variable("h", "setting", "internal integration step (s)", option="h"),
+    Variable("scheme", "setting", "integration scheme: "
+             + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
+             option="scheme", choices=SCHEMES, integer=True),
+)
+Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its derivatives",
+                 shape=_disturbance_states)
+
+
+def _estimator(name: str, number: int, slave: str, description: str, label: str,
+               gains: tuple[Variable, ...], outputs: tuple[str, ...],
+               timing: tuple[Variable, ...] = TIMING) -> Kind:
+    """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat."""
+    variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *ESTIMATOR_SIGNALS, INPUT_BOUND)
+    return Kind(name, number, slave, description, label, variables, outputs)
+
+
+# N below: states of the observer's model (n, or n + r q-states with a disturbance model)
+_HOMOGENISATION = (
+    Variable("L0", "design", "homogenisation gain, A0 = A_model + L0 C_model nilpotent (N x k)",
+             field="L0"),
+)
+KINDS: dict[str, Kind] = {kind.name: kind for kind in (
+    _estimator(
+        "observer", 1, "FhobsObserver",
+        "Filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov), Theorem 2",
+        "homogeneous",
+        gains=(
+            *_HOMOGENISATION,
+            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)", field="G_d"),
+            Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
+                     field="L_tilde"),
+            Variable("L", "design", "gain of the estimate z (N x k)", field="L"),
+            Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
+                     field="P_bar"),
+            Variable("nu", "design", "homogeneity degree", field="nu"),
+            Variable("gamma", "design", "gain of the xi equation", field="gamma"),
+            Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field="rho"),
+            Variable("psi0", "setting", "initial output-filter state", option="psi0"),
+            Variable("xi0", "setting", "initial xi", option="xi0"),
+            Variable("psi", "output", "output-filter state psi", shape=lambda d: (d.k,)),
+            Variable("xi", "output", "scalar gain state xi", shape=lambda d: ()),
+            Variable("sigma", "output", "sigma = sqrt(max(xi, |psi|^2 / 2))",
+                     shape=lambda d: ()),
+            Q_HAT,
+        ),
+        outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
+    ),
+    _estimator(
+        "prescribed_time", 5, "FhobsPrescribedTime",
+        "Prescribed-time observer (Ping, Zimenko, Polyakov, Efimov), Theorem 1: nominal "
+        "convergence at T0", "prescribed_time",
+        gains=(
+            *_HOMOGENISATION,
+            Variable("G_d", "design", "dilation generator of Theorem 2; Theorem 1 uses "
+                     "G_d - nu I (N x N)", field="G_d"),
+            Variable("L_pt", "design", "gain of the prescribed-time injection (N x k)",
+                     field="L_pt"),
+            Variable("P_pt", "design", "Lyapunov matrix of the Theorem 1 LMI (N x N)",
+                     field="P_pt"),
+            Variable("nu", "design", "homogeneity degree", field="nu"),
+            Variable("rho", "design", "decay parameter of the xi equation", field="rho"),
+            Variable("T0", "setting", "prescribed convergence time (s); "
+                     "xi0 = (-nu rho T0)^(-1/nu)", option="T0"),
+            Variable("xi", "output", "scalar gain state xi (0 from T0 on)", shape=lambda d: ()),
+            Q_HAT,
+        ),
+        outputs=("x_hat", "q_hat", "xi"),
+    ),    _estimator(
+        "luenberger", 2, "FhobsLuenberger",
+        "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)", "linear",
+        gains=(Variable("L_lin", "design", "observer gain (n x k)", field="L_lin"),),
+        outputs=("x_hat",),
+    ),
+    _estimator(
+        "kalman", 4, "FhobsKalman",
+        "Steady-state discrete Kalman filter (exact ZOH model, disturbance model)", "kalman",
+        gains=(
+            Variable("kalman_gain", "design",
+                     "measurement-update gain M = P C^T (C P C^T + R)^-1 (N x k)",
+                     field="kalman.gain"),
+            dataclasses.replace(Q_HAT, shape=_kalman_disturbance_states),
+        ),
+        timing=(Variable("Ts", "design", "sample time of the filter (s): one cycle per sample "
+                         "instant inside a step", field="kalman.sample_time"),),
+        outputs=("x_hat", "q_hat"),
+    ),
+    Kind(
+        "plant", 3, "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",
+        variables=(
+            STATUS,
+            Variable("A", "design", "state matrix (n x n)", field="A"),
+            Variable("B", "design", "input matrix (n x m)", field="B"),
+            Variable("C", "design", "output matrix (k x n)", field="C"),
+            Variable("E", "design", "perturbation matrix (n x r)", field="E"),
+            Variable("x0", "setting", "initial state", option="x0"),
+            Variable("noise_amplitude", "setting",
+                     "measurement noise is uniform in [-noise_amplitude, noise_amplitude]",
+                     option="noise_amplitude"),
+            Variable("noise_seed", "setting", "seed of the measurement noise",
+                     option="noise_seed", integer=True),
+            Variable("scheme", "setting", "plant step: "
+                     + ", ".join(f"{i} = {s}" for i, s in enumerate(PLANT_SCHEMES)),
+                     option="plant_scheme", choices=PLANT_SCHEMES, integer=True),
+            Variable("u", "input", "control input", shape=lambda d: (d.m,)),
+            Variable("q", "input", "perturbation (through E)", shape=_perturbations),
+            Variable("y", "output", "measured output C x + noise", shape=lambda d: (d.k,)),
+            Variable("x", "output", "true state", shape=lambda d: (d.n,)),
+            INPUT_BOUND,
+        ),
+        outputs=("y", "x"),
+    ),
+
+)}
+"""Every FMU kind, by name: the estimators in the order of the harness's tables, then
+the plant."""
+
+ESTIMATORS = {name: kind.label for name, kind in KINDS.items() if kind.label}
+"""FMU kind -> the estimator's label in the harness's figures."""
