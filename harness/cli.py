@@ -240,8 +240,10 @@ def run_scenario(
     jobs: int = 2,
     plots: bool = True,
     csv_every: int = 1,
+    label: str = "",
 ) -> dict[str, Any]:
-    """Run, write results.csv (first seed), summary.json and plots into ``out``.
+    """Run, write results.csv (first seed), summary.json and plots into ``out``; the plots'
+    title is ``label`` (the design, in the main job), the system's name and the seed plotted.
 
     A run that fails part-way still writes results.csv with the rows recorded up to the
     failure and a summary.json marked ``"incomplete": true`` with the error, then raises the
@@ -265,7 +267,10 @@ def run_scenario(
     if plots:
         from harness.plotting import plot_results
 
-        data["plots"] = [str(p) for p in plot_results(results[0], spec, out)]
+        title = " ".join(filter(None, (label, spec.name)))
+        if seeds is not None:
+            title += f" (seed {seeds[0]}; the figures average {len(seeds)} seeds)"
+        data["plots"] = [str(p) for p in plot_results(results[0], spec, out, title)]
     write_summary(data, out / "summary.json")
     return data
 
@@ -440,11 +445,37 @@ def _cmd_paper(args: argparse.Namespace) -> int:
             key = f"{label} {name}"
             folders[key] = args.out / label / name
             table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs,
-                                      not args.no_plots, csv_every(args, PAPER_CSV_EVERY))
+                                      not args.no_plots, csv_every(args, PAPER_CSV_EVERY),
+                                      label=f"{label} design:")
     print(format_table(table))
     for key, data in table.items():
         print(f"{key}: {folders[key]} (plots: {', '.join(data.get('plots', []))})")
+    print(f"table: {write_paper_summary(args.out, table, folders)}")
     return 0
+
+
+PAPER_LEGEND = """\
+Rows: scenario (design and paper scenario) and estimator: `homogeneous` = observer.fmu (the
+filtering homogeneous observer), `linear` = luenberger.fmu (the Luenberger observer with the
+design's linear gain), `kalman` = kalman.fmu (the steady-state Kalman filter of the spec's
+`[noise]` table). Columns, with e(t) = ||x(t) - x_hat(t)|| (Euclidean norm over the four
+states): `error_at_1_5` = e(1.5 s), the paper's comparison instant; `max_error_1_3` and
+`rms_error_1_3` = max and RMS of e over the window [1, 3] s (after the transient). The noisy
+scenario's figures are means over its seeds (each seed in its folder's summary.json);
+`steps` = communication steps per run, `wall_s` = seconds per run."""
+"""The main job's summary.md: what its rows and columns mean."""
+
+
+def write_paper_summary(out: Path, table: dict[str, dict[str, Any]],
+                        folders: dict[str, Path]) -> Path:
+    """Write the main job's table, what its rows and columns mean and where each run's files
+    are to ``out/summary.md``; return its path."""
+    lines = ["# Main job: the paper's scenarios", "", "```", format_table(table), "```", "",
+             PAPER_LEGEND, "", "Runs (results.csv, summary.json, plots):", ""]
+    lines += [f"- {key}: `{folders[key].relative_to(out)}/`" for key in table]
+    path = out / "summary.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 def plant_mismatch(spec: PlantSpec, size: float | None, seed: int | None) -> PlantSpec:

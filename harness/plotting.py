@@ -23,22 +23,26 @@ from harness.results import error_norm
 from harness.system import SystemSpec
 
 
-def plot_results(result: CoSimResult, spec: SystemSpec, out: Path) -> list[Path]:
-    """Write the plots of ``result`` into ``out`` and return their paths."""
+def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
+                 title: str | None = None) -> list[Path]:
+    """Write the plots of ``result`` into ``out`` and return their paths; ``title`` (default:
+    the system's name) heads each plot, so that plots of different designs or seeds differ."""
+    title = spec.name if title is None else title
     errors = spec.evaluation.errors
-    paths = [plot_error_norms(result, spec, out / "errors.png")] if errors else []
+    paths = [plot_error_norms(result, spec, out / "errors.png", title)] if errors else []
     references = {reference for reference, _ in errors.values()}
     if len(references) == 1:
         estimates = {name: estimate for name, (_, estimate) in errors.items()}
         paths.append(plot_state_estimates(result, references.pop(), estimates,
-                                          out / "states.png"))
+                                          out / "states.png", title))
     if spec.figure is not None:
-        paths.append(plot_paper_figure(result, spec, out / "figure.png"))
+        paths.append(plot_paper_figure(result, spec, out / "figure.png", title))
     return paths
 
 
-def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path) -> Path:
-    """The paper-style figure of fhobs.plots from the co-simulated signals."""
+def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
+    """The paper-style figure of fhobs.plots from the co-simulated signals (``title`` under
+    the paper's figure title)."""
     from fhobs.plots import plot_errors
     from fhobs.reference import SimulationResult
 
@@ -46,11 +50,13 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path) -> Path
     for name, signal in spec.figure.signals.items():
         columns = result.vector(signal)
         fields[name] = columns[:, 0] if name in ("xi", "sigma") else columns
-    return plot_errors(SimulationResult(t=result.time, **fields), spec.figure.scenario, path)
+    return plot_errors(SimulationResult(t=result.time, **fields), spec.figure.scenario, path,
+                       subtitle=title)
 
 
-def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path) -> Path:
-    """``errors.png``: the norms of the evaluation's error signals."""
+def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
+    """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
+    shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,12 +68,12 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path) -> Path:
         ax.semilogy(
             result.time, np.maximum(e, 1e-16), label=f"{name}: ||{reference} - {estimate}||"
         )
-    for a, b in spec.evaluation.windows:
-        ax.axvspan(a, b, color="0.9", zorder=0)
+    for i, (a, b) in enumerate(spec.evaluation.windows):
+        ax.axvspan(a, b, color="0.9", zorder=0, label="evaluation window" if i == 0 else None)
     ax.set_xlim(result.time[0], result.time[-1])
     ax.set_xlabel("t [s]")
     ax.set_ylabel("estimation error")
-    ax.set_title(spec.name)
+    ax.set_title(title)
     ax.legend(fontsize="small")
     ax.grid(True, which="both", alpha=0.3)
     fig.savefig(path, dpi=120)
@@ -76,9 +82,10 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path) -> Path:
 
 
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
-                         path: Path) -> Path:
-    """``states.png``: one panel per component of ``state`` with the same component of every
-    estimate (``{label: signal}``) over time."""
+                         path: Path, title: str) -> Path:
+    """``states.png``: one panel per component of ``state`` (named by its variable,
+    ``plant.x[1]``...) with the same component of every estimate (``{label: signal}``) over
+    time."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,9 +100,10 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
         ax.plot(result.time, x[:, i], color="k", lw=2, label=state)
         for label, estimate in columns.items():
             ax.plot(result.time, estimate[:, i], lw=1, label=label)
-        ax.set_ylabel(f"x[{i + 1}]")
+        ax.set_ylabel(f"{state}[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
+    axes[0, 0].set_title(f"{title}: states and their estimates")
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -24,7 +24,7 @@ FIGURE_TITLES = {
 
 
 def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
-                log_scale: bool = True) -> Path:
+                log_scale: bool = True, subtitle: str = "") -> Path:
     """Write a PNG with the error components ``|z_i - x_i|`` of every observer (homogeneous,
     Luenberger, and the Kalman filter when ``result.z_kalman`` is set), one panel each.
 
@@ -38,6 +38,8 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
         Output PNG file.
     log_scale : bool
         Logarithmic error axis (linear otherwise).
+    subtitle : str
+        A second title line (which design, which seed).
 
     Returns
     -------
@@ -62,7 +64,7 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
             ax.set_ylim(1e-16, None)
     axes[0].set_ylabel("estimation error")
     axes[0].legend(fontsize=8, loc="upper right")
-    fig.suptitle(FIGURE_TITLES.get(scenario, scenario))
+    fig.suptitle(FIGURE_TITLES.get(scenario, scenario) + (f"\n{subtitle}" if subtitle else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

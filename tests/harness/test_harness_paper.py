@@ -269,3 +269,21 @@ def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
         python, native = (tmp_path / run / "ours" / scenario / "results.csv"
                           for run in ("python", "native"))
         assert python.read_text() == native.read_text(), scenario
+
+
+def test_paper_command_writes_its_table_with_a_legend(tmp_path, capsys):
+    """The main job writes the table it prints to ``OUT/summary.md``, each run's figures as in
+    its summary.json, with what the rows and columns mean and where each run is."""
+    out = tmp_path / "job"
+    assert main(["paper", "--design", "spec", "--stop-time", "1.6", "--no-plots",
+                 "--out", str(out)]) == 0
+    text = (out / "summary.md").read_text()
+    assert str(out / "summary.md") in capsys.readouterr().out
+    for scenario in PAPER_SCENARIO_FILES.values():
+        figures = json.loads((out / "ours" / scenario / "summary.json").read_text())
+        row = next(line for line in text.splitlines()
+                   if line.startswith(f"ours {scenario} ") and " homogeneous " in line)
+        assert f"{figures['homogeneous']['error_at_1_5']:.3e}" in row, (scenario, row)
+        assert f"- ours {scenario}: `ours/{scenario}/`" in text
+    for column in ("error_at_1_5", "max_error_1_3", "rms_error_1_3", "`linear` = luenberger.fmu"):
+        assert column in text.split("```")[-1], column
