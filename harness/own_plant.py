@@ -346,7 +346,7 @@ def _plots(result: CoSimResult, system: SystemSpec, settled: float, channels: in
     paths = [plot_plant_errors(result, errors, q, q_hats, settled, out / "errors.png"),
              plot_state_estimates(result, "plant.x",
                                   {label: est for label, (_, est) in errors.items()},
-                                  out / "states.png")]
+                                  out / "states.png", system.name)]
     if channels and (q_hats or DISTURBANCE_BLOCK in system.fmus):
         paths.append(plot_disturbance(result.time, q, q_hats, settled,
                                       out / "disturbance.png"))

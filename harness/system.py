@@ -190,7 +190,7 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def number(value: Any, where: str) -> float:
+def real_number(value: Any, where: str) -> float:
     """``value`` as a float, or DescriptionError naming ``where`` if it is not a finite number."""
     if not _is_number(value) or not np.isfinite(value):
         raise DescriptionError(f"{where} = {value!r} is not a finite number")
@@ -210,10 +210,10 @@ def number_matrix(value: Any, where: str) -> np.ndarray:
             raise DescriptionError(f"{where} = {value!r}: rows are empty or of unequal length")
         for i, row in enumerate(value, start=1):
             for j, v in enumerate(row, start=1):
-                number(v, f"{where}[{i},{j}]")
+                real_number(v, f"{where}[{i},{j}]")
     elif isinstance(value, list) and value:
         for i, v in enumerate(value, start=1):
-            number(v, f"{where}[{i}]")
+            real_number(v, f"{where}[{i}]")
     else:
         raise DescriptionError(
             f"{where} = {value!r} is not a non-empty list of numbers or of equal-length rows"
@@ -285,7 +285,7 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
     if not isinstance(connections, list) or not all(isinstance(c, dict) for c in connections):
         raise DescriptionError(f"{where}: connections must be [[connections]] tables")
     step, start_time, stop_time = (
-        number(run.get(key, default), f"{where}: run.{key}")
+        real_number(run.get(key, default), f"{where}: run.{key}")
         for key, default in (("step", 1e-3), ("start_time", 0.0), ("stop_time", 1.0))
     )
     check_timing(step, start_time, stop_time, f"{where}: [run]")
@@ -546,12 +546,12 @@ def _strings(data: dict[str, Any], key: str, where: str) -> dict[str, str]:
 
 def _evaluation(ev: dict[str, Any], where: str) -> Evaluation:
     _reject_unknown(ev, EVALUATION_KEYS, where)
-    at = tuple(number(t, f"{where} at") for t in _list(ev, "at", where))
+    at = tuple(real_number(t, f"{where} at") for t in _list(ev, "at", where))
     windows = []
     for w in _list(ev, "windows", where):
         if not (isinstance(w, list) and len(w) == 2):
             raise DescriptionError(f"{where}: window {w!r} is not a pair [start, end]")
-        a, b = (number(t, f"{where}: window {w!r}") for t in w)
+        a, b = (real_number(t, f"{where}: window {w!r}") for t in w)
         if not a < b:
             raise DescriptionError(f"{where}: window {w!r} must have start < end")
         windows.append((a, b))

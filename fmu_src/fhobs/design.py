@@ -46,7 +46,7 @@ from .core.linalg import diagonal_congruence, diagonal_similarity
 from .errors import CertificateError, LMIError, SpecError
 from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .lmi import (
-    DEFAULT_MARGIN,
+    LMI_MARGIN,
     certify_gain_lmi,
     chain_basis,
     solve_gain_lmi,
@@ -154,7 +154,7 @@ def design_observer(
     state_scale: Any = 1.0,
     filter_scale: float = 1.0,
     objective: str = DEFAULT_OBJECTIVE,
-    margin: float = DEFAULT_MARGIN,
+    margin: float = LMI_MARGIN,
 ) -> ObserverGains:
     """Design and certify the filtering homogeneous observer of ``dx/dt = A x + B u + E q``,
     ``y = C x``.
@@ -243,7 +243,7 @@ def _state_space_matrices(system: Any) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def design_for_spec(
     spec: PlantSpec,
     objective: str | None = None,
-    margin: float = DEFAULT_MARGIN,
+    margin: float = LMI_MARGIN,
     filter_scale: float | None = None,
 ) -> ObserverGains:
     """Design and certify the filtering homogeneous observer for a validated plant spec.
@@ -482,4 +482,4 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
     bar_A0, bar_G, bar_C = augmented_system(tuned.A0, tuned.model[2], tuned.G_d)
     bar_L = np.vstack([base["L_tilde"], base["L"]])
     base["P_bar"] = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
-    return _certified(base, "published", DEFAULT_MARGIN)
+    return _certified(base, "published", LMI_MARGIN)

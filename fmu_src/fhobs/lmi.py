@@ -71,7 +71,10 @@ from .errors import LMIError
 from .spec import OBJECTIVES
 
 GAIN_STAGE_KAPPA = 10.0
-DEFAULT_MARGIN = 1e-2
+LMI_MARGIN = 1e-2
+"""The margin that makes the LMIs strict when solving (``<= -margin P``, ``>= margin P``), so
+that the numpy certificate, which asks far less (:data:`fhobs.core.certificate.CERTIFICATE_MARGIN`),
+accepts the solver's rounded solution."""
 STRUCTURE_RTOL = 1e-8
 CHAIN_COND_LIMIT = 1e12
 """A chain basis more ill-conditioned than this is reported as singular (LMIError)."""
@@ -215,7 +218,7 @@ def solve_gain_lmi(
     rho: float,
     basis: ChainBasis,
     objective: str = "min_cond",
-    margin: float = DEFAULT_MARGIN,
+    margin: float = LMI_MARGIN,
 ) -> LMISolution:
     """Solve the LMI of the module docstring in a chain basis and return the gain P^-1 Y.
 
@@ -373,7 +376,7 @@ def _worse(first: str, second: str) -> str:
 
 
 def certify_gain_lmi(
-    H: np.ndarray, G: np.ndarray, rho: float, margin: float = DEFAULT_MARGIN
+    H: np.ndarray, G: np.ndarray, rho: float, margin: float = LMI_MARGIN
 ) -> np.ndarray:
     """Find a Lyapunov matrix P for a given closed-loop matrix H (a gain fixed beforehand).
 

@@ -45,7 +45,10 @@ from .gains import ObserverGains
 from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity
 
 DEFAULT_TOLERANCE = 1e-7
-DEFAULT_MARGIN = 1e-6
+CERTIFICATE_MARGIN = 1e-6
+"""What the certificate asks beyond round-off: an LMI's largest eigenvalue below
+``-(margin + rounding)``, a monotonicity figure above ``margin + rounding``; far below the
+margin the design solves with (:data:`fhobs.lmi.LMI_MARGIN`)."""
 EPS = float(np.finfo(float).eps)
 
 
@@ -304,7 +307,7 @@ def prescribed_time_lmi_values(gains: ObserverGains) -> dict[str, float]:
 
 
 def certify_prescribed_time(
-    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = DEFAULT_MARGIN
+    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = CERTIFICATE_MARGIN
 ) -> dict[str, float]:
     """The part of :func:`certify` that covers Theorem 1, the prescribed-time observer: nu and
     rho in range (:func:`tuning_problem`, gamma not used), the homogeneity identities and the
@@ -437,7 +440,7 @@ def _rounding_key(name: str) -> str:
 
 
 def certify(
-    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = DEFAULT_MARGIN
+    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = CERTIFICATE_MARGIN
 ) -> dict[str, float]:
     """Check a design and return its figures; raise if any is out of bounds.
 

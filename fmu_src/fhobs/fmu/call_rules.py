@@ -100,11 +100,11 @@ def time_problem(current_time: float, own_time: float, step_size: float) -> str:
     'currentCommunicationPoint 0.0 is not the FMU'
     """
     if not math.isfinite(current_time):
-        return f"currentCommunicationPoint {number(current_time)} is not finite"
+        return f"currentCommunicationPoint {number_text(current_time)} is not finite"
     if math.isnan(own_time) or abs(current_time - own_time) <= TIME_TOLERANCE * max(
             abs(own_time), step_size):
         return ""
-    return TIME_MESSAGE % (number(current_time), number(own_time))
+    return TIME_MESSAGE % (number_text(current_time), number_text(own_time))
 
 
 TIME_MESSAGE = ("currentCommunicationPoint %s is not the FMU's time %s (the start time, or the "
@@ -113,12 +113,12 @@ TIME_MESSAGE = ("currentCommunicationPoint %s is not the FMU's time %s (the star
 """The refusal of a time away from the FMU's (``%s``: the two times)."""
 
 
-def number(value: float) -> str:
+def number_text(value: float) -> str:
     """A number as a message shows it: ``repr`` of a Python float (never ``np.float64(...)``).
 
     Examples
     --------
-    >>> number(0.5)
+    >>> number_text(0.5)
     '0.5'
     """
     return repr(float(value))

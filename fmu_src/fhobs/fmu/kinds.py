@@ -1,4 +1,4 @@
-"""The FMU kinds, each declared once: its variables, its output layout, its native number.
+"""The FMU kinds, each declared once: its variables, its output layout, its code in the native FMUs.
 
 A kind (``observer``, ``luenberger``, ``prescribed_time``, ``kalman``, ``plant``) is one
 :class:`Kind`: the variables of its FMU in value-reference order, each with its role and where
@@ -27,7 +27,7 @@ Examples
 --------
 >>> [v.name for v in KINDS["luenberger"].variables]
 ['status', 'A', 'B', 'C', 'L_lin', 'z0', 'h', 'scheme', 'y', 'u', 'x_hat', 'input_bound']
->>> KINDS["plant"].number, KINDS["observer"].label
+>>> KINDS["plant"].code, KINDS["observer"].label
 (3, 'homogeneous')
 """
 
@@ -112,8 +112,8 @@ class Kind:
     ----------
     name : str
         The kind (and the FMU's file name without ``.fmu``).
-    number : int
-        ``FHOBS_KIND_<NAME>`` of the native FMUs.
+    code : int
+        ``FHOBS_KIND_<NAME>``, the kind's code in the native FMUs' C sources.
     slave : str
         The pythonfmu slave class, in ``fhobs.fmu.<name>``.
     description : str
@@ -127,7 +127,7 @@ class Kind:
     """
 
     name: str
-    number: int
+    code: int
     slave: str
     description: str
     label: str

@@ -62,7 +62,7 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverGains
 from ..core.runtime import SCHEMES
 from .access import AccessRules
-from .call_rules import TIME_TOLERANCE, call_problem, number, time_problem
+from .call_rules import TIME_TOLERANCE, call_problem, number_text, time_problem
 from .fmu_state import FmuStates
 from .kinds import Kind, edited_design
 from .modes import (
@@ -125,7 +125,7 @@ def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
     if scale <= ZOH_CONDITION_LIMIT:
         return ""
     return (f"{what}: step * ||A||_1 = {scale:.3g} exceeds {ZOH_CONDITION_LIMIT:.0e}, beyond "
-            f"which expm(step * A) has no correct digit (step = {number(step)}); "
+            f"which expm(step * A) has no correct digit (step = {number_text(step)}); "
             "check the entries of A")
 
 
@@ -239,7 +239,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             self._refuse(problem)
             return
         if not math.isfinite(start_time):
-            self._refuse(f"fmi2SetupExperiment: startTime {number(start_time)} is not finite")
+            self._refuse(f"fmi2SetupExperiment: startTime {number_text(start_time)} is not finite")
             return
         self._start_time = float(start_time)
 
@@ -316,7 +316,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             problem = (time_problem(current_time, self._time, step_size)
                        or self._step_size_problem(step_size) or self._input_problem())
             if problem:
-                return self._fail(f"doStep at t = {number(current_time)} rejected: {problem}")
+                return self._fail(f"doStep at t = {number_text(current_time)} rejected: {problem}")
             self._accepted_step = step_size
         model = self.model
         attributes = model.__dict__
@@ -330,7 +330,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         except ValueError as err:
             attributes.clear()
             attributes.update(saved)
-            return self._fail(f"doStep at t = {number(current_time)} rejected: {err}")
+            return self._fail(f"doStep at t = {number_text(current_time)} rejected: {err}")
         self._outputs[...] = outputs
         self._time = current_time + step_size
         self._time_slack = TIME_TOLERANCE * max(abs(self._time), step_size)
@@ -342,7 +342,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._check_finite_parameters()
         bound = float(self._bound)
         if not bound > 0.0:
-            raise ValueError(f"parameter input_bound = {number(bound)} must be > 0")
+            raise ValueError(f"parameter input_bound = {number_text(bound)} must be > 0")
         self._check_parameters()
 
     def _check_finite_parameters(self) -> None:
@@ -350,7 +350,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         for name in self._causal["parameter"]:
             for label, value in self._elements(name):
                 if not math.isfinite(value):
-                    raise ValueError(f"parameter {label} = {number(value)} is not finite")
+                    raise ValueError(f"parameter {label} = {number_text(value)} is not finite")
 
     def _fail(self, message: str) -> bool:
         """Log ``message`` with status error, record the status, and return False."""
@@ -361,7 +361,8 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def _step_size_problem(self, step_size: float) -> str:
         """Describe what is wrong with the communication step size ('' when nothing is)."""
         if not (math.isfinite(step_size) and step_size > 0.0):
-            return f"communication step size {number(step_size)} is not a positive finite number"
+            return (f"communication step size {number_text(step_size)} is not a positive finite "
+                    "number")
         return self._step_problem(step_size)
 
     def _input_problem(self) -> str:
@@ -370,9 +371,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         for name in self._causal["input"]:
             for label, value in self._elements(name):
                 if not math.isfinite(value):
-                    return f"input {label} = {number(value)} is not finite"
+                    return f"input {label} = {number_text(value)} is not finite"
                 if abs(value) > bound:
-                    return f"input {label} = {number(value)} exceeds input_bound = {number(bound)}"
+                    return (f"input {label} = {number_text(value)} exceeds input_bound = "
+                            f"{number_text(bound)}")
         return ""
 
     def _finite_outputs(self, outputs: Sequence[float] | None = None) -> Sequence[float]:

@@ -306,7 +306,7 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
     first_vr = {}
     for var in variables:
         first_vr.setdefault(var["name"].split("[")[0], var["vr"])
-    lines = [f"#define FHOBS_KIND_{other.upper()} {KINDS[other].number}" for other in KINDS]
+    lines = [f"#define FHOBS_KIND_{other.upper()} {KINDS[other].code}" for other in KINDS]
     lines += [f"#define FHOBS_KIND FHOBS_KIND_{kind.upper()}",
              f"#define FHOBS_N_VARIABLES {len(variables)}"]
     lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]

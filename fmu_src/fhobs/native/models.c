@@ -409,7 +409,7 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
 }
 
 /* y = C x + eta_k, eta_k = noise_amplitude * draws[k mod NOISE_BLOCK] of block k / NOISE_BLOCK
- * (fhobs.plant.uniform_noise); x */
+ * (fhobs.core.plant.uniform_noise); x */
 void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     double amplitude = real[VR_NOISE_AMPLITUDE];
@@ -467,7 +467,7 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     return initial_z(real, state, msg, len);
 }
 
-/* fhobs.kalman_filter.samples_in_step: the cycles of the sample instants offset + i Ts inside
+/* fhobs.core.kalman_filter.samples_in_step: the cycles of the sample instants offset + i Ts inside
  * the step (before dt - SAMPLE_SLACK Ts) and the offset of the next one after it. */
 static double samples_in_step(double offset, double dt, double *next)
 {
