@@ -17,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from fhobs.plots import envelope
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -65,9 +66,8 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     fig, ax = plt.subplots(figsize=(7, 4), layout="constrained")
     for name, (reference, estimate) in spec.evaluation.errors.items():
         e = error_norm(result, reference, estimate)
-        ax.semilogy(
-            result.time, np.maximum(e, 1e-16), label=f"{name}: ||{reference} - {estimate}||"
-        )
+        ax.semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
+                    label=f"{name}: ||{reference} - {estimate}||")
     for i, (a, b) in enumerate(spec.evaluation.windows):
         ax.axvspan(a, b, color="0.9", zorder=0, label="evaluation window" if i == 0 else None)
     ax.set_xlim(result.time[0], result.time[-1])
@@ -97,9 +97,9 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True,
                              layout="constrained", squeeze=False)
     for i, ax in enumerate(axes[:, 0]):
-        ax.plot(result.time, x[:, i], color="k", lw=2, label=state)
+        ax.plot(*envelope(result.time, x[:, i]), color="k", lw=2, label=state)
         for label, estimate in columns.items():
-            ax.plot(result.time, estimate[:, i], lw=1, label=label)
+            ax.plot(*envelope(result.time, estimate[:, i]), lw=1, label=label)
         ax.set_ylabel(f"{state}[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
@@ -159,12 +159,12 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     colours = {label: f"C{i}" for i, label in enumerate(errors)}
     for label, (reference, estimate) in errors.items():
         e = error_norm(result, reference, estimate)
-        axes[0, 0].semilogy(result.time, np.maximum(e, 1e-16), color=colours[label],
-                            label=f"{label}: ||x - x_hat||")
+        axes[0, 0].semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
+                            color=colours[label], label=f"{label}: ||x - x_hat||")
     for label, q_hat in q_hats.items():
         e = np.linalg.norm(q - q_hat, axis=1)
-        axes[1, 0].semilogy(result.time, np.maximum(e, 1e-16), color=colours.get(label),
-                            label=f"{label}: ||q - q_hat||")
+        axes[1, 0].semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
+                            color=colours.get(label), label=f"{label}: ||q - q_hat||")
     for ax, what in zip(axes[:, 0], ("state error", "q error"), strict=False):
         ax.axvspan(result.time[0], settled, color="0.92", zorder=0)
         ax.set_ylabel(what)
@@ -218,9 +218,9 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     fig, axes = plt.subplots(r, 1, figsize=(7, 1.8 * r + 0.8), sharex=True,
                              layout="constrained", squeeze=False)
     for i, ax in enumerate(axes[:, 0]):
-        ax.plot(time, q[:, i], color="k", lw=2, label="q")
+        ax.plot(*envelope(time, q[:, i]), color="k", lw=2, label="q")
         for label, q_hat in q_hats.items():
-            ax.plot(time, q_hat[:, i], lw=1, label=f"{label} q_hat")
+            ax.plot(*envelope(time, q_hat[:, i]), lw=1, label=f"{label} q_hat")
         ax.axvspan(time[0], settled, color="0.92", zorder=0)
         ax.set_ylabel(f"q[{i + 1}]")
         ax.grid(True, alpha=0.3)

@@ -41,6 +41,7 @@ import ctypes
 import hashlib
 import importlib
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -50,6 +51,8 @@ import uuid
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +90,9 @@ KERNEL_SOURCES = (kernel.SOURCE, kernel.HEADER)
 """The step kernel (``core/kernel.c``, ``core/kernel.h``), copied into every native FMU."""
 NOISE_SOURCES = ("noise.c", "noise.h")
 """The plant's measurement noise (numpy's generator in C)."""
+SHARED_UNITS = ("kernel.c", "planner.c", "gain_levels.c", "noise.c")
+"""Translation units that do not include the generated model data: compiled once per build
+and linked into the binary of every FMU that has them."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
@@ -167,11 +173,14 @@ def build_native_fmus(
     config = fmu_options(gains, kinds, **options)
     with tempfile.TemporaryDirectory(prefix="fhobs_native_") as tmp:
         stage = Path(tmp)
+        staged = {}
         for kind in kinds:
             variables = _variables(KINDS[kind], gains, config)
             data = _native_data(kind, gains, steps, config["h"])
-            built[kind] = _build_one(kind, variables, data, _sizes(kind, gains, data),
-                                     stage / kind, compiler, out_dir / f"{kind}.fmu")
+            staged[kind] = _stage(kind, variables, data, _sizes(kind, gains, data), stage / kind)
+        binaries = _compile_all(staged, stage / "shared", compiler)
+        for kind, fmu in staged.items():
+            built[kind] = _package(fmu, binaries[kind], out_dir / f"{kind}.fmu")
     return built
 
 
@@ -424,10 +433,24 @@ def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, i
             "state_size": state}
 
 
-def _build_one(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
-               sizes: dict[str, int], stage: Path, compiler: str, dest: Path) -> Path:
-    """Generate the sources of one native FMU, compile them, write its modelDescription and
-    documentation and zip it into ``dest``."""
+@dataclass(frozen=True)
+class _Staged:
+    """The files of one native FMU before its binary: the folder ``root`` (sources/,
+    modelDescription.xml, documentation/), its identity and the C files to compile."""
+
+    root: Path
+    identifier: str
+    files: tuple[str, ...]
+
+    @property
+    def sources(self) -> Path:
+        return self.root / "sources"
+
+
+def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
+           sizes: dict[str, int], stage: Path) -> _Staged:
+    """Generate the sources of one native FMU, its modelDescription and documentation into
+    ``stage/fmu``."""
     header, data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES}
     sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
@@ -457,18 +480,47 @@ def _build_one(kind: str, variables: list[dict[str, Any]], native: dict[str, Any
         (root / "sources" / name).write_text(text)
     for name in FMI_HEADERS:
         shutil.copy(_fmi_headers() / name, root / "sources" / name)
-    binary = root / "binaries" / "linux64" / f"{identifier}.so"
-    compiled_files = sorted(name for name in sources if name.endswith(".c"))
-    compile_binary(root / "sources", binary, compiler, compiled_files)
-    tree = _model_description(KINDS[kind], variables, identifier, guid, compiled_files)
+    files = tuple(sorted(name for name in sources if name.endswith(".c")))
+    tree = _model_description(KINDS[kind], variables, identifier, guid, list(files))
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
     (root / "documentation" / "index.html").write_text(_documentation(kind, variables, native))
+    return _Staged(root, identifier, files)
+
+
+def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dict[str, Path]:
+    """Compile every staged FMU's binary, ``{kind: path}``: the translation units of
+    :data:`SHARED_UNITS` once for all of them, the others per FMU, as many compilers at a time
+    as there are cores; then link each binary."""
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        common = {}
+        for fmu in staged.values():
+            for name in fmu.files:
+                if name in SHARED_UNITS and name not in common:
+                    common[name] = pool.submit(compile_object, fmu.sources, name, shared,
+                                               compiler)
+        own = {kind: [pool.submit(compile_object, fmu.sources, name, fmu.root / "objects",
+                                  compiler)
+                      for name in fmu.files if name not in SHARED_UNITS]
+               for kind, fmu in staged.items()}
+        binaries = {}
+        for kind, fmu in staged.items():
+            objects = [job.result() for job in own[kind]]
+            objects += [common[name].result() for name in fmu.files if name in SHARED_UNITS]
+            binaries[kind] = fmu.root / "binaries" / "linux64" / f"{fmu.identifier}.so"
+            link_binary(objects, binaries[kind], compiler)
+    return binaries
+
+
+def _package(fmu: _Staged, binary: Path, dest: Path) -> Path:
+    """Zip the staged FMU with its ``binary`` (already in place) into ``dest``; the object
+    files stay out."""
     dest.unlink(missing_ok=True)
     with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as archive:
-        for path in sorted(root.rglob("*")):
-            if path.is_file():
-                archive.write(path, path.relative_to(root).as_posix())
+        for path in sorted(fmu.root.rglob("*")):
+            relative = path.relative_to(fmu.root).as_posix()
+            if path.is_file() and not relative.startswith("objects/"):
+                archive.write(path, relative)
     return dest
 
 
@@ -483,8 +535,7 @@ def compile_binary(sources: Path, target: Path, compiler: str,
                    files: Iterable[str] = ("fhobs_fmu.c",)) -> None:
     """Compile the C files ``files`` of the folder ``sources`` (translation units linked
     together) into the shared library ``target``. The default is the one generated unit of a
-    native harness block (:mod:`harness.blocks.native`); a native FMU passes its
-    ``<SourceFiles>``.
+    native harness block (:mod:`harness.blocks.native`).
 
     Raises
     ------
@@ -496,9 +547,41 @@ def compile_binary(sources: Path, target: Path, compiler: str,
     >>> compile_binary(Path("sources"), Path("binaries/linux64/id.so"), "cc",
     ...                ["kernel.c", "models.c"])  # doctest: +SKIP
     """
+    objects = target.parent / "objects"
+    link_binary([compile_object(sources, name, objects, compiler) for name in files], target,
+                compiler)
+    shutil.rmtree(objects)
+
+
+def compile_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
+    """Compile the translation unit ``name`` of the folder ``sources`` into ``out/<stem>.o``
+    (position-independent, :data:`COMPILE_FLAGS`) and return its path.
+
+    Raises
+    ------
+    BuildError
+        If the compiler fails (its messages quoted).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / f"{Path(name).stem}.o"
+    _run_compiler([compiler, *COMPILE_FLAGS, f"-I{sources}", "-c", "-o", str(target),
+                   str(sources / name)])
+    return target
+
+
+def link_binary(objects: Iterable[Path], target: Path, compiler: str) -> None:
+    """Link ``objects`` into the shared library ``target`` (with libm).
+
+    Raises
+    ------
+    BuildError
+        If the linker fails.
+    """
     target.parent.mkdir(parents=True, exist_ok=True)
-    files = [str(sources / name) for name in files]
-    command = [compiler, *COMPILE_FLAGS, f"-I{sources}", "-o", str(target), *files, "-lm"]
+    _run_compiler([compiler, *COMPILE_FLAGS, "-o", str(target), *map(str, objects), "-lm"])
+
+
+def _run_compiler(command: list[str]) -> None:
     result = subprocess.run(command, capture_output=True, text=True, check=False, timeout=300)
     if result.returncode != 0:
         raise BuildError(f"compiling the native FMU failed:\n{result.stderr}")
