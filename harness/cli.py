@@ -6,9 +6,12 @@
 - ``paper --out DIR``: the main job. For each design (``--design both``, the default: our design
   of examples/pendulum.toml, label ``ours``, and the paper's published gains, label ``paper``)
   builds the pendulum FMUs (build_fmu.py's machinery; the Kalman filter baseline, kalman.fmu,
-  from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus``, runs the three paper
-  scenarios (the noisy one over 5 seeds; homogeneous, Luenberger and Kalman estimates side by
-  side) into ``DIR/<label>/<scenario>/`` and prints one table of the summary figures.
+  from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus`` (pythonfmu) and
+  ``DIR/<label>/fmus/native``, runs the three paper scenarios with the native FMUs (the same
+  results, ten times faster; ``--pythonfmu``: with the pythonfmu ones; the noisy scenario over 5
+  seeds; homogeneous, Luenberger and Kalman estimates side by side) into
+  ``DIR/<label>/<scenario>/``, the two designs in parallel processes, prints one table of the
+  summary figures and writes it with its legend to ``DIR/summary.md``.
 - ``plant SPEC --out DIR``: your own plant: designs its observer (the design's defaults where
   the spec is silent), builds its FMUs into ``DIR/fmus`` and runs the default scenario of
   :mod:`harness.own_plant` (x(0) = state_scale, observers at zero, u = K x on the true state,
@@ -144,11 +147,12 @@ def _parser() -> argparse.ArgumentParser:
         help="plant spec (--design spec); its [noise] table gives both designs' Kalman filter"
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
-    paper.add_argument("--jobs", type=int, default=2, help="parallel processes for seeds")
+    paper.add_argument("--jobs", type=int, default=2,
+                       help="parallel processes: one per design, else for the seeds")
     paper.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    paper.add_argument("--native", action="store_true",
-                       help="also build the native FMUs (fmus/native) and run the scenarios "
-                            "with them")
+    paper.add_argument("--pythonfmu", action="store_true",
+                       help="run the scenarios with the pythonfmu FMUs (fmus/) rather than the "
+                            "native ones (fmus/native; the same results)")
     plant = sub.add_parser(
         "plant", parents=[common],
         help="design and build the FMUs of your own plant spec and run its default scenario",
@@ -431,27 +435,42 @@ def _check_kalman_fmu(fmu_dir: Path, spec: Path) -> None:
 def _cmd_paper(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
-    table, folders = {}, {}
-    for design in designs:
-        label = DESIGN_LABELS[design]
-        fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec,
-                                   native=args.native)
-        _check_kalman_fmu(fmu_dir, args.spec)
-        for name in PAPER_SCENARIO_FILES.values():
-            spec = load_scenario(name, fmu_dir, args.block_cache)
-            n = PAPER_SEEDS.get(name)
-            seeds = list(range(n)) if n else None
-            print(f"running {label} {name}" + (f" ({n} seeds)" if n else ""), flush=True)
-            key = f"{label} {name}"
-            folders[key] = args.out / label / name
-            table[key] = run_scenario(spec, folders[key], args.stop_time, seeds, args.jobs,
-                                      not args.no_plots, csv_every(args, PAPER_CSV_EVERY),
-                                      label=f"{label} design:")
+    if args.jobs > 1 and len(designs) > 1:
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(designs))) as pool:
+            parts = list(pool.map(_paper_design, designs, [args] * len(designs),
+                                  [1] * len(designs)))
+    else:
+        parts = [_paper_design(design, args, args.jobs) for design in designs]
+    table = {key: data for part in parts for key, (data, _) in part.items()}
+    folders = {key: folder for part in parts for key, (_, folder) in part.items()}
     print(format_table(table))
     for key, data in table.items():
         print(f"{key}: {folders[key]} (plots: {', '.join(data.get('plots', []))})")
     print(f"table: {write_paper_summary(args.out, table, folders)}")
     return 0
+
+
+def _paper_design(design: str, args: argparse.Namespace,
+                  jobs: int) -> dict[str, tuple[dict[str, Any], Path]]:
+    """One design of the main job: build its FMUs (pythonfmu, and native unless
+    ``--pythonfmu``), run the paper's scenarios with them (seeds in ``jobs`` processes);
+    ``{"<label> <scenario>": (summary, folder)}``."""
+    label = DESIGN_LABELS[design]
+    fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec,
+                               native=not args.pythonfmu)
+    _check_kalman_fmu(fmu_dir, args.spec)
+    part = {}
+    for name in PAPER_SCENARIO_FILES.values():
+        spec = load_scenario(name, fmu_dir, args.block_cache)
+        n = PAPER_SEEDS.get(name)
+        seeds = list(range(n)) if n else None
+        print(f"running {label} {name}" + (f" ({n} seeds)" if n else ""), flush=True)
+        folder = args.out / label / name
+        part[f"{label} {name}"] = (
+            run_scenario(spec, folder, args.stop_time, seeds, jobs, not args.no_plots,
+                         csv_every(args, PAPER_CSV_EVERY), label=f"{label} design:"),
+            folder)
+    return part
 
 
 PAPER_LEGEND = """\

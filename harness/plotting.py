@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import envelope
+from fhobs.plots import envelope, fixed_margins
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -63,7 +63,8 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4), layout="constrained")
+    fig, ax = plt.subplots(figsize=(7, 4))
+    fixed_margins(fig)
     for name, (reference, estimate) in spec.evaluation.errors.items():
         e = error_norm(result, reference, estimate)
         ax.semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
@@ -95,7 +96,8 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     n = x.shape[1]
     columns = {label: result.vector(signal) for label, signal in estimates.items()}
     fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True,
-                             layout="constrained", squeeze=False)
+                             squeeze=False)
+    fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(*envelope(result.time, x[:, i]), color="k", lw=2, label=state)
         for label, estimate in columns.items():
@@ -103,7 +105,7 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
         ax.set_ylabel(f"{state}[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
-    axes[0, 0].set_title(f"{title}: states and their estimates")
+    axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -155,7 +157,8 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
 
     rows = 2 if q_hats else 1
     fig, axes = plt.subplots(rows, 1, figsize=(7, 2.6 * rows + 0.8), sharex=True,
-                             layout="constrained", squeeze=False)
+                             squeeze=False)
+    fixed_margins(fig)
     colours = {label: f"C{i}" for i, label in enumerate(errors)}
     for label, (reference, estimate) in errors.items():
         e = error_norm(result, reference, estimate)
@@ -216,7 +219,8 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
 
     r = q.shape[1]
     fig, axes = plt.subplots(r, 1, figsize=(7, 1.8 * r + 0.8), sharex=True,
-                             layout="constrained", squeeze=False)
+                             squeeze=False)
+    fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(*envelope(time, q[:, i]), color="k", lw=2, label="q")
         for label, q_hat in q_hats.items():

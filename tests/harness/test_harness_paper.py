@@ -259,11 +259,13 @@ def test_native_and_python_step_loops_are_identical(fmu_dir, block_cache, monkey
 
 
 def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
-    """``harness paper --native`` builds fmus/native and runs the scenarios with it: the same
-    results.csv, bit for bit, as the pythonfmu FMUs of the same design."""
+    """``harness paper`` builds fmus/native and runs the scenarios with it: the same
+    results.csv, bit for bit, as with ``--pythonfmu`` (the pythonfmu FMUs of the same
+    design)."""
     common = ["paper", "--design", "spec", "--stop-time", "0.05", "--no-plots"]
-    assert main([*common, "--out", str(tmp_path / "python")]) == 0
-    assert main([*common, "--out", str(tmp_path / "native"), "--native"]) == 0
+    assert main([*common, "--out", str(tmp_path / "python"), "--pythonfmu"]) == 0
+    assert not (tmp_path / "python" / "ours" / "fmus" / "native").exists()
+    assert main([*common, "--out", str(tmp_path / "native")]) == 0
     assert (tmp_path / "native" / "ours" / "fmus" / "native" / "observer.fmu").is_file()
     for scenario in PAPER_SCENARIO_FILES.values():
         python, native = (tmp_path / run / "ours" / scenario / "results.csv"
