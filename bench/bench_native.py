@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from fhobs.build import build_fmus
-from fhobs.cli import design_from_spec
+from fhobs.design import design_for_spec
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import load_spec
@@ -116,7 +116,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--dt", type=float, default=1e-3, help="communication step")
     args = parser.parse_args()
-    gains = design_from_spec(load_spec(PENDULUM_SPEC))
+    gains = design_for_spec(load_spec(PENDULUM_SPEC))
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         python = build_fmus(gains, Path(tmp) / "pythonfmu", kinds=KINDS)

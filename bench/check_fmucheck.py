@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 from fhobs.build import build_fmus
-from fhobs.cli import design_from_spec
+from fhobs.design import design_for_spec
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import load_spec
@@ -228,7 +228,7 @@ def main() -> None:
         parser.error(f"--fmucheck {args.fmucheck}: no such file (build the checker first, "
                      "see the docstring of this script)")
     args.out.mkdir(parents=True, exist_ok=True)
-    gains = design_from_spec(load_spec(PENDULUM_SPEC))
+    gains = design_for_spec(load_spec(PENDULUM_SPEC))
     python = build_fmus(gains, args.out / "pythonfmu", kinds=KINDS)
     native = build_native_fmus(gains, args.out / "native", kinds=KINDS, steps=[args.dt])
     results = [check_kind(kind, native[kind], python[kind], args) for kind in KINDS]

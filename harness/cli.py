@@ -411,13 +411,14 @@ def design_spec_file(path: Path) -> tuple[PlantSpec, ObserverGains]:
     -------
     tuple of PlantSpec and ObserverGains
     """
-    from fhobs.cli import design_from_spec, design_summary
+    from fhobs.cli import design_summary
+    from fhobs.design import design_for_spec
     from fhobs.limits import check_design_limits
     from fhobs.spec import load_spec
 
     spec = load_spec(path)
     check_design_limits(spec)
-    gains = design_from_spec(spec)
+    gains = design_for_spec(spec)
     for line in design_summary(gains):
         print(line)
     return spec, gains

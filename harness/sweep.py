@@ -697,8 +697,7 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     >>> gains.rho, point_design(job)[1] is gains
     (2.0, True)
     """
-    from fhobs.cli import design_from_spec
-    from fhobs.design import paper_gains
+    from fhobs.design import design_for_spec, paper_gains
     from fhobs.kalman import with_kalman
     from fhobs.limits import check_design_limits
     from fhobs.spec import spec_from_dict
@@ -711,7 +710,7 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
             gains = gains if spec.noise is None else with_kalman(gains, spec.noise)
         else:
             check_design_limits(spec)
-            gains = design_from_spec(spec)
+            gains = design_for_spec(spec)
         _DESIGNS[key] = (spec, gains)
     return (*_DESIGNS[key], key)
 

@@ -15,9 +15,8 @@ from .core.gains import ObserverGains
 from .core.runtime import DEFAULT_H
 from .design import augmented_system, design_for_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
-from .kalman import with_kalman
 from .limits import check_design_limits
-from .spec import OBJECTIVES, PlantSpec, load_spec
+from .spec import OBJECTIVES, load_spec
 
 
 def program_name(default: str) -> str:
@@ -161,27 +160,6 @@ def check_output_folder(path: Path) -> None:
         raise PermissionError(f"--out {path}: the folder {existing} is not writable")
 
 
-def design_from_spec(spec: PlantSpec, objective: str | None = None) -> ObserverGains:
-    """Everything a spec asks for: the certified observer design and, with a ``[noise]``
-    table, its Kalman filter baseline.
-
-    Raises
-    ------
-    fhobs.errors.LMIError, fhobs.errors.CertificateError, fhobs.errors.KalmanDesignError
-        As :func:`fhobs.design.design_for_spec` and :func:`fhobs.kalman.with_kalman`.
-
-    Examples
-    --------
-    >>> from fhobs.spec import spec_from_dict
-    >>> gains = design_from_spec(spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]],
-    ...                                          "C": [[1, 0]], "observer": {"rho": 2.0}}))
-    >>> gains.rho, gains.kalman is None
-    (2.0, True)
-    """
-    gains = design_for_spec(spec, objective=objective)
-    return gains if spec.noise is None else with_kalman(gains, spec.noise)
-
-
 def check_native_options(args: argparse.Namespace) -> None:
     """Raise SpecError naming the option when ``--native`` / ``--native-step`` cannot be used.
 
@@ -225,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     start = time.perf_counter()
     try:
-        gains = design_from_spec(spec, args.objective)
+        gains = design_for_spec(spec, args.objective)
     except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 2

@@ -45,6 +45,8 @@ from .core.gains import ObserverGains
 from .core.linalg import diagonal_congruence, diagonal_similarity
 from .errors import CertificateError, LMIError, SpecError
 from .homogenisation import Homogenisation, dilation_basis, homogenise
+from .kalman import with_kalman
+from .limits import check_design_limits
 from .lmi import (
     LMI_MARGIN,
     certify_gain_lmi,
@@ -246,7 +248,9 @@ def design_for_spec(
     margin: float = LMI_MARGIN,
     filter_scale: float | None = None,
 ) -> ObserverGains:
-    """Design and certify the filtering homogeneous observer for a validated plant spec.
+    """Everything a validated plant spec asks for: the certified filtering homogeneous
+    observer (with its prescribed-time and Luenberger companions) and, with a ``[noise]``
+    table, the Kalman filter baseline; what ``build_fmu.py`` and ``harness plant`` build.
 
     Parameters
     ----------
@@ -262,10 +266,14 @@ def design_for_spec(
     Returns
     -------
     ObserverGains
-        With ``certificate`` holding the checked figures.
+        With ``certificate`` holding the checked figures, ``kalman`` the Kalman filter of the
+        spec's ``[noise]`` table (None without one).
 
     Raises
     ------
+    fhobs.errors.SpecError
+        If the spec is beyond the design's limits (:func:`fhobs.limits.check_design_limits`),
+        before any design work.
     fhobs.errors.LMIError
         If an LMI solve fails, or a linear-algebra step of the design does (numpy's
         LinAlgError is not passed on).
@@ -275,15 +283,28 @@ def design_for_spec(
         all: the certificate allows for the rounding error of its own figures, which grows
         with cond(P) and the gains, so a margin that is too thin for a plant with large
         entries is widened rather than reported as a failure).
+    fhobs.errors.KalmanDesignError
+        If the ``[noise]`` table's Kalman filter cannot be designed
+        (:func:`fhobs.kalman.with_kalman`).
 
     Examples
     --------
     >>> from fhobs.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "observer": {"rho": 2.0, "gamma": 3.0}})
-    >>> design_for_spec(spec).gamma
-    3.0
+    >>> gains = design_for_spec(spec)
+    >>> gains.gamma, gains.kalman is None
+    (3.0, True)
     """
+    check_design_limits(spec)
+    gains = _observer_for_spec(spec, objective, margin, filter_scale)
+    return gains if spec.noise is None else with_kalman(gains, spec.noise)
+
+
+def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
+                       filter_scale: float | None) -> ObserverGains:
+    """The certified observer design of ``spec`` (no Kalman filter): at the spec's rho, or by
+    the settling-time search when it names none (see :func:`design_for_spec`)."""
     objective = objective or spec.objective
     if spec.rho is None:
         return _design_for_settling_time(spec, objective, margin, filter_scale)
@@ -322,8 +343,8 @@ def _design_for_settling_time(
         if stalled >= LADDER_PATIENCE:
             break
         try:
-            gains = design_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
-                                    filter_scale)
+            gains = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
+                                       filter_scale)
         except (LMIError, CertificateError) as exc:
             last_error, stalled = exc, stalled + 1
             continue
@@ -476,7 +497,7 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
         },
         source=str(reference),
     )
-    tuned = design_for_spec(spec)
+    tuned = _observer_for_spec(spec, None, LMI_MARGIN, None)
     base = {f: getattr(tuned, f) for f in tuned.__dataclass_fields__ if f != "certificate"}
     base |= dict(L_tilde=np.array(published["L_tilde"]), L=np.array(published["L"]))
     bar_A0, bar_G, bar_C = augmented_system(tuned.A0, tuned.model[2], tuned.G_d)

@@ -324,11 +324,12 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
     --------
     >>> from fhobs.design import design_for_spec
     >>> from fhobs.spec import spec_from_dict
-    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
-    ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
-    ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,
-    ...                                  "process_intensity": 1.0}})
-    >>> gains = with_kalman(design_for_spec(spec), spec.noise)
+    >>> plant = {"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]], "E": [[0], [1]],
+    ...          "observer": {"rho": 2.0}}
+    >>> noise = spec_from_dict(plant | {"noise": {"measurement_std": [0.01],
+    ...                                           "sample_time": 0.01,
+    ...                                           "process_intensity": 1.0}}).noise
+    >>> gains = with_kalman(design_for_spec(spec_from_dict(plant)), noise)
     >>> gains.kalman.gain.shape, gains.kalman.sample_time
     ((2, 1), 0.01)
     """

@@ -344,3 +344,26 @@ def test_design_overrides_are_checked_like_the_spec(tmp_path, capsys, options, w
     assert code == 2 and words in err, err
     _one_paragraph(err)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_api_and_the_command_line_give_one_design(tmp_path):
+    """``design_for_spec`` of a spec with a [noise] table is the design.json that
+    ``build_fmu.py --design-only`` writes for it: the Kalman filter included."""
+    from fhobs.core.gains import ObserverGains
+    from fhobs.paper import PENDULUM_SPEC
+
+    assert design_main([str(PENDULUM_SPEC), "--out", str(tmp_path), "--design-only"]) == 0
+    written = ObserverGains.load_json(tmp_path / "design.json").to_dict()
+    api = design_for_spec(load_spec(PENDULUM_SPEC)).to_dict()
+    assert api["kalman"] is not None
+    assert json.dumps(api, sort_keys=True) == json.dumps(written, sort_keys=True)
+
+
+def test_design_for_spec_checks_the_design_limits():
+    """A spec beyond the design's limits is refused by the API too, before any design work."""
+    chain = MAX_CHAIN + 1
+    A = np.eye(chain, k=1)
+    spec = spec_from_dict({"A": A.tolist(), "B": np.eye(chain)[:, -1:].tolist(),
+                           "C": np.eye(chain)[:1].tolist(), "observer": {"rho": 2.0}})
+    with pytest.raises(SpecError, match="n_tilde"):
+        design_for_spec(spec)

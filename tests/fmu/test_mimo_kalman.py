@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
-from fhobs.cli import design_from_spec, design_summary
+from fhobs.cli import design_summary
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
+from fhobs.design import design_for_spec
 from fhobs.spec import spec_from_dict
 from fmpy import extract
 from fmu_fixtures import FmuDriver
@@ -25,7 +26,7 @@ def test_ball_and_beam_kalman_fmu_initialises_and_converges(tmp_path):
     build's summary states the added process noise."""
     spec = spec_from_dict(BALL_BEAM | {"observer": {"disturbance_order": 0, "rho": 2.0},
                                        "noise": BALL_BEAM_NOISE})
-    gains = design_from_spec(spec)
+    gains = design_for_spec(spec)
     assert any("process noise of intensity 1e-08" in line for line in design_summary(gains))
     path = build_fmus(gains, tmp_path, kinds=["kalman"])["kalman"]
     driver = FmuDriver(path, extract(str(path)))

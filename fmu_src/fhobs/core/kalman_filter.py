@@ -107,13 +107,12 @@ class KalmanObserver:
     A double integrator at rest at x = (1, 0), the filter started at zero:
 
     >>> from fhobs.design import design_for_spec
-    >>> from fhobs.kalman import with_kalman
     >>> from fhobs.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
     ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,
     ...                                  "process_intensity": 1.0}})
-    >>> gains = with_kalman(design_for_spec(spec), spec.noise)
+    >>> gains = design_for_spec(spec)  # with the Kalman filter of the [noise] table
     >>> obs = KalmanObserver(gains)
     >>> for _ in range(500):
     ...     obs.step(y=[1.0], u=[0.0], dt=gains.kalman.sample_time)
