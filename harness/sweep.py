@@ -443,12 +443,16 @@ def _check_axis(axis: str, where: str) -> None:
 
 
 def _resolve_file(name: str, sweep_file: Path, what: str) -> Path:
-    """A path of the sweep file: relative to its folder, else to the working directory."""
-    for path in (sweep_file.parent / name, Path(name)):
+    """A path of the sweep file: relative to its folder, else to the working directory, else
+    to the bundled examples (``zoo/dc_motor.toml``: :data:`fhobs.paper.EXAMPLES`)."""
+    from fhobs.paper import EXAMPLES
+
+    for path in (sweep_file.parent / name, Path(name), EXAMPLES / name):
         if path.is_file():
             return path.resolve()
     raise SweepError(f"{sweep_file}: {what} {name!r}: no such file (looked in "
-                     f"{sweep_file.parent} and in the working directory {Path.cwd()})")
+                     f"{sweep_file.parent}, in the working directory {Path.cwd()} and in the "
+                     f"bundled examples {EXAMPLES})")
 
 
 def _load_base(name: str, settings: dict[str, Any], sweep_file: Path) -> Base:

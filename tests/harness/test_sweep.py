@@ -289,3 +289,17 @@ def test_docstring_examples():
 
     result = doctest.testmod(harness.sweep, optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_bundled_zoo_sweep_runs_every_zoo_plant_at_two_steps():
+    """zoo: every bundled example plant (the zoo bench's; found in the installed examples by
+    its relative name) at the communication steps 1e-4 and 1e-3, native FMUs."""
+    from fhobs.paper import EXAMPLES
+    from fhobs.scenarios_zoo import zoo_spec_paths
+
+    sweep = load_sweep("zoo")
+    plants = sorted(path.relative_to(EXAMPLES).as_posix() for path in zoo_spec_paths().values())
+    assert sorted({p.params["base"] for p in sweep.points}) == plants
+    assert sorted((p.params["base"], p.params["step"]) for p in sweep.points) == sorted(
+        (plant, step) for plant in plants for step in (1e-4, 1e-3))
+    assert sweep.settings["fmus"] == "native"
