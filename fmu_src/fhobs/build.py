@@ -40,7 +40,7 @@ import numpy as np
 
 from .core.certificate import certify
 from .core.gains import ObserverGains
-from .core.kernel import HEADER, SHIPPED, SOURCE, compile_library
+from .core.kernel import HEADER, LIBRARY_FLAGS, SHIPPED, SOURCE, cache_dir, cached_build
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
@@ -126,10 +126,10 @@ def build_fmus(
         stage = Path(tmp)
         design_json = json.dumps(gains.to_dict(), indent=1)
         tag = build_tag(design_json + json.dumps(config, sort_keys=True))
-        library = _compile_kernel(stage, compiler) if kernel else None
+        library = _compile_kernel() if kernel else None
         (stage / DESIGN_FILE).write_text(design_json)
         (stage / CONFIG_FILE).write_text(json.dumps(config, indent=1))
-        wrapper = _compile_wrapper(stage, compiler) if status_wrapper else None
+        wrapper = _compile_wrapper() if status_wrapper else None
         built = {}
         for kind in kinds:
             package = stage / package_name(kind, tag)
@@ -329,33 +329,40 @@ def _build_one(script: Path, stage: Path, package: Path, dest: Path) -> Path:
     )
 
 
-def _compile_wrapper(stage: Path, compiler: str) -> Path:
-    """Compile ``fmu/status_wrapper.c`` for linux64 (FMI headers: fmpy's copy)."""
+def _compile_wrapper() -> Path:
+    """``fmu/status_wrapper.c`` compiled for linux64 (FMI headers: fmpy's copy), once per
+    machine (:func:`fhobs.core.kernel.cached_build`; the call-rules header it includes is
+    written to a folder named by its content)."""
     import fmpy
 
-    source = PACKAGE_DIR / "fmu" / "status_wrapper.c"
-    library = stage / "status_wrapper.so"
-    (stage / call_rules.HEADER).write_text(call_rules.c_header())
-    command = [
-        compiler, "-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
-        f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{stage}", "-o", str(library),
-        str(source), "-ldl", "-lpthread",
-    ]
-    result = subprocess.run(command, capture_output=True, text=True, check=False)
-    if result.returncode != 0:
-        raise BuildError(f"compiling the status wrapper failed:\n{result.stderr}")
-    return library
+    header = call_rules.c_header()
+    include = cache_dir() / f"call_rules_{hashlib.sha256(header.encode()).hexdigest()[:16]}"
+    include.mkdir(exist_ok=True)
+    if not (include / call_rules.HEADER).exists():
+        (include / call_rules.HEADER).write_text(header)
+    flags = ("-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
+             f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{include}")
+    return _cached(PACKAGE_DIR / "fmu" / "status_wrapper.c", "fhobs_status_wrapper", flags,
+                   ("-ldl", "-lpthread"), (include / call_rules.HEADER,), "the status wrapper")
 
 
-def _compile_kernel(stage: Path, compiler: str) -> Path:
-    """Compile ``core/kernel.c`` into ``stage``, to be shipped where :mod:`fhobs.core.kernel`
-    finds it."""
-    library = stage / SHIPPED.name
+def _compile_kernel() -> Path:
+    """``core/kernel.c`` compiled as :mod:`fhobs.core.kernel` ships it, once per machine."""
+    return _cached(SOURCE, "fhobs_kernel", LIBRARY_FLAGS, ("-lm",), (HEADER,), "the step kernel")
+
+
+def _cached(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[str, ...],
+            depends: tuple[Path, ...], what: str) -> Path:
+    """:func:`fhobs.core.kernel.cached_build`, its failures as :class:`BuildError`."""
     try:
-        compile_library(library, compiler)
+        library = cached_build(source, prefix, flags, libs, depends)
     except (OSError, subprocess.SubprocessError) as err:
         detail = getattr(err, "stderr", None) or err
-        raise BuildError(f"compiling the step kernel failed:\n{detail}") from err
+        if isinstance(detail, bytes):
+            detail = detail.decode(errors="replace")
+        raise BuildError(f"compiling {what} failed:\n{detail}") from err
+    if library is None:
+        raise BuildError(f"compiling {what} needs a C compiler (cc or gcc) on PATH")
     return library
 
 

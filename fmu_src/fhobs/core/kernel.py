@@ -191,16 +191,38 @@ def _load() -> ctypes.PyDLL | None:
 def cached_library(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[str, ...],
                    open_library: Callable[[Path], T | None],
                    depends: tuple[Path, ...] = ()) -> T | None:
-    """``open_library`` of ``source`` compiled with ``cc`` (or ``gcc``) into :func:`cache_dir`,
-    under a name that hashes the source (and the headers ``depends``), the flags, the compiler
-    and the machine; into a
-    private temporary folder when the cache cannot be written. None without a compiler or when
-    the compilation fails.
+    """``open_library`` of ``source`` compiled by :func:`cached_build`; None without a
+    compiler or when the compilation fails.
 
     Examples
     --------
     >>> lib = cached_library(SOURCE, "fhobs_kernel", LIBRARY_FLAGS, ("-lm",), _open)
     >>> lib is None or hasattr(lib, "fhobs_plant_step")
+    True
+    """
+    try:
+        path = cached_build(source, prefix, flags, libs, depends)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return None if path is None else open_library(path)
+
+
+def cached_build(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[str, ...] = (),
+                 depends: tuple[Path, ...] = ()) -> Path | None:
+    """``source`` compiled with ``cc`` (or ``gcc``) into :func:`cache_dir`, under a name that
+    hashes the source (and the headers ``depends``), the flags, the compiler and the machine,
+    so that it is compiled once per machine; into a private temporary folder when the cache
+    cannot be written. None without a compiler.
+
+    Raises
+    ------
+    OSError, subprocess.SubprocessError
+        If the compiler fails.
+
+    Examples
+    --------
+    >>> path = cached_build(SOURCE, "fhobs_kernel", LIBRARY_FLAGS, ("-lm",))
+    >>> path is None or path.suffix == ".so"
     True
     """
     compiler = shutil.which("cc") or shutil.which("gcc")
@@ -214,14 +236,11 @@ def cached_library(source: Path, prefix: str, flags: tuple[str, ...], libs: tupl
         path = cache_dir() / name
         if not path.exists():
             compile_source(source, path, compiler, flags, libs)
-        return open_library(path)
-    except (OSError, subprocess.SubprocessError):
-        with tempfile.TemporaryDirectory(prefix=f"{prefix}_") as private:
-            try:
-                compile_source(source, Path(private) / name, compiler, flags, libs)
-            except (OSError, subprocess.SubprocessError):
-                return None
-            return open_library(Path(private) / name)  # stays mapped once loaded
+        return path
+    except OSError:
+        private = Path(tempfile.mkdtemp(prefix=f"{prefix}_"))  # kept: the library is in use
+        compile_source(source, private / name, compiler, flags, libs)
+        return private / name
 
 
 def _open(path: Path) -> ctypes.PyDLL | None:
@@ -245,21 +264,6 @@ def cache_dir() -> Path:
     path = Path(base) / "fhobs"
     path.mkdir(mode=0o700, parents=True, exist_ok=True)
     return path
-
-
-def compile_library(target: Path, compiler: str) -> None:
-    """Compile ``kernel.c`` into ``target`` (:func:`compile_source` with the kernel's flags).
-
-    Raises
-    ------
-    OSError, subprocess.SubprocessError
-        If the compiler fails or cannot be run.
-
-    Examples
-    --------
-    >>> compile_library(Path("build/kernel_linux64.so"), "cc")  # doctest: +SKIP
-    """
-    compile_source(SOURCE, target, compiler, LIBRARY_FLAGS, ("-lm",))
 
 
 def compile_source(source: Path | tuple[Path, ...], target: Path, compiler: str,
