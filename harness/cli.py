@@ -165,6 +165,10 @@ def _parser() -> argparse.ArgumentParser:
                        help=f"communication step (default the [noise] sample time, else {STEP:g})")
     plant.add_argument("--seed", type=int, default=0, help="measurement noise seed")
     plant.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    plant.add_argument("--tune-noise", action="store_true",
+                       help="design for the spec's [noise] and [disturbance] tables "
+                            "(build_fmu.py --tune-noise) and show the measured figures beside "
+                            "the predicted ones")
     plant.add_argument("--native", action="store_true",
                        help="also build native FMUs for the step (fmus/native) and run them")
     plant.add_argument("--mismatch", type=float, metavar="SIZE",
@@ -403,25 +407,57 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
-def design_spec_file(path: Path) -> tuple[PlantSpec, ObserverGains]:
+def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, ObserverGains]:
     """The spec of ``path`` and its design, as build_fmu.py makes it (the design limits
-    checked first; what the design achieved printed).
+    checked first; what the design achieved printed); with ``tune_noise`` as
+    ``build_fmu.py --tune-noise`` (:func:`fhobs.tuning.design_for_noise_spec`).
 
     Returns
     -------
     tuple of PlantSpec and ObserverGains
     """
-    from fhobs.cli import design_summary
+    from fhobs.cli import check_noise_tuning, design_summary
     from fhobs.design import design_for_spec
     from fhobs.limits import check_design_limits
     from fhobs.spec import load_spec
 
     spec = load_spec(path)
     check_design_limits(spec)
-    gains = design_for_spec(spec)
-    for line in design_summary(gains):
+    lines: list[str] = []
+    if tune_noise:
+        from fhobs.tuning import design_for_noise_spec
+
+        check_noise_tuning(spec)
+        tuned = design_for_noise_spec(spec)
+        gains, lines = tuned.gains, tuned.summary()
+    else:
+        gains = design_for_spec(spec)
+    for line in design_summary(gains) + lines:
         print(line)
     return spec, gains
+
+
+def predicted_line(predicted: dict[str, Any], data: dict[str, Any]) -> str:
+    """The noise tuning's predictions (design.json's ``certificate["noise_tuning"]``) beside
+    what the run measured over its steady window (the homogeneous observer's and the Kalman
+    filter's RMS of ``||x - x_hat||``).
+
+    Examples
+    --------
+    >>> line = predicted_line({"window": [2.0, 6.0], "predicted_noisy_rms": 1e-3,
+    ...                        "kalman_predicted_noisy_rms": 5e-4},
+    ...                       {"homogeneous": {"x_rms_steady": 1.1e-3},
+    ...                        "kalman": {"x_rms_steady": 5.2e-4}})
+    >>> line.split(": ")[1]
+    'homogeneous 1.000e-03 / 1.100e-03, kalman 5.000e-04 / 5.200e-04'
+    """
+    a, b = predicted["window"]
+    measured = {label: data.get(label, {}).get("x_rms_steady") for label in ("homogeneous",
+                                                                              "kalman")}
+    shown = {label: "-" if value is None else f"{value:.3e}" for label, value in measured.items()}
+    return (f"noisy RMS predicted over [{a:g}, {b:g}] s / measured (steady window): homogeneous "
+            f"{predicted['predicted_noisy_rms']:.3e} / {shown['homogeneous']}, kalman "
+            f"{predicted['kalman_predicted_noisy_rms']:.3e} / {shown['kalman']}")
 
 
 def _check_kalman_fmu(fmu_dir: Path, spec: Path) -> None:
@@ -530,7 +566,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
 
     check_output_folder(args.out)
     plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing
-    spec, gains = design_spec_file(args.spec)
+    spec, gains = design_spec_file(args.spec, tune_noise=args.tune_noise)
     spec = plant_mismatch(spec, args.mismatch, args.mismatch_seed)
     noise = 0.0
     if spec.noise is not None:
@@ -557,6 +593,9 @@ def _cmd_plant(args: argparse.Namespace) -> int:
                              "B": plant[1].tolist()}
     if spec.disturbance is not None:
         about["disturbance"] = {**vars(spec.disturbance), "size": spec.disturbance.size.tolist()}
+    predicted = gains.certificate.get("noise_tuning")
+    if predicted is not None:
+        about["predicted"] = predicted
     system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise,
                               disturbance=spec.disturbance, plant_matrices=plant,
                               settled=settled)
@@ -569,6 +608,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     steady = f"steady [{settled:g}, {stop_time:g}] s" if settled < stop_time else "no steady window"
     print(f"windows: transient [0, {settled:g}] s, {steady}; {data['steps']} steps, "
           f"{data['wall_time_s']:.2f} s")
+    if predicted is not None:
+        print(predicted_line(predicted, data))
     if not args.no_plots:
         print(f"plots: {', '.join(data['plots'])}")
     print(f"results in {args.out}, FMUs in {args.out / 'fmus'}")

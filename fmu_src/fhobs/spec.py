@@ -29,7 +29,7 @@ Format::
     disturbance_order = 1     # r in 0..3; default: observer.disturbance_order
 
     [disturbance]             # optional table: the unknown input q that `harness plant` feeds
-                              # the plant FMU (needs E); the design ignores it
+                              # the plant FMU (needs E); the design uses it with --tune-noise
     shape = "step"            # "step", "ramp", "sine" or "random_walk"; q = 0 before start
     size = [0.5]              # per q channel (r entries) or one number for all: the step's
                               # height, the ramp's slope (per s), the sine's amplitude, the

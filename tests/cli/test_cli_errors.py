@@ -17,13 +17,11 @@ from pathlib import Path
 import fhobs.cli
 import numpy as np
 import pytest
-from fhobs.build import build_fmus
 from fhobs.cli import main as design_main
 from fhobs.design import design_for_spec
 from fhobs.errors import SpecError
 from fhobs.homogenisation import observability_index
 from fhobs.limits import MAX_CHAIN, check_design_limits
-from fhobs.paper import EXAMPLES
 from fhobs.spec import load_spec, spec_from_dict
 
 from harness.cli import main as harness_main
@@ -186,11 +184,11 @@ tracking = ["wave.y", "observer.x_hat[1]"]
 """
 
 
-@pytest.fixture(scope="module")
-def observer_fmu(tmp_path_factory) -> Path:
-    """The triple integrator's observer FMU (n = 3, k = 1)."""
-    gains = design_for_spec(load_spec(EXAMPLES / "triple_integrator.toml"))
-    return build_fmus(gains, tmp_path_factory.mktemp("chain"), kinds=("observer",))["observer"]
+@pytest.fixture
+def observer_fmu(chain_observer: Path) -> Path:
+    """The triple integrator's observer FMU (n = 3, k = 1): tests/fmu_fixtures.py's
+    ``chain_observer``, built once for the session."""
+    return chain_observer
 
 
 @pytest.fixture(scope="module")
@@ -367,3 +365,47 @@ def test_design_for_spec_checks_the_design_limits():
                            "C": np.eye(chain)[:1].tolist(), "observer": {"rho": 2.0}})
     with pytest.raises(SpecError, match="n_tilde"):
         design_for_spec(spec)
+
+
+TUNED_SPEC = """A = [[0, 1], [0, 0]]
+B = [[0], [1]]
+C = [[1, 0]]
+E = [[0], [1]]
+[observer]
+disturbance_order = 1
+[noise]
+measurement_std = [1e-3]
+sample_time = 1e-2
+process_intensity = 1.0
+"""
+
+
+@pytest.mark.slow
+def test_tune_noise_picks_a_design_for_the_specs_noise_and_disturbance(tmp_path, capsys):
+    """``--tune-noise``: the design with the least predicted noisy RMS among those that reject
+    the [disturbance] step 1e4 times better than the tuned Kalman filter; both predictions
+    printed and kept in design.json, and the chosen design re-certifies."""
+    from fhobs.core.certificate import certify
+    from fhobs.core.gains import ObserverGains
+
+    spec = tmp_path / "di.toml"
+    spec.write_text(TUNED_SPEC + '[disturbance]\nshape = "step"\nsize = 0.2\nstart = 0.5\n')
+    assert design_main([str(spec), "--out", str(tmp_path / "out"), "--design-only",
+                        "--tune-noise"]) == 0
+    out = capsys.readouterr().out
+    assert "noise tuning:" in out and "Kalman filter (intensity" in out
+    gains = ObserverGains.load_json(tmp_path / "out" / "design.json")
+    certify(gains)
+    tuning = gains.certificate["noise_tuning"]
+    assert gains.kalman is not None and tuning["met"]
+    assert tuning["predicted_noise_free_max"] * 1e4 <= tuning["kalman_predicted_noise_free_max"]
+    assert f"{tuning['predicted_noisy_rms']:.3e}" in out
+
+
+def test_tune_noise_without_a_disturbance_table_is_refused_before_any_design(tmp_path, capsys):
+    spec = tmp_path / "di.toml"
+    spec.write_text(TUNED_SPEC)
+    assert design_main([str(spec), "--out", str(tmp_path / "out"), "--tune-noise"]) == 2
+    err = capsys.readouterr().err
+    assert "--tune-noise needs" in err and "no [disturbance] table" in err
+    assert not (tmp_path / "out").exists()

@@ -107,3 +107,26 @@ def test_own_plant_with_native_fmus_gives_the_same_results(tmp_path, capsys):
     python, native = ((tmp_path / folder / "results.csv").read_text()
                       for folder in ("python", "native"))
     assert python == native and "prescribed_time.x_hat[1]" in native
+
+
+@pytest.mark.slow
+def test_tune_noise_measures_what_the_tuning_predicted(tmp_path, capsys):
+    """``harness plant --tune-noise``: the FMUs of the noise-tuned design, co-simulated with the
+    spec's noise and disturbance, measure the noisy RMS the tuning predicted from its own
+    simulation (other noise draws: within 10 %), for ours and the Kalman filter; summary.json
+    keeps the prediction."""
+    spec = tmp_path / "di.toml"
+    spec.write_text('A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\nE = [[0], [1]]\n'
+                    '[observer]\ndisturbance_order = 1\n'
+                    '[noise]\nmeasurement_std = [1e-3]\nsample_time = 1e-2\n'
+                    'process_intensity = 1.0\n'
+                    '[disturbance]\nshape = "step"\nsize = 0.2\nstart = 0.5\n')
+    assert main(["plant", str(spec), "--out", str(tmp_path / "out"), "--tune-noise",
+                 "--no-plots"]) == 0
+    assert "predicted over" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    predicted = summary["predicted"]
+    for label, key in (("homogeneous", "predicted_noisy_rms"),
+                       ("kalman", "kalman_predicted_noisy_rms")):
+        measured = summary[label]["x_rms_steady"]
+        assert abs(measured / predicted[key] - 1.0) < 0.1, (label, measured, predicted[key])
