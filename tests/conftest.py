@@ -14,6 +14,11 @@ from fhobs.spec import PlantSpec, load_spec
 
 LAYERS = ("unit", "fmu", "harness", "engines", "cli")
 
+pytest_plugins = ("fmu_fixtures", "host_runner")
+"""The shared FMU fixtures (tests/fmu_fixtures.py) and the C test host (tests/host_runner.py),
+registered once for the session: a module that assigned them to names of its own would get
+its own copies, so each "session" build would run once per module."""
+
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Mark each test with its layer, the folder under tests/ that holds it."""

@@ -1,5 +1,8 @@
 """Shared FMU test fixtures: the FMUs built once per session and a small fmpy FMU2Slave
-driver (imported by the FMU, kernel and Kalman tests).
+driver (imported by the FMU, kernel and Kalman tests). tests/conftest.py registers this module
+as a plugin (``pytest_plugins``), so each session fixture is built once for the whole run: a
+test module uses them by name and must not assign them to names of its own (that would give
+the module its own copy, built again).
 Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
 """
 

@@ -10,7 +10,6 @@ exactly that sequence.
 
 from __future__ import annotations
 
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.core.plant import LTIPlant
@@ -20,11 +19,6 @@ from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H, names
 
 pytestmark = pytest.mark.slow  # three engines, each loading the FMUs afresh
 
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-unzipped = fmu_fixtures.unzipped
-chain_observer = fmu_fixtures.chain_observer
-chain_gains = fmu_fixtures.chain_gains
-open_fmu = fmu_fixtures.open_fmu
 
 K = K_PAPER
 DT = 1e-3

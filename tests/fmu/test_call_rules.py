@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import ctypes
 
-import fmu_fixtures
 import pytest
 from fhobs.fmu.call_rules import ALLOWED, STATES, UNSUPPORTED, call_problem
 from fhobs.native.build import build_native_fmus
@@ -24,7 +23,6 @@ CHANGES_STATE = {"fmi2FreeInstance", "fmi2SetupExperiment", "fmi2EnterInitializa
                  "fmi2ExitInitializationMode", "fmi2Terminate", "fmi2Reset", "fmi2DoStep"}
 """Called on an instance of their own (the others share one instance per state)."""
 STEP = 5e-5
-pendulum_fmus = fmu_fixtures.pendulum_fmus
 
 
 @pytest.fixture(scope="module")

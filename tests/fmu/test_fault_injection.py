@@ -17,7 +17,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.core.runtime import SCHEMES, FilteringObserver
@@ -25,12 +24,6 @@ from fhobs.fmu.fmu_state import state_from_bytes, state_to_bytes
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FMI_ERROR, UNREADABLE, assert_error, names
-
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-chain_gains = fmu_fixtures.chain_gains
-chain_observer = fmu_fixtures.chain_observer
-unzipped = fmu_fixtures.unzipped
-open_fmu = fmu_fixtures.open_fmu
 
 DT = 1e-3
 REPEAT = 5

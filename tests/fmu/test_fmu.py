@@ -15,7 +15,6 @@ import zipfile
 from pathlib import Path
 
 import fhobs
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.core.plant import LTIPlant
@@ -33,11 +32,6 @@ from fmu_fixtures import (
 )
 
 # the session fixtures this module uses, made visible to pytest here
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-chain_gains = fmu_fixtures.chain_gains
-chain_observer = fmu_fixtures.chain_observer
-unzipped = fmu_fixtures.unzipped
-open_fmu = fmu_fixtures.open_fmu
 
 DT = 1e-3  # communication step: 20 internal steps of H
 STEPS = 120

@@ -19,7 +19,6 @@ import zipfile
 from pathlib import Path
 
 import fmu_fixtures
-import host_runner
 import numpy as np
 import pytest
 from fhobs.cli import main as cli_main
@@ -50,9 +49,6 @@ pytestmark = pytest.mark.skipif(
     reason="native FMUs are built for linux64 with cc",
 )
 
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-chain_gains = fmu_fixtures.chain_gains
-native_host = host_runner.native_host
 KINDS = ("observer", "luenberger", "kalman", "plant")
 OBSERVERS = ("observer", "luenberger", "kalman")
 RTOL = 1e-12

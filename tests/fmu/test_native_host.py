@@ -7,14 +7,9 @@ import sysconfig
 import zipfile
 from pathlib import Path
 
-import fmu_fixtures
-import host_runner
 import numpy as np
 import pytest
 from host_runner import EXIT_LIBPYTHON, libpython_environment, run_host, write_inputs
-
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-native_host = host_runner.native_host
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ from __future__ import annotations
 import shutil
 import sys
 
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.native.build import build_native_fmus
@@ -24,7 +23,6 @@ pytestmark = pytest.mark.skipif(
     reason="native FMUs are built for linux64 with cc",
 )
 
-pendulum_fmus = fmu_fixtures.pendulum_fmus
 RTOL = 1e-12
 T0 = 1.0
 N, N_MODEL = 4, 5

@@ -19,7 +19,6 @@ import zipfile
 from pathlib import Path
 
 import fmu_fixtures
-import host_runner
 import numpy as np
 import pytest
 from fhobs.core.plant import LTIPlant
@@ -35,8 +34,6 @@ pytestmark = pytest.mark.skipif(
     reason="native FMUs are built for linux64 with cc",
 )
 
-pendulum_fmus = fmu_fixtures.pendulum_fmus
-native_host = host_runner.native_host
 KINDS = ("observer", "luenberger", "plant")
 RTOL = 1e-12
 

@@ -6,7 +6,6 @@ an FMU state is set, the next doStep's time is taken as it comes."""
 
 from __future__ import annotations
 
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.fmu.call_rules import TIME_TOLERANCE
@@ -14,7 +13,6 @@ from fhobs.native.build import build_native_fmus
 from fmpy import extract
 from fmu_fixtures import FmuDriver, assert_error
 
-pendulum_fmus = fmu_fixtures.pendulum_fmus
 DT = 1e-3
 
 

@@ -17,15 +17,12 @@ import zipfile
 from pathlib import Path
 
 import fmpy
-import fmu_fixtures
 import numpy as np
 import pytest
 from fhobs.build import PYTHON_RECORD, python_record
 from fhobs.core.kernel import compile_source
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
-
-pendulum_fmus = fmu_fixtures.pendulum_fmus
 
 HOST_SOURCE = Path(__file__).resolve().with_name("wrapper_host.c")
 FMI_HEADERS = Path(fmpy.__file__).resolve().parent / "c-code"
