@@ -18,6 +18,7 @@ from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverGains
 from fhobs.core.plant import LTIPlant
 from fhobs.design import design_for_spec
+from fhobs.native.build import build_native_fmus
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
@@ -113,6 +114,21 @@ def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: Observ
         noise_seed=NOISE_SEED,
         h=H,
     )
+
+
+NATIVE_KINDS = ("observer", "luenberger", "kalman", "plant", "prescribed_time")
+
+
+@pytest.fixture(scope="session")
+def native_fmus(tmp_path_factory: pytest.TempPathFactory,
+                kalman_gains: ObserverGains) -> dict[str, Path]:
+    """The native FMUs of all five kinds, of the design and options of ``pendulum_fmus``, built
+    once (needs linux and cc: the modules that use it skip without). Their modelDescriptions
+    are those of the default options but for the plant's start values (x0, noise): a test of
+    another kind, or one that sets the plant's start values, can take them."""
+    return build_native_fmus(kalman_gains, tmp_path_factory.mktemp("native"), kinds=NATIVE_KINDS,
+                             x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+                             noise_seed=NOISE_SEED, h=H)
 
 
 @pytest.fixture(scope="session")

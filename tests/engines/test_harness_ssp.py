@@ -22,7 +22,7 @@ from fmpy.ssp.ssd import read_ssd
 from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import SYSTEM, build_vendor_plant
 
-from harness.cli import build_paper_fmus, load_scenario
+from harness.cli import load_scenario
 from harness.master import CoSimResult, run_system
 from harness.results import error_figures
 from harness.ssp import export_ssp, exported_system, is_pythonfmu, lower_gains
@@ -114,12 +114,13 @@ def test_export_rejects_name_clash(exported, tmp_path):
 
 # -- the paper's nominal scenario with native FMUs: an SSP without Python ----------------------
 @pytest.fixture(scope="module")
-def native_nominal(tmp_path_factory):
-    """The nominal scenario on the native FMUs of our pendulum design and its exported SSP."""
+def native_nominal(tmp_path_factory, native_fmus):
+    """The nominal scenario on the native FMUs of our pendulum design (the shared build: the
+    design of ``build_paper_fmus(design="spec")``; the scenario sets the plant's x0 and noise)
+    and its exported SSP."""
     d = tmp_path_factory.mktemp("native_ssp")
     cache = d / "blocks"
-    spec = load_scenario("pendulum_nominal", build_paper_fmus(d / "fmus", design="spec",
-                                                              native=True), cache)
+    spec = load_scenario("pendulum_nominal", native_fmus["observer"].parent, cache)
     return spec, export_ssp(spec, d / "nominal.ssp", block_cache=cache), cache
 
 

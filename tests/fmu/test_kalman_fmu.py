@@ -94,18 +94,16 @@ def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
         build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
 
 
-def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, tmp_path):
-    """The native kalman.fmu under the same host-like steps: the runtime's cycles, and its
-    FMU state carries the offset to the next sample."""
-    from fhobs.native.build import build_native_fmus
-
+def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, native_fmus, tmp_path):
+    """The native kalman.fmu (the shared build) under the same host-like steps: the runtime's
+    cycles, and its FMU state carries the offset to the next sample."""
     g = kalman_gains
-    path = build_native_fmus(g, tmp_path, kinds=["kalman"])["kalman"]
+    path = native_fmus["kalman"]
     ts = g.kalman.sample_time
     variable = ts * np.random.default_rng(9).uniform(0.1, 3.3, 40)
     steps = [0.4 * ts] * 40 + [3e-13] + variable.tolist()
     ys, us = random_walk(5, len(steps), g.k, 0.05), random_walk(6, len(steps), g.m, 0.1)
-    driver = FmuDriver(path, extract(str(path)), "native")
+    driver = FmuDriver(path, extract(str(path), str(tmp_path / "kalman")), "native")
     try:
         driver.start()
         obs = KalmanObserver(g)

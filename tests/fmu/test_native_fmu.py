@@ -23,17 +23,13 @@ import numpy as np
 import pytest
 from fhobs.cli import main as cli_main
 from fhobs.errors import BuildError
-from fhobs.kalman import with_kalman
 from fhobs.native.build import build_native_fmus
 from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 from fmu_fixtures import (
     FMI_ERROR,
-    NOISE_AMPLITUDE,
-    NOISE_SEED,
     PENDULUM_X0,
     FmuDriver,
-    H,
     assert_error,
     random_walk,
 )
@@ -54,16 +50,6 @@ OBSERVERS = ("observer", "luenberger", "kalman")
 RTOL = 1e-12
 STEPS = (5e-5, 1e-4, 1e-3)
 """Step sizes of the bundled scenarios (5e-5) and the zoo bench (1e-4, 1e-3)."""
-
-
-@pytest.fixture(scope="module")
-def native_fmus(tmp_path_factory, tuned_gains, pendulum_spec) -> dict[str, Path]:
-    """The native FMUs of the design and options of ``pendulum_fmus``."""
-    return build_native_fmus(
-        with_kalman(tuned_gains, pendulum_spec.noise), tmp_path_factory.mktemp("native"),
-        kinds=KINDS, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE, noise_seed=NOISE_SEED,
-        h=H,
-    )
 
 
 @pytest.fixture

@@ -11,11 +11,10 @@ import sys
 
 import numpy as np
 import pytest
-from fhobs.native.build import build_native_fmus
 from fhobs.paper import K_PAPER, X0_PAPER
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
-from fmu_fixtures import FmuDriver, H, assert_error
+from fmu_fixtures import FmuDriver, assert_error
 from reference_math import zoh
 
 pytestmark = pytest.mark.skipif(
@@ -29,10 +28,10 @@ N, N_MODEL = 4, 5
 
 
 @pytest.fixture(scope="module")
-def native_pt(tmp_path_factory, kalman_gains):
-    """The native prescribed_time.fmu of the design and options of ``pendulum_fmus``."""
-    return build_native_fmus(kalman_gains, tmp_path_factory.mktemp("native_pt"),
-                             kinds=["prescribed_time"], h=H)["prescribed_time"]
+def native_pt(native_fmus):
+    """The native prescribed_time.fmu of the design and options of ``pendulum_fmus`` (the
+    shared build: the options other than h are the plant's)."""
+    return native_fmus["prescribed_time"]
 
 
 @pytest.fixture

@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
-from fhobs.native.build import build_native_fmus
 from fmpy import extract, simulate_fmu
 from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, FmuDriver, H, random_walk
 from host_runner import read_outputs
@@ -36,14 +35,6 @@ pytestmark = pytest.mark.skipif(
 
 KINDS = ("observer", "luenberger", "plant")
 RTOL = 1e-12
-
-
-@pytest.fixture(scope="module")
-def native_fmus(tmp_path_factory, kalman_gains) -> dict[str, Path]:
-    """The native FMUs of the design and options of ``pendulum_fmus`` (no step size given)."""
-    return build_native_fmus(kalman_gains, tmp_path_factory.mktemp("native_steps"), kinds=KINDS,
-                             x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
-                             noise_seed=NOISE_SEED, h=H)
 
 
 def accumulated_steps(step: float, stop: float) -> np.ndarray:

@@ -23,8 +23,7 @@ from fhobs.core import kernel
 from fhobs.core.plant import PLANT_SCHEMES
 from fhobs.core.runtime import SCHEMES
 from fhobs.fmu import call_rules
-from fhobs.kalman import with_kalman
-from fhobs.native.build import FMI_HEADERS, _fmi_headers, build_native_fmus
+from fhobs.native.build import FMI_HEADERS, _fmi_headers
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
@@ -48,13 +47,13 @@ def compile_c(compiler: str, args: list[str]) -> None:
 
 
 @pytest.fixture(scope="module")
-def native_set(tmp_path_factory, tuned_gains, pendulum_spec) -> dict[str, Path]:
-    """The pendulum design's native FMUs, unzipped: {kind: folder}."""
+def native_set(tmp_path_factory, native_fmus) -> dict[str, Path]:
+    """The pendulum design's native FMUs (the shared build, plant noise on), unzipped:
+    {kind: folder}."""
     root = tmp_path_factory.mktemp("portable")
-    built = build_native_fmus(with_kalman(tuned_gains, pendulum_spec.noise), root / "fmus",
-                              kinds=KINDS, noise_amplitude=1e-3, noise_seed=7)
     folders = {}
-    for kind, fmu in built.items():
+    for kind in KINDS:
+        fmu = native_fmus[kind]
         folders[kind] = root / kind
         zipfile.ZipFile(fmu).extractall(folders[kind])
     return folders

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fhobs.fmu.call_rules import TIME_TOLERANCE
-from fhobs.native.build import build_native_fmus
 from fmpy import extract
 from fmu_fixtures import FmuDriver, assert_error
 
@@ -17,9 +16,8 @@ DT = 1e-3
 
 
 @pytest.fixture(scope="module")
-def observers(pendulum_fmus, tmp_path_factory, kalman_gains):
-    native = build_native_fmus(kalman_gains, tmp_path_factory.mktemp("native_time"),
-                               kinds=["observer"])["observer"]
+def observers(pendulum_fmus, native_fmus):
+    native = native_fmus["observer"]
     python = pendulum_fmus["observer"]
     return {"pythonfmu": (python, extract(str(python))),
             "native": (native, extract(str(native)))}
