@@ -91,8 +91,10 @@ KERNEL_SOURCES = (kernel.SOURCE, kernel.HEADER)
 NOISE_SOURCES = ("noise.c", "noise.h")
 """The plant's measurement noise (numpy's generator in C)."""
 SHARED_UNITS = ("kernel.c", "planner.c", "gain_levels.c", "noise.c")
-"""Translation units that do not include the generated model data: compiled once per build
-and linked into the binary of every FMU that has them."""
+"""Translation units that do not include the generated model data: compiled once per machine
+(:func:`cached_object`) and linked into the binary of every FMU that has them."""
+GENERATED_HEADERS = ("model_data.h", "model.h")
+"""The headers with the design of one FMU (``model.h`` includes ``model_data.h``)."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
@@ -490,14 +492,14 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
 
 def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dict[str, Path]:
     """Compile every staged FMU's binary, ``{kind: path}``: the translation units of
-    :data:`SHARED_UNITS` once for all of them, the others per FMU, as many compilers at a time
-    as there are cores; then link each binary."""
+    :data:`SHARED_UNITS` once per machine (:func:`cached_object`), the others per FMU, as many
+    compilers at a time as there are cores; then link each binary."""
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         common = {}
         for fmu in staged.values():
             for name in fmu.files:
                 if name in SHARED_UNITS and name not in common:
-                    common[name] = pool.submit(compile_object, fmu.sources, name, shared,
+                    common[name] = pool.submit(cached_object, fmu.sources, name, shared,
                                                compiler)
         own = {kind: [pool.submit(compile_object, fmu.sources, name, fmu.root / "objects",
                                   compiler)
@@ -566,6 +568,39 @@ def compile_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
     target = out / f"{Path(name).stem}.o"
     _run_compiler([compiler, *COMPILE_FLAGS, f"-I{sources}", "-c", "-o", str(target),
                    str(sources / name)])
+    return target
+
+
+def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
+    """The object file of the translation unit ``name`` of ``sources`` from the user's cache
+    (:func:`fhobs.core.kernel.cache_dir`), compiled there first if it is not yet: its name
+    hashes the unit, the headers of ``sources`` but the generated ones (which a shared unit
+    does not include), the flags and the compiler. Into ``out`` (:func:`compile_object`) when
+    the cache cannot be written.
+
+    Raises
+    ------
+    BuildError
+        If the compiler fails (its messages quoted).
+    """
+    text = (sources / name).read_text()
+    if '"model_data.h"' in text or '"model.h"' in text:
+        raise BuildError(f"{name} includes the generated model data: it cannot be shared")
+    digest = hashlib.sha256(" ".join((compiler, *COMPILE_FLAGS)).encode())
+    for path in (sources / name, *sorted(sources.glob("*.h"))):
+        if path.name not in GENERATED_HEADERS:
+            digest.update(path.name.encode() + path.read_bytes())
+    try:
+        cache = kernel.cache_dir() / "objects"
+        cache.mkdir(exist_ok=True)
+    except OSError:
+        return compile_object(sources, name, out, compiler)
+    target = cache / f"{Path(name).stem}_{digest.hexdigest()[:16]}.o"
+    if not target.exists():
+        fresh = compile_object(sources, name, out, compiler)
+        partial = cache / f"{target.name}.{os.getpid()}"
+        shutil.copyfile(fresh, partial)
+        os.replace(partial, target)  # concurrent builds never see a partial file
     return target
 
 
