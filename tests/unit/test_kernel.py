@@ -13,15 +13,15 @@ import dataclasses
 import fhobs.reference as reference
 import numpy as np
 import pytest
+from designs import random_design
 from fhobs.build import build_fmus
 from fhobs.core import kernel
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
-from fhobs.design import design_for_spec
 from fhobs.errors import BuildError
 from fhobs.kalman import with_kalman
-from fhobs.spec import NoiseSpec, spec_from_dict
+from fhobs.spec import NoiseSpec
 from fmu_fixtures import (
     plant_measurements,
     random_walk,
@@ -33,20 +33,6 @@ if kernel.library() is None:
                 allow_module_level=True)
 
 RTOL = 1e-12
-
-
-def random_design(seed: int, n: int, k: int, order: int):
-    """A random observable plant (as in test_design), designed with explicit rho and gamma;
-    with ``order`` >= 1 a random E and a disturbance model of that order."""
-    rng = np.random.default_rng(seed)
-    data = {"A": (rng.standard_normal((n, n)) / np.sqrt(n)).tolist(),
-            "B": rng.standard_normal((n, 2)).tolist(),
-            "C": rng.standard_normal((k, n)).tolist(),
-            "observer": {"rho": 3.0, "gamma": 2.75}}
-    if order:
-        data["E"] = rng.standard_normal((n, 1)).tolist()
-        data["observer"]["disturbance_order"] = order
-    return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
 
 
 def run_pair(make, ys, us, dt):

@@ -18,21 +18,18 @@ log-spaced from 1e-6 to 1e-1:
 
 from __future__ import annotations
 
-import functools
 import math
 import shutil
 import sys
 
 import numpy as np
 import pytest
+from designs import ZOO, random_design, zoo_design
 from fhobs.core.gains import ObserverGains
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
-from fhobs.design import design_for_spec, paper_gains
 from fhobs.native.build import captured_plan
 from fhobs.native.planner import c_plan, design_data
-from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
-from fhobs.spec import spec_from_dict
 
 pytestmark = pytest.mark.skipif(
     sys.platform != "linux" or shutil.which("cc") is None,
@@ -47,7 +44,6 @@ for)."""
 FIELDS = {"observer": ("M", "F", "floor_level", "ceiling"),
           "prescribed_time": ("M", "F", "floor_level", "ceiling"), "luenberger": ("M",),
           "plant": ("Phi", "Gamma_B", "Gamma_E")}
-ZOO = zoo_spec_paths()
 RANDOM_CASES = [(0, 4, 2, 0), (1, 6, 3, 0), (2, 8, 2, 1), (4, 10, 3, 1), (7, 6, 2, 0)]
 """(seed, n, k, disturbance order) of :func:`random_design`."""
 ROUNDOFF_CEILINGS = {"quarter_car": (9, 10), "random_mimo10": (0, 1, 3), "dc_motor": (8,),
@@ -55,27 +51,6 @@ ROUNDOFF_CEILINGS = {"quarter_car": (9, 10), "random_mimo10": (0, 1, 3), "dc_mot
 """Designs and indices into STEPS where numpy's ceiling (of the filtering or of the
 prescribed-time observer) is decided by round-off (module docstring): the ceiling is not
 compared there."""
-
-
-@functools.cache
-def zoo_design(name: str) -> ObserverGains:
-    """The bundled example's default design."""
-    return design_for_spec(load_zoo_spec(ZOO[name]))
-
-
-@functools.cache
-def random_design(seed: int, n: int, k: int, order: int) -> ObserverGains:
-    """A random observable plant with explicit rho and gamma (as in tests/unit/test_kernel.py);
-    with ``order`` >= 1 a random E and a disturbance model of that order."""
-    rng = np.random.default_rng(seed)
-    data = {"A": (rng.standard_normal((n, n)) / np.sqrt(n)).tolist(),
-            "B": rng.standard_normal((n, 2)).tolist(),
-            "C": rng.standard_normal((k, n)).tolist(),
-            "observer": {"rho": 3.0, "gamma": 2.75}}
-    if order:
-        data["E"] = rng.standard_normal((n, 1)).tolist()
-        data["observer"]["disturbance_order"] = order
-    return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
 
 
 def models(gains: ObserverGains) -> dict[str, object]:
@@ -162,23 +137,23 @@ def assert_plans_agree(gains: ObserverGains, roundoff: tuple[int, ...] = ()) -> 
     assert errors[worst] <= 1.0, (worst, errors[worst])
 
 
-def test_pendulum_paper_gains():
-    assert_plans_agree(paper_gains())
+def test_pendulum_paper_gains(paper_design):
+    assert_plans_agree(paper_design)
 
 
-def test_pendulum_plans_are_followed_at_every_step_size():
+def test_pendulum_plans_are_followed_at_every_step_size(paper_design):
     """The pendulum's observer follows every step size of the scan (none refused), so the
     comparison above covers the floor and the ceiling at each of them."""
-    observer = FilteringObserver(paper_gains())
+    observer = FilteringObserver(paper_design)
     for dt in STEPS:
         plan = c_plan("observer", observer, dt)
         assert 0.0 < plan["floor_level"] <= plan["ceiling"]
 
 
-def test_prescribed_time_refuses_what_the_runtime_refuses():
+def test_prescribed_time_refuses_what_the_runtime_refuses(paper_design):
     """dt = 0.1 for the paper's pendulum: the prescribed-time observer's scan finds no
     contractive level in C as in numpy, and names the same smallest spectral radius."""
-    observer = PrescribedTimeObserver(paper_gains())
+    observer = PrescribedTimeObserver(paper_design)
     with pytest.raises(ValueError) as numpy_error:
         captured_plan(observer, 0.1)
     with pytest.raises(ValueError) as c_error:

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from designs import zoo_design
 from fhobs.core import kernel
 from fhobs.core.runtime import PrescribedTimeObserver, prescribed_xi0
-from fhobs.design import design_for_spec, paper_gains
 from fhobs.paper import K_PAPER, X0_PAPER
-from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from reference_math import zoh
 
 pytestmark = pytest.mark.skipif(kernel.library() is None, reason="no compiled kernel")
@@ -30,11 +29,12 @@ def relative(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
 
 
-def test_pendulum_closed_loop_to_after_T0():
-    gains = paper_gains()
+def test_pendulum_closed_loop_to_after_T0(paper_design):
+    gains = paper_design
     compiled, reference = pair(gains)
     x, t = X0_PAPER.copy(), 0.0
     worst = 0.0
+    holds = {dt: zoh(gains.A, gains.B, dt) for dt in (1e-3, 4e-4)}  # the plant's, per step size
     for k in range(1500):
         # variable steps before T0 only: after it, the capped observer switching between
         # the floors of two step sizes is not contractive (numpy's runtime too)
@@ -44,7 +44,7 @@ def test_pendulum_closed_loop_to_after_T0():
         compiled.step(y, u, dt)
         reference.step(y, u, dt)
         worst = max(worst, relative(compiled.get_state(), reference.get_state()))
-        Phi, Gamma = zoh(gains.A, gains.B, dt)
+        Phi, Gamma = holds[dt]
         x = Phi @ x + Gamma @ u
     assert worst <= RTOL, worst
     assert compiled.get_state()[-1] == 0.0
@@ -53,7 +53,7 @@ def test_pendulum_closed_loop_to_after_T0():
 
 @pytest.mark.parametrize("name", ["pendulum", "triple_integrator", "maglev"])
 def test_bundled_designs_with_seeded_inputs(name):
-    gains = design_for_spec(load_zoo_spec(zoo_spec_paths()[name]))
+    gains = zoo_design(name)
     compiled, reference = pair(gains, T0=0.5, z0=np.ones(gains.n))
     rng = np.random.default_rng(1)
     worst = 0.0
@@ -66,8 +66,8 @@ def test_bundled_designs_with_seeded_inputs(name):
     assert worst <= RTOL, worst
 
 
-def test_a_step_size_without_a_contractive_level_is_refused_with_the_state_kept():
-    compiled, reference = pair(paper_gains())
+def test_a_step_size_without_a_contractive_level_is_refused_with_the_state_kept(paper_design):
+    compiled, reference = pair(paper_design)
     before = compiled.get_state()
     for model in (compiled, reference):
         with pytest.raises(ValueError, match="no gain level makes the split step"):
@@ -75,8 +75,8 @@ def test_a_step_size_without_a_contractive_level_is_refused_with_the_state_kept(
     assert np.array_equal(compiled.get_state(), before)
 
 
-def test_no_kernel_for_the_euler_scheme_or_when_disabled(monkeypatch):
-    gains = paper_gains()
+def test_no_kernel_for_the_euler_scheme_or_when_disabled(monkeypatch, paper_design):
+    gains = paper_design
     assert not PrescribedTimeObserver(gains, scheme="euler").compiled
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
     assert not PrescribedTimeObserver(gains).compiled

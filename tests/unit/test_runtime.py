@@ -6,6 +6,7 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg as sl
+from designs import zoo_design
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import (
     AMPLIFICATION_LIMIT,
@@ -15,9 +16,7 @@ from fhobs.core.runtime import (
     PrescribedTimeObserver,
     spectral_radius,
 )
-from fhobs.design import design_for_spec
 from fhobs.paper import K_PAPER, X0_PAPER
-from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
 from scipy.integrate import solve_ivp
 
 
@@ -318,11 +317,6 @@ def test_advance_is_step_without_checks(tuned_gains, cls):
 def test_unknown_scheme_is_rejected(paper_design):
     with pytest.raises(ValueError, match="scheme"):
         FilteringObserver(paper_design, scheme="rk4")
-
-
-def zoo_design(name):
-    """The default design of a zoo plant."""
-    return design_for_spec(load_zoo_spec(zoo_spec_paths()[name]))
 
 
 def test_step_without_a_contractive_gain_level_is_refused():

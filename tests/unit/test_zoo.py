@@ -4,25 +4,21 @@ the runtime's noise-free floor in the closed loop of :func:`fhobs.scenarios_zoo.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
 import scipy.linalg
+from designs import ZOO, zoo_design
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_for_spec
 from fhobs.scenarios_zoo import (
     CONVERGED,
     closed_loop,
     convergence_figures,
     load_zoo_spec,
     state_feedback,
-    zoo_spec_paths,
 )
 from reference_math import zoh
 from scipy.integrate import solve_ivp
 
-ZOO = zoo_spec_paths()
 RUNTIME_SUBSET = ("pendulum", "maglev", "quarter_car", "dc_motor", "spring_chain3")
 FAST_SUBSET = ("pendulum", "quarter_car")
 """Of RUNTIME_SUBSET, the plants whose 10 s closed loop runs in the fast subset."""
@@ -48,16 +44,10 @@ def test_zoo_has_its_thirteen_plants():
     assert len(ZOO) == 13 and {"pendulum", "mass_chain", "triple_integrator"} <= set(ZOO)
 
 
-@functools.cache
-def default_design(name: str) -> ObserverGains:
-    """The plant's design with every tuning parameter at its default."""
-    return design_for_spec(load_zoo_spec(ZOO[name]))
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_default_design_is_certified(name):
-    gains = default_design(name)  # raises (LMIError, CertificateError, ...) if not certified
+    gains = zoo_design(name)  # raises (LMIError, CertificateError, ...) if not certified
     assert gains.certificate["checks"]
 
 
@@ -71,7 +61,7 @@ def test_state_feedback_stabilises(name):
 def test_closed_loop_feeds_back_the_true_state():
     """The plant of the zoo's loop follows the sampled LQR loop x_{k+1} = (Phi + Gamma K) x_k
     (ZOH blocks from one expm of the augmented matrix), whatever the observers do."""
-    gains = default_design("quarter_car")
+    gains = zoo_design("quarter_car")
     dt, n = 1e-3, gains.n
     Phi, Gamma = zoh(gains.A, gains.B, dt)
     step = Phi + Gamma @ state_feedback(gains.A, gains.B)
@@ -133,7 +123,7 @@ def test_continuous_error_system_converges(name):
     end the implicit methods' Jacobians chatter (LSODA needs ~3e6 evaluations on
     random_mimo10, RK45 ~1e4; both agree on the convergence times to 1e-3 s elsewhere).
     """
-    gains = default_design(name)
+    gains = zoo_design(name)
     n, n_model, k = gains.n, gains.n_model, gains.k
     eps0 = np.concatenate([-load_zoo_spec(ZOO[name]).state_scale, np.zeros(n_model - n)])
     size0 = np.linalg.norm(eps0[:n])
@@ -160,7 +150,7 @@ def test_continuous_error_system_converges(name):
 
 def runtime_floor(name: str, dt: float, h: float) -> dict[str, float]:
     """Figures of the filtering observer in the zoo's closed loop over 10 s."""
-    return convergence_figures(closed_loop(default_design(name), dt, h, t_end=10.0,
+    return convergence_figures(closed_loop(zoo_design(name), dt, h, t_end=10.0,
                                            x0=load_zoo_spec(ZOO[name]).state_scale))
 
 

@@ -1,0 +1,36 @@
+"""Designs shared by the unit tests, each made once per session (the designs are deterministic:
+the same spec gives the same gains): the bundled examples' default designs and seeded random
+plants. The gains are shared, so a test must not modify their arrays in place (copy first)."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from fhobs.core.gains import ObserverGains
+from fhobs.design import design_for_spec
+from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
+from fhobs.spec import spec_from_dict
+
+ZOO = zoo_spec_paths()
+
+
+@functools.cache
+def zoo_design(name: str) -> ObserverGains:
+    """The bundled example's design with every tuning parameter at its default."""
+    return design_for_spec(load_zoo_spec(ZOO[name]))
+
+
+@functools.cache
+def random_design(seed: int, n: int, k: int, order: int) -> ObserverGains:
+    """A random observable plant (m = 2) designed with explicit rho = 3 and gamma = 2.75; with
+    ``order`` >= 1 a random E and a disturbance model of that order."""
+    rng = np.random.default_rng(seed)
+    data = {"A": (rng.standard_normal((n, n)) / np.sqrt(n)).tolist(),
+            "B": rng.standard_normal((n, 2)).tolist(),
+            "C": rng.standard_normal((k, n)).tolist(),
+            "observer": {"rho": 3.0, "gamma": 2.75}}
+    if order:
+        data["E"] = rng.standard_normal((n, 1)).tolist()
+        data["observer"]["disturbance_order"] = order
+    return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
