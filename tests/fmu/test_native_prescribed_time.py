@@ -67,6 +67,7 @@ def closed_loop(gains, steps: np.ndarray, drivers: tuple[FmuDriver, ...]) -> tup
     and the host's time ``t += dt``; the plant states and each driver's outputs (rows)."""
     x, t = X0_PAPER.copy(), 0.0
     xs, rows = [], [[] for _ in drivers]
+    holds = {}  # the plant's ZOH per step size (a host's steps repeat)
     for dt in steps:
         y, u = gains.C @ x, K_PAPER @ x
         for driver, out in zip(drivers, rows, strict=True):
@@ -74,7 +75,9 @@ def closed_loop(gains, steps: np.ndarray, drivers: tuple[FmuDriver, ...]) -> tup
             driver.set("u", u)
             driver.fmu.doStep(t, dt)
             out.append(outputs(driver))
-        Phi, Gamma = zoh(gains.A, gains.B, dt)
+        if dt not in holds:
+            holds[dt] = zoh(gains.A, gains.B, dt)
+        Phi, Gamma = holds[dt]
         x = Phi @ x + Gamma @ u
         t += dt
         xs.append(x)
