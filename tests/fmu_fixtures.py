@@ -116,6 +116,15 @@ def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: Observ
     )
 
 
+@pytest.fixture(scope="session")
+def paper_design_fmus(tmp_path_factory: pytest.TempPathFactory,
+                      paper_design: ObserverGains) -> dict[str, Path]:
+    """observer.fmu, prescribed_time.fmu and plant.fmu of the paper's gains (default start
+    values), built once."""
+    return build_fmus(paper_design, tmp_path_factory.mktemp("paper_design_fmus"),
+                      kinds=("observer", "prescribed_time", "plant"))
+
+
 NATIVE_KINDS = ("observer", "luenberger", "kalman", "plant", "prescribed_time")
 
 

@@ -9,7 +9,6 @@ import sys
 
 import numpy as np
 import pytest
-from fhobs.build import build_fmus
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FMI_ERROR, FmuDriver, assert_error
@@ -23,11 +22,11 @@ DT = 1e-3
 
 
 @pytest.fixture(scope="module")
-def paper_fmus(tmp_path_factory, paper_design):
-    """observer.fmu and prescribed_time.fmu of the paper's gains, each extracted once."""
-    built = build_fmus(paper_design, tmp_path_factory.mktemp("host_safety"),
-                       kinds=("observer", "prescribed_time"))
-    return {kind: (path, extract(str(path))) for kind, path in built.items()}
+def paper_fmus(paper_design_fmus):
+    """observer.fmu and prescribed_time.fmu of the paper's gains (the shared build), each
+    extracted once."""
+    return {kind: (paper_design_fmus[kind], extract(str(paper_design_fmus[kind])))
+            for kind in ("observer", "prescribed_time")}
 
 
 @pytest.fixture

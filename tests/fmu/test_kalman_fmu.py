@@ -13,9 +13,10 @@ from fmu_fixtures import FmuDriver, assert_error, random_walk
 
 
 @pytest.fixture(scope="module")
-def kalman_fmu(tmp_path_factory, kalman_gains):
-    built = build_fmus(kalman_gains, tmp_path_factory.mktemp("kalman_fmu"), kinds=("kalman",))
-    path = built["kalman"]
+def kalman_fmu(pendulum_fmus):
+    """kalman.fmu of the pendulum design, from ``pendulum_fmus`` (its options are the plant's
+    and h, the default: the Kalman FMU's start values are the default ones)."""
+    path = pendulum_fmus["kalman"]
     return path, extract(str(path))
 
 

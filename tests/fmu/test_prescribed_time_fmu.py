@@ -15,7 +15,6 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg
-from fhobs.build import build_fmus
 from fhobs.core.runtime import SCHEMES, PrescribedTimeObserver
 from fhobs.paper import K_PAPER, X0_PAPER
 from fmpy import extract, read_model_description
@@ -64,10 +63,11 @@ def closed_loop(gains, dt: float, t_end: float, T0: float = 1.0, scheme: str = S
 
 
 @pytest.fixture(scope="module")
-def pt_fmu(tmp_path_factory, tuned_gains):
-    """prescribed_time.fmu of the pendulum design (default start values: T0 = 1 s)."""
-    path = build_fmus(tuned_gains, tmp_path_factory.mktemp("pt"), kinds=("prescribed_time",))
-    return path["prescribed_time"], extract(str(path["prescribed_time"]))
+def pt_fmu(pendulum_fmus):
+    """prescribed_time.fmu of the pendulum design (default start values: T0 = 1 s), from
+    ``pendulum_fmus`` (its options are the plant's and h, the default)."""
+    path = pendulum_fmus["prescribed_time"]
+    return path, extract(str(path))
 
 
 @pytest.fixture
