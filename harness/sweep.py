@@ -1132,8 +1132,11 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
     >>> report.failed                                                             # doctest: +SKIP
     0
     """
+    from fhobs.extras import require
     from tqdm import tqdm
 
+    for module in ("distributed", "pyarrow"):
+        require(module, "sweep")
     started = time.perf_counter()
     points_dir = out / "points"
     points_dir.mkdir(parents=True, exist_ok=True)

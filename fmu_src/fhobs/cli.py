@@ -13,7 +13,6 @@ import numpy as np
 
 from .core.gains import ObserverGains
 from .core.runtime import DEFAULT_H
-from .design import augmented_system, design_for_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .limits import check_design_limits
 from .spec import OBJECTIVES, PlantSpec, load_spec
@@ -129,6 +128,8 @@ def design_summary(gains: ObserverGains) -> list[str]:
 def slowest_mode(gains: ObserverGains) -> float:
     """max Re eig(bar_A0 + bar_L bar_C): the slowest mode of the observer's linear part at
     sigma = 1 (its error decays like exp(that rate * sigma^nu t) at a frozen level sigma)."""
+    from .design import augmented_system  # the design extra: imported when used
+
     bar_A0, _, bar_C = augmented_system(gains.A0, gains.model[2], gains.G_d)
     bar_L = np.vstack([gains.L_tilde, gains.L])
     return float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
@@ -234,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     start = time.perf_counter()
     try:
+        from .design import design_for_spec  # the design extra: imported when used
+
         if args.tune_noise:
             from .tuning import design_for_noise_spec
 

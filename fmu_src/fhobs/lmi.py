@@ -63,12 +63,15 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cvxpy as cp
 import numpy as np
 import scipy.linalg
 
 from .errors import LMIError
+from .extras import require
 from .spec import OBJECTIVES
+
+cp = require("cvxpy", "design")
+require("clarabel", "design")
 
 GAIN_STAGE_KAPPA = 10.0
 LMI_MARGIN = 1e-2

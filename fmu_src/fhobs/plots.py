@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from fhobs.extras import require
+from fhobs.paper import PAPER_SCENARIOS
+from fhobs.reference import SimulationResult
 
-from fhobs.paper import PAPER_SCENARIOS  # noqa: E402
-from fhobs.reference import SimulationResult  # noqa: E402
+require("matplotlib", "plots").use("Agg")
+plt = require("matplotlib.pyplot", "plots")
 
 _PERTURBED, _NOISY = PAPER_SCENARIOS["perturbed"], PAPER_SCENARIOS["perturbed_noisy"]
 FIGURE_TITLES = {
