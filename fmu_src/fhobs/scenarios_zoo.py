@@ -4,8 +4,8 @@ The zoo is the plants of ``examples/zoo/`` plus ``examples/pendulum.toml``,
 ``examples/mass_chain.toml`` and ``examples/triple_integrator.toml``, each used without its
 ``L_lin`` and without the tuning of its ``[observer]`` table (the design's defaults decide
 everything; only the plant's own ``state_scale`` and ``settling_time`` are kept). The examples
-live in the source tree, not in the installed package: :data:`EXAMPLES` is found relative to this
-file, as :data:`fhobs.design.PAPER_REFERENCE` is. The closed loop is
+are package data (``fhobs/examples/``, :data:`fhobs.paper.EXAMPLES`), so the zoo is there in an
+installed package too. The closed loop is
 :func:`fhobs.reference.simulate`, noise-free, from ``x(0) = state_scale`` with the observers at
 zero and the LQR feedback ``u = K x`` on the true state, so that the observers' errors do not act
 on the plant and unstable plants stay bounded.
