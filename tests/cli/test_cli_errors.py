@@ -15,6 +15,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import fhobs.cli
+import fhobs.design
 import numpy as np
 import pytest
 from fhobs.cli import main as design_main
@@ -137,7 +138,7 @@ def test_any_failure_inside_the_design_is_a_message(tmp_path, capsys, monkeypatc
     def failing(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(fhobs.cli, "design_for_spec", failing)
+    monkeypatch.setattr(fhobs.design, "design_for_spec", failing)
     code, err = _design(tmp_path, capsys, DOUBLE_INTEGRATOR)
     assert code == 2
     _one_paragraph(err)
