@@ -129,9 +129,9 @@ def build_native_fmus(
         when the design has a Kalman filter, and prescribed_time when its correction has an
         eigen path, :attr:`~fhobs.core.runtime.PrescribedTimeObserver.eigen`).
     **options
-        Start values as for :func:`fhobs.build.build_fmus` (``h``, ``scheme``, ``z0``,
-        ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``, ``noise_seed``, ``plant_scheme``,
-        ``input_bound``, ``T0``).
+        Start values of the setting parameters, as for :func:`fhobs.build.fmu_options`
+        (``h``, ``scheme``, ``z0``, ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``,
+        ``noise_seed``, ``plant_scheme``, ``input_bound``, ``T0``).
 
     Returns
     -------
