@@ -30,12 +30,14 @@ raised inside an FMU's code, and the run stops after the chunk of steps in progr
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -175,12 +177,13 @@ class _Slave:
 
     name: str
     fmu: FMU2Slave
-    unzip_dir: str
     in_vr: ctypes.Array
     in_buf: ctypes.Array
     out_vr: ctypes.Array
     out_buf: ctypes.Array
     callbacks: fmi2CallbackFunctions
+    calls: tuple[ctypes._CFuncPtr, ...] = ()
+    """fmi2SetReal, fmi2DoStep, fmi2GetReal as :func:`_raw` entry points."""
 
     @property
     def comp(self) -> ctypes.c_void_p:
@@ -213,6 +216,44 @@ def _raw(slave: _Slave, function: str) -> ctypes._CFuncPtr:
     entry = ctypes.PyDLL(dll._name, handle=dll._handle)[function]
     entry.restype = ctypes.c_int
     return entry
+
+
+UNZIPPED_KEPT = 16
+"""How many extracted FMUs :func:`unzipped` keeps (the oldest is removed beyond)."""
+_unzipped: OrderedDict[tuple, str] = OrderedDict()
+_unzipped_lock = threading.Lock()
+_unzip_root: tempfile.TemporaryDirectory | None = None
+
+
+def unzipped(path: str | os.PathLike) -> str:
+    """The folder holding the FMU at ``path`` extracted, shared by every run in this process
+    while the file is unchanged (same size, modification time and inode), as an importer
+    loads an FMU once and instantiates it many times. The last :data:`UNZIPPED_KEPT` FMUs are
+    kept, in a temporary folder removed when the process ends.
+
+    Examples
+    --------
+    >>> import zipfile, tempfile, pathlib
+    >>> fmu = pathlib.Path(tempfile.mkdtemp()) / "m.fmu"
+    >>> with zipfile.ZipFile(fmu, "w") as z:
+    ...     z.writestr("modelDescription.xml", "<fmiModelDescription/>")
+    >>> unzipped(fmu) == unzipped(fmu)
+    True
+    """
+    global _unzip_root
+    info = os.stat(path)
+    key = (os.path.realpath(path), info.st_size, info.st_mtime_ns, info.st_ino)
+    with _unzipped_lock:
+        if key in _unzipped:
+            _unzipped.move_to_end(key)
+            return _unzipped[key]
+        if _unzip_root is None:
+            _unzip_root = tempfile.TemporaryDirectory(prefix="harness_fmus_")
+        folder = str(extract(str(path), unzipdir=tempfile.mkdtemp(dir=_unzip_root.name)))
+        _unzipped[key] = folder
+        while len(_unzipped) > UNZIPPED_KEPT:
+            shutil.rmtree(_unzipped.popitem(last=False)[1], ignore_errors=True)
+        return folder
 
 
 def _vrs(values: list[int]) -> ctypes.Array:
@@ -416,13 +457,11 @@ class Master:
         h_c = ctypes.c_double(h)
         no_set_prior = ctypes.c_int(1)
         setters = [
-            (_raw(s, "fmi2SetReal"), s.comp, s.in_vr, s.in_n, s.in_buf, s.name)
-            for s in slaves
-            if len(s.in_vr)
+            (s.calls[0], s.comp, s.in_vr, s.in_n, s.in_buf, s.name) for s in slaves if len(s.in_vr)
         ]
-        steppers = [(_raw(s, "fmi2DoStep"), s.comp, s.name) for s in slaves]
+        steppers = [(s.calls[1], s.comp, s.name) for s in slaves]
         getters = [
-            (_raw(s, "fmi2GetReal"), s.comp, s.out_vr, s.out_n, s.out_buf, s.name)
+            (s.calls[2], s.comp, s.out_vr, s.out_n, s.out_buf, s.name)
             for s in slaves
             if len(s.out_vr)
         ]
@@ -461,7 +500,7 @@ class Master:
         for f, s in zip(fmus, slaves, strict=True):
             f.component = s.fmu.component
             f.set_real, f.do_step, f.get_real = (
-                ctypes.cast(_raw(s, call), ctypes.c_void_p).value for call in NATIVE_CALLS
+                ctypes.cast(call, ctypes.c_void_p).value for call in s.calls
             )
             f.in_vr, f.in_n = ctypes.addressof(s.in_vr), len(s.in_vr)
             f.out_vr, f.out_n = ctypes.addressof(s.out_vr), len(s.out_vr)
@@ -519,11 +558,10 @@ class Master:
         finally:
             for s in slaves:
                 s.fmu.freeInstance()
-                shutil.rmtree(s.unzip_dir, ignore_errors=True)
 
     def _instantiate(self, name: str, rf: ResolvedFmu, t0: float, t_end: float) -> _Slave:
         md = rf.description
-        unzip_dir = extract(str(rf.spec.path))
+        unzip_dir = unzipped(rf.spec.path)
         fmu = FMU2Slave(
             guid=md.guid,
             unzipDirectory=unzip_dir,
@@ -540,7 +578,6 @@ class Master:
         except Exception:
             if getattr(fmu, "component", None):
                 fmu.freeInstance()
-            shutil.rmtree(unzip_dir, ignore_errors=True)
             raise
         out_vr = [
             rf.variables[n.partition(".")[2]].valueReference
@@ -553,7 +590,9 @@ class Master:
             if n.partition(".")[0] == name
         ]
         empty = (ctypes.c_double * 0)()
-        return _Slave(name, fmu, unzip_dir, _vrs(in_vr), empty, _vrs(out_vr), empty, callbacks)
+        slave = _Slave(name, fmu, _vrs(in_vr), empty, _vrs(out_vr), empty, callbacks)
+        slave.calls = tuple(_raw(slave, call) for call in NATIVE_CALLS)
+        return slave
 
     def _callbacks(self, name: str) -> fmi2CallbackFunctions:
         """FMI callbacks whose logger keeps the FMU's messages in ``self._logs[name]``."""
