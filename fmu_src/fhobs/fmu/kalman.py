@@ -42,7 +42,3 @@ class FhobsKalman(ObserverSlave):
     def _make_model(self) -> KalmanObserver:
         design = self.edited_design()
         return KalmanObserver(design, z0=self._padded_z0(), kalman=design.kalman)
-
-    def _model_outputs(self) -> list[float]:
-        """``[x_hat, q_hat]``: the model state z (the prediction for the next sample)."""
-        return self.model.z.tolist()

@@ -73,6 +73,11 @@ class Variable:
         option's value).
     integer : bool
         An Integer variable (``status``, a choice, ``noise_seed``), else Real.
+    source : str
+        ``output`` role: where its value comes from. ``"state"``: the next elements of the
+        runtime model's state vector (``get_state()``; in C the state the model keeps), taken
+        in the order of :attr:`Kind.outputs` (:meth:`Kind.output_sources`); anything else: the
+        runtime model's attribute of that name, which the C model computes by the same name.
     """
 
     name: str
@@ -83,6 +88,7 @@ class Variable:
     shape: Callable[[ObserverGains], tuple[int, ...]] | None = None
     choices: tuple[str, ...] = ()
     integer: bool = False
+    source: str = "state"
 
     def start(self, design: ObserverGains, options: Mapping[str, Any]) -> Any:
         """The start value for ``design`` and the build ``options`` (None: left out).
@@ -140,6 +146,27 @@ class Kind:
             if variable.name == name:
                 return variable
         raise KeyError(f"the {self.name} FMU has no variable {name!r}")
+
+    def output_sources(self, sizes: Mapping[str, int]) -> list[tuple[str, str, int, int]]:
+        """Where each output present comes from, in the order of :attr:`outputs`:
+        ``(name, source, offset, size)``, the offset counted in the model's state for a
+        ``"state"`` source (the state outputs are its first elements, in this order), 0 for an
+        attribute. ``sizes``: the number of elements of each output present.
+
+        Examples
+        --------
+        >>> KINDS["observer"].output_sources({"x_hat": 4, "psi": 2, "xi": 1, "sigma": 1})
+        [('x_hat', 'state', 0, 4), ('psi', 'state', 4, 2), ('xi', 'state', 6, 1), \
+('sigma', 'sigma', 0, 1)]
+        """
+        sources, offset = [], 0
+        for name in self.outputs:
+            if name not in sizes:
+                continue
+            source = self.variable(name).source
+            sources.append((name, source, offset if source == "state" else 0, sizes[name]))
+            offset += sizes[name] if source == "state" else 0
+        return sources
 
     def starts(self, design: ObserverGains,
                options: Mapping[str, Any]) -> list[tuple[Variable, Any]]:
@@ -275,7 +302,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Variable("psi", "output", "output-filter state psi", shape=lambda d: (d.k,)),
             Variable("xi", "output", "scalar gain state xi", shape=lambda d: ()),
             Variable("sigma", "output", "sigma = sqrt(max(xi, |psi|^2 / 2))",
-                     shape=lambda d: ()),
+                     shape=lambda d: (), source="sigma"),
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
@@ -338,7 +365,8 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
                      option="plant_scheme", choices=PLANT_SCHEMES, integer=True),
             Variable("u", "input", "control input", shape=lambda d: (d.m,)),
             Variable("q", "input", "perturbation (through E)", shape=_perturbations),
-            Variable("y", "output", "measured output C x + noise", shape=lambda d: (d.k,)),
+            Variable("y", "output", "measured output C x + noise", shape=lambda d: (d.k,),
+                     source="y"),
             Variable("x", "output", "true state", shape=lambda d: (d.n,)),
             INPUT_BOUND,
         ),

@@ -27,7 +27,3 @@ class FhobsLuenberger(ObserverSlave):
             scheme=self.scheme_name(),
             z0=self.array("z0"),
         )
-
-    def _model_outputs(self) -> list[float]:
-        """``x_hat`` (the model state z)."""
-        return self.model.z.tolist()

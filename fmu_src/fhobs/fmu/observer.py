@@ -31,10 +31,3 @@ class FhobsObserver(ObserverSlave):
             psi0=self.array("psi0"),
             xi0=float(self.array("xi0")),
         )
-
-    def _model_outputs(self) -> list[float]:
-        """``[x_hat, q_hat, psi, xi, sigma]``: the model state, then sigma."""
-        model = self.model
-        values = model.get_state().tolist()
-        values.append(model.sigma)
-        return values

@@ -35,8 +35,3 @@ class FhobsPlant(FhobsSlave):
             seed=self.integer("noise_seed"),
             scheme=self.choice("scheme", PLANT_SCHEMES),
         )
-
-    def _model_outputs(self) -> list[float]:
-        """``[y, x]`` (declaration order)."""
-        model = self.model
-        return model.y.tolist() + model.x.tolist()

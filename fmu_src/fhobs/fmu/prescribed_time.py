@@ -41,7 +41,3 @@ class FhobsPrescribedTime(ObserverSlave):
             z0=self._padded_z0(),
             xi0=self._xi0(design.nu, design.rho),
         )
-
-    def _model_outputs(self) -> list[float]:
-        """``[x_hat, q_hat, xi]``: the model state."""
-        return self.model.get_state().tolist()

@@ -50,7 +50,7 @@ import json
 import math
 import sys
 from abc import abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 from xml.etree.ElementTree import Element
@@ -133,8 +133,8 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     """Common base of the fhobs slaves (abstract: subclasses define the model).
 
     Subclasses name their :attr:`kind` (whose declaration gives the variables, in
-    value-reference order, and the output layout) and implement :meth:`_check_parameters`,
-    :meth:`_make_model` and :meth:`_model_outputs`. The design record and the build options
+    value-reference order, the output layout and where each output comes from) and implement
+    :meth:`_check_parameters` and :meth:`_make_model`. The design record and the build options
     are read from the instance's own ``resources`` folder, never from module globals, so that
     two FMUs sharing Python modules in one process stay independent.
     """
@@ -163,6 +163,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self.status = STATUS_OK
         self._declare()
         self._pack_arrays()
+        self._output_reads = output_reads(self.kind, self._arrays)
         self._mode_code = np.zeros(1, dtype=np.intc)  # the mode's index, read by the wrapper
         self._set_mode(INSTANTIATED)
         self._start_time = self._time = 0.0
@@ -420,10 +421,43 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         elements (and the buffer holds them): :attr:`Kind.outputs` of those present."""
         return [name for name in self.kind.outputs if name in self._arrays]
 
-    @abstractmethod
-    def _model_outputs(self) -> Sequence[float]:
-        """The model's current outputs as floats, flat, in the order of :meth:`_output_layout`
-        (called after every step: kept cheap)."""
+    def _model_outputs(self) -> list[float]:
+        """The model's current outputs as floats, flat, in the order of :meth:`_output_layout`,
+        from where the declaration says (:meth:`~fhobs.fmu.kinds.Kind.output_sources`): the
+        model state's first elements, the model's attributes (called after every step: one
+        state read, one slice per run of state outputs)."""
+        model = self.model
+        values: list[float] = []
+        state = model.get_state() if any(not read[0] for read in self._output_reads) else None
+        for attribute, start, stop in self._output_reads:
+            if attribute:
+                values += np.ravel(getattr(model, attribute)).tolist()
+            else:
+                values += state[start:stop].tolist()
+        return values
+
+
+def output_reads(kind: Kind, arrays: Mapping[str, np.ndarray]) -> list[tuple[str, int, int]]:
+    """The reads that give the outputs of ``kind`` present in ``arrays``:
+    ``(attribute, start, stop)``, a slice of the model's state where ``attribute`` is '' (runs
+    of state outputs merged into one slice), else the model's attribute.
+
+    Examples
+    --------
+    >>> from fhobs.fmu.kinds import KINDS
+    >>> arrays = {name: np.zeros(size) for name, size in
+    ...           [("x_hat", 4), ("psi", 2), ("xi", 1), ("sigma", 1)]}
+    >>> output_reads(KINDS["observer"], arrays)
+    [('', 0, 7), ('sigma', 0, 1)]
+    """
+    sizes = {name: arrays[name].size for name in kind.outputs if name in arrays}
+    reads: list[tuple[str, int, int]] = []
+    for _, source, offset, size in kind.output_sources(sizes):
+        if source == "state" and reads and not reads[-1][0] and reads[-1][2] == offset:
+            reads[-1] = ("", reads[-1][1], offset + size)
+        else:
+            reads.append(("" if source == "state" else source, offset, offset + size))
+    return reads
 
 
 def positive_parameter(slave: FhobsSlave, name: str, what: str) -> float:

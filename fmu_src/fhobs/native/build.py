@@ -50,6 +50,7 @@ import tempfile
 import uuid
 import xml.etree.ElementTree as ET
 import zipfile
+from collections import Counter
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -322,6 +323,7 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
              f"#define FHOBS_N_VARIABLES {len(variables)}"]
     lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]
     lines += [f"#define VR_{name.upper()} {first_vr.get(name, -1)}" for name in LAYOUT]
+    lines += _state_outputs(kind, variables, first_vr)
     rows = [f'    {{"{var["name"]}", FHOBS_{var["type"].upper()}, FHOBS_{var["role"].upper()}, '
             f'{c_number(var["start"])}}},' for var in variables]
     table = ["static const FhobsVariable VARIABLES[FHOBS_N_VARIABLES] = {", *rows, "};"]
@@ -359,6 +361,20 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
                 body.append(f"static const EulerPlan EULER_PLAN = "
                             f"{_plan_initializer(data['euler'], arrays)};")
     return _split_data([*lines, "", *table, "", *arrays.lines, "", *body], arrays.types)
+
+
+def _state_outputs(kind: str, variables: list[dict[str, Any]],
+                   first_vr: dict[str, int]) -> list[str]:
+    """The outputs that are elements of the model's state, as the declaration places them
+    (:meth:`fhobs.fmu.kinds.Kind.output_sources`): ``STATE_OUTPUTS``, (value reference, state
+    offset, count) triples, which models.c copies; the other outputs it computes by name."""
+    sizes = Counter(var["name"].split("[")[0] for var in variables
+                    if var["causality"] == "output")
+    triples = [(first_vr[name], offset, size) for name, source, offset, size
+               in KINDS[kind].output_sources(sizes) if source == "state"]
+    flat = ", ".join(str(value) for triple in triples for value in triple)
+    return [f"#define FHOBS_N_STATE_OUTPUTS {len(triples)}",
+            f"static const int STATE_OUTPUTS[{3 * len(triples)}] = {{{flat}}};"]
 
 
 def _split_data(lines: list[str], types: dict[str, tuple[str, int]]) -> tuple[str, str]:

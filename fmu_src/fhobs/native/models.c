@@ -38,6 +38,17 @@ const char *fhobs_number(double x, char *buf, size_t len)
     return buf;
 }
 
+/* The outputs that are elements of the model state, where the kind's declaration places them
+ * (the generated STATE_OUTPUTS: value reference, state offset, count); each kind's
+ * model_outputs computes the others. */
+static void state_outputs(double *real, const double *state)
+{
+    for (int i = 0; i < FHOBS_N_STATE_OUTPUTS; i++) {
+        const int *out = STATE_OUTPUTS + 3 * i;
+        memcpy(real + out[0], state + out[1], (size_t)out[2] * sizeof(double));
+    }
+}
+
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER ||             \
     FHOBS_KIND == FHOBS_KIND_PLANT || FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
 #define FHOBS_PLAN_SLOTS 8 /* step sizes whose plans an instance keeps */
@@ -280,20 +291,14 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
     return 0;
 }
 
+/* The state outputs; the observer's sigma. */
 void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     (void)w;
     (void)integer;
-    for (int i = 0; i < FHOBS_N; i++)
-        real[VR_X_HAT + i] = state[i];
+    state_outputs(real, state);
 #if FHOBS_KIND == FHOBS_KIND_OBSERVER
-    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
-        real[VR_Q_HAT + i - FHOBS_N] = state[i];
-    const double *psi = state + FHOBS_N_MODEL, xi = state[FHOBS_N_MODEL + FHOBS_K];
-    for (int i = 0; i < FHOBS_K; i++)
-        real[VR_PSI + i] = psi[i];
-    real[VR_XI] = xi;
-    real[VR_SIGMA] = sigma_of(psi, FHOBS_K, xi);
+    real[VR_SIGMA] = sigma_of(state + FHOBS_N_MODEL, FHOBS_K, state[FHOBS_N_MODEL + FHOBS_K]);
 #endif
 }
 
@@ -409,7 +414,7 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
 }
 
 /* y = C x + eta_k, eta_k = noise_amplitude * draws[k mod NOISE_BLOCK] of block k / NOISE_BLOCK
- * (fhobs.core.plant.uniform_noise); x */
+ * (fhobs.core.plant.uniform_noise); the state output x */
 void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
     double amplitude = real[VR_NOISE_AMPLITUDE];
@@ -432,8 +437,7 @@ void model_outputs(Work *w, double *real, const int *integer, const double *stat
             s += PLANT_C[i * FHOBS_N + j] * state[j];
         real[VR_Y + i] = eta ? s + amplitude * eta[i] : s;
     }
-    for (int i = 0; i < FHOBS_N; i++)
-        real[VR_X + i] = state[i];
+    state_outputs(real, state);
 }
 
 #elif FHOBS_KIND == FHOBS_KIND_KALMAN
@@ -516,10 +520,7 @@ void model_outputs(Work *w, double *real, const int *integer, const double *stat
 {
     (void)w;
     (void)integer;
-    for (int i = 0; i < FHOBS_N; i++)
-        real[VR_X_HAT + i] = state[i];
-    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
-        real[VR_Q_HAT + i - FHOBS_N] = state[i];
+    state_outputs(real, state);
 }
 #elif FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
 /* ---------------------------------------------------------------------------------------- */
@@ -647,11 +648,7 @@ void model_outputs(Work *w, double *real, const int *integer, const double *stat
 {
     (void)w;
     (void)integer;
-    for (int i = 0; i < FHOBS_N; i++)
-        real[VR_X_HAT + i] = state[i];
-    for (int i = FHOBS_N; i < FHOBS_N_MODEL; i++)
-        real[VR_Q_HAT + i - FHOBS_N] = state[i];
-    real[VR_XI] = state[FHOBS_N_MODEL];
+    state_outputs(real, state);
 }
 #else
 #error "model_data.c names no known FHOBS_KIND"

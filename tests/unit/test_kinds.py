@@ -1,0 +1,70 @@
+"""The FMU kinds' declaration of where each output comes from (fhobs.fmu.kinds): every output
+is a slice of the runtime model's state or one of its attributes, and the slave's reads give
+the quantities the paper defines, checked against formulas written here."""
+
+import math
+
+import numpy as np
+import pytest
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.fmu.kinds import KINDS
+from fhobs.fmu.slave_base import output_reads
+
+from tests.designs import random_design
+
+
+def _models(design):
+    E = design.B if design.E is None else design.E
+    return {
+        "observer": FilteringObserver(design, h=1e-4),
+        "prescribed_time": PrescribedTimeObserver(design, h=1e-4),
+        "luenberger": LuenbergerObserver(design, h=1e-4),
+        "kalman": KalmanObserver(design, kalman=design.kalman) if design.kalman else None,
+        "plant": LTIPlant(design.A, design.B, design.C, E, x0=np.ones(design.n)),
+    }
+
+
+def _flat_outputs(kind, model, sizes):
+    arrays = {name: np.zeros(size) for name, size in sizes.items()}
+    state = model.get_state()
+    values = []
+    for attribute, start, stop in output_reads(KINDS[kind], arrays):
+        values += (np.ravel(getattr(model, attribute)) if attribute else state[start:stop]).tolist()
+    return values
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_every_output_has_a_source(kind):
+    """A declared attribute source exists on the kind's runtime model."""
+    design = random_design(3, 3, 2, 1)
+    model = _models(design)[kind]
+    for variable in KINDS[kind].variables:
+        if variable.role == "output" and variable.source != "state":
+            assert hasattr(model, variable.source), (kind, variable.name)
+        elif variable.role != "output":
+            assert variable.source == "state", (kind, variable.name)
+
+
+def test_observer_outputs_are_the_papers_quantities():
+    """x_hat, q_hat, psi, xi of the state z, psi, xi after some steps; sigma from psi and xi."""
+    design = random_design(5, 3, 2, 1)
+    n, N, k = design.n, design.n_model, design.k
+    model = FilteringObserver(design, h=1e-4)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        model.advance(rng.normal(size=k), rng.normal(size=design.m), 1e-3)
+    sizes = {"x_hat": n, "q_hat": N - n, "psi": k, "xi": 1, "sigma": 1}
+    values = _flat_outputs("observer", model, sizes)
+    z, psi, xi = model.z, model.get_state()[N:N + k], model.get_state()[N + k]
+    sigma = math.sqrt(max(xi, float(psi @ psi) / 2))
+    assert values == [*z[:n], *z[n:], *psi, xi, sigma]
+
+
+def test_plant_outputs_are_y_then_x():
+    design = random_design(7, 3, 2, 0)
+    plant = LTIPlant(design.A, design.B, design.C, design.B, x0=np.arange(1.0, design.n + 1))
+    values = _flat_outputs("plant", plant, {"y": design.k, "x": design.n})
+    x = np.arange(1.0, design.n + 1)
+    assert values == [*(design.C @ x), *x]
