@@ -30,16 +30,18 @@ from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.blocks import block_fmu
-from harness.blocks.native import KIND_MACROS
+from harness.blocks.build import is_pythonfmu
 from harness.system import (
     ConnectionSpec,
     FmuSpec,
     ResolvedSystem,
     SystemSpec,
+    build_blocks,
     resolve_system,
     split_signal,
 )
+
+__all__ = ["export_ssp", "exported_system", "is_pythonfmu", "lower_gains"]
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -76,20 +78,6 @@ def lower_gains(spec: SystemSpec) -> SystemSpec:
     return replace(spec, fmus=fmus, connections=tuple(connections))
 
 
-def is_pythonfmu(fmu: str | Path) -> bool:
-    """Whether ``fmu`` is a pythonfmu FMU (its binary needs libpython at run time).
-
-    Examples
-    --------
-    >>> from harness.blocks import block_fmu
-    >>> is_pythonfmu(block_fmu("sine", (1,)))  # doctest: +SKIP
-    True
-    """
-    with zipfile.ZipFile(fmu) as archive:
-        root = ET.fromstring(archive.read("modelDescription.xml"))
-    return root.get("generationTool", "").startswith("PythonFMU")
-
-
 def exported_system(spec: SystemSpec, block_cache: Path | None = None,
                     native_blocks: bool | None = None) -> SystemSpec:
     """The system :func:`export_ssp` writes: gains lowered to blocks, every block built.
@@ -101,10 +89,9 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
     block_cache
         Where the blocks are built (see :func:`harness.blocks.block_fmu`).
     native_blocks
-        Native blocks (True), pythonfmu blocks (False), or (None) native blocks exactly when
-        none of the system's own FMUs is a pythonfmu FMU (:func:`is_pythonfmu`) and every
-        block has a native version (:data:`harness.blocks.native.KIND_MACROS`). Blocks the
-        spec already has files for are replaced by the chosen ones.
+        As for :func:`harness.system.build_blocks`: by default native blocks when none of the
+        system's own FMUs is a pythonfmu FMU, so that the SSP of native FMUs needs no Python.
+        Blocks the spec already has files for are replaced by the chosen ones.
 
     Returns
     -------
@@ -122,13 +109,8 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
     ['gain_4', 'gain_5', 'gain_6', 'gain_7', 'kalman', 'linear', 'observer', 'plant']
     """
     lowered = lower_gains(spec)
-    if native_blocks is None:
-        native_blocks = all(fs.block[0] in KIND_MACROS if fs.block else not is_pythonfmu(fs.path)
-                            for fs in lowered.fmus.values())
-    fmus = {name: fs if fs.block is None
-            else replace(fs, path=block_fmu(*fs.block, block_cache, native=native_blocks))
-            for name, fs in lowered.fmus.items()}
-    return replace(lowered, fmus=fmus)
+    fmus = {name: replace(fs, path=None) if fs.block else fs for name, fs in lowered.fmus.items()}
+    return build_blocks(replace(lowered, fmus=fmus), block_cache, native_blocks)
 
 
 def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None,

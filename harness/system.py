@@ -77,6 +77,8 @@ from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
+from harness.blocks.build import native_by_default
+from harness.blocks.native import KIND_MACROS
 
 StartValue = float | int | bool
 PAPER_VALUES: dict[str, Any] = {
@@ -398,7 +400,8 @@ def _merged(base: dict[str, Any], changes: dict[str, Any], where: str) -> dict[s
     return merged
 
 
-def build_blocks(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec:
+def build_blocks(spec: SystemSpec, block_cache: Path | None = None,
+                 native: bool | None = None) -> SystemSpec:
     """Copy of ``spec`` whose harness blocks have their FMU files (built on first use).
 
     Parameters
@@ -407,6 +410,12 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpe
         A loaded description.
     block_cache : Path or None
         Where the blocks are built (default: :func:`harness.blocks.default_cache_dir`).
+    native : bool or None
+        Native blocks (compiled C, :mod:`harness.blocks.native`) for the kinds that have one
+        (True), pythonfmu blocks (False), or (None) native ones when none of the system's own
+        FMUs is a pythonfmu FMU (:func:`harness.blocks.build.native_by_default`): a system of
+        native FMUs then needs no Python in any FMU. The kinds without a native version
+        (``signal``) are pythonfmu blocks either way.
 
     Returns
     -------
@@ -419,12 +428,16 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpe
     >>> from harness.cli import SCENARIO_DIR
     >>> spec = load_system(SCENARIO_DIR / "pendulum_perturbed.toml")
     >>> with tempfile.TemporaryDirectory() as cache:
-    ...     built = build_blocks(spec, Path(cache))
+    ...     built = build_blocks(spec, Path(cache), native=False)
     ...     print(spec.fmus["perturbation"].path, built.fmus["perturbation"].path.suffix)
     None .fmu
     """
+    if native is None:
+        native = native_by_default(fs.path for fs in spec.fmus.values()
+                                   if fs.block is None and fs.path is not None)
     fmus = {name: fs if fs.block is None or fs.path is not None
-            else replace(fs, path=block_fmu(*fs.block, block_cache))
+            else replace(fs, path=block_fmu(*fs.block, block_cache,
+                                            native=native and fs.block[0] in KIND_MACROS))
             for name, fs in spec.fmus.items()}
     return replace(spec, fmus=fmus)
 

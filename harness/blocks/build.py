@@ -11,8 +11,11 @@ import hashlib
 import os
 import shutil
 import tempfile
+import zipfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
 CACHE_ENV = "FHOBS_HARNESS_CACHE"
 
@@ -111,6 +114,39 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
     if not target.exists():
         _build(module, text, target)
     return target
+
+
+def is_pythonfmu(fmu: str | Path) -> bool:
+    """Whether ``fmu`` is a pythonfmu FMU (its binary needs libpython at run time).
+
+    Examples
+    --------
+    >>> is_pythonfmu(block_fmu("sine", (1,)))  # doctest: +SKIP
+    True
+    """
+    with zipfile.ZipFile(fmu) as archive:
+        root = ET.fromstring(archive.read("modelDescription.xml"))
+    return root.get("generationTool", "").startswith("PythonFMU")
+
+
+def native_by_default(own_fmus: Iterable[str | Path]) -> bool:
+    """Whether a system whose own FMUs (its blocks aside) are the files ``own_fmus`` gets
+    native blocks by default: when each of them is an FMU, none a pythonfmu one. A system of
+    native FMUs then runs with no Python in any FMU (and its user has the C compiler they
+    were built with); a file that is not an FMU is left for the system's resolution to
+    report, with pythonfmu blocks.
+
+    Examples
+    --------
+    >>> native_by_default([])
+    True
+    >>> native_by_default(["/nonexistent/plant.fmu"])
+    False
+    """
+    try:
+        return not any(is_pythonfmu(path) for path in own_fmus)
+    except (OSError, zipfile.BadZipFile, KeyError, ET.ParseError):
+        return False
 
 
 def _build(module: str, text: str, target: Path) -> None:
