@@ -507,9 +507,10 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
 
 
 def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dict[str, Path]:
-    """Compile every staged FMU's binary, ``{kind: path}``: the translation units of
-    :data:`SHARED_UNITS` once per machine (:func:`cached_object`), the others per FMU, as many
-    compilers at a time as there are cores; then link each binary."""
+    """Compile every staged FMU's binary, ``{kind: path}``: each translation unit through the
+    object cache (:func:`cached_object`: those of :data:`SHARED_UNITS` once per machine, the
+    others once per design), as many compilers at a time as there are cores; then link each
+    binary."""
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         common = {}
         for fmu in staged.values():
@@ -517,7 +518,7 @@ def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dic
                 if name in SHARED_UNITS and name not in common:
                     common[name] = pool.submit(cached_object, fmu.sources, name, shared,
                                                compiler)
-        own = {kind: [pool.submit(compile_object, fmu.sources, name, fmu.root / "objects",
+        own = {kind: [pool.submit(cached_object, fmu.sources, name, fmu.root / "objects",
                                   compiler)
                       for name in fmu.files if name not in SHARED_UNITS]
                for kind, fmu in staged.items()}
@@ -590,9 +591,11 @@ def compile_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
 def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
     """The object file of the translation unit ``name`` of ``sources`` from the user's cache
     (:func:`fhobs.core.kernel.cache_dir`), compiled there first if it is not yet: its name
-    hashes the unit, the headers of ``sources`` but the generated ones (which a shared unit
-    does not include), the flags and the compiler. Into ``out`` (:func:`compile_object`) when
-    the cache cannot be written.
+    hashes the unit, the headers of ``sources`` it may include, the flags and the compiler. A
+    unit that includes no generated header (:data:`SHARED_UNITS`) is hashed without them, so
+    one object serves every design; the others with them, so that rebuilding an unchanged
+    design compiles nothing. Into ``out`` (:func:`compile_object`) when the cache cannot be
+    written.
 
     Raises
     ------
@@ -600,11 +603,12 @@ def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
         If the compiler fails (its messages quoted).
     """
     text = (sources / name).read_text()
-    if '"model_data.h"' in text or '"model.h"' in text:
+    generated = any(f'"{header}"' in text for header in GENERATED_HEADERS)
+    if name in SHARED_UNITS and generated:
         raise BuildError(f"{name} includes the generated model data: it cannot be shared")
     digest = hashlib.sha256(" ".join((compiler, *COMPILE_FLAGS)).encode())
     for path in (sources / name, *sorted(sources.glob("*.h"))):
-        if path.name not in GENERATED_HEADERS:
+        if generated or path.name not in GENERATED_HEADERS:
             digest.update(path.name.encode() + path.read_bytes())
     try:
         cache = kernel.cache_dir() / "objects"
