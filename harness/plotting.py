@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import envelope, fixed_margins
+from fhobs.plots import envelope, fixed_margins, fixed_titles
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -41,6 +41,7 @@ def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
     return paths
 
 
+@fixed_titles()
 def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
     """The paper-style figure of fhobs.plots from the co-simulated signals (``title`` under
     the paper's figure title)."""
@@ -55,6 +56,7 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: 
                        subtitle=title)
 
 
+@fixed_titles()
 def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
     """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
     shaded."""
@@ -82,6 +84,7 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     return path
 
 
+@fixed_titles()
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
                          path: Path, title: str) -> Path:
     """``states.png``: one panel per component of ``state`` (named by its variable,
@@ -112,6 +115,7 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     return path
 
 
+@fixed_titles()
 def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
                       q_hats: dict[str, np.ndarray], settled: float, path: Path) -> Path:
     """``errors.png`` of the plant command: ``||x - x_hat||`` per estimator (top) and, when an
@@ -181,6 +185,7 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     return path
 
 
+@fixed_titles()
 def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
                      settled: float, path: Path) -> Path:
     """``disturbance.png``: one panel per q channel with q (the plant's input) and every
