@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import envelope, fixed_margins, fixed_titles
+from fhobs.plots import decade_grid, envelope, fixed_margins, fixed_titles
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -78,7 +78,7 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     ax.set_ylabel("estimation error")
     ax.set_title(title)
     ax.legend(fontsize="small")
-    ax.grid(True, which="both", alpha=0.3)
+    decade_grid(ax)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
@@ -175,7 +175,7 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     for ax, what in zip(axes[:, 0], ("state error", "q error"), strict=False):
         ax.axvspan(result.time[0], settled, color="0.92", zorder=0)
         ax.set_ylabel(what)
-        ax.grid(True, which="both", alpha=0.3)
+        decade_grid(ax)
         ax.legend(fontsize="small")
     axes[0, 0].set_title("estimation errors (shaded: transient, up to the settling time)")
     axes[-1, 0].set_xlim(result.time[0], result.time[-1])

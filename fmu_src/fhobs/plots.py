@@ -54,6 +54,14 @@ def fixed_margins(fig: plt.Figure, top: float = 0.4) -> None:
         ax.xaxis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig, y=-0.27))
 
 
+def decade_grid(ax: plt.Axes) -> None:
+    """A grid at the decades of the log axis ``ax``, without minor ticks: over the 10 to 16
+    decades an estimation error spans they are unreadable, and making them costs as much as
+    the rest of the figure."""
+    ax.minorticks_off()
+    ax.grid(True, alpha=0.3)
+
+
 def envelope(t: np.ndarray, y: np.ndarray,
              points: int = PLOT_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """The samples of ``y(t)`` worth drawing: all of them if there are at most ``points``,
@@ -116,10 +124,12 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
             ax.plot(*envelope(result.t, error[:, i]), lw=0.8, label=f"|z{i + 1} - x{i + 1}|")
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("t [s]")
-        ax.grid(True, which="both", alpha=0.3)
         if log_scale:
             ax.set_yscale("log")
             ax.set_ylim(1e-16, None)
+            decade_grid(ax)
+        else:
+            ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("estimation error")
     axes[0].legend(fontsize=8, loc="upper right")
     fig.suptitle(FIGURE_TITLES.get(scenario, scenario) + (f"\n{subtitle}" if subtitle else ""))
