@@ -70,18 +70,26 @@ def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str
 
 
 def write_csv(result: CoSimResult, path: Path, every: int = 1) -> Path:
-    """Write the recorded signals (``time`` first) as CSV with fmpy's writer: every
-    ``every``-th communication point (the first always, the last too). The summary figures are
-    computed from every point whatever ``every`` is."""
-    from fmpy.util import write_csv as fmpy_write_csv
+    """Write the recorded signals (``time`` first) as CSV in the format of fmpy's writer
+    (``fmpy.util.write_csv``: quoted names, each number as the shortest text that reads back
+    as the same double): every ``every``-th communication point (the first always, the last
+    too). The summary figures are computed from every point whatever ``every`` is.
 
+    Examples
+    --------
+    >>> import tempfile
+    >>> r = CoSimResult(np.array([0.0, 0.1]), ("p.x",), np.array([[1.0], [1e-17]]), 1, 0.0)
+    >>> print(write_csv(r, Path(tempfile.mkdtemp()) / "r.csv").read_text(), end="")
+    "time","p.x"
+    0.0,1.0
+    0.1,1e-17
+    """
     rows = np.unique(np.append(np.arange(0, len(result.time), every), len(result.time) - 1))
-    dtype = [("time", np.float64)] + [(n, np.float64) for n in result.names]
-    table = np.empty(rows.size, dtype=dtype)
-    table["time"] = result.time[rows]
-    for j, name in enumerate(result.names):
-        table[name] = result.values[rows, j]
-    fmpy_write_csv(str(path), table)
+    table = np.column_stack((result.time[rows], result.values[rows]))
+    header = ",".join(f'"{name}"' for name in ("time", *result.names))
+    with open(path, "w") as csv:
+        csv.write(header + "\n")
+        csv.writelines(",".join(map(repr, row)) + "\n" for row in table.tolist())
     return path
 
 

@@ -190,3 +190,28 @@ def test_error_figures_instants_and_windows():
     assert mask.sum() == 201
     assert figures["rms_error_1_3"] == pytest.approx(np.sqrt(np.mean(e[mask] ** 2)))
     assert time_key(0.25) == "0_25" and time_key(3.0) == "3"
+
+
+def test_results_csv_is_fmpys_format(tmp_path):
+    """write_csv gives the file fmpy's own writer gives for the same rows (the format an fmpy
+    user reads), on numbers of every kind: tiny, huge, integral, negative zero, inf, nan."""
+    from fmpy.util import write_csv as fmpy_write_csv
+
+    from harness.results import write_csv
+
+    rng = np.random.default_rng(11)
+    values = rng.standard_normal((50, 3)) * 10.0 ** rng.integers(-300, 300, (50, 3))
+    values[:6, 0] = [0.0, -0.0, 3.0, np.inf, -np.inf, np.nan]
+    values[6:9, 1] = [1e16, 2.0**-1074, 0.1]
+    time = np.arange(50) * 0.1
+    result = CoSimResult(time, ("plant.x[1]", "observer.x_hat[1]", "q"), values, 49, 0.0)
+    table = np.empty(50, dtype=[("time", float)] + [(n, float) for n in result.names])
+    table["time"] = time
+    for j, name in enumerate(result.names):
+        table[name] = values[:, j]
+    fmpy_write_csv(str(tmp_path / "fmpy.csv"), table)
+    ours = write_csv(result, tmp_path / "ours.csv")
+    assert ours.read_text() == (tmp_path / "fmpy.csv").read_text()
+    every = write_csv(result, tmp_path / "every.csv", every=20).read_text().splitlines()
+    kept = [repr(float(time[k])) for k in (0, 20, 40, 49)]
+    assert [line.split(",")[0] for line in every[1:]] == kept
