@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import decade_grid, envelope, fixed_margins, fixed_titles
+from fhobs.plots import decade_grid, envelope, fixed_margins, fixed_titles, new_figure
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -60,12 +60,8 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: 
 def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
     """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
     shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, axes = new_figure(1, 1, (7, 4))
+    ax = axes[0, 0]
     fixed_margins(fig)
     for name, (reference, estimate) in spec.evaluation.errors.items():
         e = error_norm(result, reference, estimate)
@@ -80,7 +76,6 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     ax.legend(fontsize="small")
     decade_grid(ax)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
@@ -90,16 +85,10 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     """``states.png``: one panel per component of ``state`` (named by its variable,
     ``plant.x[1]``...) with the same component of every estimate (``{label: signal}``) over
     time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     x = result.vector(state)
     n = x.shape[1]
     columns = {label: result.vector(signal) for label, signal in estimates.items()}
-    fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True,
-                             squeeze=False)
+    fig, axes = new_figure(n, 1, (7, 1.6 * n + 0.6), sharex=True)
     fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(*envelope(result.time, x[:, i]), color="k", lw=2, label=state)
@@ -111,7 +100,6 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
@@ -154,14 +142,8 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     ...                   path).stat().st_size > 1000
     True
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rows = 2 if q_hats else 1
-    fig, axes = plt.subplots(rows, 1, figsize=(7, 2.6 * rows + 0.8), sharex=True,
-                             squeeze=False)
+    fig, axes = new_figure(rows, 1, (7, 2.6 * rows + 0.8), sharex=True)
     fixed_margins(fig)
     colours = {label: f"C{i}" for i, label in enumerate(errors)}
     for label, (reference, estimate) in errors.items():
@@ -181,7 +163,6 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     axes[-1, 0].set_xlim(result.time[0], result.time[-1])
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
@@ -217,14 +198,8 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     ...                  path).stat().st_size > 1000
     True
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     r = q.shape[1]
-    fig, axes = plt.subplots(r, 1, figsize=(7, 1.8 * r + 0.8), sharex=True,
-                             squeeze=False)
+    fig, axes = new_figure(r, 1, (7, 1.8 * r + 0.8), sharex=True)
     fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
         ax.plot(*envelope(time, q[:, i]), color="k", lw=2, label="q")
@@ -237,5 +212,4 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     axes[-1, 0].set_xlim(time[0], time[-1])
     axes[-1, 0].set_xlabel("t [s]")
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path

@@ -4,6 +4,7 @@ the Kalman filter when the result has one)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -11,8 +12,8 @@ from fhobs.extras import require
 from fhobs.paper import PAPER_SCENARIOS
 from fhobs.reference import SimulationResult
 
-require("matplotlib", "plots").use("Agg")
-plt = require("matplotlib.pyplot", "plots")
+matplotlib = require("matplotlib", "plots")
+Figure = require("matplotlib.figure", "plots").Figure
 offset_copy = require("matplotlib.transforms", "plots").offset_copy
 
 _PERTURBED, _NOISY = PAPER_SCENARIOS["perturbed"], PAPER_SCENARIOS["perturbed_noisy"]
@@ -36,10 +37,27 @@ figures have none above their axes)."""
 def fixed_titles():  # noqa: ANN201 - matplotlib's rc_context, a context manager and decorator
     """The context (or decorator) drawing figures under :data:`FIXED_TITLES`; matplotlib's
     settings outside it are untouched."""
-    return plt.rc_context(FIXED_TITLES)
+    return matplotlib.rc_context(FIXED_TITLES)
 
 
-def fixed_margins(fig: plt.Figure, top: float = 0.4) -> None:
+def new_figure(rows: int, columns: int, size: tuple[float, float],
+               **subplots: Any) -> tuple[Figure, np.ndarray]:
+    """A figure of ``size`` inches with a ``rows`` x ``columns`` array of axes
+    (``Figure.subplots`` options ``subplots``, always a 2-D array), drawn by savefig with
+    matplotlib's Agg renderer: no pyplot, so the caller's backend, open figures and
+    interactive state are left alone, and nothing is to close.
+
+    Examples
+    --------
+    >>> fig, axes = new_figure(2, 1, (4, 3), sharex=True)
+    >>> axes.shape
+    (2, 1)
+    """
+    fig = Figure(figsize=size)
+    return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
+
+
+def fixed_margins(fig: Figure, top: float = 0.4) -> None:
     """Place the axes of ``fig`` with margins fixed in inches (0.8 left, 0.15 right, 0.5 below,
     ``top`` above, 0.3 between rows and 0.2 between columns), and their axis labels at fixed
     distances from the axes (0.62 inch left, 0.27 inch below): a layout engine (constrained
@@ -54,7 +72,7 @@ def fixed_margins(fig: plt.Figure, top: float = 0.4) -> None:
         ax.xaxis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig, y=-0.27))
 
 
-def decade_grid(ax: plt.Axes) -> None:
+def decade_grid(ax: Any) -> None:
     """A grid at the decades of the log axis ``ax``, without minor ticks: over the 10 to 16
     decades an estimation error spans they are unreadable, and making them costs as much as
     the rest of the figure."""
@@ -117,7 +135,8 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
               ("linear (Luenberger) observer", result.z_lin)]
     if result.z_kalman is not None:
         panels.append(("steady-state Kalman filter", result.z_kalman))
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.8), sharey=True)
+    fig, grid = new_figure(1, len(panels), (5 * len(panels), 3.8), sharey=True)
+    axes = grid[0]
     for ax, (title, estimate) in zip(axes, panels, strict=True):
         error = abs(estimate - result.x)
         for i in range(error.shape[1]):
@@ -135,5 +154,4 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
     fig.suptitle(FIGURE_TITLES.get(scenario, scenario) + (f"\n{subtitle}" if subtitle else ""))
     fixed_margins(fig, top=0.75 if subtitle else 0.55)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
