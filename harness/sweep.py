@@ -35,6 +35,9 @@ co-simulation per point of a sweep file and writes one table of their figures. A
     [pareto]                       # optional: the Pareto picture of two bases
     perturbation = "pendulum_perturbed"   # its max error (first window) on the x-axis
     noisy = "pendulum_noisy"              # its RMS error (first window, mean over seeds)
+    [pareto.estimators]            # optional: the estimators shown, each with the axes its
+    kalman = ["spec.noise.process_intensity"]   # designs vary over; its points come from the
+    homogeneous = ["rho"]          # points that set no other axis (base and seed aside)
 
 Each distinct design (the content hash of the point's spec) is designed and its FMUs built
 once per sweep, by one worker (:func:`build_bundle`, a task the points of that design depend
@@ -73,7 +76,7 @@ import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -85,7 +88,7 @@ TOP_KEYS = ("name", "base", "spec", "design", "fmus", "stop_time", "step", "grid
             "evaluation", "pareto")
 RANDOM_KEYS = ("samples", "seed", "axes")
 EVALUATION_KEYS = ("at", "windows")
-PARETO_KEYS = ("perturbation", "noisy")
+PARETO_KEYS = ("perturbation", "noisy", "estimators")
 DESIGNS = ("spec", "paper")
 FLAVOURS = ("native", "pythonfmu")
 RUN_AXES = ("base", "seed", "step", "stop_time")
@@ -160,7 +163,8 @@ class Sweep:
         ``base``, ``design``, ``fmus``, ``stop_time``, ``step``, ``evaluation``: what every point
         shares unless an axis sets it.
     pareto : dict
-        ``{"perturbation": base, "noisy": base}`` or empty.
+        ``{"perturbation": base, "noisy": base}`` and, when the file selects them,
+        ``"estimators": {estimator: [axis, ...]}``; or empty.
     """
 
     path: Path
@@ -169,7 +173,7 @@ class Sweep:
     points: list[Point]
     axes: tuple[str, ...]
     settings: dict[str, Any]
-    pareto: dict[str, str]
+    pareto: dict[str, Any]
 
 
 def sweep_path(name: str | Path) -> Path:
@@ -231,7 +235,7 @@ def load_sweep(path: str | Path) -> Sweep:
             raise SweepError(f"{where}: base is missing (a scenario name such as "
                              "'pendulum_nominal', or a plant spec file)")
         bases[name] = _load_base(str(name), settings, path)
-    pareto = _pareto(data, bases, where)
+    pareto = _pareto(data, bases, axes, where)
     points = _points(combos, bases, settings, where)
     return Sweep(path, _string(data.get("name", path.stem), f"{where}: name"), bases, points,
                  axes, settings, pareto)
@@ -512,18 +516,39 @@ def _digest(*parts: bytes) -> str:
     return h.hexdigest()[:16]
 
 
-def _pareto(data: dict[str, Any], bases: dict[str, Base], where: str) -> dict[str, str]:
+def _pareto(data: dict[str, Any], bases: dict[str, Base], axes: tuple[str, ...],
+            where: str) -> dict[str, Any]:
     table = data.get("pareto", {})
     if not isinstance(table, dict):
         raise SweepError(f"{where}: pareto must be a table (perturbation, noisy)")
     _reject_unknown(table, PARETO_KEYS, f"{where}: [pareto]")
-    if table and set(table) != set(PARETO_KEYS):
+    if table and not {"perturbation", "noisy"} <= set(table):
         raise SweepError(f"{where}: [pareto] needs both perturbation and noisy (base names)")
-    for key, value in table.items():
-        if value not in bases:
-            raise SweepError(f"{where}: pareto.{key} = {value!r} is not a base of the sweep "
-                             f"(bases: {', '.join(sorted(bases))})")
-    return dict(table)
+    for key in ("perturbation", "noisy"):
+        if key in table and table[key] not in bases:
+            raise SweepError(f"{where}: pareto.{key} = {table[key]!r} is not a base of the "
+                             f"sweep (bases: {', '.join(sorted(bases))})")
+    out = dict(table)
+    if "estimators" in table:
+        out["estimators"] = _pareto_estimators(table["estimators"], axes,
+                                               f"{where}: pareto.estimators")
+    return out
+
+
+def _pareto_estimators(table: Any, axes: tuple[str, ...], where: str) -> dict[str, list[str]]:
+    """``[pareto.estimators]``: ``{estimator: [axis, ...]}``, each axis a swept one."""
+    if not isinstance(table, dict) or not table:
+        raise SweepError(f"{where} must be a table of estimator = [axis, ...] (e.g. kalman = "
+                         "[\"spec.noise.process_intensity\"])")
+    swept = [a for a in axes if a not in ("base", "seed")]
+    for estimator, names in table.items():
+        if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+            raise SweepError(f"{where}.{estimator} = {names!r} must be a list of axis names")
+        for name in names:
+            if name not in swept:
+                raise SweepError(f"{where}.{estimator}: {name!r} is not a swept axis (axes: "
+                                 f"{', '.join(swept) or 'none but base and seed'})")
+    return {estimator: list(names) for estimator, names in table.items()}
 
 
 def _points(combos: list[dict[str, Any]], bases: dict[str, Base], settings: dict[str, Any],
@@ -1340,15 +1365,27 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
     return path
 
 
-def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[tuple]]:
-    """Per estimator, ``(perturbation max error, noisy RMS error, design label)`` of every
-    design: the rows of the two bases of ``[pareto]`` paired on every axis but base and seed,
-    the noisy RMS averaged over the seeds.
+class ParetoPoint(NamedTuple):
+    """One design of one estimator in the Pareto picture: ``x`` its max error in the
+    perturbation base, ``y`` its RMS error in the noisy base (mean over the seeds), ``label``
+    and ``params`` its design's axis values (``{axis: value}``)."""
+
+    x: float
+    y: float
+    label: str
+    params: dict[str, Any]
+
+
+def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[ParetoPoint]]:
+    """Per estimator, a :class:`ParetoPoint` per design: the rows of the two bases of
+    ``[pareto]`` paired on every axis but base and seed, the noisy RMS averaged over the seeds.
+    With ``[pareto.estimators]`` only the estimators it names, each paired on its own axes
+    over the rows that set no other axis (base and seed aside).
 
     Returns
     -------
     dict
-        ``{estimator: [(x, y, label), ...]}``; empty when the figures are missing.
+        ``{estimator: [ParetoPoint, ...]}``; empty when the figures are missing.
 
     Examples
     --------
@@ -1357,29 +1394,36 @@ def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[tu
     ...         {"base": "pendulum_noisy", "seed": 0, "kalman.rms_error_1_3": 2e-3},
     ...         {"base": "pendulum_noisy", "seed": 1, "kalman.rms_error_1_3": 4e-3}]
     >>> pareto_points(rows, sweep)
-    {'kalman': [(0.001, 0.003, 'no axis')]}
+    {'kalman': [ParetoPoint(x=0.001, y=0.003, label='no axis', params={})]}
     """
     xfig = _first(rows, sweep.pareto["perturbation"], "max_error_")
     yfig = _first(rows, sweep.pareto["noisy"], "rms_error_")
     if xfig is None or yfig is None:
         return {}
     others = [a for a in sweep.axes if a not in ("base", "seed")]
+    selected = sweep.pareto.get("estimators") or dict.fromkeys(
+        figure_columns(rows).get(xfig, []), others)
     base = sweep.settings["base"]
-    groups: dict[str, dict[str, list[dict]]] = {}
-    for r in rows:
-        label = _describe({a: r.get(a) for a in others})
-        groups.setdefault(label, {}).setdefault(r.get("base") or base, []).append(r)
-    out: dict[str, list[tuple]] = {}
-    for label, by_base in groups.items():
-        pert, noisy = by_base.get(sweep.pareto["perturbation"]), by_base.get(sweep.pareto["noisy"])
-        if not pert or not noisy:
-            continue
-        for estimator in figure_columns(rows).get(xfig, []):
+    out: dict[str, list[ParetoPoint]] = {}
+    for estimator, axes in selected.items():
+        groups: dict[str, tuple[dict, dict[str, list[dict]]]] = {}
+        for r in rows:
+            if any(r.get(a) is not None for a in others if a not in axes):
+                continue  # a design of another estimator
+            params = {a: r.get(a) for a in axes}
+            group = groups.setdefault(_describe(params), (params, {}))[1]
+            group.setdefault(r.get("base") or base, []).append(r)
+        for label, (params, by_base) in groups.items():
+            pert = by_base.get(sweep.pareto["perturbation"])
+            noisy = by_base.get(sweep.pareto["noisy"])
+            if not pert or not noisy:
+                continue
             xs = [r.get(f"{estimator}.{xfig}") for r in pert]
             ys = [r.get(f"{estimator}.{yfig}") for r in noisy]
             if None in xs or None in ys:
                 continue
-            out.setdefault(estimator, []).append((float(np.mean(xs)), float(np.mean(ys)), label))
+            out.setdefault(estimator, []).append(
+                ParetoPoint(float(np.mean(xs)), float(np.mean(ys)), label, params))
     return out
 
 
@@ -1413,10 +1457,10 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
         return None
     fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
     for estimator, values in points.items():
-        xs, ys, labels = zip(*values, strict=True)
-        ax.loglog(xs, ys, "o", ms=6, label=estimator)
-        for x, y, label in values if len(values) > 1 else ():
-            ax.annotate(label, (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        ax.loglog([p.x for p in values], [p.y for p in values], "o", ms=6, label=estimator)
+        for p in values if len(values) > 1 else ():
+            ax.annotate(p.label, (p.x, p.y), fontsize=6, xytext=(3, 3),
+                        textcoords="offset points")
     ax.set_xlabel(f"{sweep.pareto['perturbation']}: max error (first window)")
     ax.set_ylabel(f"{sweep.pareto['noisy']}: RMS error (first window, mean over seeds)")
     ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
@@ -1462,5 +1506,6 @@ def check_workers(workers: int | None) -> None:
         raise SweepError(f"--workers = {workers} must be >= 1")
 
 
-__all__ = ["Base", "Point", "Sweep", "SweepError", "SweepReport", "dask_client", "load_sweep",
-           "make_job", "plot_sweep", "point_key", "run_point", "run_sweep", "write_table"]
+__all__ = ["Base", "ParetoPoint", "Point", "Sweep", "SweepError", "SweepReport", "dask_client",
+           "load_sweep", "make_job", "pareto_points", "plot_sweep", "point_key", "run_point",
+           "run_sweep", "write_table"]

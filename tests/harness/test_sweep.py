@@ -303,3 +303,98 @@ def test_bundled_zoo_sweep_runs_every_zoo_plant_at_two_steps():
     assert sorted((p.params["base"], p.params["step"]) for p in sweep.points) == sorted(
         (plant, step) for plant in plants for step in (1e-4, 1e-3))
     assert sweep.settings["fmus"] == "native"
+
+
+# -- the Pareto picture's estimators ----------------------------------------------------------
+def test_pareto_estimators_must_name_swept_axes(tmp_path):
+    """[pareto.estimators]: each estimator's axes must be swept axes (base and seed are not
+    design axes) given as a list; an error names the field."""
+    from harness.sweep import SweepError
+
+    (tmp_path / "plant.toml").write_text(PLANT)
+    (tmp_path / "noisy.toml").write_text(PLANT)
+    head = ('stop_time = 0.2\n[[grid]]\nbase = ["plant.toml"]\nrho = [1.0, 2.0]\n'
+            '[[grid]]\nbase = ["noisy.toml"]\nseed = [0]\nrho = [1.0, 2.0]\n'
+            '[pareto]\nperturbation = "plant.toml"\nnoisy = "noisy.toml"\n')
+    path = tmp_path / "sweep.toml"
+    for table, expected in (('kalman = ["gamma"]', "'gamma' is not a swept axis"),
+                            ('kalman = ["seed"]', "'seed' is not a swept axis"),
+                            ('kalman = "rho"', "must be a list of axis names")):
+        path.write_text(head + "[pareto.estimators]\n" + table + "\n")
+        with pytest.raises(SweepError, match=expected) as err:
+            load_sweep(path)
+        assert "pareto.estimators.kalman" in str(err.value)
+    path.write_text(head + '[pareto.estimators]\nhomogeneous = ["rho"]\nlinear = []\n')
+    assert load_sweep(path).pareto["estimators"] == {"homogeneous": ["rho"], "linear": []}
+
+
+def pareto_rows() -> list[dict]:
+    """Rows of a Kalman grid (two intensities) and of a homogeneous grid (two rho), each
+    perturbed once and noisy over two seeds; every row has every estimator's figures."""
+    rows = []
+    designs = [{"spec.noise.process_intensity": w} for w in (1e-3, 1e-1)] + [
+        {"rho": rho} for rho in (4.0, 6.0)]
+    for i, design in enumerate(designs):
+        for base, seed in (("pendulum_perturbed", None), ("pendulum_noisy", 0),
+                           ("pendulum_noisy", 1)):
+            row = {"base": base, "seed": seed, "rho": None,
+                   "spec.noise.process_intensity": None, **design}
+            for j, estimator in enumerate(("homogeneous", "kalman", "linear")):
+                value = 10.0 * i + j + (seed or 0)  # the seed shifts the noisy RMS by 1
+                row[f"{estimator}.max_error_1_3"] = value
+                row[f"{estimator}.rms_error_1_3"] = value
+            rows.append(row)
+    return rows
+
+
+def test_pareto_estimators_take_their_own_designs():
+    """With [pareto.estimators] the Kalman filter's points are the Kalman grid's (labelled by
+    the intensity), the homogeneous observer's the rho grid's, linear is not shown; the noisy
+    figure is the mean over the seeds. Without it every estimator has a point per design."""
+    import dataclasses
+
+    from harness.sweep import pareto_points
+
+    sweep = load_sweep("pendulum_noisy_seeds")
+    sweep = dataclasses.replace(sweep, axes=("base", "rho", "seed",
+                                             "spec.noise.process_intensity"))
+    chosen = dataclasses.replace(sweep, pareto=sweep.pareto | {"estimators": {
+        "kalman": ["spec.noise.process_intensity"], "homogeneous": ["rho"]}})
+    points = pareto_points(pareto_rows(), chosen)
+    assert sorted(points) == ["homogeneous", "kalman"]
+    assert [(p.x, p.y, p.params) for p in points["kalman"]] == [
+        (1.0, 1.5, {"spec.noise.process_intensity": 1e-3}),
+        (11.0, 11.5, {"spec.noise.process_intensity": 1e-1})]
+    assert points["kalman"][0].label == "spec.noise.process_intensity = 0.001"
+    assert [(p.x, p.y, p.label) for p in points["homogeneous"]] == [
+        (20.0, 20.5, "rho = 4.0"), (30.0, 30.5, "rho = 6.0")]
+    every = pareto_points(pareto_rows(), sweep)
+    assert sorted(every) == ["homogeneous", "kalman", "linear"]
+    assert all(len(ps) == 4 for ps in every.values())
+    assert [p.x for p in every["kalman"]] == [1.0, 11.0, 21.0, 31.0]
+
+
+def test_bundled_noise_tradeoff_sweep_is_the_benchs_points():
+    """noise_tradeoff: the Kalman filters of orders 0..3 over the 37 intensities 10^(j/2) and
+    the bench's 25 homogeneous designs, each perturbed once and noisy over the seeds 0..4;
+    the picture shows the Kalman filter and the homogeneous observer over their own axes."""
+    import numpy as np
+
+    sweep = load_sweep("noise_tradeoff")
+    designs: dict[tuple, list] = {}
+    for p in sweep.points:
+        design = tuple(sorted((k, v) for k, v in p.params.items() if k not in ("base", "seed")))
+        designs.setdefault(design, []).append((p.params["base"], p.params.get("seed")))
+    runs = [("pendulum_perturbed", None)] + [("pendulum_noisy", s) for s in range(5)]
+    assert all(sorted(v, key=str) == sorted(runs, key=str) for v in designs.values())
+    kalman = [dict(d) for d in designs if "spec.noise.process_intensity" in dict(d)]
+    homogeneous = [dict(d) for d in designs if "nu" in dict(d)]
+    assert len(kalman) + len(homogeneous) == len(designs)
+    assert sorted((d["spec.noise.disturbance_order"], d["spec.noise.process_intensity"])
+                  for d in kalman) == [(r, w) for r in range(4)
+                                       for w in 10.0 ** np.arange(-6.0, 12.5, 0.5)]
+    assert len(homogeneous) == 25 and all(len(d) == 5 for d in homogeneous)
+    assert {"disturbance_order": 1, "nu": -0.25, "rho": 6.0, "gamma": 6.0,
+            "filter_scale": 2.0} in homogeneous
+    assert sweep.settings["fmus"] == "native" and set(sweep.pareto["estimators"]) == {
+        "kalman", "homogeneous"}
