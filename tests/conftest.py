@@ -20,13 +20,32 @@ registered once for the session: a module that assigned them to names of its own
 its own copies, so each "session" build would run once per module."""
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the xdist_group marks
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark each test with its layer, the folder under tests/ that holds it."""
+    """Mark each test with its layer, the folder under tests/ that holds it, and, when it uses a
+    module-scoped fixture, with its module's ``xdist_group``."""
     root = Path(__file__).resolve().parent
     for item in items:
-        layer = Path(item.fspath).resolve().relative_to(root).parts[0]
+        relative = Path(item.fspath).resolve().relative_to(root)
+        layer = relative.parts[0]
         if layer in LAYERS:
             item.add_marker(getattr(pytest.mark, layer))
+        if uses_module_fixture(item) and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(relative.as_posix()))
+
+
+def uses_module_fixture(item: pytest.Item) -> bool:
+    """Whether ``item`` requests (directly or through other fixtures) a fixture of module
+    scope. Under ``--dist loadgroup`` (pyproject.toml) the tests of one group run on one
+    worker, so a module's expensive fixture (an FMU build, a closed-loop run) is made once,
+    not once per worker. A module whose tests take such a fixture through
+    ``request.getfixturevalue`` declares its group itself (``pytestmark``, the group named by
+    its path under tests/, as here)."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return False
+    return any(definition.scope == "module"
+               for definitions in info.name2fixturedefs.values() for definition in definitions)
 
 
 @pytest.fixture(scope="session")

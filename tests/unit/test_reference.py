@@ -76,6 +76,7 @@ def test_paper_explicit_euler_is_reproduced(paper_design):
 
 
 @pytest.mark.parametrize("runs", ["tuned_runs", "paper_runs"])
+@pytest.mark.xdist_group("unit/test_reference.py")  # the runs' worker (see tests/conftest.py)
 def test_nominal_reaches_precision_floor(runs, request):
     """Target: norm(x - z) at t = 1.5 <= 1e-9; the error is at round-off from then on."""
     result = request.getfixturevalue(runs)["nominal"][0]
