@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -132,12 +133,18 @@ def build_fmus(
         wrapper = _compile_wrapper() if status_wrapper else None
         built = {}
         for kind in kinds:
+            dest = out_dir / f"{kind}.fmu"
+            key = _fmu_key(tag, kind, wrapper, library)
+            if _from_cache(key, dest):
+                built[kind] = dest
+                continue
             package = stage / package_name(kind, tag)
             ship_package(package, library)
             script = _write_script(stage, kind, tag)
-            built[kind] = _build_one(script, stage, package, out_dir / f"{kind}.fmu")
+            built[kind] = _build_one(script, stage, package, dest)
             if wrapper is not None:
                 _install_wrapper(built[kind], wrapper)
+            _to_cache(key, built[kind])
         _forget_modules(stage, tag)
     return built
 
@@ -313,6 +320,51 @@ def _write_script(stage: Path, kind: str, tag: str) -> Path:
         f"{base}_{tag} = {base}_{tag}  # the one class pythonfmu finds in this run's names\n"
     )
     return script
+
+
+FMU_CACHE_KEPT = 200
+"""How many built FMUs the user's cache keeps (:func:`_to_cache`; the oldest go beyond)."""
+
+
+def _fmu_key(tag: str, kind: str, wrapper: Path | None, library: Path | None) -> str:
+    """What the FMU of ``kind`` in build ``tag`` is made of: the tag (the shipped code, the
+    design and the options), pythonfmu's version, the interpreter the status wrapper is told
+    about (:func:`python_record`) and the compiled wrapper and kernel; 24 hex digits."""
+    import pythonfmu
+
+    digest = hashlib.sha256(f"{tag} {kind} {pythonfmu.__version__}".encode())
+    digest.update(python_record().encode())
+    for binary in (wrapper, library):
+        digest.update(b"-" if binary is None else binary.read_bytes())
+    return digest.hexdigest()[:24]
+
+
+def _from_cache(key: str, dest: Path) -> bool:
+    """Copy the FMU built earlier from the same inputs (:func:`_fmu_key`) to ``dest``, if the
+    user's cache has it: rebuilding an unchanged design is a file copy."""
+    cached = cache_dir() / "fmus" / f"{key}.fmu"
+    try:
+        shutil.copyfile(cached, dest)
+    except OSError:
+        return False
+    return True
+
+
+def _to_cache(key: str, fmu: Path) -> None:
+    """Keep a copy of the freshly built ``fmu`` in the user's cache (written under another
+    name, then renamed, so that a concurrent build never copies a partial file); the oldest
+    beyond :data:`FMU_CACHE_KEPT` are removed. A cache that cannot be written is skipped."""
+    folder = cache_dir() / "fmus"
+    try:
+        folder.mkdir(exist_ok=True)
+        partial = folder / f"{key}.fmu.{os.getpid()}"
+        shutil.copyfile(fmu, partial)
+        os.replace(partial, folder / f"{key}.fmu")
+        kept = sorted(folder.glob("*.fmu"), key=lambda path: path.stat().st_mtime)
+        for old in kept[:-FMU_CACHE_KEPT]:
+            old.unlink(missing_ok=True)
+    except OSError:
+        return
 
 
 def _build_one(script: Path, stage: Path, package: Path, dest: Path) -> Path:
