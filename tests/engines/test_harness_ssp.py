@@ -155,6 +155,7 @@ def _differences(figures, reference) -> str:
         for e in reference)
 
 
+@pytest.mark.slow  # the native export, ~2.7 s; test_native_blocks and test_native_fmu ldd theirs
 def test_native_ssp_needs_no_python(native_nominal, tmp_path):
     """Every FMU of the SSP, the gain blocks included, is native: no libpython in any binary."""
     spec, ssp, _ = native_nominal

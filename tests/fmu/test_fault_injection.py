@@ -136,12 +136,17 @@ def child_run(pendulum_fmus, unzipped):
     return done, results
 
 
+# The child process (~4 s) is slow. The fast tests keep these answers in process: test_native_fmu
+# repeats the native FMUs' mistakes (unknown vr, wrong types, foreign and truncated states),
+# test_host_safety the pythonfmu states' refusals, test_prescribed_time_fmu an unknown vr.
+@pytest.mark.slow
 def test_repeated_mistakes_leave_the_host_running(child_run):
     done, results = child_run
     assert done.returncode == 0, done.stderr[-2000:]
     assert set(results) == set(CHILD_EXPECTED)
 
 
+@pytest.mark.slow  # the child process: see test_repeated_mistakes_leave_the_host_running
 @pytest.mark.parametrize("case", list(CHILD_EXPECTED))
 def test_mistake_is_an_error_with_a_message_instance_usable(child_run, case):
     _, results = child_run

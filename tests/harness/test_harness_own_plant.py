@@ -10,6 +10,7 @@ from fhobs.paper import EXAMPLES
 from harness.cli import main
 
 
+@pytest.mark.slow  # 4000 steps, ~2.6 s; test_disturbance_plant's step run is the fast `plant` run
 def test_own_plant_converges_through_its_fmus(tmp_path, capsys):
     """The DC motor spec (defaults only): designed, built, run for 4 s through the FMUs; the
     homogeneous and prescribed-time observers' errors over the last half are at the noise-free

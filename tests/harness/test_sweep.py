@@ -134,6 +134,7 @@ def test_bundled_sweep_is_the_main_jobs_noisy_seeds():
 
 
 # -- the engine -------------------------------------------------------------------------------
+@pytest.mark.slow  # three LocalClusters, ~15 s; the sweep files and points stay in the fast tests
 def test_local_cluster_runs_every_point_then_resumes(tmp_path):
     """Two worker processes run four points (one fails: a start value the plant FMU lacks;
     the sweep goes on); the table has one row per point in Parquet and CSV, with the figures
