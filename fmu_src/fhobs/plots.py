@@ -3,6 +3,7 @@ the Kalman filter when the result has one)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -73,11 +74,27 @@ def fixed_margins(fig: Figure, top: float = 0.4) -> None:
 
 
 def decade_grid(ax: Any) -> None:
-    """A grid at the decades of the log axis ``ax``, without minor ticks: over the 10 to 16
-    decades an estimation error spans they are unreadable, and making them costs as much as
-    the rest of the figure."""
+    """A grid at the decades of the log axis ``ax``, labelled ``1e-4``, without minor ticks:
+    over the 10 to 16 decades an estimation error spans they are unreadable, and making them
+    (like typesetting each decade's label as a formula) costs as much as the rest of the
+    figure."""
     ax.minorticks_off()
+    ax.yaxis.set_major_formatter(decade_label)
     ax.grid(True, alpha=0.3)
+
+
+def decade_label(value: float, _position: int | None = None) -> str:
+    """The label of a decade tick: ``1e-4``, ``1e0``; '' between decades.
+
+    Examples
+    --------
+    >>> [decade_label(v) for v in (1e-4, 1.0, 100.0, 3.0, 0.0)]
+    ['1e-4', '1e0', '1e2', '', '']
+    """
+    if not value > 0:
+        return ""
+    exponent = math.log10(value)
+    return f"1e{round(exponent)}" if abs(exponent - round(exponent)) < 1e-9 else ""
 
 
 def envelope(t: np.ndarray, y: np.ndarray,
