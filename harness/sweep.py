@@ -95,6 +95,9 @@ RUN_AXES = ("base", "seed", "step", "stop_time")
 """Axes that are not spec entries or start values."""
 DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
 STATUS_OK, STATUS_FAILED = "ok", "failed"
+PARETO_LABELS = 12
+"""The Pareto picture labels an estimator's points when it has at most this many (more
+labels would cover each other and the picture)."""
 
 
 class SweepError(DescriptionError):
@@ -1439,7 +1442,8 @@ def _first(rows: list[dict[str, Any]], base: str, prefix: str) -> str | None:
 
 
 def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | None:
-    """The Pareto picture: noisy RMS against perturbation max error, per estimator (None
+    """The Pareto picture: noisy RMS against perturbation max error, per estimator, each
+    point labelled by its design while the estimator has at most :data:`PARETO_LABELS` (None
     when the sweep lacks one of the two figures).
 
     Examples
@@ -1458,7 +1462,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
     for estimator, values in points.items():
         ax.loglog([p.x for p in values], [p.y for p in values], "o", ms=6, label=estimator)
-        for p in values if len(values) > 1 else ():
+        for p in values if 1 < len(values) <= PARETO_LABELS else ():
             ax.annotate(p.label, (p.x, p.y), fontsize=6, xytext=(3, 3),
                         textcoords="offset points")
     ax.set_xlabel(f"{sweep.pareto['perturbation']}: max error (first window)")

@@ -399,3 +399,31 @@ def test_bundled_noise_tradeoff_sweep_is_the_benchs_points():
             "filter_scale": 2.0} in homogeneous
     assert sweep.settings["fmus"] == "native" and set(sweep.pareto["estimators"]) == {
         "kalman", "homogeneous"}
+
+
+def test_pareto_picture_labels_only_a_readable_number_of_points(tmp_path, monkeypatch):
+    """plot_pareto labels an estimator's points by their design up to PARETO_LABELS points
+    and draws more without labels (the noise_tradeoff sweep's 148 Kalman filters)."""
+    import dataclasses
+
+    from matplotlib.axes import Axes
+
+    import harness.sweep as sweep_module
+
+    labels: list[str] = []
+    annotate = Axes.annotate
+    monkeypatch.setattr(Axes, "annotate",
+                        lambda self, text, *a, **k: labels.append(text) or annotate(
+                            self, text, *a, **k))
+    sweep = load_sweep("pendulum_noisy_seeds")
+    sweep = dataclasses.replace(
+        sweep, axes=("base", "rho", "seed", "spec.noise.process_intensity"),
+        pareto=sweep.pareto | {"estimators": {"kalman": ["spec.noise.process_intensity"],
+                                              "homogeneous": ["rho"]}})
+    assert sweep_module.plot_pareto(pareto_rows(), sweep, tmp_path / "a.png").is_file()
+    assert labels == ["spec.noise.process_intensity = 0.001",
+                      "spec.noise.process_intensity = 0.1", "rho = 4.0", "rho = 6.0"]
+    labels.clear()
+    monkeypatch.setattr(sweep_module, "PARETO_LABELS", 1)
+    assert sweep_module.plot_pareto(pareto_rows(), sweep, tmp_path / "b.png").is_file()
+    assert labels == []
