@@ -22,7 +22,7 @@ pytestmark = pytest.mark.slow  # full-length closed loops of the paper (5 seeds)
 
 KALMAN_INTENSITY = {1: 10**-2.5, 2: 10**-0.5}
 """The tuned process intensities of the Kalman filters of order 1 and 2 (bench_noise_tradeoff:
-the least noisy RMS on the tuning seed 10 of the grid 10^(j/2))."""
+the least noisy RMS of the grid 10^(j/2), on a separate seed 10 as on the seeds 0..4)."""
 SEEDS = range(5)
 
 
