@@ -803,6 +803,19 @@ def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict
     return build(gains, out, kinds=kinds, **options)
 
 
+def scenario_kinds(job: dict[str, Any]) -> list[str]:
+    """The FMU kinds a scenario base's system runs (its FMUs in the built folder).
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> scenario_kinds(make_job(sweep.bases["pendulum_noisy"], {}, sweep.settings))
+    ['kalman', 'luenberger', 'observer', 'plant']
+    """
+    return sorted(Path(fs.path).stem for fs in job["system"].fmus.values()
+                  if fs.path is not None and str(fs.path).startswith(FMU_PLACEHOLDER))
+
+
 def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     """The keyword arguments of a point's FMU build: the kinds its system runs and, for a
     plant-spec base, the start values ``harness plant`` builds with.
@@ -817,9 +830,7 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     from fhobs.fmu.kinds import KINDS
 
     if job["kind"] != "plant":
-        return {"kinds": sorted(Path(fs.path).stem for fs in job["system"].fmus.values()
-                                if fs.path is not None
-                                and str(fs.path).startswith(FMU_PLACEHOLDER))}
+        return {"kinds": scenario_kinds(job)}
     noise, step = _plant_noise(spec), _plant_step(job, spec)
     options: dict[str, Any] = {
         "x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step,
@@ -1216,17 +1227,20 @@ def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Poin
 
 def build_group(job: dict[str, Any]) -> str:
     """The points that share one design and FMU build (:func:`build_bundle`) share this hash:
-    the design key, the FMU flavour, the base (its FMU kinds) and a plant base's step.
+    the design key, the FMU flavour and what is built: a scenario base's FMU kinds (two
+    scenarios of the same FMUs share the build), a plant base's step.
 
     Examples
     --------
     >>> sweep = load_sweep("pendulum_noisy_seeds")
-    >>> jobs = [make_job(sweep.bases["pendulum_noisy"], p.params, sweep.settings)
-    ...         for p in sweep.points[1:]]
+    >>> jobs = [make_job(sweep.bases[p.params["base"]], p.params, sweep.settings)
+    ...         for p in sweep.points]
     >>> len({build_group(job) for job in jobs})
     1
     """
-    data = [design_key(job), job["fmus"], job["base"], job["kind"] == "plant" and job["step"]]
+    built = (["plant", job["base"], job["step"]] if job["kind"] == "plant"
+             else scenario_kinds(job))
+    data = [design_key(job), job["fmus"], built]
     return _digest(json.dumps(data, default=str).encode())
 
 
