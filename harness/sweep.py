@@ -1330,9 +1330,6 @@ def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path
     >>> [p.name for p in plot_sweep(report.rows, sweep, Path("out/plots"))]  # doctest: +SKIP
     ['seed.png', 'pareto.png']
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     ok = [r for r in rows if r.get("status") == STATUS_OK]
     figures = figure_columns(ok)
     if not ok or not figures:
@@ -1355,14 +1352,13 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
                out: Path) -> Path:
     """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
     have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    import matplotlib.pyplot as plt
+    from fhobs.plots import new_figure
 
     rows = [r for r in rows if r.get(axis) is not None]
     numeric = all(_is_number(r[axis]) for r in rows)
     labels = list(dict.fromkeys(json.dumps(r[axis]) for r in rows))
     x = [r[axis] if numeric else labels.index(json.dumps(r[axis])) for r in rows]
-    fig, axes = plt.subplots(1, len(figures), figsize=(4.5 * len(figures), 3.6),
-                             squeeze=False, layout="constrained")
+    fig, axes = new_figure(1, len(figures), (4.5 * len(figures), 3.6), layout="constrained")
     for ax, (figure, estimators) in zip(axes[0], figures.items(), strict=True):
         for estimator in estimators:
             y = [r.get(f"{estimator}.{figure}") for r in rows]
@@ -1378,7 +1374,6 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
     axes[0][0].legend(fontsize=8)
     path = out / f"{axis.replace('/', '_')}.png"
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -1465,15 +1460,13 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
     PosixPath('pareto.png')
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from fhobs.plots import new_figure
 
     points = pareto_points(rows, sweep)
     if not points:
         return None
-    fig, ax = plt.subplots(figsize=(7, 5), layout="constrained")
+    fig, axes = new_figure(1, 1, (7, 5), layout="constrained")
+    ax = axes[0, 0]
     for estimator, values in points.items():
         ax.loglog([p.x for p in values], [p.y for p in values], "o", ms=6, label=estimator)
         for p in values if 1 < len(values) <= PARETO_LABELS else ():
@@ -1485,7 +1478,6 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 

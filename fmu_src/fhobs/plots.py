@@ -41,12 +41,12 @@ def fixed_titles():  # noqa: ANN201 - matplotlib's rc_context, a context manager
     return matplotlib.rc_context(FIXED_TITLES)
 
 
-def new_figure(rows: int, columns: int, size: tuple[float, float],
+def new_figure(rows: int, columns: int, size: tuple[float, float], layout: str | None = None,
                **subplots: Any) -> tuple[Figure, np.ndarray]:
-    """A figure of ``size`` inches with a ``rows`` x ``columns`` array of axes
-    (``Figure.subplots`` options ``subplots``, always a 2-D array), drawn by savefig with
-    matplotlib's Agg renderer: no pyplot, so the caller's backend, open figures and
-    interactive state are left alone, and nothing is to close.
+    """A figure of ``size`` inches (and matplotlib's ``layout`` engine, if any) with a
+    ``rows`` x ``columns`` array of axes (``Figure.subplots`` options ``subplots``, always a
+    2-D array), drawn by savefig with matplotlib's Agg renderer: no pyplot, so the caller's
+    backend, open figures and interactive state are left alone, and nothing is to close.
 
     Examples
     --------
@@ -54,7 +54,7 @@ def new_figure(rows: int, columns: int, size: tuple[float, float],
     >>> axes.shape
     (2, 1)
     """
-    fig = Figure(figsize=size)
+    fig = Figure(figsize=size, layout=layout)
     return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
 
 
