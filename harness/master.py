@@ -30,21 +30,17 @@ raised inside an FMU's code, and the run stops after the chunk of steps in progr
 from __future__ import annotations
 
 import ctypes
-import os
-import shutil
 import signal
 import sys
-import tempfile
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 from fhobs.errors import FhobsError
-from fmpy import extract
 from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
@@ -55,6 +51,7 @@ from fmpy.fmi2 import (
 from fmpy.fmi2 import calloc as _calloc
 from fmpy.fmi2 import free as _free
 
+from harness.fmu_files import unzipped
 from harness.native import CALLS as NATIVE_CALLS
 from harness.native import Gather, StepFmu, step_library
 from harness.system import ResolvedFmu, ResolvedSystem, check_timing, vector_names
@@ -216,44 +213,6 @@ def _raw(slave: _Slave, function: str) -> ctypes._CFuncPtr:
     entry = ctypes.PyDLL(dll._name, handle=dll._handle)[function]
     entry.restype = ctypes.c_int
     return entry
-
-
-UNZIPPED_KEPT = 16
-"""How many extracted FMUs :func:`unzipped` keeps (the oldest is removed beyond)."""
-_unzipped: OrderedDict[tuple, str] = OrderedDict()
-_unzipped_lock = threading.Lock()
-_unzip_root: tempfile.TemporaryDirectory | None = None
-
-
-def unzipped(path: str | os.PathLike) -> str:
-    """The folder holding the FMU at ``path`` extracted, shared by every run in this process
-    while the file is unchanged (same size, modification time and inode), as an importer
-    loads an FMU once and instantiates it many times. The last :data:`UNZIPPED_KEPT` FMUs are
-    kept, in a temporary folder removed when the process ends.
-
-    Examples
-    --------
-    >>> import zipfile, tempfile, pathlib
-    >>> fmu = pathlib.Path(tempfile.mkdtemp()) / "m.fmu"
-    >>> with zipfile.ZipFile(fmu, "w") as z:
-    ...     z.writestr("modelDescription.xml", "<fmiModelDescription/>")
-    >>> unzipped(fmu) == unzipped(fmu)
-    True
-    """
-    global _unzip_root
-    info = os.stat(path)
-    key = (os.path.realpath(path), info.st_size, info.st_mtime_ns, info.st_ino)
-    with _unzipped_lock:
-        if key in _unzipped:
-            _unzipped.move_to_end(key)
-            return _unzipped[key]
-        if _unzip_root is None:
-            _unzip_root = tempfile.TemporaryDirectory(prefix="harness_fmus_")
-        folder = str(extract(str(path), unzipdir=tempfile.mkdtemp(dir=_unzip_root.name)))
-        _unzipped[key] = folder
-        while len(_unzipped) > UNZIPPED_KEPT:
-            shutil.rmtree(_unzipped.popitem(last=False)[1], ignore_errors=True)
-        return folder
 
 
 def _vrs(values: list[int]) -> ctypes.Array:

@@ -73,12 +73,12 @@ import numpy as np
 from fhobs.errors import FhobsError
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 from fhobs.spec import unknown_key_text
-from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
 from harness.blocks.build import native_by_default
 from harness.blocks.native import KIND_MACROS
+from harness.fmu_files import description
 
 StartValue = float | int | bool
 PAPER_VALUES: dict[str, Any] = {
@@ -734,7 +734,7 @@ def _resolve_fmu(fs: FmuSpec) -> ResolvedFmu:
     if not fs.path.is_file():
         raise DescriptionError(f"FMU {fs.name!r}: file {fs.path} does not exist")
     try:
-        md = read_model_description(str(fs.path), validate=False)
+        md = description(fs.path)
     except Exception as err:  # noqa: BLE001 - any parse failure is reported the same way
         raise DescriptionError(f"FMU {fs.name!r}: cannot read {fs.path}: {err}") from err
     if md.fmiVersion != "2.0" or md.coSimulation is None:

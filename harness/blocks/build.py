@@ -11,11 +11,11 @@ import hashlib
 import os
 import shutil
 import tempfile
-import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from xml.etree import ElementTree as ET
+
+from harness.fmu_files import description
 
 CACHE_ENV = "FHOBS_HARNESS_CACHE"
 
@@ -124,9 +124,7 @@ def is_pythonfmu(fmu: str | Path) -> bool:
     >>> is_pythonfmu(block_fmu("sine", (1,)))  # doctest: +SKIP
     True
     """
-    with zipfile.ZipFile(fmu) as archive:
-        root = ET.fromstring(archive.read("modelDescription.xml"))
-    return root.get("generationTool", "").startswith("PythonFMU")
+    return (description(fmu).generationTool or "").startswith("PythonFMU")
 
 
 def native_by_default(own_fmus: Iterable[str | Path]) -> bool:
@@ -145,7 +143,7 @@ def native_by_default(own_fmus: Iterable[str | Path]) -> bool:
     """
     try:
         return not any(is_pythonfmu(path) for path in own_fmus)
-    except (OSError, zipfile.BadZipFile, KeyError, ET.ParseError):
+    except Exception:  # noqa: BLE001 - fmpy raises plain Exception for a file it cannot read
         return False
 
 

@@ -11,7 +11,8 @@ PUBLIC_MODULES = (
     "fhobs.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
     "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "fhobs.reference",
     "fhobs.settling", "fhobs.core.disturbance", "fhobs.native.build",
-    "harness.system", "harness.master", "harness.ssp", "harness.results", "fhobs.fmu.kinds",
+    "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
+    "fhobs.fmu.kinds",
     "fhobs.plots",
     pytest.param("fhobs.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
 )
