@@ -33,7 +33,8 @@ def identity(path: str | os.PathLike) -> tuple:
 
 def unzipped(path: str | os.PathLike) -> str:
     """The folder holding the FMU at ``path`` extracted, in a temporary folder removed when
-    the process ends; the last :data:`KEPT` FMUs stay extracted.
+    the process ends; the last :data:`KEPT` FMUs stay extracted (extracted again if their
+    folder has gone).
 
     Examples
     --------
@@ -46,7 +47,7 @@ def unzipped(path: str | os.PathLike) -> str:
     """
     key = identity(path)
     with _lock:
-        if key in _folders:
+        if key in _folders and os.path.isdir(_folders[key]):  # a temp cleaner may remove it
             _folders.move_to_end(key)
             return _folders[key]
         if not _root:

@@ -215,3 +215,26 @@ def test_results_csv_is_fmpys_format(tmp_path):
     every = write_csv(result, tmp_path / "every.csv", every=20).read_text().splitlines()
     kept = [repr(float(time[k])) for k in (0, 20, 40, 49)]
     assert [line.split(",")[0] for line in every[1:]] == kept
+
+
+def test_fmu_files_are_read_once_while_unchanged(tmp_path):
+    """An FMU's extraction and model description are reused while the file is unchanged, and
+    read afresh when it is rewritten or its extracted folder has gone."""
+    import shutil
+
+    from harness.blocks import block_fmu
+    from harness.fmu_files import description, unzipped
+
+    fmu = tmp_path / "block.fmu"
+    shutil.copyfile(block_fmu("sine", (1,), tmp_path / "cache"), fmu)
+    folder = unzipped(fmu)
+    assert unzipped(fmu) == folder and description(fmu) is description(fmu)
+    assert (Path(folder) / "modelDescription.xml").is_file()
+    shutil.rmtree(folder)
+    again = unzipped(fmu)
+    assert (Path(again) / "modelDescription.xml").is_file()
+    first = description(fmu)
+    shutil.copyfile(block_fmu("sine", (2,), tmp_path / "cache"), fmu)  # rewritten in place
+    assert unzipped(fmu) != again
+    assert len([v for v in description(fmu).modelVariables if v.causality == "output"]) == 2
+    assert len([v for v in first.modelVariables if v.causality == "output"]) == 1
