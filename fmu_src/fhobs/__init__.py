@@ -1,11 +1,14 @@
 """fhobs: the filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov) for FMI 2.0.
 
-The main functions are available here: :func:`design_observer` (a plant as arrays -> a certified
-design), :func:`load_spec` (a plant spec file), :func:`design_for_spec`, :func:`certify` and
-:func:`build_fmus`, and :class:`FhobsError` (the base of every exception) with
-:class:`SpecError`; they are imported on first use, so ``import fhobs`` stays light.
-:mod:`fhobs.core` is numpy-only and runs inside the FMUs (with the slave classes of
-:mod:`fhobs.fmu`).
+What a user needs is here: the design (:func:`design_observer`: a plant as arrays -> a
+certified design record :class:`ObserverGains`; :func:`load_spec` and :func:`design_for_spec`
+for a plant spec file; :func:`paper_gains`, the paper's published design; :func:`certify`), the
+FMUs (:func:`build_fmus`), the runtime estimators the FMUs run (:class:`FilteringObserver`,
+:class:`PrescribedTimeObserver`, :class:`LuenbergerObserver`, :class:`KalmanObserver`,
+:class:`LTIPlant`) and the errors (:class:`FhobsError`, the base of every exception, and its
+subclasses). They are imported on first use, so ``import fhobs`` stays light; ``dir(fhobs)``
+and type checkers see them all. :mod:`fhobs.core` is numpy-only and runs inside the FMUs (with
+the slave classes of :mod:`fhobs.fmu`).
 
 Examples
 --------
@@ -13,26 +16,70 @@ Examples
 >>> gains = fhobs.design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
 >>> gains.n_tilde
 2
+>>> "FilteringObserver" in dir(fhobs)
+True
 """
 
+from __future__ import annotations
+
 from importlib import import_module
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
 _PUBLIC = {
     "design_observer": "fhobs.design",
     "design_for_spec": "fhobs.design",
+    "paper_gains": "fhobs.design",
     "load_spec": "fhobs.spec",
     "certify": "fhobs.core.certificate",
     "build_fmus": "fhobs.build",
+    "ObserverGains": "fhobs.core.gains",
+    "FilteringObserver": "fhobs.core.runtime",
+    "PrescribedTimeObserver": "fhobs.core.runtime",
+    "LuenbergerObserver": "fhobs.core.runtime",
+    "KalmanObserver": "fhobs.core.kalman_filter",
+    "LTIPlant": "fhobs.core.plant",
     "FhobsError": "fhobs.errors",
     "SpecError": "fhobs.errors",
+    "CertificateError": "fhobs.errors",
+    "LMIError": "fhobs.errors",
+    "KalmanDesignError": "fhobs.errors",
+    "BuildError": "fhobs.errors",
 }
-__all__ = sorted(_PUBLIC)
+__all__ = [
+    "BuildError", "CertificateError", "FhobsError", "FilteringObserver", "KalmanDesignError",
+    "KalmanObserver", "LMIError", "LTIPlant", "LuenbergerObserver", "ObserverGains",
+    "PrescribedTimeObserver", "SpecError", "build_fmus", "certify", "design_for_spec",
+    "design_observer", "load_spec", "paper_gains",
+]
+
+if TYPE_CHECKING:  # what the lazy imports below give, for type checkers and editors
+    from fhobs.build import build_fmus
+    from fhobs.core.certificate import certify
+    from fhobs.core.gains import ObserverGains
+    from fhobs.core.kalman_filter import KalmanObserver
+    from fhobs.core.plant import LTIPlant
+    from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+    from fhobs.design import design_for_spec, design_observer, paper_gains
+    from fhobs.errors import (
+        BuildError,
+        CertificateError,
+        FhobsError,
+        KalmanDesignError,
+        LMIError,
+        SpecError,
+    )
+    from fhobs.spec import load_spec
 
 
-def __getattr__(name: str):
-    """The public functions, imported from their modules on first use."""
+def __getattr__(name: str):  # noqa: ANN202 - any of the public objects
+    """The public objects, imported from their modules on first use."""
     if name not in _PUBLIC:
         raise AttributeError(f"module 'fhobs' has no attribute {name!r}")
     return getattr(import_module(_PUBLIC[name]), name)
+
+
+def __dir__() -> list[str]:
+    """The module's names with the public objects not yet imported."""
+    return sorted(set(globals()) | set(_PUBLIC))

@@ -115,3 +115,26 @@ def test_the_extended_model_is_built_once_per_record(reference):
     edited = dataclasses.replace(reference, L0=2.0 * reference.L0)
     A_model, _, C_model = edited.model
     np.testing.assert_array_equal(edited.A0, A_model + 2.0 * reference.L0 @ C_model)
+
+
+def test_the_public_api_is_listed_and_lazy():
+    """fhobs exposes the design record, the runtime estimators, paper_gains and the errors:
+    listed in __all__ and dir(), each the object of its module, none imported by
+    ``import fhobs`` itself (checked in a fresh interpreter)."""
+    import subprocess
+    import sys
+
+    import fhobs
+    from fhobs.core.gains import ObserverGains
+    from fhobs.core.runtime import FilteringObserver
+
+    assert {"ObserverGains", "FilteringObserver", "KalmanObserver", "paper_gains",
+            "FhobsError", "CertificateError"} <= set(fhobs.__all__)
+    assert set(fhobs.__all__) <= set(dir(fhobs))
+    assert fhobs.ObserverGains is ObserverGains and fhobs.FilteringObserver is FilteringObserver
+    assert all(isinstance(getattr(fhobs, name), type) or callable(getattr(fhobs, name))
+               for name in fhobs.__all__)
+    light = subprocess.run([sys.executable, "-c", "import sys, fhobs; print(sorted(m for m in "
+                            "('fhobs.design', 'cvxpy', 'scipy') if m in sys.modules))"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    assert light == "[]"
