@@ -4,15 +4,15 @@
  * whose wrapper loads the interpreter itself. The host never links or loads Python.
  *
  *   wrapper_host run FMU_DIR INPUTS.csv OUTPUTS.csv STEP
- *   wrapper_host null FMU_DIR FUNCTION
+ *   wrapper_host null FMU_DIR FUNCTION...
  *
  * run   as tests/native_host.c: INPUTS.csv is "time,<input name>,..." then one row per
  *       communication point (inputs held over the step); OUTPUTS.csv gets "time,<output>,..."
  *       (every Real output), a row after initialisation and one after each doStep; then
  *       fmi2Terminate, fmi2FreeInstance and a normal exit.
- * null  instantiate, then call FUNCTION (fmi2DoStep, fmi2GetReal, ...) with a NULL component
- *       and otherwise valid arguments; prints "STATUS <n>" (or "CALLED" for fmi2FreeInstance),
- *       then frees the instance and exits normally.
+ * null  instantiate, then call each FUNCTION (fmi2DoStep, fmi2GetReal, ...) in turn with a NULL
+ *       component and otherwise valid arguments; prints a line "STATUS <n>" (or "CALLED" for
+ *       fmi2FreeInstance) per call, flushed, then frees the instance and exits normally.
  *
  * The instance is made with loggingOn; the FMU's log messages go to stderr as
  * "[instance] status <n> <category>: <message>".
@@ -244,6 +244,7 @@ static int call_with_null(const char *function)
     if (strcmp(function, "fmi2FreeInstance") == 0) {
         ((fmi2FreeInstanceTYPE *)f)(NULL);
         printf("CALLED\n");
+        fflush(stdout);
         return 0;
     }
 #define IS(name) (strcmp(function, #name) == 0)
@@ -304,16 +305,17 @@ static int call_with_null(const char *function)
         return fail(1, "no NULL call written for %s", function);
 #undef IS
     printf("STATUS %d\n", (int)status);
+    fflush(stdout); /* the calls before a crash stay reported */
     return 0;
 }
 
 int main(int argc, char **argv)
 {
     int is_run = argc == 6 && strcmp(argv[1], "run") == 0;
-    int is_null = argc == 4 && strcmp(argv[1], "null") == 0;
+    int is_null = argc >= 4 && strcmp(argv[1], "null") == 0;
     if (!is_run && !is_null)
         return fail(1, "usage: wrapper_host run FMU_DIR INPUTS.csv OUTPUTS.csv STEP | "
-                       "wrapper_host null FMU_DIR FUNCTION");
+                       "wrapper_host null FMU_DIR FUNCTION...");
     char path[4096], identifier[256], guid[256], resources[4200];
     snprintf(path, sizeof path, "%s/modelDescription.xml", argv[2]);
     char *xml = read_file(path);
@@ -339,7 +341,12 @@ int main(int argc, char **argv)
                                       fmi2False, fmi2True);
     if (!c)
         return fail(2, "fmi2Instantiate returned NULL");
-    int code = is_run ? run(c, argv[3], argv[4], strtod(argv[5], NULL)) : call_with_null(argv[3]);
+    int code = 0;
+    if (is_run)
+        code = run(c, argv[3], argv[4], strtod(argv[5], NULL));
+    else
+        for (int i = 3; i < argc && code == 0; i++)
+            code = call_with_null(argv[i]);
     fmi2FreeInstance(c);
     free(xml);
     fflush(stdout);
