@@ -8,8 +8,6 @@ from pathlib import Path
 
 import pytest
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_for_spec, paper_gains
-from fhobs.kalman import with_kalman
 from fhobs.paper import PENDULUM_SPEC
 from fhobs.spec import PlantSpec, load_spec
 
@@ -69,16 +67,22 @@ def pendulum_spec() -> PlantSpec:
 def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
     """Our observer design for the pendulum (default objective), without the Kalman filter of
     its [noise] table (``kalman_gains`` has it)."""
+    from fhobs.design import design_for_spec  # here: the xdist controller runs no test
+
     return design_for_spec(dataclasses.replace(pendulum_spec, noise=None))
 
 
 @pytest.fixture(scope="session")
 def kalman_gains(tuned_gains: ObserverGains, pendulum_spec: PlantSpec) -> ObserverGains:
     """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
+    from fhobs.kalman import with_kalman
+
     return with_kalman(tuned_gains, pendulum_spec.noise)
 
 
 @pytest.fixture(scope="session")
 def paper_design() -> ObserverGains:
     """The paper's published gains, certified."""
+    from fhobs.design import paper_gains
+
     return paper_gains()
