@@ -13,7 +13,8 @@ algorithm for stepping)::
         for each FMU: getReal(outputs)   -> outputs(t_{k+1}), recorded
     for each FMU: terminate, freeInstance
 
-Variables are looked up once (:func:`harness.system.resolve_system`); the step loop calls the
+Variables are looked up once (:func:`harness.system.resolve_system`), each FMU file is
+extracted once per process (:func:`harness.fmu_files.unzipped`); the step loop calls the
 FMUs' C functions directly through ctypes on preallocated buffers that alias one numpy vector
 of outputs and one of inputs, so a step costs three C calls per FMU plus the gather and one row
 copy; with a C compiler at hand a chunk of steps is made by one ctypes call of a small C
