@@ -290,19 +290,41 @@ def ship_package(package: Path, kernel_library: Path | None) -> None:
 
 
 def _write_script(stage: Path, kind: str, tag: str) -> Path:
-    """The slave script: a build-unique subclass of the kind's slave class in the package.
-
-    pythonfmu 0.7.0 runs the script again, in the module's namespace, at every instantiation,
-    keeps the class it finds there, inserts the resources folder into ``sys.path`` once more
-    and releases one reference to the namespace too many. So that an instantiate/free cycle
-    leaves nothing of ours behind, the script defines the class only on its first run (a class
-    per run stayed alive, about 6 KB each), removes the repeated folder from ``sys.path`` and
-    takes back the released reference (``Py_IncRef`` of the namespace) at every run.
-    """
+    """The slave script: a build-unique subclass of the kind's slave class in the package
+    (:func:`slave_script`)."""
     base = KINDS[kind].slave
     script = stage / f"slave_{kind}_{tag}.py"
-    script.write_text(
-        f'"""The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`.\n\n'
+    script.write_text(slave_script(
+        f"The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`.",
+        f"{base}_{tag}",
+        f"from {package_name(kind, tag)}.fmu import {kind} as _slaves\n\n\n"
+        f"class {base}_{tag}(_slaves.{base}):\n"
+        f'    """{base} under a class name unique to this build."""\n'))
+    return script
+
+
+def slave_script(summary: str, class_name: str, definition: str) -> str:
+    """The text of a pythonfmu slave script whose ``definition`` (source code) defines the
+    slave class ``class_name``, guarded against pythonfmu 0.7.0.
+
+    pythonfmu runs the script again, in the module's namespace, at every instantiation, keeps
+    the class it finds there, inserts the resources folder into ``sys.path`` once more and
+    releases one reference to the namespace too many. So that an instantiate/free cycle
+    leaves nothing behind, the script defines the class only on its first run (a class per
+    run stayed alive: 6 KB for an fhobs slave, 36 KB for a harness block with its module),
+    removes the repeated folder from ``sys.path`` and takes back the released reference
+    (``Py_IncRef`` of the namespace) at every run.
+
+    Examples
+    --------
+    >>> text = slave_script("A block.", "Gain2", "class Gain2(Base):\\n    pass\\n")
+    >>> "except NameError:\\n    class Gain2(Base):" in text
+    True
+    """
+    body = "".join(f"    {line}" if line.strip() else line
+                   for line in definition.splitlines(keepends=True))
+    return (
+        f'"""{summary}\n\n'
         "pythonfmu runs this script at every instantiation, in this module's namespace, and\n"
         "releases one reference to the namespace too many: the class is defined once, the\n"
         'reference taken back and the resources folder kept once in sys.path."""\n\n'
@@ -312,14 +334,11 @@ def _write_script(stage: Path, kind: str, tag: str) -> Path:
         "while sys.path.count(sys.path[0]) > 1:\n"
         "    sys.path.remove(sys.path[0])\n"
         "try:\n"
-        f"    {base}_{tag}\n"
+        f"    {class_name}\n"
         "except NameError:\n"
-        f"    from {package_name(kind, tag)}.fmu import {kind} as _slaves\n\n"
-        f"    class {base}_{tag}(_slaves.{base}):\n"
-        f'        """{base} under a class name unique to this build."""\n'
-        f"{base}_{tag} = {base}_{tag}  # the one class pythonfmu finds in this run's names\n"
+        f"{body}"
+        f"{class_name} = {class_name}  # the one class pythonfmu finds in this run's names\n"
     )
-    return script
 
 
 FMU_CACHE_KEPT = 200
@@ -328,11 +347,13 @@ FMU_CACHE_KEPT = 200
 
 def _fmu_key(tag: str, kind: str, wrapper: Path | None, library: Path | None) -> str:
     """What the FMU of ``kind`` in build ``tag`` is made of: the tag (the shipped code, the
-    design and the options), pythonfmu's version, the interpreter the status wrapper is told
-    about (:func:`python_record`) and the compiled wrapper and kernel; 24 hex digits."""
+    design and the options), this module (how an FMU is put together), pythonfmu's version,
+    the interpreter the status wrapper is told about (:func:`python_record`) and the compiled
+    wrapper and kernel; 24 hex digits."""
     import pythonfmu
 
     digest = hashlib.sha256(f"{tag} {kind} {pythonfmu.__version__}".encode())
+    digest.update(Path(__file__).read_bytes())
     digest.update(python_record().encode())
     for binary in (wrapper, library):
         digest.update(b"-" if binary is None else binary.read_bytes())

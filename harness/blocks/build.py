@@ -56,16 +56,24 @@ def default_cache_dir() -> Path:
 
 
 def _script(kind: BlockKind, dims: tuple[int, ...], digest: str) -> tuple[str, str]:
-    """Module name and source of the generated slave script for ``kind`` with ``dims``."""
+    """Module name and source of the generated slave script for ``kind`` with ``dims``: a
+    subclass with the dimensions of the kind's class, imported from the block's copy of its
+    source module (``<module>_slaves``), guarded against pythonfmu re-running the script
+    (:func:`fhobs.build.slave_script`)."""
+    from fhobs.build import slave_script
+
     suffix = "x".join(str(d) for d in dims)
+    module = f"harness_{kind.module}_{suffix}_{digest}"
     class_name = f"{kind.class_name}{suffix}_{digest}"
     args = ", ".join(f"{name}={d}" for name, d in zip(kind.dimensions, dims, strict=True))
-    text = kind.source.read_text() + (
-        f"\n\nclass {class_name}({kind.class_name}):\n"
+    definition = (
+        f"from {module}_slaves import {kind.class_name}\n\n\n"
+        f"class {class_name}({kind.class_name}):\n"
         f"    def __init__(self, **kwargs):\n"
         f"        super().__init__({args}, **kwargs)\n"
     )
-    return f"harness_{kind.module}_{suffix}_{digest}", text
+    summary = f"Harness block {kind.class_name} of dimensions {dims}."
+    return module, slave_script(summary, class_name, definition)
 
 
 def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = None,
@@ -107,12 +115,13 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
         raise ValueError(
             f"block {kind_name!r} needs positive dimensions {kind.dimensions}, got {dims}"
         )
-    digest = hashlib.sha256(kind.source.read_bytes()).hexdigest()[:10]
+    digest = hashlib.sha256(kind.source.read_bytes()
+                            + Path(__file__).read_bytes()).hexdigest()[:10]
     module, text = _script(kind, dims, digest)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     target = cache / f"{module}.fmu"
     if not target.exists():
-        _build(module, text, target)
+        _build(module, text, target, kind.source)
     return target
 
 
@@ -147,13 +156,17 @@ def native_by_default(own_fmus: Iterable[str | Path]) -> bool:
         return False
 
 
-def _build(module: str, text: str, target: Path) -> None:
-    """Build the script ``text`` as module ``module`` into ``target`` (atomic rename)."""
+def _build(module: str, text: str, target: Path, source: Path) -> None:
+    """Build the script ``text`` as module ``module``, with the block's ``source`` module as
+    ``<module>_slaves``, into ``target`` (atomic rename)."""
     from pythonfmu import FmuBuilder
 
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
         script = Path(tmp) / f"{module}.py"
         script.write_text(text)
-        built = FmuBuilder.build_FMU(script, dest=tmp, needsExecutionTool="false")
+        slaves = Path(tmp) / f"{module}_slaves.py"
+        shutil.copyfile(source, slaves)
+        built = FmuBuilder.build_FMU(script, dest=tmp, project_files=[slaves],
+                                     needsExecutionTool="false")
         shutil.move(str(built), target)

@@ -88,3 +88,20 @@ def test_instantiate_free_cycles_keep_nothing_of_ours(paper_design_fmus, kind):
     assert result["resources_in_path"] == 1
     assert result["python_per_cycle"] < PYTHONFMU_PER_CYCLE, result
     assert result["per_cycle"] < RSS_PER_CYCLE, result
+
+
+@pytest.mark.parametrize("block", [("sine", (2,)), ("gain", (2, 3))])
+def test_harness_blocks_keep_nothing_either(block, tmp_path):
+    """The harness's own pythonfmu blocks are guarded the same way (fhobs.build.slave_script):
+    without the guard a block kept a class and 36 KB per cycle."""
+    from harness.blocks import block_fmu
+
+    fmu = block_fmu(*block, tmp_path)
+    done = subprocess.run([sys.executable, "-c", CHILD, str(fmu), str(WARM_UP), str(CYCLES)],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["classes"] == 1 and result["slaves"] == 0, result
+    assert result["resources_in_path"] == 1
+    assert result["python_per_cycle"] < PYTHONFMU_PER_CYCLE, result
+    assert result["per_cycle"] < RSS_PER_CYCLE, result
