@@ -37,7 +37,9 @@ def _flat_outputs(kind, model, sizes):
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_every_output_has_a_source(kind):
-    """A declared attribute source exists on the kind's runtime model."""
+    """A declared attribute source exists on the kind's runtime model, and every kind has an
+    output that is part of the model state (the slaves read the state at every step; the C
+    table of state outputs cannot be empty)."""
     design = random_design(3, 3, 2, 1)
     model = _models(design)[kind]
     for variable in KINDS[kind].variables:
@@ -45,6 +47,7 @@ def test_every_output_has_a_source(kind):
             assert hasattr(model, variable.source), (kind, variable.name)
         elif variable.role != "output":
             assert variable.source == "state", (kind, variable.name)
+    assert any(KINDS[kind].variable(name).source == "state" for name in KINDS[kind].outputs)
 
 
 def test_observer_outputs_are_the_papers_quantities():

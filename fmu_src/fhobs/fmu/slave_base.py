@@ -424,11 +424,12 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def _model_outputs(self) -> list[float]:
         """The model's current outputs as floats, flat, in the order of :meth:`_output_layout`,
         from where the declaration says (:meth:`~fhobs.fmu.kinds.Kind.output_sources`): the
-        model state's first elements, the model's attributes (called after every step: one
-        state read, one slice per run of state outputs)."""
+        model state's first elements (every kind has some: ``x_hat``, the plant's ``x``), the
+        model's attributes (called after every step: one state read, one slice per run of
+        state outputs)."""
         model = self.model
         values: list[float] = []
-        state = model.get_state() if any(not read[0] for read in self._output_reads) else None
+        state = model.get_state()
         for attribute, start, stop in self._output_reads:
             if attribute:
                 values += np.ravel(getattr(model, attribute)).tolist()
