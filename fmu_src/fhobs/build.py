@@ -32,6 +32,7 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+import threading
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -132,9 +133,10 @@ def build_fmus(
         (stage / CONFIG_FILE).write_text(json.dumps(config, indent=1))
         wrapper = _compile_wrapper() if status_wrapper else None
         built = {}
+        made_of = _fmu_key(tag, wrapper, library)
         for kind in kinds:
             dest = out_dir / f"{kind}.fmu"
-            key = _fmu_key(tag, kind, wrapper, library)
+            key = f"{kind}_{made_of}"
             if _from_cache(key, dest):
                 built[kind] = dest
                 continue
@@ -345,14 +347,14 @@ FMU_CACHE_KEPT = 200
 """How many built FMUs the user's cache keeps (:func:`_to_cache`; the oldest go beyond)."""
 
 
-def _fmu_key(tag: str, kind: str, wrapper: Path | None, library: Path | None) -> str:
-    """What the FMU of ``kind`` in build ``tag`` is made of: the tag (the shipped code, the
-    design and the options), this module (how an FMU is put together), pythonfmu's version,
-    the interpreter the status wrapper is told about (:func:`python_record`) and the compiled
-    wrapper and kernel; 24 hex digits."""
+def _fmu_key(tag: str, wrapper: Path | None, library: Path | None) -> str:
+    """What the FMUs of build ``tag`` are made of (each kind's cache key is its name and
+    this): the tag (the shipped code, the design and the options), this module (how an FMU is
+    put together), pythonfmu's version, the interpreter the status wrapper is told about
+    (:func:`python_record`) and the compiled wrapper and kernel; 24 hex digits."""
     import pythonfmu
 
-    digest = hashlib.sha256(f"{tag} {kind} {pythonfmu.__version__}".encode())
+    digest = hashlib.sha256(f"{tag} {pythonfmu.__version__}".encode())
     digest.update(Path(__file__).read_bytes())
     digest.update(python_record().encode())
     for binary in (wrapper, library):
@@ -372,20 +374,45 @@ def _from_cache(key: str, dest: Path) -> bool:
 
 
 def _to_cache(key: str, fmu: Path) -> None:
-    """Keep a copy of the freshly built ``fmu`` in the user's cache (written under another
-    name, then renamed, so that a concurrent build never copies a partial file); the oldest
-    beyond :data:`FMU_CACHE_KEPT` are removed. A cache that cannot be written is skipped."""
+    """Keep a copy of the freshly built ``fmu`` in the user's cache (:func:`cache_copy`); the
+    oldest beyond :data:`FMU_CACHE_KEPT` are removed. A cache that cannot be written is
+    skipped."""
     folder = cache_dir() / "fmus"
     try:
         folder.mkdir(exist_ok=True)
-        partial = folder / f"{key}.fmu.{os.getpid()}"
-        shutil.copyfile(fmu, partial)
-        os.replace(partial, folder / f"{key}.fmu")
+        cache_copy(fmu, folder / f"{key}.fmu")
         kept = sorted(folder.glob("*.fmu"), key=lambda path: path.stat().st_mtime)
         for old in kept[:-FMU_CACHE_KEPT]:
             old.unlink(missing_ok=True)
     except OSError:
         return
+
+
+def cache_copy(source: Path, target: Path) -> None:
+    """Copy ``source`` to ``target`` in the user's cache: written under another name, then
+    renamed, so that a concurrent build never reads a partial file (the partial file is
+    removed if the copy fails).
+
+    Raises
+    ------
+    OSError
+        If the cache cannot be written.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = (folder / "a.o").write_bytes(b"object")
+    >>> cache_copy(folder / "a.o", folder / "b.o")
+    >>> (folder / "b.o").read_bytes(), sorted(p.name for p in folder.iterdir())
+    (b'object', ['a.o', 'b.o'])
+    """
+    partial = target.with_name(f"{target.name}.{os.getpid()}.{threading.get_ident()}")
+    try:
+        shutil.copyfile(source, partial)
+        os.replace(partial, target)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def _build_one(script: Path, stage: Path, package: Path, dest: Path) -> Path:

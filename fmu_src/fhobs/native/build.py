@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from ..build import default_kinds, fmu_options
+from ..build import cache_copy, default_kinds, fmu_options
 from ..core import kernel
 from ..core.certificate import certify
 from ..core.gains import ObserverGains
@@ -617,10 +617,7 @@ def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
         return compile_object(sources, name, out, compiler)
     target = cache / f"{Path(name).stem}_{digest.hexdigest()[:16]}.o"
     if not target.exists():
-        fresh = compile_object(sources, name, out, compiler)
-        partial = cache / f"{target.name}.{os.getpid()}"
-        shutil.copyfile(fresh, partial)
-        os.replace(partial, target)  # concurrent builds never see a partial file
+        cache_copy(compile_object(sources, name, out, compiler), target)
     return target
 
 
