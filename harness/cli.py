@@ -423,10 +423,9 @@ def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, O
     spec = load_spec(path)
     lines: list[str] = []
     if tune_noise:
-        from fhobs.tuning import check_noise_tables, design_for_noise_spec
+        from fhobs.tuning import design_for_noise_spec
 
-        check_noise_tables(spec, "--tune-noise")
-        tuned = design_for_noise_spec(spec)
+        tuned = design_for_noise_spec(spec, "--tune-noise")
         gains, lines = tuned.gains, tuned.summary()
     else:
         gains = design_for_spec(spec)

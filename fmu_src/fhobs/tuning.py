@@ -289,7 +289,8 @@ def design_for_noise(
                    int(refine))
 
 
-def design_for_noise_spec(spec: PlantSpec, **options: Any) -> NoiseDesign:
+def design_for_noise_spec(spec: PlantSpec, what: str | None = None,
+                          **options: Any) -> NoiseDesign:
     """:func:`design_for_noise` for a loaded spec with ``[noise]`` and ``[disturbance]`` tables.
 
     The spec's ``[observer]`` keys of :data:`TUNED_KEYS` that it sets are kept (pass
@@ -301,6 +302,9 @@ def design_for_noise_spec(spec: PlantSpec, **options: Any) -> NoiseDesign:
     ----------
     spec : PlantSpec
         From :func:`fhobs.spec.load_spec`.
+    what : str, optional
+        How a missing table's message starts (:func:`check_noise_tables`; default
+        ``"<spec file>: the noise tuning"``, a command line names its option).
     **options
         ``fixed``, ``rejection``, ``noise_draws``, ``seed``, ``refine`` of
         :func:`design_for_noise`.
@@ -314,7 +318,7 @@ def design_for_noise_spec(spec: PlantSpec, **options: Any) -> NoiseDesign:
     fhobs.errors.SpecError
         If the spec lacks E, the ``[noise]`` or the ``[disturbance]`` table.
     """
-    check_noise_tables(spec, f"{spec.source}: the noise tuning")
+    check_noise_tables(spec, what or f"{spec.source}: the noise tuning")
     if "fixed" not in options:
         options["fixed"] = {key: value for key, value in (
             ("rho", spec.rho), ("gamma", spec.gamma)) if value is not None}

@@ -110,6 +110,21 @@ def test_own_plant_with_native_fmus_gives_the_same_results(tmp_path, capsys):
     assert python == native and "prescribed_time.x_hat[1]" in native
 
 
+def test_tune_noise_without_a_disturbance_table_is_one_paragraph(tmp_path, capsys):
+    """``harness plant --tune-noise`` on a spec without ``[disturbance]``: exit 2, a message
+    naming the option and what the spec lacks, no traceback, no results written."""
+    spec = tmp_path / "di.toml"
+    spec.write_text('A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\nE = [[0], [1]]\n'
+                    '[noise]\nmeasurement_std = [1e-3]\nsample_time = 1e-2\n'
+                    'process_intensity = 1.0\n')
+    assert main(["plant", str(spec), "--out", str(tmp_path / "out"), "--tune-noise",
+                 "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "--tune-noise needs" in err and "no [disturbance] table" in err, err
+    assert "Traceback" not in err
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
 @pytest.mark.slow
 def test_tune_noise_measures_what_the_tuning_predicted(tmp_path, capsys):
     """``harness plant --tune-noise``: the FMUs of the noise-tuned design, co-simulated with the
