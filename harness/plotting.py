@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import decade_grid, envelope, fixed_margins, fixed_titles, new_figure
+from fhobs.plots import decade_grid, envelope, fixed_margins, new_figure
 
 from harness.master import CoSimResult
 from harness.results import error_norm
@@ -41,7 +41,6 @@ def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
     return paths
 
 
-@fixed_titles()
 def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
     """The paper-style figure of fhobs.plots from the co-simulated signals (``title`` under
     the paper's figure title)."""
@@ -56,7 +55,6 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: 
                        subtitle=title)
 
 
-@fixed_titles()
 def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
     """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
     shaded."""
@@ -79,7 +77,6 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     return path
 
 
-@fixed_titles()
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
                          path: Path, title: str) -> Path:
     """``states.png``: one panel per component of ``state`` (named by its variable,
@@ -103,7 +100,6 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     return path
 
 
-@fixed_titles()
 def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
                       q_hats: dict[str, np.ndarray], settled: float, path: Path) -> Path:
     """``errors.png`` of the plant command: ``||x - x_hat||`` per estimator (top) and, when an
@@ -166,7 +162,6 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     return path
 
 
-@fixed_titles()
 def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
                      settled: float, path: Path) -> Path:
     """``disturbance.png``: one panel per q channel with q (the plant's input) and every

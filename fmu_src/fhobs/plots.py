@@ -30,23 +30,18 @@ PLOT_POINTS = 4000
 
 
 FIXED_TITLES = {"axes.titley": 1.0}
-"""matplotlib settings under which the figures are drawn (:func:`fixed_titles`): a title placed
-at the top of its axes as given, not moved clear of tick labels measured at every draw (the
-figures have none above their axes)."""
-
-
-def fixed_titles():  # noqa: ANN201 - matplotlib's rc_context, a context manager and decorator
-    """The context (or decorator) drawing figures under :data:`FIXED_TITLES`; matplotlib's
-    settings outside it are untouched."""
-    return matplotlib.rc_context(FIXED_TITLES)
+"""matplotlib settings under which :func:`new_figure` makes its axes: a title placed at the top
+of its axes as given, not moved clear of tick labels measured at every draw (the figures have
+none above their axes)."""
 
 
 def new_figure(rows: int, columns: int, size: tuple[float, float], layout: str | None = None,
                **subplots: Any) -> tuple[Figure, np.ndarray]:
     """A figure of ``size`` inches (and matplotlib's ``layout`` engine, if any) with a
     ``rows`` x ``columns`` array of axes (``Figure.subplots`` options ``subplots``, always a
-    2-D array), drawn by savefig with matplotlib's Agg renderer: no pyplot, so the caller's
-    backend, open figures and interactive state are left alone, and nothing is to close.
+    2-D array, made under :data:`FIXED_TITLES`), drawn by savefig with matplotlib's Agg
+    renderer: no pyplot, so the caller's backend, open figures, interactive state and
+    settings are left alone, and nothing is to close.
 
     Examples
     --------
@@ -54,8 +49,9 @@ def new_figure(rows: int, columns: int, size: tuple[float, float], layout: str |
     >>> axes.shape
     (2, 1)
     """
-    fig = Figure(figsize=size, layout=layout)
-    return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
+    with matplotlib.rc_context(FIXED_TITLES):
+        fig = Figure(figsize=size, layout=layout)
+        return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
 
 
 def fixed_margins(fig: Figure, top: float = 0.4) -> None:
@@ -123,7 +119,6 @@ def envelope(t: np.ndarray, y: np.ndarray,
     return t[keep], y[keep]
 
 
-@fixed_titles()
 def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
                 log_scale: bool = True, subtitle: str = "") -> Path:
     """Write a PNG with the error components ``|z_i - x_i|`` of every observer (homogeneous,
