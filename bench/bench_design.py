@@ -16,10 +16,10 @@ import time
 import tomllib
 
 import numpy as np
-from fhobs.design import design_for_spec
-from fhobs.homogenisation import homogenise
+from fhobs.design.homogenisation import homogenise
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import spec_from_dict
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import spec_from_dict
 
 
 def random_plant(n: int, k: int, seed: int) -> dict:

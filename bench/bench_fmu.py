@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from fhobs.build import build_fmus
 from fhobs.core.runtime import SCHEMES, FilteringObserver
-from fhobs.design import paper_gains
+from fhobs.design.observer import paper_gains
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 

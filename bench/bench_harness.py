@@ -1,6 +1,6 @@
 """Benchmark: the nominal pendulum scenario to t = 1.5 (30,000 steps: plant, filtering observer,
 Luenberger observer, Kalman filter) through the harness, with the FMUs' compiled step kernel
-and without it (numpy runtime), beside the in-process reference loop (fhobs.reference) and a
+and without it (numpy runtime), beside the in-process reference loop (harness.reference) and a
 bare numpy loop of three linear 4-state updates timed in the same run.
 
 Targets: filtering observer step in process <= 2 us; harness <= 0.5 s and no slower than the
@@ -42,13 +42,13 @@ from fhobs.core.linalg import zoh_blocks
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
 from fhobs.paper import H_PAPER, K_PAPER, X0_PAPER
-from fhobs.reference import simulate
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from harness import native
 from harness.cli import build_paper_fmus, load_scenario
 from harness.master import run_system
+from harness.reference import simulate
 from harness.system import resolve_system
 
 T_END = 1.5

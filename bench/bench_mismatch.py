@@ -5,10 +5,10 @@ Usage::
     python bench/bench_mismatch.py [--plants maglev,dc_motor] [--sizes 0.05,0.1,0.2]
                                    [--draws 10] [--order 1] [--jobs 1] [--json FILE]
 
-For every plant of ``examples/zoo/`` (the zoo's defaults, :func:`fhobs.scenarios_zoo.load_zoo_spec`)
+For every plant of ``examples/zoo/`` (the zoo's defaults, :func:`harness.zoo.load_zoo_spec`)
 four estimators keep the nominal model while the plant runs with A and B perturbed entry by entry,
-``M_ij (1 + s w_ij)``, w ~ N(0, 1) (:meth:`fhobs.spec.MismatchSpec.perturb`, seeds 0..draws-1:
-the same draws scaled to each size s):
+``M_ij (1 + s w_ij)``, w ~ N(0, 1) (:meth:`fhobs.design.spec.MismatchSpec.perturb`, seeds
+0..draws-1: the same draws scaled to each size s):
 
 - ``fho r=0``: the filtering observer of the default design (no disturbance model);
 - ``fho r=R, E=B``: the filtering observer with a disturbance model of order R (``--order``,
@@ -52,13 +52,14 @@ from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
-from fhobs.design import design_for_spec
-from fhobs.kalman import with_kalman
+from fhobs.design.feedback import state_feedback
+from fhobs.design.kalman import with_kalman
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import MismatchSpec, NoiseSpec, PlantSpec, plant_spec
 from fhobs.paper import EXAMPLES
-from fhobs.scenarios_zoo import load_zoo_spec, state_feedback
-from fhobs.spec import MismatchSpec, NoiseSpec, PlantSpec, plant_spec
 
 from harness.own_plant import RUNS_PER_SETTLING_TIME, transient_end
+from harness.zoo import load_zoo_spec
 
 DT = 1e-3
 SIZES = (0.05, 0.1, 0.2)

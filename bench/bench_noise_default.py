@@ -5,8 +5,8 @@ Usage::
     python bench/bench_noise_default.py [--out DIR] [--plants NAME ...] [--seeds N]
         [--no-harness]
 
-For each plant, :func:`fhobs.tuning.design_for_noise` chooses the certified design with the least
-predicted error under the plant's noise and disturbance (and tunes the same-order Kalman
+For each plant, :func:`fhobs.design.tuning.design_for_noise` chooses the certified design with the
+least predicted error under the plant's noise and disturbance (and tunes the same-order Kalman
 filter on the same predicted data); its FMUs (observer, Luenberger, Kalman, plant; pythonfmu) are
 built and run through the harness, and the table sets the predicted figures beside the measured
 ones:
@@ -18,7 +18,7 @@ ones:
   RMS of ||x - x_hat|| over [1, 3] s). Target: noisy RMS within 1.1x of the Kalman filter's,
   perturbed max <= 1e-6. The tuning's own ``rejection`` default (1e4).
 - the zoo plants with E whose disturbance model of order 1 is observable (``examples/zoo`` and
-  the zoo's extras of :mod:`fhobs.scenarios_zoo`; quarter_car's is not), with a noise table
+  the zoo's extras of :mod:`harness.zoo`; quarter_car's is not), with a noise table
   and a perturbation made by one rule (:func:`zoo_case`) that gives each plant the paper's
   relative difficulty; measured by the harness's own-plant loop (:mod:`harness.own_plant`, the
   loop of ``python -m harness plant``: steady-window max and RMS, seeds 0..N-1 and a noise-free
@@ -43,15 +43,16 @@ from typing import Any
 
 import numpy as np
 from fhobs.build import build_fmus
-from fhobs.design import design_observer
+from fhobs.design.feedback import state_feedback
+from fhobs.design.observer import design_observer
+from fhobs.design.spec import DisturbanceSpec
+from fhobs.design.tuning import NoiseDesign, design_for_noise
 from fhobs.errors import SpecError
 from fhobs.paper import PAPER_SCENARIOS, PENDULUM_SPEC, X0_PAPER
-from fhobs.scenarios_zoo import state_feedback, zoo_spec_paths
-from fhobs.spec import DisturbanceSpec
-from fhobs.tuning import NoiseDesign, design_for_noise
 
 from harness.own_plant import own_plant_system, run_own_plant
 from harness.system import build_blocks
+from harness.zoo import zoo_spec_paths
 
 ROOT = Path(__file__).resolve().parents[1]
 ZOO_SETTLING = {"random_mimo10": 10.0, "spring_chain3": 10.0}

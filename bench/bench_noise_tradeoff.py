@@ -10,11 +10,11 @@ the same points): the paper's pendulum loop with our design of examples/pendulum
 x_hat of its homogeneous observer, K = (2, -35, 1.5, -3), x0 = (2, 2, 1, 2), estimators at 0,
 dt = h = 5e-5, 3 s, matched perturbation 0.1 sin 5t), co-simulated with native FMUs, once
 without noise and with the uniform noise 1e-3 of the seeds 0..4. The points that set the
-``[noise]`` table are the Kalman filters (:mod:`fhobs.kalman`) of disturbance orders 0..3 over
-the process intensities 10^(j/2), j = -12..24, the default homogeneous design in the loop; the
+``[noise]`` table are the Kalman filters (:mod:`fhobs.design.kalman`) of disturbance orders 0..3
+over the process intensities 10^(j/2), j = -12..24, the default homogeneous design in the loop; the
 points that set ``[observer]`` keys are the homogeneous designs
-(:func:`fhobs.design.design_for_spec`: the default and variants of disturbance_order, nu, rho,
-gamma, filter_scale, among them the least noisy designs of each order found by a search over
+(:func:`fhobs.design.observer.design_for_spec`: the default and variants of disturbance_order, nu,
+rho, gamma, filter_scale, among them the least noisy designs of each order found by a search over
 these keys whose perturbed max stays below ``STRONG_PERTURBED``), each in the loop. Per
 estimator (:func:`harness.sweep.pareto_points`): the noise-free max of norm(x - x_hat) over
 [1, 3] s against the noisy RMS over [1, 3] s (mean of the seeds). A design whose LMI, certificate

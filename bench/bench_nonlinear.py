@@ -66,9 +66,9 @@ import numpy as np
 from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.runtime import FilteringObserver
-from fhobs.design import design_for_spec
-from fhobs.kalman import with_kalman
-from fhobs.spec import PlantSpec, spec_from_dict
+from fhobs.design.kalman import with_kalman
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import PlantSpec, spec_from_dict
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave
 

@@ -27,10 +27,11 @@ from fhobs.core.runtime import (
     LuenbergerObserver,
     PrescribedTimeObserver,
 )
-from fhobs.design import design_for_spec, paper_gains
+from fhobs.design.observer import design_for_spec, paper_gains
+from fhobs.design.spec import load_spec
 from fhobs.paper import H_PAPER, PENDULUM_SPEC
-from fhobs.reference import accuracy_metrics, simulate
-from fhobs.spec import load_spec
+
+from harness.reference import accuracy_metrics, simulate
 
 T_END = {"nominal": 1.5, "perturbed": 3.0, "perturbed_noisy": 3.0}
 
@@ -131,7 +132,7 @@ def cost_per_step(gains_name: str, steps: int = 20000, repeat: int = 3) -> None:
 
 def write_plots(gains_name: str, directory: Path) -> None:
     """Figures 1-3 (split scheme, h = 5e-5) as PNG files."""
-    from fhobs.plots import plot_errors
+    from harness.figures import plot_errors
 
     gains = load_gains(gains_name)
     directory.mkdir(parents=True, exist_ok=True)

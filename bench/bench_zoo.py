@@ -4,9 +4,9 @@ Usage::
 
     python bench/bench_zoo.py [--plants pendulum,maglev] [--stop-time 10] [--jobs 2] [--fmu]
 
-For every zoo plant (:func:`fhobs.scenarios_zoo.zoo_spec_paths`) the default design
-(:func:`fhobs.scenarios_zoo.load_zoo_spec`; a design failure is a row of the table) runs in the
-closed loop of :func:`fhobs.scenarios_zoo.closed_loop` (``u = K x`` on the true state, x(0) =
+For every zoo plant (:func:`harness.zoo.zoo_spec_paths`) the default design
+(:func:`harness.zoo.load_zoo_spec`; a design failure is a row of the table) runs in the
+closed loop of :func:`harness.zoo.closed_loop` (``u = K x`` on the true state, x(0) =
 state_scale, observers at zero, no noise, no perturbation) for each communication step dt in (1e-4,
 1e-3) and internal step h in (5e-5, dt). Columns: time from which the relative error |x - x_hat| /
 max|x| stays <= 1e-3, peak |x - x_hat| / |x(0) - x_hat(0)|, floor (max relative error over the last
@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_for_spec
-from fhobs.reference import SimulationResult
-from fhobs.scenarios_zoo import (
+from fhobs.design.observer import design_for_spec
+
+from harness.reference import SimulationResult
+from harness.zoo import (
     closed_loop,
     convergence_figures,
     load_zoo_spec,
@@ -47,7 +48,7 @@ TIME_TARGET = 5.0
 
 def cosimulate(gains: ObserverGains, fmu_dir: Path, dt: float, h: float,
                stop_time: float, x0: np.ndarray) -> SimulationResult:
-    """The closed loop of :func:`fhobs.scenarios_zoo.closed_loop` through the FMUs of
+    """The closed loop of :func:`harness.zoo.closed_loop` through the FMUs of
     ``fmu_dir``, co-simulated by the harness master with communication step dt."""
     from harness.master import run_system
     from harness.system import ConnectionSpec, FmuSpec, SystemSpec, expand_start, resolve_system

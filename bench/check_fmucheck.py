@@ -59,10 +59,10 @@ from pathlib import Path
 
 import numpy as np
 from fhobs.build import build_fmus
-from fhobs.design import design_for_spec
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import load_spec
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 

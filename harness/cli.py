@@ -42,9 +42,9 @@ from typing import Any
 import numpy as np
 from fhobs.cli import check_output_folder, program_name
 from fhobs.core.gains import ObserverGains
+from fhobs.design.spec import PlantSpec
 from fhobs.errors import FhobsError, SpecError
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import PlantSpec
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.own_plant import (
@@ -380,9 +380,9 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
         The folder of the FMUs to run: ``out``, or ``out/native`` with ``native``.
     """
     from fhobs.build import build_fmus
-    from fhobs.design import paper_gains
-    from fhobs.kalman import with_kalman
-    from fhobs.spec import load_spec
+    from fhobs.design.kalman import with_kalman
+    from fhobs.design.observer import paper_gains
+    from fhobs.design.spec import load_spec
 
     if design not in DESIGN_LABELS:
         raise ValueError(f"design must be one of {sorted(DESIGN_LABELS)}, not {design!r}")
@@ -410,20 +410,20 @@ DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, ObserverGains]:
     """The spec of ``path`` and its design, as build_fmu.py makes it (the design limits
     checked first, by the design; what the design achieved printed); with ``tune_noise`` as
-    ``build_fmu.py --tune-noise`` (:func:`fhobs.tuning.design_for_noise_spec`).
+    ``build_fmu.py --tune-noise`` (:func:`fhobs.design.tuning.design_for_noise_spec`).
 
     Returns
     -------
     tuple of PlantSpec and ObserverGains
     """
     from fhobs.cli import design_summary
-    from fhobs.design import design_for_spec
-    from fhobs.spec import load_spec
+    from fhobs.design.observer import design_for_spec
+    from fhobs.design.spec import load_spec
 
     spec = load_spec(path)
     lines: list[str] = []
     if tune_noise:
-        from fhobs.tuning import design_for_noise_spec
+        from fhobs.design.tuning import design_for_noise_spec
 
         tuned = design_for_noise_spec(spec, "--tune-noise")
         gains, lines = tuned.gains, tuned.summary()
@@ -537,11 +537,11 @@ def plant_mismatch(spec: PlantSpec, size: float | None, seed: int | None) -> Pla
 
     Examples
     --------
-    >>> from fhobs.spec import plant_spec
+    >>> from fhobs.design.spec import plant_spec
     >>> plant_mismatch(plant_spec([[0.0]], [[1.0]], [[1.0]]), 0.1, 7).mismatch
     MismatchSpec(size=0.1, distribution='gaussian', seed=7)
     """
-    from fhobs.spec import mismatch_spec
+    from fhobs.design.spec import mismatch_spec
 
     if size is None and seed is None:
         return spec
@@ -559,7 +559,7 @@ def plant_mismatch(spec: PlantSpec, size: float | None, seed: int | None) -> Pla
 
 def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.build import build_fmus
-    from fhobs.spec import load_spec
+    from fhobs.design.spec import load_spec
 
     check_output_folder(args.out)
     plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing

@@ -11,7 +11,7 @@ as simulated; the observers' errors do not act on the plant, and an unstable pla
 bounded), with the spec's measurement noise when it has a ``[noise]`` table, for three settling
 times.
 
-Two spec tables change the plant, never the design (:mod:`fhobs.spec`):
+Two spec tables change the plant, never the design (:mod:`fhobs.design.spec`):
 
 - ``[disturbance]``: the unknown input q (a step, ramp, sine or seeded random walk from a start
   time) is a ``signal`` block of :mod:`harness.blocks` connected to the plant's input ``q``
@@ -19,7 +19,7 @@ Two spec tables change the plant, never the design (:mod:`fhobs.spec`):
   prescribed-time observers with ``disturbance_order >= 1``, the Kalman filter with its
   ``[noise] disturbance_order >= 1``) report ``q_hat``, whose first r entries estimate q.
 - ``[mismatch]`` (or ``--mismatch``): the plant FMU's A and B are perturbed
-  (:meth:`fhobs.spec.MismatchSpec.perturb`) as start values of its parameters; the observers
+  (:meth:`fhobs.design.spec.MismatchSpec.perturb`) as start values of its parameters; the observers
   keep the design's nominal model, and ``K`` is the LQR of the perturbed plant.
 
 The figures (:func:`plant_figures`) separate the transient ``[0, T_s]`` from the steady window
@@ -33,9 +33,9 @@ from typing import Any
 
 import numpy as np
 from fhobs.core.gains import ObserverGains
+from fhobs.design.feedback import state_feedback
+from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 from fhobs.fmu.kinds import ESTIMATORS
-from fhobs.scenarios_zoo import state_feedback
-from fhobs.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.results import error_figures, window_mask, write_csv, write_summary
@@ -64,7 +64,7 @@ def q_hat_kinds(gains: ObserverGains) -> set[str]:
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> q_hat_kinds(paper_gains())
     set()
     """
@@ -82,7 +82,7 @@ def transient_end(gains: ObserverGains, settling_time: float, step: float,
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> transient_end(paper_gains(), 1.0, 1e-3, 3.0)  # the paper's gains predict nothing
     1.0
     """
@@ -97,7 +97,7 @@ def signal_start(disturbance: DisturbanceSpec) -> dict[str, float | int]:
 
     Examples
     --------
-    >>> from fhobs.spec import DisturbanceSpec
+    >>> from fhobs.design.spec import DisturbanceSpec
     >>> signal_start(DisturbanceSpec("sine", np.array([0.5]), 1.0, 2.0))
     {'size[1]': 0.5, 'shape': 2, 'start': 1.0, 'frequency': 2.0, 'seed': 0}
     """
@@ -144,8 +144,8 @@ def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarr
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
-    >>> from fhobs.spec import DisturbanceSpec
+    >>> from fhobs.design.observer import paper_gains
+    >>> from fhobs.design.spec import DisturbanceSpec
     >>> fmus = {kind: f"{kind}.fmu" for kind in ("plant", "observer", "luenberger")}
     >>> step = DisturbanceSpec("step", np.array([0.1]), start=0.5)
     >>> system = own_plant_system(paper_gains(), fmus, np.ones(4), 3.0, 1e-3,

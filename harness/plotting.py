@@ -3,7 +3,7 @@
 - ``errors.png`` (any system with evaluation errors): ``||x - x_hat||`` of every named error
   signal on a log scale, the evaluation windows shaded.
 - ``figure.png`` (systems with a ``[plots]`` figure, i.e. the paper's scenarios): the paper's
-  Figures 1-3 as :func:`fhobs.plots.plot_errors` draws them for the in-process reference, from
+  Figures 1-3 as :func:`harness.figures.plot_errors` draws them for the in-process reference, from
   the co-simulated signals.
 - ``states.png`` (systems whose error signals all compare with one reference, e.g. ``plant.x``):
   each component of the reference and of every estimate over time.
@@ -17,8 +17,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from fhobs.plots import decade_grid, envelope, fixed_margins, new_figure
 
+from harness.figures import decade_grid, envelope, fixed_margins, new_figure
 from harness.master import CoSimResult
 from harness.results import error_norm
 from harness.system import SystemSpec
@@ -42,10 +42,10 @@ def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
 
 
 def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
-    """The paper-style figure of fhobs.plots from the co-simulated signals (``title`` under
+    """The paper-style figure of harness.figures from the co-simulated signals (``title`` under
     the paper's figure title)."""
-    from fhobs.plots import plot_errors
-    from fhobs.reference import SimulationResult
+    from harness.figures import plot_errors
+    from harness.reference import SimulationResult
 
     fields = {}
     for name, signal in spec.figure.signals.items():

@@ -415,7 +415,7 @@ def spec_axis(axis: str) -> tuple[str, ...] | None:
     >>> spec_axis("rho"), spec_axis("spec.noise.process_intensity"), spec_axis("seed")
     (('observer', 'rho'), ('noise', 'process_intensity'), None)
     """
-    from fhobs.spec import OBSERVER_KEYS
+    from fhobs.design.spec import OBSERVER_KEYS
 
     if axis in OBSERVER_KEYS:
         return ("observer", axis)
@@ -426,8 +426,8 @@ def spec_axis(axis: str) -> tuple[str, ...] | None:
 
 def _check_axis(axis: str, where: str) -> None:
     """SweepError unless ``axis`` is a run axis, a known spec entry or ``set.FMU.VAR``."""
-    from fhobs.spec import NOISE_KEYS, OBSERVER_KEYS
-    from fhobs.spec import TOP_KEYS as SPEC_KEYS
+    from fhobs.design.spec import NOISE_KEYS, OBSERVER_KEYS
+    from fhobs.design.spec import TOP_KEYS as SPEC_KEYS
 
     path = spec_axis(axis)
     if axis in RUN_AXES:
@@ -583,9 +583,9 @@ def _describe(params: dict[str, Any]) -> str:
 
 
 def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
+    from fhobs.design.spec import spec_from_dict
     from fhobs.errors import SpecError
     from fhobs.fmu.kinds import KINDS
-    from fhobs.spec import spec_from_dict
 
     digest = design_key(job)
     if digest not in checked:
@@ -729,9 +729,9 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     >>> gains.rho, point_design(job)[1] is gains
     (2.0, True)
     """
-    from fhobs.design import design_for_spec, paper_gains
-    from fhobs.kalman import with_kalman
-    from fhobs.spec import spec_from_dict
+    from fhobs.design.kalman import with_kalman
+    from fhobs.design.observer import design_for_spec, paper_gains
+    from fhobs.design.spec import spec_from_dict
 
     key = design_key(job)
     if key not in _DESIGNS:
@@ -822,7 +822,7 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
 
     Examples
     --------
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]]})
     >>> build_options({"kind": "plant", "step": 1e-3}, spec)["kinds"]
     ['observer', 'prescribed_time', 'luenberger', 'plant']
@@ -901,7 +901,7 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
 def install_bundle(job: dict[str, Any], bundle: dict[str, Any]) -> None:
     """Take a bundle of :func:`build_bundle` into this process's caches (its FMUs written
     into this worker's temporary folder), so that the point neither designs nor builds."""
-    from fhobs.spec import spec_from_dict
+    from fhobs.design.spec import spec_from_dict
 
     if bundle["design_key"] not in _DESIGNS:
         spec = spec_from_dict(design_spec_data(job), source=f"spec of base {job['base']!r}")
@@ -1352,7 +1352,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
                out: Path) -> Path:
     """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
     have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    from fhobs.plots import new_figure
+    from harness.figures import new_figure
 
     rows = [r for r in rows if r.get(axis) is not None]
     numeric = all(_is_number(r[axis]) for r in rows)
@@ -1460,7 +1460,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
     PosixPath('pareto.png')
     """
-    from fhobs.plots import new_figure
+    from harness.figures import new_figure
 
     points = pareto_points(rows, sweep)
     if not points:

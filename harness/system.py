@@ -38,9 +38,9 @@ File format (all keys except ``fmus`` optional)::
     windows = [[1.0, 3.0]]
     [evaluation.errors]
     homogeneous = ["plant.x", "observer.x_hat"]   # error = ||first - second||
-    [plots]                          # optional: the paper-style figure of fhobs.plots
+    [plots]                          # optional: the paper-style figure of harness.figures
     figure = "perturbed"             # its scenario key (title: the paper's Figure 2)
-    [plots.signals]                  # fhobs.reference.SimulationResult field -> signal
+    [plots.signals]                  # harness.reference.SimulationResult field -> signal
     x = "plant.x"                    # likewise z, z_lin, psi, xi, sigma
 
 A value written as the string ``"${paper.NAME}"`` (anywhere but in FMU paths) is the paper's
@@ -70,9 +70,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fhobs.design.spec import unknown_key_text
 from fhobs.errors import FhobsError
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
-from fhobs.spec import unknown_key_text
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
@@ -134,7 +134,7 @@ class Evaluation:
 
 @dataclass(frozen=True)
 class FigureSpec:
-    """A paper-style figure: fhobs.plots scenario key and the signals of its fields."""
+    """A paper-style figure: harness.figures scenario key and the signals of its fields."""
 
     scenario: str
     signals: dict[str, str]

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 from fhobs.core.gains import ObserverGains
+from fhobs.design.spec import PlantSpec, load_spec
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import PlantSpec, load_spec
 
 LAYERS = ("unit", "fmu", "harness", "engines", "cli")
 
@@ -67,7 +67,7 @@ def pendulum_spec() -> PlantSpec:
 def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
     """Our observer design for the pendulum (default objective), without the Kalman filter of
     its [noise] table (``kalman_gains`` has it)."""
-    from fhobs.design import design_for_spec  # here: the xdist controller runs no test
+    from fhobs.design.observer import design_for_spec  # here: the xdist controller runs no test
 
     return design_for_spec(dataclasses.replace(pendulum_spec, noise=None))
 
@@ -75,7 +75,7 @@ def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
 @pytest.fixture(scope="session")
 def kalman_gains(tuned_gains: ObserverGains, pendulum_spec: PlantSpec) -> ObserverGains:
     """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
-    from fhobs.kalman import with_kalman
+    from fhobs.design.kalman import with_kalman
 
     return with_kalman(tuned_gains, pendulum_spec.noise)
 
@@ -83,6 +83,6 @@ def kalman_gains(tuned_gains: ObserverGains, pendulum_spec: PlantSpec) -> Observ
 @pytest.fixture(scope="session")
 def paper_design() -> ObserverGains:
     """The paper's published gains, certified."""
-    from fhobs.design import paper_gains
+    from fhobs.design.observer import paper_gains
 
     return paper_gains()

@@ -8,9 +8,10 @@ import functools
 
 import numpy as np
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_for_spec
-from fhobs.scenarios_zoo import load_zoo_spec, zoo_spec_paths
-from fhobs.spec import spec_from_dict
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import spec_from_dict
+
+from harness.zoo import load_zoo_spec, zoo_spec_paths
 
 ZOO = zoo_spec_paths()
 

@@ -17,9 +17,9 @@ import pytest
 from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverGains
 from fhobs.core.plant import LTIPlant
+from fhobs.design.spec import load_spec
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
-from fhobs.spec import load_spec
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
@@ -142,7 +142,7 @@ def native_fmus(tmp_path_factory: pytest.TempPathFactory,
 @pytest.fixture(scope="session")
 def chain_gains() -> ObserverGains:
     """A second design with other dimensions (n = 3, k = 1): the triple integrator."""
-    from fhobs.design import design_for_spec  # here: the xdist controller runs no test
+    from fhobs.design.observer import design_for_spec  # here: the xdist controller runs no test
 
     return design_for_spec(load_spec(EXAMPLES / "triple_integrator.toml"))
 

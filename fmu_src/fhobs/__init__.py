@@ -28,10 +28,10 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 _PUBLIC = {
-    "design_observer": "fhobs.design",
-    "design_for_spec": "fhobs.design",
-    "paper_gains": "fhobs.design",
-    "load_spec": "fhobs.spec",
+    "design_observer": "fhobs.design.observer",
+    "design_for_spec": "fhobs.design.observer",
+    "paper_gains": "fhobs.design.observer",
+    "load_spec": "fhobs.design.spec",
     "certify": "fhobs.core.certificate",
     "build_fmus": "fhobs.build",
     "ObserverGains": "fhobs.core.gains",
@@ -61,7 +61,8 @@ if TYPE_CHECKING:  # what the lazy imports below give, for type checkers and edi
     from fhobs.core.kalman_filter import KalmanObserver
     from fhobs.core.plant import LTIPlant
     from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
-    from fhobs.design import design_for_spec, design_observer, paper_gains
+    from fhobs.design.observer import design_for_spec, design_observer, paper_gains
+    from fhobs.design.spec import load_spec
     from fhobs.errors import (
         BuildError,
         CertificateError,
@@ -70,7 +71,6 @@ if TYPE_CHECKING:  # what the lazy imports below give, for type checkers and edi
         LMIError,
         SpecError,
     )
-    from fhobs.spec import load_spec
 
 
 def __getattr__(name: str):  # noqa: ANN202 - any of the public objects

@@ -99,7 +99,7 @@ def build_fmus(
     Examples
     --------
     >>> import tempfile
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> built = build_fmus(gains, tempfile.mkdtemp(), kinds=("observer", "plant"),
     ...                    x0=[1.0, 0.0], status_wrapper=False, kernel=False)
@@ -157,7 +157,7 @@ def default_kinds(gains: ObserverGains) -> tuple[str, ...]:
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> default_kinds(paper_gains())
     ('observer', 'prescribed_time', 'luenberger', 'plant')
     """
@@ -220,7 +220,7 @@ def fmu_options(
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> fmu_options(paper_gains(), ["observer"], z0=[1, 0, 0, 0])["z0"]
     [1.0, 0.0, 0.0, 0.0]
     """

@@ -13,9 +13,9 @@ import numpy as np
 
 from .core.gains import ObserverGains
 from .core.runtime import DEFAULT_H
+from .design.limits import check_design_limits
+from .design.spec import OBJECTIVES, load_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
-from .limits import check_design_limits
-from .spec import OBJECTIVES, load_spec
 
 
 def program_name(default: str) -> str:
@@ -93,7 +93,7 @@ def design_summary(gains: ObserverGains) -> list[str]:
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> design_summary(paper_gains())[0].startswith("observer: nu = -0.333")
     True
     """
@@ -128,7 +128,7 @@ def design_summary(gains: ObserverGains) -> list[str]:
 def slowest_mode(gains: ObserverGains) -> float:
     """max Re eig(bar_A0 + bar_L bar_C): the slowest mode of the observer's linear part at
     sigma = 1 (its error decays like exp(that rate * sigma^nu t) at a frozen level sigma)."""
-    from .design import augmented_system  # the design extra: imported when used
+    from .design.observer import augmented_system  # the design extra: imported when used
 
     bar_A0, _, bar_C = augmented_system(gains.A0, gains.model[2], gains.G_d)
     bar_L = np.vstack([gains.L_tilde, gains.L])
@@ -192,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command; return the process exit code (0 ok, 2 any failure).
 
     Every failure is one paragraph on stderr, never a traceback: a bad spec or override, a spec
-    beyond the design's limits (:mod:`fhobs.limits`), an unusable ``--out`` or ``--h`` (before
-    any design work), and a design that fails (solver, certificate, or any numerical failure
+    beyond the design's limits (:mod:`fhobs.design.limits`), an unusable ``--out`` or ``--h``
+    (before any design work), and a design that fails (solver, certificate, or any numerical failure
     inside it).
     """
     args = parse_args(argv)
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             raise SpecError(f"--h = {args.h!r}: the internal step must be positive and finite")
         check_native_options(args)
         if args.tune_noise:
-            from .tuning import check_noise_tables
+            from .design.tuning import check_noise_tables
 
             check_noise_tables(spec, "--tune-noise")
     except (SpecError, OSError) as exc:
@@ -215,10 +215,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     start = time.perf_counter()
     try:
-        from .design import design_for_spec  # the design extra: imported when used
+        from .design.observer import design_for_spec  # the design extra: imported when used
 
         if args.tune_noise:
-            from .tuning import design_for_noise_spec
+            from .design.tuning import design_for_noise_spec
 
             tuned = design_for_noise_spec(spec)
             gains, tuning_lines = tuned.gains, tuned.summary()
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"error: design failed for {args.spec}: numerical failure inside the design "
             f"({type(exc).__name__}: {exc}); the spec passed every check, so this is a limit of "
-            "the design not covered by fhobs.limits",
+            "the design not covered by fhobs.design.limits",
             file=sys.stderr,
         )
         return 2

@@ -15,15 +15,15 @@ from fractions import Fraction
 from pathlib import Path
 
 import fhobs.cli
-import fhobs.design
+import fhobs.design.observer
 import numpy as np
 import pytest
 from fhobs.cli import main as design_main
-from fhobs.design import design_for_spec
+from fhobs.design.homogenisation import observability_index
+from fhobs.design.limits import MAX_CHAIN, check_design_limits
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import load_spec, spec_from_dict
 from fhobs.errors import SpecError
-from fhobs.homogenisation import observability_index
-from fhobs.limits import MAX_CHAIN, check_design_limits
-from fhobs.spec import load_spec, spec_from_dict
 
 from harness.cli import main as harness_main
 
@@ -138,7 +138,7 @@ def test_any_failure_inside_the_design_is_a_message(tmp_path, capsys, monkeypatc
     def failing(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(fhobs.design, "design_for_spec", failing)
+    monkeypatch.setattr(fhobs.design.observer, "design_for_spec", failing)
     code, err = _design(tmp_path, capsys, DOUBLE_INTEGRATOR)
     assert code == 2
     _one_paragraph(err)

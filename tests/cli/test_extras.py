@@ -10,11 +10,11 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from fhobs.design import paper_gains
+from fhobs.design.kalman import with_kalman
+from fhobs.design.observer import paper_gains
+from fhobs.design.spec import load_spec
 from fhobs.extras import EXTRAS
-from fhobs.kalman import with_kalman
 from fhobs.paper import PENDULUM_SPEC
-from fhobs.spec import load_spec
 
 REPO = Path(__file__).resolve().parents[2]
 BLOCK = ("import sys\n"
@@ -38,8 +38,8 @@ def test_pyproject_extras_install_the_modules_the_code_asks_for():
 
 
 @pytest.mark.parametrize(("module", "statement", "extra"), [
-    ("cvxpy", "import fhobs.design", "design"),
-    ("matplotlib", "import fhobs.plots", "plots"),
+    ("cvxpy", "import fhobs.design.observer", "design"),
+    ("matplotlib", "import harness.figures", "plots"),
     ("pyarrow", "from harness.sweep import load_sweep, run_sweep\n"
                 "run_sweep(load_sweep('pendulum_noisy_seeds'), __import__('pathlib').Path("
                 "'/nonexistent/out'))", "sweep"),

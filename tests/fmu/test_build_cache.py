@@ -6,7 +6,7 @@ import zipfile
 import fhobs.build
 import numpy as np
 from fhobs.build import build_fmus
-from fhobs.design import design_observer
+from fhobs.design.observer import design_observer
 from fmpy import read_model_description
 
 

@@ -1,7 +1,7 @@
 """kalman.fmu of a multi-output plant whose [noise] table reaches some states only: the ball
 and beam with q on the ball and no disturbance model. The design adds a small process noise on
-every state (fhobs.kalman), so the FMU accepts its own parameters at initialisation (its check:
-spectral radius of Phi (I - M C) < 1) and tracks the plant through fmpy, step for step as the
+every state (fhobs.design.kalman), so the FMU accepts its own parameters at initialisation (its
+check: spectral radius of Phi (I - M C) < 1) and tracks the plant through fmpy, step for step as the
 in-process filter."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from fhobs.build import build_fmus
 from fhobs.cli import design_summary
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
-from fhobs.design import design_for_spec
-from fhobs.spec import spec_from_dict
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import spec_from_dict
 from fmpy import extract
 from fmu_fixtures import FmuDriver
 from mimo_plants import BALL_BEAM, BALL_BEAM_NOISE

@@ -84,7 +84,7 @@ def test_csv_every_thins_the_csv_not_the_figures(tmp_path, capsys):
 
 
 def test_a_spec_beyond_the_design_limits_is_refused_before_any_design(tmp_path, capsys):
-    """The same early limits as build_fmu.py (fhobs.limits): one paragraph, exit 2."""
+    """The same early limits as build_fmu.py (fhobs.design.limits): one paragraph, exit 2."""
     spec = tmp_path / "huge.toml"
     spec.write_text("A = [[0, 1], [0, 0]]\nB = [[0], [1]]\nC = [[1, 0]]\n"
                     "[observer]\nrho = 1e300\n")

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from fhobs.core.gains import ObserverGains
 from fhobs.paper import K_PAPER, X0_PAPER
-from fhobs.reference import simulate
 from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import build_vendor_plant
 
 from harness import master
 from harness.cli import PAPER_SCENARIO_FILES, build_paper_fmus, load_scenario, main
 from harness.master import MasterError, run_system
+from harness.reference import simulate
 from harness.results import error_figures
 from harness.ssp import export_ssp, lower_gains
 from harness.system import build_blocks, load_system, resolve_system

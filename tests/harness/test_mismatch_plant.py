@@ -1,5 +1,5 @@
 """Model mismatch in ``harness plant``: the plant FMU runs with A and B perturbed as documented
-(:meth:`fhobs.spec.MismatchSpec.perturb`), the observers keep the nominal model."""
+(:meth:`fhobs.design.spec.MismatchSpec.perturb`), the observers keep the nominal model."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 import scipy.signal
-from fhobs.spec import MismatchSpec, load_spec
+from fhobs.design.spec import MismatchSpec, load_spec
 
 from harness.cli import main
 

@@ -296,7 +296,8 @@ def test_bundled_zoo_sweep_runs_every_zoo_plant_at_two_steps():
     """zoo: every bundled example plant (the zoo bench's; found in the installed examples by
     its relative name) at the communication steps 1e-4 and 1e-3, native FMUs."""
     from fhobs.paper import EXAMPLES
-    from fhobs.scenarios_zoo import zoo_spec_paths
+
+    from harness.zoo import zoo_spec_paths
 
     sweep = load_sweep("zoo")
     plants = sorted(path.relative_to(EXAMPLES).as_posix() for path in zoo_spec_paths().values())

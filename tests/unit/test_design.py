@@ -9,18 +9,18 @@ import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
-import fhobs.design
+import fhobs.design.observer
 import numpy as np
 import pytest
 import scipy.linalg
 from fhobs.core.certificate import augmented_matrices, certify, checked_model
 from fhobs.core.disturbance import extended_model
-from fhobs.design import augmented_system, design_for_spec, matched_perturbation_residual
+from fhobs.design.homogenisation import homogenise, observability_index
+from fhobs.design.lmi import LMISolution
+from fhobs.design.observer import augmented_system, design_for_spec, matched_perturbation_residual
+from fhobs.design.spec import spec_from_dict
 from fhobs.errors import CertificateError
-from fhobs.homogenisation import homogenise, observability_index
-from fhobs.lmi import LMISolution
 from fhobs.paper import EXAMPLES, published
-from fhobs.spec import spec_from_dict
 
 REPO = Path(__file__).resolve().parents[2]
 PAPER = published()
@@ -35,7 +35,7 @@ def printed_tolerance(value: float) -> float:
 
 @pytest.mark.parametrize("name", ["L0", "G_d"])
 def test_pendulum_homogenisation_matches_published_digits(paper_design, name):
-    """paper_gains recomputes L0 and G_d with fhobs.homogenisation (no disturbance model)."""
+    """paper_gains recomputes L0 and G_d with fhobs.design.homogenisation (no disturbance model)."""
     published = np.array(PAPER["design"][name])
     ours = getattr(paper_design, name)
     tol = np.vectorize(printed_tolerance)(published)
@@ -229,13 +229,13 @@ def test_certificate_rejects_broken_designs(tuned_gains, field, edit, check):
 
 
 def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
-    real = fhobs.design.solve_gain_lmi
+    real = fhobs.design.observer.solve_gain_lmi
 
     def corrupted(*args, **kwargs):
         sol = real(*args, **kwargs)
         return LMISolution(sol.P, -sol.Y, -sol.gain, sol.status, sol.solve_time)
 
-    monkeypatch.setattr(fhobs.design, "solve_gain_lmi", corrupted)
+    monkeypatch.setattr(fhobs.design.observer, "solve_gain_lmi", corrupted)
     with pytest.raises(CertificateError, match="lmi_filtering"):
         design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=1.0))
 

@@ -4,9 +4,9 @@ the argument; the same design as the spec file's path."""
 import control
 import numpy as np
 import pytest
-from fhobs.design import design_for_spec, design_observer
+from fhobs.design.observer import design_for_spec, design_observer
+from fhobs.design.spec import load_spec
 from fhobs.errors import SpecError
-from fhobs.spec import load_spec
 
 A = [[0.0, 1.0], [0.0, 0.0]]
 B = [[0.0], [1.0]]
@@ -135,6 +135,6 @@ def test_the_public_api_is_listed_and_lazy():
     assert all(isinstance(getattr(fhobs, name), type) or callable(getattr(fhobs, name))
                for name in fhobs.__all__)
     light = subprocess.run([sys.executable, "-c", "import sys, fhobs; print(sorted(m for m in "
-                            "('fhobs.design', 'cvxpy', 'scipy') if m in sys.modules))"],
+                            "('fhobs.design.observer', 'cvxpy', 'scipy') if m in sys.modules))"],
                            capture_output=True, text=True, check=True).stdout.strip()
     assert light == "[]"

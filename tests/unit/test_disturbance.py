@@ -8,10 +8,10 @@ import pytest
 from fhobs.core.disturbance import extended_model, model_perturbation_matrix
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver
-from fhobs.design import design_for_spec
+from fhobs.design.feedback import state_feedback
+from fhobs.design.observer import design_for_spec
+from fhobs.design.spec import spec_from_dict
 from fhobs.paper import EXAMPLES, K_PAPER, X0_PAPER
-from fhobs.scenarios_zoo import state_feedback
-from fhobs.spec import spec_from_dict
 
 
 def test_extended_model_blocks():

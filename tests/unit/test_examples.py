@@ -6,15 +6,15 @@ import importlib
 import pytest
 
 PUBLIC_MODULES = (
-    "fhobs", "fhobs.cli", "fhobs.design", "fhobs.spec", "fhobs.errors", "fhobs.limits",
-    "fhobs.build",
-    "fhobs.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
-    "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "fhobs.reference",
-    "fhobs.settling", "fhobs.core.disturbance", "fhobs.native.build",
+    "fhobs", "fhobs.cli", "fhobs.design.observer", "fhobs.design.spec", "fhobs.errors",
+    "fhobs.design.limits", "fhobs.design.feedback", "fhobs.build",
+    "fhobs.design.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
+    "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "harness.reference",
+    "fhobs.design.settling", "fhobs.core.disturbance", "fhobs.native.build",
     "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
     "fhobs.fmu.kinds",
-    "fhobs.plots",
-    pytest.param("fhobs.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
+    "harness.figures",
+    pytest.param("fhobs.design.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
 )
 
 
@@ -37,14 +37,14 @@ def test_public_functions_have_examples():
         LuenbergerObserver,
         PrescribedTimeObserver,
     )
-    from fhobs.design import design_for_spec, design_observer, paper_gains
+    from fhobs.design.observer import design_for_spec, design_observer, paper_gains
+    from fhobs.design.settling import error_response
+    from fhobs.design.spec import load_spec, plant_spec
     from fhobs.native.build import build_native_fmus
     from fhobs.paper import published
-    from fhobs.reference import simulate
-    from fhobs.settling import error_response
-    from fhobs.spec import load_spec, plant_spec
 
     from harness.master import run_system
+    from harness.reference import simulate
     from harness.ssp import export_ssp
     from harness.system import build_blocks, load_system, resolve_system
 

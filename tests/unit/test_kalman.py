@@ -14,15 +14,16 @@ from fhobs.core.disturbance import extended_model
 from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
+from fhobs.design.kalman import RADIUS_MARGIN, REGULARISATION, design_kalman, van_loan
+from fhobs.design.spec import spec_from_dict
 from fhobs.errors import KalmanDesignError, SpecError
-from fhobs.kalman import RADIUS_MARGIN, REGULARISATION, design_kalman, van_loan
 from fhobs.paper import K_PAPER, X0_PAPER
-from fhobs.reference import accuracy_metrics, replay, simulate
-from fhobs.spec import spec_from_dict
 from fmu_fixtures import random_walk
 from mimo_plants import BALL_BEAM, BALL_BEAM_NOISE
 from reference_math import zoh
 from scipy.integrate import quad_vec
+
+from harness.reference import accuracy_metrics, replay, simulate
 
 STD = np.full(2, 1e-3 / np.sqrt(3.0))
 TS = 5e-5

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import fhobs.reference as reference
 import numpy as np
 import pytest
 from designs import random_design
@@ -19,14 +18,16 @@ from fhobs.core import kernel
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.design.kalman import with_kalman
+from fhobs.design.spec import NoiseSpec
 from fhobs.errors import BuildError
-from fhobs.kalman import with_kalman
-from fhobs.spec import NoiseSpec
 from fmu_fixtures import (
     plant_measurements,
     random_walk,
 )
 from reference_math import relative
+
+import harness.reference as reference
 
 if kernel.library() is None:
     pytest.skip("no compiled kernel on this machine (needs Linux and cc)",

@@ -24,9 +24,9 @@ import pytest
 import scipy.linalg
 from fhobs.core.certificate import certify
 from fhobs.core.gains import ObserverGains
-from fhobs.design import design_observer
+from fhobs.design.lmi import chain_basis
+from fhobs.design.observer import design_observer
 from fhobs.errors import LMIError, SpecError
-from fhobs.lmi import chain_basis
 from scipy.integrate import solve_ivp
 from test_zoo import CT_PEAK_BOUND, XI0
 

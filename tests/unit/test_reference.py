@@ -12,11 +12,12 @@ import pytest
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
-from fhobs.design import design_for_spec
-from fhobs.kalman import with_kalman
+from fhobs.design.kalman import with_kalman
+from fhobs.design.observer import design_for_spec
 from fhobs.paper import K_PAPER, PAPER_SCENARIOS, X0_PAPER
-from fhobs.plots import plot_errors
-from fhobs.reference import accuracy_metrics, replay, simulate
+
+from harness.figures import plot_errors
+from harness.reference import accuracy_metrics, replay, simulate
 
 pytestmark = pytest.mark.slow  # full-length closed loops of the paper (5 seeds)
 

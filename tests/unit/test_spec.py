@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fhobs.design.spec import load_spec, spec_from_dict
 from fhobs.errors import SpecError
 from fhobs.paper import EXAMPLES
-from fhobs.spec import load_spec, spec_from_dict
 
 GOOD = {
     "A": [[0.0, 1.0], [-2.0, -3.0]],
@@ -160,8 +160,8 @@ def test_numpy_arrays_are_accepted_as_matrices():
 
 def test_loading_a_spec_imports_no_solver():
     """Reading and validating a spec (no design) imports neither cvxpy nor scipy."""
-    code = ("import sys, fhobs.spec; "
-            f"fhobs.spec.load_spec({str(EXAMPLES / 'pendulum.toml')!r}); "
+    code = ("import sys, fhobs.design.spec; "
+            f"fhobs.design.spec.load_spec({str(EXAMPLES / 'pendulum.toml')!r}); "
             "loaded = [m for m in ('cvxpy', 'clarabel', 'scipy') if m in sys.modules]; "
             "assert not loaded, loaded")
     subprocess.run([sys.executable, "-c", code], check=True)

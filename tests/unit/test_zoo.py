@@ -1,6 +1,6 @@
 """The zoo of example plants with the default design: certificate, continuous-time convergence
 of the certified error system (integrated here with scipy, independently of fhobs.core.runtime) and
-the runtime's noise-free floor in the closed loop of :func:`fhobs.scenarios_zoo.closed_loop`."""
+the runtime's noise-free floor in the closed loop of :func:`harness.zoo.closed_loop`."""
 
 from __future__ import annotations
 
@@ -9,15 +9,16 @@ import pytest
 import scipy.linalg
 from designs import ZOO, zoo_design
 from fhobs.core.gains import ObserverGains
-from fhobs.scenarios_zoo import (
+from reference_math import zoh
+from scipy.integrate import solve_ivp
+
+from harness.zoo import (
     CONVERGED,
     closed_loop,
     convergence_figures,
     load_zoo_spec,
     state_feedback,
 )
-from reference_math import zoh
-from scipy.integrate import solve_ivp
 
 RUNTIME_SUBSET = ("pendulum", "maglev", "quarter_car", "dc_motor", "spring_chain3")
 FAST_SUBSET = ("pendulum", "quarter_car")

@@ -48,7 +48,7 @@ DEFAULT_TOLERANCE = 1e-7
 CERTIFICATE_MARGIN = 1e-6
 """What the certificate asks beyond round-off: an LMI's largest eigenvalue below
 ``-(margin + rounding)``, a monotonicity figure above ``margin + rounding``; far below the
-margin the design solves with (:data:`fhobs.lmi.LMI_MARGIN`)."""
+margin the design solves with (:data:`fhobs.design.lmi.LMI_MARGIN`)."""
 EPS = float(np.finfo(float).eps)
 
 
@@ -318,7 +318,7 @@ def certify_prescribed_time(
     Examples
     --------
     >>> import dataclasses
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> bool(certify_prescribed_time(gains)["lmi_pt"] < 0)
     True
@@ -386,7 +386,7 @@ def check_tuning(gains: ObserverGains) -> None:
     Examples
     --------
     >>> import dataclasses
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> check_tuning(paper_gains())
     >>> check_tuning(dataclasses.replace(paper_gains(), gamma=-5.0))
     Traceback (most recent call last):
@@ -468,7 +468,7 @@ def certify(
     Examples
     --------
     >>> import dataclasses
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> bool(certify(gains)["lmi_filtering"] < 0)
     True

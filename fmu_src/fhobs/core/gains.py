@@ -24,8 +24,8 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
   the plant's first): G0, L0, G_d, L, P_bar, L_pt, P_pt and n_tilde are of that model, while
   A, B, C, E and L_lin (the Luenberger baseline) stay the plant's.
 - ``kalman``: optional :class:`KalmanGains`, the steady-state discrete Kalman filter baseline
-  (designed by :func:`fhobs.kalman.design_kalman`, run by :mod:`fhobs.core.kalman_filter`); its
-  disturbance model is its own (``kalman.disturbance_order``), on the same plant A, B, C, E.
+  (designed by :func:`fhobs.design.kalman.design_kalman`, run by :mod:`fhobs.core.kalman_filter`);
+  its disturbance model is its own (``kalman.disturbance_order``), on the same plant A, B, C, E.
 """
 
 from __future__ import annotations

@@ -106,8 +106,8 @@ class KalmanObserver:
     --------
     A double integrator at rest at x = (1, 0), the filter started at zero:
 
-    >>> from fhobs.design import design_for_spec
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.observer import design_for_spec
+    >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
     ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,

@@ -491,7 +491,7 @@ class FilteringObserver(_Observer):
 
     Examples
     --------
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> obs = FilteringObserver(gains, h=1e-3, z0=[0.5, 0.0])
     >>> obs.step(y=[0.5], u=[0.0], dt=1e-2)
@@ -695,7 +695,7 @@ class PrescribedTimeObserver(_Observer):
     A double integrator moving at speed 0.5 from x = (1, 0.5), the observer started at zero:
     after the prescribed time T0 the estimate is the state.
 
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> obs = PrescribedTimeObserver(gains, h=1e-3, xi0=1.0)
     >>> obs.T0
@@ -732,7 +732,7 @@ class PrescribedTimeObserver(_Observer):
 
         Examples
         --------
-        >>> from fhobs.design import design_observer
+        >>> from fhobs.design.observer import design_observer
         >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
         >>> data = PrescribedTimeObserver(gains).kernel_arrays()
         >>> data["Q_inv"].shape, data["V_g"].shape, data["inverse_L"].shape
@@ -826,7 +826,7 @@ class LuenbergerObserver(_Observer):
 
     Examples
     --------
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> obs = LuenbergerObserver(gains, h=1e-3)
     >>> for _ in range(2000):

@@ -95,7 +95,7 @@ class Variable:
 
         Examples
         --------
-        >>> from fhobs.design import paper_gains
+        >>> from fhobs.design.observer import paper_gains
         >>> KINDS["observer"].variable("L_tilde").start(paper_gains(), {}).shape  # k x k
         (2, 2)
         """
@@ -176,7 +176,7 @@ class Kind:
 
         Examples
         --------
-        >>> from fhobs.design import paper_gains
+        >>> from fhobs.design.observer import paper_gains
         >>> options = {"x0": [0.0] * 4, "noise_amplitude": 0.0, "noise_seed": 0,
         ...            "plant_scheme": "zoh", "input_bound": 1e8}
         >>> [v.name for v, _ in KINDS["plant"].starts(paper_gains(), options)][:6]
@@ -195,7 +195,7 @@ def design_field(design: ObserverGains, path: str) -> Any:
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> design_field(paper_gains(), "nu") == paper_gains().nu
     True
     """
@@ -214,7 +214,7 @@ def edited_design(design: ObserverGains, values: Mapping[str, Any]) -> ObserverG
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> edited_design(paper_gains(), {"rho": 3.0}).rho
     3.0
     """

@@ -148,7 +148,7 @@ def build_native_fmus(
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> gains = paper_gains()
     >>> build_native_fmus(gains, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
     {'observer': PosixPath('out/observer.fmu')}

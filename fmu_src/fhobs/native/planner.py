@@ -11,7 +11,7 @@ through ctypes (``planner_api.c`` compiled with ``kernel.c``, ``planner.c`` and
 
 Examples
 --------
->>> from fhobs.design import paper_gains
+>>> from fhobs.design.observer import paper_gains
 >>> from fhobs.core.runtime import FilteringObserver
 >>> observer = FilteringObserver(paper_gains())
 >>> sorted(c_plan("observer", observer, 1e-3))  # doctest: +SKIP
@@ -73,7 +73,7 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> from fhobs.core.runtime import PrescribedTimeObserver
     >>> data = design_data("prescribed_time", PrescribedTimeObserver(paper_gains()))
     >>> sorted(data), data["top"].shape

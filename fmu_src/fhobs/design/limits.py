@@ -1,16 +1,16 @@
 """What the design can handle: size, magnitude and degree limits, checked before it starts.
 
-A spec that passes :func:`fhobs.spec.load_spec` can still be beyond the design's numerics; these
-limits refuse it at once, with a message naming the item, instead of a solver failure, an
+A spec that passes :func:`fhobs.design.spec.load_spec` can still be beyond the design's numerics;
+these limits refuse it at once, with a message naming the item, instead of a solver failure, an
 overflow or a memory exhaustion deep inside the design. They were measured:
 
 - ``MAX_CHAIN``: the longest observability chain, ``n_tilde``. The LMIs are solved in blocks of
-  size ``n_tilde + 1`` (:mod:`fhobs.lmi`); a single-output integrator chain designs up to
+  size ``n_tilde + 1`` (:mod:`fhobs.design.lmi`); a single-output integrator chain designs up to
   ``n_tilde = 11`` and fails from 12 on (Clarabel: infeasible or numerical failure), and the
   solver's memory grows as ``n_tilde^4`` (about 33 GB at ``n_tilde = 300``).
 - ``MAX_STATES``: the model's state count ``n + k * disturbance_order``. With chains of 10,
   300 states design in about 3 s and 600 in about 50 s (0.24 GB); the time grows as n^4,
-  dominated by the powers of A0 that build the chain basis (:func:`fhobs.lmi.chain_basis`).
+  dominated by the powers of A0 that build the chain basis (:func:`fhobs.design.lmi.chain_basis`).
 - ``MAX_MAGNITUDE``: matrix entries, rho, gamma and filter_scale. The design squares and
   multiplies them (A0^n_tilde, P (A + rho G)); a double integrator scaled by 1e12 is already
   infeasible for the solver, and 1e200 overflows to inf.
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SpecError
+from ..errors import SpecError
 from .spec import PlantSpec
 
 MAX_CHAIN = 11
@@ -37,7 +37,8 @@ def check_design_limits(spec: PlantSpec) -> None:
     Parameters
     ----------
     spec : PlantSpec
-        A spec validated by :func:`fhobs.spec.load_spec` or :func:`fhobs.spec.spec_from_dict`.
+        A spec validated by :func:`fhobs.design.spec.load_spec` or
+        :func:`fhobs.design.spec.spec_from_dict`.
 
     Raises
     ------
@@ -46,7 +47,7 @@ def check_design_limits(spec: PlantSpec) -> None:
 
     Examples
     --------
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "observer": {"rho": 1e300, "gamma": 1.0}})
     >>> check_design_limits(spec)

@@ -17,12 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from .core.gains import ObserverGains
-from .core.kalman_filter import KalmanObserver
-from .core.plant import LTIPlant
-from .core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
-from .paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
+from fhobs.core.gains import ObserverGains
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.core.plant import LTIPlant
+from fhobs.core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 
 FEEDBACKS = ("estimate", "state")
 
@@ -137,7 +136,7 @@ def simulate(
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> result = simulate(paper_gains(), "nominal", t_end=0.1)
     >>> float(result.t[-1]), result.x.shape
     (0.1, (2001, 4))

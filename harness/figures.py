@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from fhobs.extras import require
 from fhobs.paper import PAPER_SCENARIOS
-from fhobs.reference import SimulationResult
+
+from harness.reference import SimulationResult
 
 matplotlib = require("matplotlib", "plots")
 Figure = require("matplotlib.figure", "plots").Figure
@@ -127,7 +127,7 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
     Parameters
     ----------
     result : SimulationResult
-        A run of :func:`fhobs.reference.simulate`.
+        A run of :func:`harness.reference.simulate`.
     scenario : str
         Scenario name (selects the title).
     path : str or Path

@@ -10,7 +10,7 @@ Prediction. The estimation error does not depend on the plant's motion (the obse
 the model is exact: the runtime's split step and the Kalman filter's prediction are the plant's
 own zero-order hold), so it is predicted on the loop that ``python -m harness plant`` runs: the
 plant from ``x(0) = state_scale`` (an initial error of that size, the observers at zero) under the
-LQR feedback ``u = K x`` on its true state (:func:`fhobs.scenarios_zoo.state_feedback`), the
+LQR feedback ``u = K x`` on its true state (:func:`harness.zoo.state_feedback`), the
 disturbance q fed through E as the harness's signal block gives it (held over each step), the
 communication step the noise's sample time, and uniform measurement noise of the given standard
 deviation per output (the plant FMU's noise is uniform), drawn from numpy's
@@ -28,7 +28,8 @@ whose noise-free error is at least ``rejection`` times below the Kalman filter's
 homogeneous observer's strength: it rejects a matched disturbance exactly). If none is, the
 candidate with the least noise-free error is chosen and ``met`` is False.
 
-Candidates. Relative to the automatic design of the plant (:func:`fhobs.design.design_for_spec`
+Candidates. Relative to the automatic design of the plant
+(:func:`fhobs.design.observer.design_for_spec`
 with the free keys left out: its rho ``rho_auto``, ``nu_hosm = -1/(n_tilde + 1)``), a fixed grid
 and a seeded refinement:
 
@@ -41,7 +42,8 @@ and a seeded refinement:
   multiplied by random factors).
 
 The keys given in ``fixed`` (nu, rho, gamma, filter_scale, objective) are kept in every
-candidate. The chosen design is designed again with its keys (:func:`fhobs.design.design_for_spec`)
+candidate. The chosen design is designed again with its keys
+(:func:`fhobs.design.observer.design_for_spec`)
 and certified; its record carries the tuned Kalman filter (``gains.kalman``) and the predictions
 (``gains.certificate["noise_tuning"]``).
 """
@@ -58,16 +60,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .core.certificate import certify
-from .core.gains import ObserverGains
-from .core.kalman_filter import KalmanObserver
-from .core.linalg import zoh_blocks
-from .core.runtime import FilteringObserver
-from .design import design_for_spec
-from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from ..core.certificate import certify
+from ..core.gains import ObserverGains
+from ..core.kalman_filter import KalmanObserver
+from ..core.linalg import zoh_blocks
+from ..core.runtime import FilteringObserver
+from ..errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from .feedback import state_feedback
 from .kalman import design_kalman
 from .limits import check_design_limits
-from .scenarios_zoo import state_feedback
+from .observer import design_for_spec
 from .spec import (
     DEFAULT_SETTLING_TIME,
     DisturbanceSpec,
@@ -80,12 +82,12 @@ NU_FRACTIONS = (1.0, 0.84)
 RHO_FACTORS = (0.5, 0.75, 1.0, 1.8)
 """Grid of ``rho / rho_auto``."""
 FILTER_SCALES = (1.0, 2.0, 3.0)
-"""Grid of ``filter_scale`` (L_tilde multiplied after the LMI, :mod:`fhobs.design`)."""
+"""Grid of ``filter_scale`` (L_tilde multiplied after the LMI, :mod:`fhobs.design.observer`)."""
 GAMMA_RATIOS = (0.5, 1.0, 1.9)
 """Grid of ``gamma / rho_cert`` (the certificate needs < 2)."""
 MAX_GAMMA_RATIO = 1.95
 """Largest ``gamma / rho_cert`` tried: the design's bisection of rho_cert starts at
-``1.02 gamma / 2`` (:mod:`fhobs.design`), so the chosen gamma designs again."""
+``1.02 gamma / 2`` (:mod:`fhobs.design.observer`), so the chosen gamma designs again."""
 DESIGN_GAMMA_RATIO = 0.1
 """A candidate is designed with ``gamma = 0.1 rho`` (any gamma below its certified rho gives the
 same gains); its gammas are then set and certified one by one."""
@@ -223,7 +225,7 @@ def design_for_noise(
     sample_time : float
         The measurement's sample time (s): the communication step of the prediction.
     disturbance : DisturbanceSpec or mapping
-        The disturbance q, as a ``[disturbance]`` table (:mod:`fhobs.spec`): ``shape``,
+        The disturbance q, as a ``[disturbance]`` table (:mod:`fhobs.design.spec`): ``shape``,
         ``size``, ``start``, ``frequency``, ``seed``.
     disturbance_order : int
         The observer's disturbance model (>= 1 to estimate q).
@@ -301,7 +303,7 @@ def design_for_noise_spec(spec: PlantSpec, what: str | None = None,
     Parameters
     ----------
     spec : PlantSpec
-        From :func:`fhobs.spec.load_spec`.
+        From :func:`fhobs.design.spec.load_spec`.
     what : str, optional
         How a missing table's message starts (:func:`check_noise_tables`; default
         ``"<spec file>: the noise tuning"``, a command line names its option).
@@ -336,7 +338,7 @@ def check_noise_tables(spec: PlantSpec, what: str) -> None:
 
     Examples
     --------
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.spec import spec_from_dict
     >>> try:
     ...     check_noise_tables(spec_from_dict({"A": [[0.0]], "B": [[1.0]], "C": [[1.0]]}),
     ...                        "--tune-noise")
@@ -368,7 +370,7 @@ def predict_error(gains: ObserverGains, *, measurement_std: ArrayLike, sample_ti
 
     Examples
     --------
-    >>> from fhobs.design import design_observer
+    >>> from fhobs.design.observer import design_observer
     >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], E=[[0], [1]],
     ...                         disturbance_order=1, rho=3.0)
     >>> p = predict_error(gains, measurement_std=[1e-3], sample_time=1e-2,
@@ -580,8 +582,8 @@ def _tuned_kalman(
         intensity = 10.0 ** exponent
         try:
             kalman = design_kalman(spec.A, spec.B, spec.C, spec.E, order, std, intensity, step,
-                                   "process_intensity tuned by fhobs.tuning (least predicted "
-                                   "noisy RMS)")
+                                   "process_intensity tuned by fhobs.design.tuning (least "
+                                   "predicted noisy RMS)")
         except KalmanDesignError:
             return None
         gains = dataclasses.replace(template, kalman=kalman)

@@ -37,14 +37,14 @@ import dataclasses
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from .core.disturbance import (
+from ..core.disturbance import (
     describe_direction,
     extended_model,
     model_perturbation_matrix,
     model_state_names,
 )
-from .core.gains import KalmanGains, ObserverGains
-from .errors import KalmanDesignError
+from ..core.gains import KalmanGains, ObserverGains
+from ..errors import KalmanDesignError
 from .homogenisation import unobservable_directions
 from .spec import NoiseSpec
 
@@ -310,7 +310,7 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
     ----------
     gains : ObserverGains
         A design (its A, B, C, E are used).
-    noise : fhobs.spec.NoiseSpec
+    noise : fhobs.design.spec.NoiseSpec
         The validated ``[noise]`` table.
     tuning : str
         How its process intensity was chosen (kept in the record).
@@ -322,8 +322,8 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
 
     Examples
     --------
-    >>> from fhobs.design import design_for_spec
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.observer import design_for_spec
+    >>> from fhobs.design.spec import spec_from_dict
     >>> plant = {"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]], "E": [[0], [1]],
     ...          "observer": {"rho": 2.0}}
     >>> noise = spec_from_dict(plant | {"noise": {"measurement_std": [0.01],

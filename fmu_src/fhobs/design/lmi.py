@@ -66,8 +66,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .errors import LMIError
-from .extras import require
+from ..errors import LMIError
+from ..extras import require
 from .spec import OBJECTIVES
 
 cp = require("cvxpy", "design")

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core.gains import ObserverGains
-from .core.runtime import FilteringObserver
+from ..core.gains import ObserverGains
+from ..core.runtime import FilteringObserver
 
 SETTLED = 1e-3
 """An error has settled when it stays below this fraction of its initial size."""
@@ -80,7 +80,7 @@ def error_response(gains: ObserverGains, state_scale: np.ndarray,
 
     Examples
     --------
-    >>> from fhobs.design import paper_gains
+    >>> from fhobs.design.observer import paper_gains
     >>> response = error_response(paper_gains(), np.ones(4), settling_time=2.0)
     >>> bool(response.settling_time < 2.0), bool(response.peaking >= 1.0)
     (True, True)

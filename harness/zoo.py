@@ -6,7 +6,7 @@ The zoo is the plants of ``examples/zoo/`` plus ``examples/pendulum.toml``,
 everything; only the plant's own ``state_scale`` and ``settling_time`` are kept). The examples
 are package data (``fhobs/examples/``, :data:`fhobs.paper.EXAMPLES`), so the zoo is there in an
 installed package too. The closed loop is
-:func:`fhobs.reference.simulate`, noise-free, from ``x(0) = state_scale`` with the observers at
+:func:`harness.reference.simulate`, noise-free, from ``x(0) = state_scale`` with the observers at
 zero and the LQR feedback ``u = K x`` on the true state, so that the observers' errors do not act
 on the plant and unstable plants stay bounded.
 """
@@ -17,12 +17,12 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
+from fhobs.core.gains import ObserverGains
+from fhobs.design.feedback import state_feedback
+from fhobs.design.spec import PlantSpec, spec_from_dict
+from fhobs.paper import EXAMPLES
 
-from .core.gains import ObserverGains
-from .paper import EXAMPLES
-from .reference import SimulationResult, simulate
-from .spec import PlantSpec, spec_from_dict
+from harness.reference import SimulationResult, simulate
 
 ZOO_EXTRAS = ("pendulum", "mass_chain", "triple_integrator")
 """Plants of ``examples/`` (outside ``examples/zoo/``) that belong to the zoo."""
@@ -58,20 +58,6 @@ def load_zoo_spec(path: Path) -> PlantSpec:
     kept = {k: v for k, v in data.get("observer", {}).items() if k in PLANT_KEYS}
     plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin", "noise")}
     return spec_from_dict(plant | {"observer": kept}, source=str(path))
-
-
-def state_feedback(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """The LQR gain ``K = -B^T X`` (Q = I, R = I, X the continuous ARE's solution): A + B K is
-    Hurwitz for every stabilisable (A, B).
-
-    Examples
-    --------
-    >>> K = state_feedback(np.array([[1.0]]), np.array([[1.0]]))
-    >>> round(float(K[0, 0]), 6)  # -(1 + sqrt(2))
-    -2.414214
-    """
-    X = scipy.linalg.solve_continuous_are(A, B, np.eye(A.shape[0]), np.eye(B.shape[1]))
-    return -B.T @ X
 
 
 def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,

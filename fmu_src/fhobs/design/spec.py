@@ -14,14 +14,16 @@ Format::
                               # to 1e-3 of itself; default 2 (used when rho is not given)
     state_scale = [1, 1]      # typical size of each state (or one number for all); default 1
     rho = 1.5                 # LMI decay parameter; default: the smallest rho of RHO_LADDER
-                              # that meets settling_time (fhobs.design)
+                              # that meets settling_time (fhobs.design.observer)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default: rho
-    objective = "min_cond"    # LMI objective, see fhobs.spec.OBJECTIVES
-    filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design; default 1
+    objective = "min_cond"    # LMI objective, see fhobs.design.spec.OBJECTIVES
+    filter_scale = 1.0        # >= 1: L_tilde multiplied after the LMI, see fhobs.design.observer;
+    default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
                               # fhobs.core.disturbance; default 0 (no disturbance model)
 
-    [noise]                   # optional table: the Kalman filter baseline (fhobs.kalman); needs E
+    [noise]                   # optional table: the Kalman filter baseline (fhobs.design.kalman);
+    needs E
     measurement_amplitude = [1e-3, 1e-3]  # uniform noise amplitude per output (std = a/sqrt(3)),
     # measurement_std = [...]             # or its standard deviation (exactly one of the two)
     sample_time = 5e-5        # the filter's sample time Ts (s)
@@ -62,14 +64,14 @@ from typing import Any
 
 import numpy as np
 
-from .core.certificate import tuning_problem
-from .core.disturbance import describe_direction, extended_model, model_state_names
-from .errors import SpecError
+from ..core.certificate import tuning_problem
+from ..core.disturbance import describe_direction, extended_model, model_state_names
+from ..errors import SpecError
 from .homogenisation import observability_index, unobservable_directions
 
 DEFAULT_SETTLING_TIME = 2.0
 OBJECTIVES = ("min_cond", "min_gain")
-"""The LMI objectives a design accepts (:mod:`fhobs.lmi` implements them)."""
+"""The LMI objectives a design accepts (:mod:`fhobs.design.lmi` implements them)."""
 DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise", "disturbance", "mismatch")
 OBSERVER_KEYS = (
@@ -208,7 +210,7 @@ class PlantSpec:
         Where the spec came from (file name), for messages.
     filter_scale : float
         Factor (>= 1) applied to the LMI's L_tilde (fast output filter); see
-        :func:`fhobs.design.design_for_spec`.
+        :func:`fhobs.design.observer.design_for_spec`.
     disturbance_order : int
         Order of the disturbance model (0: none), see :mod:`fhobs.core.disturbance`.
     settling_time : float
@@ -305,7 +307,8 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
     """Validate a spec given as a dict (the parsed TOML).
 
     The tables are unpacked and handed to :func:`plant_spec`, the validation that
-    :func:`fhobs.design.design_observer` makes of its arguments; then the ``[noise]`` table.
+    :func:`fhobs.design.observer.design_observer` makes of its arguments; then the ``[noise]``
+    table.
 
     Parameters
     ----------
@@ -380,7 +383,7 @@ def plant_spec(
     L_lin : array_like, optional
         A given Luenberger baseline gain (n x k).
     disturbance_order, nu, rho, gamma, settling_time, state_scale, filter_scale, objective
-        The tuning (:func:`fhobs.design.design_observer`; ``nu`` None: -1/(n_tilde + 1)).
+        The tuning (:func:`fhobs.design.observer.design_observer`; ``nu`` None: -1/(n_tilde + 1)).
     source : str
         Name used in error messages (the file, or the calling function).
     prefix : str

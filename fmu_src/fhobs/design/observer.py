@@ -2,12 +2,12 @@
 
 :func:`design_observer` takes the plant as arrays (or a python-control ``StateSpace``) and the
 tuning as keywords, in the manner of python-control's design functions, validates them
-(:func:`fhobs.spec.plant_spec`) and returns the certified design; :func:`design_for_spec` does
-the same for a validated :class:`~fhobs.spec.PlantSpec` (a spec file's,
-:func:`fhobs.spec.load_spec`).
+(:func:`fhobs.design.spec.plant_spec`) and returns the certified design; :func:`design_for_spec`
+does the same for a validated :class:`~fhobs.design.spec.PlantSpec` (a spec file's,
+:func:`fhobs.design.spec.load_spec`).
 The steps:
 
-1. homogenisation (:mod:`fhobs.homogenisation`): n_tilde, G0, L0, G_d;
+1. homogenisation (:mod:`fhobs.design.homogenisation`): n_tilde, G0, L0, G_d;
 2. Theorem 2's LMI for the filtering observer: (L_tilde; L) and P_bar;
 3. Theorem 1's LMI for the prescribed-time observer: L_pt and P_pt;
 4. the Luenberger baseline L_lin (given in the spec, or an LMI with decay equal to the
@@ -16,7 +16,8 @@ The steps:
 
 Fast output filter (``[observer] filter_scale = c``, default 1). After step 2, L_tilde is
 multiplied by c (L unchanged) and P_bar is found again for the fixed gain by
-:func:`fhobs.lmi.certify_gain_lmi` (convex in P_bar), at the largest rho in (gamma/2, rho] that
+:func:`fhobs.design.lmi.certify_gain_lmi` (convex in P_bar), at the largest rho in (gamma/2, rho]
+that
 certifies it (bisection); that rho is the design's (``gains.rho``, used by the certificate and the
 prescribed-time observer). The LMI's rho is then a speed knob; the certified rho is roughly
 0.85 rho / c. Why: in the chain basis the filtering observer is, per output, a third-order
@@ -39,11 +40,12 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from .core.certificate import certify
-from .core.disturbance import extended_model, model_perturbation_matrix
-from .core.gains import ObserverGains
-from .core.linalg import diagonal_congruence, diagonal_similarity
-from .errors import CertificateError, LMIError, SpecError
+from ..core.certificate import certify
+from ..core.disturbance import extended_model, model_perturbation_matrix
+from ..core.gains import ObserverGains
+from ..core.linalg import diagonal_congruence, diagonal_similarity
+from ..errors import CertificateError, LMIError, SpecError
+from ..paper import PAPER_REFERENCE
 from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .kalman import with_kalman
 from .limits import check_design_limits
@@ -53,7 +55,6 @@ from .lmi import (
     chain_basis,
     solve_gain_lmi,
 )
-from .paper import PAPER_REFERENCE
 from .settling import ErrorResponse, error_response
 from .spec import (
     DEFAULT_OBJECTIVE,
@@ -187,7 +188,7 @@ def design_observer(
     filter_scale : float
         >= 1: L_tilde is multiplied by it after the LMI (module docstring).
     objective : {"min_cond", "min_gain"}
-        LMI objective (:data:`fhobs.spec.OBJECTIVES`).
+        LMI objective (:data:`fhobs.design.spec.OBJECTIVES`).
     margin : float
         Margin imposed on the strict LMI inequalities.
 
@@ -255,9 +256,10 @@ def design_for_spec(
     Parameters
     ----------
     spec : PlantSpec
-        Validated plant and tuning (:func:`fhobs.spec.load_spec`, :func:`fhobs.spec.plant_spec`).
+        Validated plant and tuning (:func:`fhobs.design.spec.load_spec`,
+        :func:`fhobs.design.spec.plant_spec`).
     objective : str, optional
-        LMI objective (see :mod:`fhobs.lmi`); defaults to the spec's.
+        LMI objective (see :mod:`fhobs.design.lmi`); defaults to the spec's.
     margin : float
         Margin imposed on the strict LMI inequalities.
     filter_scale : float, optional
@@ -272,7 +274,7 @@ def design_for_spec(
     Raises
     ------
     fhobs.errors.SpecError
-        If the spec is beyond the design's limits (:func:`fhobs.limits.check_design_limits`),
+        If the spec is beyond the design's limits (:func:`fhobs.design.limits.check_design_limits`),
         before any design work.
     fhobs.errors.LMIError
         If an LMI solve fails, or a linear-algebra step of the design does (numpy's
@@ -285,11 +287,11 @@ def design_for_spec(
         entries is widened rather than reported as a failure).
     fhobs.errors.KalmanDesignError
         If the ``[noise]`` table's Kalman filter cannot be designed
-        (:func:`fhobs.kalman.with_kalman`).
+        (:func:`fhobs.design.kalman.with_kalman`).
 
     Examples
     --------
-    >>> from fhobs.spec import spec_from_dict
+    >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "observer": {"rho": 2.0, "gamma": 3.0}})
     >>> gains = design_for_spec(spec)
@@ -327,7 +329,7 @@ def _design_for_settling_time(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
 ) -> ObserverGains:
     """The design at the smallest rho of ``RHO_LADDER`` whose predicted settling time
-    (:func:`fhobs.settling.error_response` from errors of the size of ``spec.state_scale``)
+    (:func:`fhobs.design.settling.error_response` from errors of the size of ``spec.state_scale``)
     meets ``spec.settling_time`` with a peaking of at most ``MAX_PEAKING``; gamma is the
     spec's, or rho. If no rung does (peaking grows with rho on long observability chains, and
     large rho is not certified on some plants), the fastest rung within that peaking, else the
@@ -464,10 +466,10 @@ def _certified(
 def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
     """The paper's pendulum design: published L_tilde, L, L_lin, certified here.
 
-    L0 and G_d are recomputed by :func:`fhobs.homogenisation.homogenise` (they equal the
+    L0 and G_d are recomputed by :func:`fhobs.design.homogenisation.homogenise` (they equal the
     published values to the printed digits, which the tests check) because the printed,
     rounded values satisfy the identities only to about 1e-5. P_bar and P_pt are found by
-    :func:`fhobs.lmi.certify_gain_lmi` for the published gains; L_pt is designed (the paper
+    :func:`fhobs.design.lmi.certify_gain_lmi` for the published gains; L_pt is designed (the paper
     publishes none).
 
     Parameters
