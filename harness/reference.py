@@ -21,6 +21,7 @@ from fhobs.core.gains import ObserverGains
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
+from fhobs.core.validation import check_step_size
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
 
 FEEDBACKS = ("estimate", "state")
@@ -146,6 +147,7 @@ def simulate(
     if feedback not in FEEDBACKS:
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")
     spec = PAPER_SCENARIOS[scenario]
+    dt = check_step_size(dt)
     E = gains.B if gains.E is None else gains.E
     plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=x0,
                      noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme,
@@ -161,23 +163,26 @@ def simulate(
     obs_state = np.empty((n_steps + 1, n_model + k + 1))  # [z, psi, xi] of the filtering observer
     estimates = np.empty((len(others), n_steps + 1, n))
     ys, us = np.empty((n_steps, k)), np.empty((n_steps, gains.m))
+    t = np.arange(n_steps + 1) * dt
+    q = np.repeat(spec.q_amplitude * np.sin(spec.q_frequency * t)[:, None], E.shape[1], axis=1)
+    K = np.asarray(K, dtype=float)
+    # the loop computes y, u and q itself (finite, of the right sizes): the models' advance,
+    # their step without the argument checks; a non-finite result still raises
     for step in range(n_steps + 1):
         x[step], obs_state[step] = plant.x, obs.get_state()
         for estimate, other in zip(estimates, others, strict=True):
             estimate[step] = other.x_hat
         if step == n_steps:
             break
-        t_k = step * dt
         y = ys[step] = plant.y
         u = us[step] = K @ (obs.x_hat if feedback == "estimate" else plant.x)
-        q = np.full(E.shape[1], spec.q_amplitude * np.sin(spec.q_frequency * t_k))
-        plant.step(u, q, dt)
-        obs.step(y, u, dt)
+        plant.advance(u, q[step], dt)
+        obs.advance(y, u, dt)
         for other in others:
-            other.step(y, u, dt)
+            other.advance(y, u, dt)
     psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
     sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
-    return SimulationResult(t=np.arange(n_steps + 1) * dt, x=x, z=obs_state[:, :n],
+    return SimulationResult(t=t, x=x, z=obs_state[:, :n],
                             z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
                             q_hat=obs_state[:, n:n_model],
                             z_kalman=estimates[1] if gains.kalman is not None else None,
