@@ -382,6 +382,7 @@ process_intensity = 1.0
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("noise_tuning")  # one search of their spec, then the cache
 def test_tune_noise_picks_a_design_for_the_specs_noise_and_disturbance(tmp_path, capsys):
     """``--tune-noise``: the design with the least predicted noisy RMS among those that reject
     the [disturbance] step 1e4 times better than the tuned Kalman filter; both predictions
@@ -401,6 +402,14 @@ def test_tune_noise_picks_a_design_for_the_specs_noise_and_disturbance(tmp_path,
     assert gains.kalman is not None and tuning["met"]
     assert tuning["predicted_noise_free_max"] * 1e4 <= tuning["kalman_predicted_noise_free_max"]
     assert f"{tuning['predicted_noisy_rms']:.3e}" in out
+    # the same spec elsewhere: the search answered from the user's cache, the same design
+    moved = tmp_path / "elsewhere.toml"
+    moved.write_text(spec.read_text())
+    assert design_main([str(moved), "--out", str(tmp_path / "again"), "--design-only",
+                        "--tune-noise"]) == 0
+    assert "(from the cache)" in capsys.readouterr().out
+    assert ((tmp_path / "again" / "design.json").read_text()
+            == (tmp_path / "out" / "design.json").read_text())
 
 
 def test_tune_noise_without_a_disturbance_table_is_refused_before_any_design(tmp_path, capsys):

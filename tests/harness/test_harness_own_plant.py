@@ -126,6 +126,7 @@ def test_tune_noise_without_a_disturbance_table_is_one_paragraph(tmp_path, capsy
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("noise_tuning")  # one search of their spec, then the cache
 def test_tune_noise_measures_what_the_tuning_predicted(tmp_path, capsys):
     """``harness plant --tune-noise``: the FMUs of the noise-tuned design, co-simulated with the
     spec's noise and disturbance, measure the noisy RMS the tuning predicted from its own

@@ -5,8 +5,9 @@ import ast
 from pathlib import Path
 
 import fhobs
-import harness
 import pytest
+
+import harness
 
 PACKAGE = Path(fhobs.__file__).parent
 COMMON = {"fhobs", "fhobs.errors", "fhobs.extras", "fhobs.paper", "fhobs.core"}

@@ -66,6 +66,7 @@ from ..core.kalman_filter import KalmanObserver
 from ..core.linalg import zoh_blocks
 from ..core.runtime import FilteringObserver
 from ..errors import CertificateError, KalmanDesignError, LMIError, SpecError
+from .cache import cached
 from .feedback import state_feedback
 from .kalman import design_kalman
 from .limits import check_design_limits
@@ -155,6 +156,9 @@ class NoiseDesign:
         not run under noise: it missed the rejection bound) or ``failed`` (the reason).
     seconds : float
         Wall time of the search.
+    cached : bool
+        Whether the result came from the user's cache (:mod:`fhobs.design.cache`: the same
+        inputs searched before by the same code; the design certified again when read).
     """
 
     gains: ObserverGains
@@ -166,6 +170,7 @@ class NoiseDesign:
     met: bool
     candidates: tuple[dict[str, Any], ...]
     seconds: float
+    cached: bool = False
 
     @property
     def ratio(self) -> float:
@@ -183,7 +188,8 @@ class NoiseDesign:
         keys = ", ".join(f"{key} = {_short(value)}" for key, value in self.parameters.items())
         return [
             f"noise tuning: {keys} (certified rho {self.gains.rho:.4g}); "
-            f"{len(self.candidates)} candidates in {self.seconds:.1f} s",
+            f"{len(self.candidates)} candidates in {self.seconds:.1f} s"
+            + (" (from the cache)" if self.cached else ""),
             f"predicted over [{self.window[0]:g}, {self.window[1]:g}] s: homogeneous noisy RMS "
             f"{p.noisy_rms:.3e}, noise-free max {p.noise_free_max:.3e}; Kalman filter "
             f"(intensity {self.kalman_intensity:.3g}) noisy RMS {k.noisy_rms:.3e}, noise-free max "
@@ -286,9 +292,18 @@ def design_for_noise(
             kind = "an integer" if integer else "a number"
             raise SpecError(f"design_for_noise: {name} = {value!r} must be {kind} >= {low}")
     order = disturbance_order if kalman_order is None else kalman_order
-    return _search(spec, np.asarray(measurement_std, dtype=float).ravel(), float(sample_time),
-                   int(order), dict(fixed or {}), float(rejection), int(noise_draws), int(seed),
-                   int(refine))
+    arguments = (np.asarray(measurement_std, dtype=float).ravel(), float(sample_time), int(order),
+                 dict(fixed or {}), float(rejection), int(noise_draws), int(seed), int(refine))
+    result, hit = cached("noise_tuning", (dataclasses.replace(spec, source=""), arguments),
+                         lambda: _search(spec, *arguments), _certified)
+    return dataclasses.replace(result, cached=hit)
+
+
+def _certified(result: NoiseDesign) -> None:
+    """Raise CertificateError unless ``result`` is a search's result whose design certifies."""
+    if not isinstance(result, NoiseDesign):
+        raise CertificateError(f"not a noise tuning's result: {type(result).__name__}")
+    certify(result.gains)
 
 
 def design_for_noise_spec(spec: PlantSpec, what: str | None = None,

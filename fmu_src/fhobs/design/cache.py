@@ -1,0 +1,116 @@
+"""The user's cache of long design computations (the noise tuning's search): a result is kept
+under a hash of everything it is made of (its inputs, the design layer's and the runtime's
+source code, the numerical libraries' versions), in ``$XDG_CACHE_HOME/fhobs/designs``, and
+checked again when it is read.
+
+The cache holds pickles written by this package in the user's private cache folder (the one
+the compiled kernel is loaded from). A file that cannot be read, or whose result fails its
+check, is computed again and replaced; deleting the folder only costs the next call its time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+import tempfile
+from collections.abc import Callable
+from functools import cache
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any, TypeVar
+
+from ..core.kernel import cache_dir
+from ..errors import CertificateError
+
+T = TypeVar("T")
+
+LIBRARIES = ("numpy", "scipy", "cvxpy", "clarabel")
+"""The libraries whose version is part of every key (their numbers make the results)."""
+UNREADABLE = (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError,
+              TypeError, ValueError, IndexError)
+"""What reading a stale, partial or foreign cache file raises."""
+
+
+def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T], Any],
+           ) -> tuple[T, bool]:
+    """``compute()``, or the result a previous call with equal ``inputs`` kept.
+
+    Parameters
+    ----------
+    kind : str
+        What is computed (a file-name prefix, e.g. ``"noise_tuning"``).
+    inputs : object
+        Everything the result depends on besides the code (picklable; equal inputs pickle
+        to equal bytes: arrays, numbers, strings, tuples, dicts, dataclasses of these).
+    compute : callable
+        Makes the result (picklable) when the cache has none.
+    check : callable
+        Called on a result read from the cache; any exception it raises discards the file
+        (a design is certified again: a cached design never skips its certificate).
+
+    Returns
+    -------
+    (result, from_cache)
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp()
+    >>> cached("example", (1, 2), lambda: 3, check=int)
+    (3, False)
+    >>> cached("example", (1, 2), lambda: 4, check=int)
+    (3, True)
+    >>> del os.environ["XDG_CACHE_HOME"]
+    """
+    path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
+    try:
+        result = pickle.loads(path.read_bytes())
+        check(result)
+        return result, True
+    except UNREADABLE + (CertificateError,):
+        pass  # no file, a stale or partial one, or a result that fails its check
+    result = compute()
+    _write(path, pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+    return result, False
+
+
+def _key(inputs: Any) -> str:
+    """Hash of ``inputs``, the code and the libraries' versions."""
+    digest = hashlib.sha256(_code_digest())
+    digest.update(pickle.dumps(inputs, protocol=4))
+    return digest.hexdigest()[:24]
+
+
+@cache
+def _code_digest() -> bytes:
+    """Hash of the design layer's and the runtime's sources and of the libraries' versions
+    (computed once per process)."""
+    package = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for sub in ("design", "core"):
+        for path in sorted((package / sub).rglob("*")):
+            if path.suffix in (".py", ".c", ".h"):
+                digest.update(path.relative_to(package).as_posix().encode())
+                digest.update(path.read_bytes())
+    for name in LIBRARIES:
+        try:
+            digest.update(f"{name}={version(name)}".encode())
+        except PackageNotFoundError:
+            digest.update(f"{name}=none".encode())
+    return digest.digest()
+
+
+def _write(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` under another name, then rename (concurrent processes never
+    read a partial file); a cache that cannot be written is only a slower next call."""
+    partial = None
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        handle, partial = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".part")
+        with os.fdopen(handle, "wb") as stream:
+            stream.write(data)
+        os.replace(partial, path)
+    except OSError:
+        if partial is not None:
+            Path(partial).unlink(missing_ok=True)

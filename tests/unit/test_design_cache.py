@@ -1,0 +1,70 @@
+"""The user's cache of long design computations (fhobs.design.cache), with real designs: a
+repeated call is answered from the cache with the same record, other inputs compute again, and
+a file that is unreadable or whose design fails its certificate is computed again, replaced."""
+
+import dataclasses
+import pickle
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from fhobs.core.certificate import certify
+from fhobs.core.gains import ObserverGains
+from fhobs.design.cache import cached
+from fhobs.design.observer import design_observer
+
+PLANT = ([[0, 1], [0, 0]], [[0], [1]], [[1, 0]])
+
+
+@pytest.fixture
+def cache_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    return tmp_path / "fhobs" / "designs"
+
+
+def counted(rho: float, calls: list) -> Callable[[], ObserverGains]:
+    def compute():
+        calls.append(rho)
+        return design_observer(*PLANT, rho=rho)
+    return compute
+
+
+def test_a_repeated_call_is_answered_from_the_cache(cache_home):
+    calls = []
+    first, hit = cached("test", ("plant", 2.0), counted(2.0, calls), certify)
+    assert not hit and calls == [2.0]
+    again, hit = cached("test", ("plant", 2.0), counted(2.0, calls), certify)
+    assert hit and calls == [2.0]
+    assert np.array_equal(again.L, first.L) and np.array_equal(again.P_bar, first.P_bar)
+    other, hit = cached("test", ("plant", 3.0), counted(3.0, calls), certify)
+    assert not hit and calls == [2.0, 3.0] and other.rho != first.rho
+    assert len(list(cache_home.glob("test_*.pickle"))) == 2
+
+
+def test_an_unreadable_file_is_computed_again_and_replaced(cache_home):
+    calls = []
+    cached("test", 1, counted(2.0, calls), certify)
+    (path,) = cache_home.glob("test_*.pickle")
+    path.write_bytes(b"partial")
+    result, hit = cached("test", 1, counted(2.0, calls), certify)
+    assert not hit and calls == [2.0, 2.0]
+    assert np.array_equal(pickle.loads(path.read_bytes()).L, result.L)
+
+
+def test_a_design_that_fails_its_certificate_is_not_used(cache_home):
+    calls = []
+    good, _ = cached("test", 1, counted(2.0, calls), certify)
+    (path,) = cache_home.glob("test_*.pickle")
+    path.write_bytes(pickle.dumps(dataclasses.replace(good, L=-good.L)))
+    result, hit = cached("test", 1, counted(2.0, calls), certify)
+    assert not hit and calls == [2.0, 2.0] and np.array_equal(result.L, good.L)
+
+
+def test_an_unwritable_cache_only_costs_time(cache_home):
+    cache_home.parent.mkdir(parents=True)
+    cache_home.write_text("a file where the folder would be")
+    calls = []
+    for _ in range(2):
+        result, hit = cached("test", 1, counted(2.0, calls), certify)
+        assert not hit and result.rho == 2.0
+    assert calls == [2.0, 2.0]
