@@ -66,14 +66,15 @@ TEXTBOOK = {
     "three_outputs": THREE_OUTPUTS,
 }
 TEXTBOOK_CASES = [(name, order) for name in TEXTBOOK for order in (1, 2, 3)]
-FAST_TEXTBOOK = {("ball_beam", 1), ("two_double_integrators", 1), ("three_outputs", 1)}
+FAST_TEXTBOOK = {("three_outputs", 1)}
+"""The fast subset's textbook case (ball_beam at order 1 has its own fast test below)."""
 
 RANDOM_SEEDS = range(40)
 """The random family whose chain lengths and orders are checked (no design: cheap)."""
 DESIGNED_SEEDS = range(20)
 """The draws designed, certified and integrated by the suite (all 40: seeds 0-39 were run by
 hand, see docs/results.md)."""
-FAST_SEEDS = (0, 4, 13)
+FAST_SEEDS = (4,)
 
 
 # -- independent model, observability and chain lengths ----------------------------------------

@@ -161,7 +161,9 @@ def test_prescribed_time_refuses_what_the_runtime_refuses(paper_design):
     assert str(c_error.value) == str(numpy_error.value).split("; use")[0]
 
 
-@pytest.mark.parametrize("name", ["pendulum", "triple_integrator", "maglev"])
+@pytest.mark.parametrize("name", [
+    "maglev", *(pytest.param(name, marks=pytest.mark.slow)
+                for name in ("pendulum", "triple_integrator"))])
 def test_bundled_examples(name):
     assert_plans_agree(zoo_design(name))
 
@@ -173,7 +175,8 @@ def test_bundled_examples_all(name):
     assert_plans_agree(zoo_design(name), ROUNDOFF_CEILINGS.get(name, ()))
 
 
-@pytest.mark.parametrize("case", RANDOM_CASES[:2])
+@pytest.mark.parametrize("case", [
+    RANDOM_CASES[0], pytest.param(RANDOM_CASES[1], marks=pytest.mark.slow)])
 def test_random_designs(case):
     assert_plans_agree(random_design(*case))
 

@@ -51,7 +51,9 @@ def test_pendulum_closed_loop_to_after_T0(paper_design):
     assert np.abs(compiled.x_hat - x).max() < 1e-8 * np.abs(x).max()
 
 
-@pytest.mark.parametrize("name", ["pendulum", "triple_integrator", "maglev"])
+@pytest.mark.parametrize("name", [
+    "maglev", *(pytest.param(name, marks=pytest.mark.slow)
+                for name in ("pendulum", "triple_integrator"))])
 def test_bundled_designs_with_seeded_inputs(name):
     gains = zoo_design(name)
     compiled, reference = pair(gains, T0=0.5, z0=np.ones(gains.n))
