@@ -210,7 +210,7 @@ static double hessenberg_radius(double *H, int n)
 }
 
 /* Spectral radius of A (n x n, destroyed), inf if an entry or the result is not finite
- * (fhobs.core.runtime._dilated_radius); work: n doubles. */
+ * (the runtime observers' _dilated_radius, fhobs.core.runtime); work: n doubles. */
 static double spectral_radius(double *A, int n, double *work)
 {
     for (size_t i = 0; i < (size_t)n * n; i++)

@@ -1,6 +1,6 @@
 /*
  * Measurement noise of the native plant FMU: the same numbers as the numpy runtime
- * (fhobs.plant.uniform_noise), which draws block b of a seed from
+ * (fhobs.core.plant.uniform_noise), which draws block b of a seed from
  * numpy.random.default_rng([seed, b]).uniform(-1.0, 1.0, size).
  *
  * default_rng([seed, b]) is numpy's PCG64 (XSL-RR output, 128-bit LCG) seeded by a
