@@ -26,13 +26,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import subprocess
 import sys
 import sysconfig
 import tempfile
-import threading
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -42,7 +40,15 @@ import numpy as np
 
 from .core.certificate import certify
 from .core.gains import ObserverGains
-from .core.kernel import HEADER, LIBRARY_FLAGS, SHIPPED, SOURCE, cache_dir, cached_build
+from .core.kernel import (
+    HEADER,
+    LIBRARY_FLAGS,
+    SHIPPED,
+    SOURCE,
+    cache_dir,
+    cached_build,
+    replaced_atomically,
+)
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .errors import BuildError
@@ -407,12 +413,8 @@ def cache_copy(source: Path, target: Path) -> None:
     >>> (folder / "b.o").read_bytes(), sorted(p.name for p in folder.iterdir())
     (b'object', ['a.o', 'b.o'])
     """
-    partial = target.with_name(f"{target.name}.{os.getpid()}.{threading.get_ident()}")
-    try:
+    with replaced_atomically(target) as partial:
         shutil.copyfile(source, partial)
-        os.replace(partial, target)
-    finally:
-        partial.unlink(missing_ok=True)
 
 
 def _build_one(script: Path, stage: Path, package: Path, dest: Path) -> Path:

@@ -32,6 +32,7 @@ This module is numpy-only (plus the standard library): it runs inside the FMUs.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import hashlib
@@ -41,7 +42,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TypeVar
 
@@ -281,16 +282,33 @@ def compile_source(source: Path | tuple[Path, ...], target: Path, compiler: str,
     --------
     >>> compile_source(SOURCE, Path("build/kernel.so"), "cc", COMPILE_FLAGS)  # doctest: +SKIP
     """
-    fd, partial = tempfile.mkstemp(suffix=".so", dir=target.parent)
-    os.close(fd)
-    try:
-        sources = (source,) if isinstance(source, Path) else source
-        subprocess.run([compiler, *flags, "-o", partial, *map(str, sources), *libs],
+    sources = (source,) if isinstance(source, Path) else source
+    with replaced_atomically(target) as partial:
+        subprocess.run([compiler, *flags, "-o", str(partial), *map(str, sources), *libs],
                        check=True, capture_output=True, timeout=120)
+
+
+@contextlib.contextmanager
+def replaced_atomically(target: Path) -> Iterator[Path]:
+    """A new path beside ``target`` for the block to write; renamed over ``target`` when the
+    block ends, removed if it raises: concurrent processes never see a partial file.
+
+    Examples
+    --------
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> with replaced_atomically(folder / "a.txt") as partial:
+    ...     _ = partial.write_text("whole")
+    >>> (folder / "a.txt").read_text(), [p.name for p in folder.iterdir()]
+    ('whole', ['a.txt'])
+    """
+    handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    os.close(handle)
+    partial = Path(name)
+    try:
+        yield partial
         os.replace(partial, target)
     finally:
-        if os.path.exists(partial):
-            os.unlink(partial)
+        partial.unlink(missing_ok=True)
 
 
 def pointer(array: np.ndarray) -> ctypes._Pointer:

@@ -11,16 +11,14 @@ check, is computed again and replaced; deleting the folder only costs the next c
 from __future__ import annotations
 
 import hashlib
-import os
 import pickle
-import tempfile
 from collections.abc import Callable
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, TypeVar
 
-from ..core.kernel import cache_dir
+from ..core.kernel import cache_dir, replaced_atomically
 from ..errors import CertificateError
 
 T = TypeVar("T")
@@ -102,15 +100,11 @@ def _code_digest() -> bytes:
 
 
 def _write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` under another name, then rename (concurrent processes never
-    read a partial file); a cache that cannot be written is only a slower next call."""
-    partial = None
+    """Write ``data`` to ``path`` (whole or not at all); a cache that cannot be written is only
+    a slower next call."""
     try:
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-        handle, partial = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".part")
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(data)
-        os.replace(partial, path)
+        with replaced_atomically(path) as partial:
+            partial.write_bytes(data)
     except OSError:
-        if partial is not None:
-            Path(partial).unlink(missing_ok=True)
+        pass
