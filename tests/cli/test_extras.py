@@ -40,9 +40,9 @@ def test_pyproject_extras_install_the_modules_the_code_asks_for():
 @pytest.mark.parametrize(("module", "statement", "extra"), [
     ("cvxpy", "import fhobs.design.observer", "design"),
     ("matplotlib", "import harness.figures", "plots"),
-    ("pyarrow", "from harness.sweep import load_sweep, run_sweep\n"
-                "run_sweep(load_sweep('pendulum_noisy_seeds'), __import__('pathlib').Path("
-                "'/nonexistent/out'))", "sweep"),
+    pytest.param("pyarrow", "from harness.sweep import load_sweep, run_sweep\n"
+                 "run_sweep(load_sweep('pendulum_noisy_seeds'), __import__('pathlib').Path("
+                 "'/nonexistent/out'))", "sweep", marks=pytest.mark.slow),
 ])
 def test_a_missing_extra_is_named(module, statement, extra):
     done = run_without((module,), statement)

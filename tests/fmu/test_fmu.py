@@ -417,7 +417,9 @@ def test_core_imports_only_itself_numpy_and_the_standard_library():
         assert set(absolute_imports(path.read_text())) <= allowed, path.name
 
 
-@pytest.mark.parametrize("first, second", [("luenberger", "observer"), ("observer", "luenberger")])
+@pytest.mark.parametrize("first, second", [
+    ("luenberger", "observer"),
+    pytest.param("observer", "luenberger", marks=pytest.mark.slow)])
 def test_fmus_of_one_design_do_not_share_modules(pendulum_fmus, tmp_path, first, second):
     """One FMU is run and its unpack folder deleted; another FMU of the same design then runs in
     the same process from its own shipped package (the observer needs a module the Luenberger
