@@ -9,7 +9,8 @@
   from the spec's ``[noise]`` table for both) into ``DIR/<label>/fmus`` (pythonfmu) and
   ``DIR/<label>/fmus/native``, runs the three paper scenarios with the native FMUs (the same
   results, ten times faster; ``--pythonfmu``: with the pythonfmu ones; the noisy scenario over 5
-  seeds; homogeneous, Luenberger and Kalman estimates side by side) into
+  seeds, on the sweep engine in the design's process; homogeneous, Luenberger and Kalman
+  estimates side by side) into
   ``DIR/<label>/<scenario>/``, the two designs in parallel processes, prints one table of the
   summary figures and writes it with its legend to ``DIR/summary.md``.
 - ``plant SPEC --out DIR``: your own plant: designs its observer (the design's defaults where
@@ -32,10 +33,11 @@ import json
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -148,7 +150,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     paper.add_argument("--stop-time", type=float, help="override the stop time")
     paper.add_argument("--jobs", type=int, default=2,
-                       help="parallel processes: one per design, else for the seeds")
+                       help="parallel processes: one per design")
     paper.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     paper.add_argument("--pythonfmu", action="store_true",
                        help="run the scenarios with the pythonfmu FMUs (fmus/) rather than the "
@@ -219,18 +221,17 @@ def run_seeds(
         return list(pool.map(_run_one, specs, [stop_time] * len(specs)))
 
 
-def mean_summary(
-    results: list[CoSimResult], spec: SystemSpec, seeds: list[int] | None, **run: Any
-) -> dict[str, Any]:
-    """summary.json of one or several seeded runs: figures averaged over the seeds."""
-    each = [summary(r, spec.evaluation) for r in results]
+def mean_summary(each: list[dict[str, Any]], spec: SystemSpec, seeds: list[int] | None,
+                 stop_time: float, **run: Any) -> dict[str, Any]:
+    """summary.json of one or several seeded runs, each run's figures as
+    :func:`harness.results.summary` gives them: the figures averaged over the seeds."""
     out = {
         **run,
         "scenario": spec.name,
         "step": spec.step,
-        "stop_time": float(results[0].time[-1]),
-        "steps": results[0].steps,
-        "wall_time_s": float(np.mean([r.wall_time_s for r in results])),
+        "stop_time": stop_time,
+        "steps": each[0]["steps"],
+        "wall_time_s": float(np.mean([s["wall_time_s"] for s in each])),
     }
     for name in spec.evaluation.errors:
         out[name] = {k: float(np.mean([s[name][k] for s in each])) for k in each[0][name]}
@@ -249,9 +250,14 @@ def run_scenario(
     plots: bool = True,
     csv_every: int = 1,
     label: str = "",
+    seed_rows: Callable[[], list[dict[str, Any]]] | None = None,
 ) -> dict[str, Any]:
     """Run, write results.csv (first seed), summary.json and plots into ``out``; the plots'
     title is ``label`` (the design, in the main job), the system's name and the seed plotted.
+
+    The seeds run in up to ``jobs`` processes, or, with ``seed_rows``, on the sweep engine:
+    ``seed_rows()`` gives their rows (:func:`harness.sweep.run_in_process`), the figures of
+    summary.json, and the first seed runs here once more for results.csv and the plots.
 
     A run that fails part-way still writes results.csv with the rows recorded up to the
     failure and a summary.json marked ``"incomplete": true`` with the error, then raises the
@@ -261,17 +267,19 @@ def run_scenario(
     if stop_time is not None:
         note_clipped_evaluation(spec, stop_time)
     try:
-        results = (
-            run_seeds(spec, seeds, stop_time, jobs)
-            if seeds is not None
-            else [_run_one(spec, stop_time)]
-        )
+        if seed_rows is not None:
+            results = [_run_one(spec.with_seed(seeds[0]), stop_time)]
+            each = [row_summary(row, spec) for row in seed_rows()]
+        else:
+            results = (run_seeds(spec, seeds, stop_time, jobs) if seeds is not None
+                       else [_run_one(spec, stop_time)])
+            each = [summary(r, spec.evaluation) for r in results]
     except MasterError as err:
         if err.partial is not None:
             write_incomplete(err, spec, out, csv_every)
         raise
     write_csv(results[0], out / "results.csv", csv_every)
-    data = mean_summary(results, spec, seeds)
+    data = mean_summary(each, spec, seeds, float(results[0].time[-1]))
     if plots:
         from harness.plotting import plot_results
 
@@ -281,6 +289,27 @@ def run_scenario(
         data["plots"] = [str(p) for p in plot_results(results[0], spec, out, title)]
     write_summary(data, out / "summary.json")
     return data
+
+
+def row_summary(row: dict[str, Any], spec: SystemSpec) -> dict[str, Any]:
+    """A sweep point's row (:func:`harness.sweep.run_point`) as the run's summary
+    (:func:`harness.results.summary`): ``steps``, ``wall_time_s`` (its co-simulation) and the
+    figures per error signal of ``spec``; MasterError with the reason of a failed point.
+
+    Examples
+    --------
+    >>> from harness.system import Evaluation
+    >>> spec = SystemSpec("s", {}, (), 0.1, 1.0,
+    ...                   evaluation=Evaluation(errors={"linear": ("p.x", "l.x_hat")}))
+    >>> row_summary({"status": "ok", "steps": 10, "cosim_s": 0.5, "seed": 2,
+    ...              "linear.error_at_1": 3.0}, spec)
+    {'steps': 10, 'wall_time_s': 0.5, 'linear': {'error_at_1': 3.0}}
+    """
+    if row["status"] != "ok":
+        raise MasterError(f"{spec.name}, seed {row.get('seed')}: {row.get('reason')}")
+    figures = {name: {column.partition(".")[2]: value for column, value in row.items()
+                      if column.startswith(f"{name}.")} for name in spec.evaluation.errors}
+    return {"steps": row["steps"], "wall_time_s": row["cosim_s"], **figures}
 
 
 def make_output_folder(out: Path) -> None:
@@ -471,10 +500,9 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     designs = ("spec", "paper") if args.design == "both" else (args.design,)
     if args.jobs > 1 and len(designs) > 1:
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(designs))) as pool:
-            parts = list(pool.map(_paper_design, designs, [args] * len(designs),
-                                  [1] * len(designs)))
+            parts = list(pool.map(_paper_design, designs, [args] * len(designs)))
     else:
-        parts = [_paper_design(design, args, args.jobs) for design in designs]
+        parts = [_paper_design(design, args) for design in designs]
     table = {key: data for part in parts for key, (data, _) in part.items()}
     folders = {key: folder for part in parts for key, (_, folder) in part.items()}
     print(format_table(table))
@@ -484,11 +512,10 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
-def _paper_design(design: str, args: argparse.Namespace,
-                  jobs: int) -> dict[str, tuple[dict[str, Any], Path]]:
+def _paper_design(design: str, args: argparse.Namespace) -> dict[str, tuple[dict[str, Any], Path]]:
     """One design of the main job: build its FMUs (pythonfmu, and native unless
-    ``--pythonfmu``), run the paper's scenarios with them (seeds in ``jobs`` processes);
-    ``{"<label> <scenario>": (summary, folder)}``."""
+    ``--pythonfmu``), run the paper's scenarios with them (the seeds on the sweep engine,
+    :func:`paper_seed_rows`); ``{"<label> <scenario>": (summary, folder)}``."""
     label = DESIGN_LABELS[design]
     fmu_dir = build_paper_fmus(args.out / label / "fmus", design, args.spec,
                                native=not args.pythonfmu)
@@ -500,11 +527,33 @@ def _paper_design(design: str, args: argparse.Namespace,
         seeds = list(range(n)) if n else None
         print(f"running {label} {name}" + (f" ({n} seeds)" if n else ""), flush=True)
         folder = args.out / label / name
+        rows = None if seeds is None else partial(paper_seed_rows, name, design, seeds, args,
+                                                  fmu_dir)
         part[f"{label} {name}"] = (
-            run_scenario(spec, folder, args.stop_time, seeds, jobs, not args.no_plots,
-                         csv_every(args, PAPER_CSV_EVERY), label=f"{label} design:"),
+            run_scenario(spec, folder, args.stop_time, seeds, plots=not args.no_plots,
+                         csv_every=csv_every(args, PAPER_CSV_EVERY), label=f"{label} design:",
+                         seed_rows=rows),
             folder)
     return part
+
+
+def paper_seed_rows(name: str, design: str, seeds: list[int], args: argparse.Namespace,
+                    fmu_dir: Path) -> list[dict[str, Any]]:
+    """The main job's seeded runs of the scenario ``name`` through the sweep engine, in this
+    process (:func:`harness.sweep.run_in_process`), on the FMUs it built into ``fmu_dir``: a
+    sweep of the seeds, of base ``name``, the main job's spec, design, FMU flavour and stop
+    time (as the bundled sweep ``pendulum_noisy_seeds``); its rows in seed order."""
+    from harness.sweep import fmu_bundle, run_in_process, sweep_from_table
+
+    table: dict[str, Any] = {
+        "name": f"{DESIGN_LABELS[design]} {name}", "base": name,
+        "spec": str(Path(args.spec).resolve()), "design": design,
+        "fmus": "pythonfmu" if args.pythonfmu else "native", "grid": {"seed": seeds}}
+    if args.stop_time is not None:
+        table["stop_time"] = args.stop_time
+    sweep = sweep_from_table(table, args.out / DESIGN_LABELS[design] / name)
+    gains = ObserverGains.load_json(args.out / DESIGN_LABELS[design] / "fmus" / "design.json")
+    return run_in_process(sweep, fmu_bundle(sweep, gains, fmu_dir))
 
 
 PAPER_LEGEND = """\

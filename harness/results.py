@@ -6,12 +6,21 @@ error signal ``name = [reference, estimate]`` (vector signals), with ``e(t) = ||
 - ``error_at_<t>``: ``e`` at the sample nearest to ``t``,
 - ``max_error_<a>_<b>``, ``rms_error_<a>_<b>``: max and RMS of ``e`` over ``a <= t <= b``,
 
-where ``<t>`` is the number with ``.`` replaced by ``_`` (``1.5 -> 1_5``, ``3.0 -> 3``).
+where ``<t>`` is the number with ``.`` replaced by ``_`` (``1.5 -> 1_5``, ``3.0 -> 3``), and,
+with the relative error ``r(t) = e(t) / max_t ||ref||`` (over the whole run):
+
+- ``time_to_<tol>`` for each tolerance of ``converged``: the time from which ``r`` stays
+  ``<= tol`` to the end (the run's start if it always does, inf if it ends above; a NaN counts
+  as above), ``<tol>`` written as ``1e-3`` (``2.5e-4 -> 2_5e-4``),
+- ``peak`` with ``peak = true``: ``max_t e / e(t0)``, how far the error grows beyond its start,
+- ``floor`` with ``floor = D``: the max of ``r`` over the last ``D`` seconds of the run, the
+  error left at the end.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +35,17 @@ def time_key(t: float) -> str:
     return f"{t:g}".replace(".", "_").replace("-", "m")
 
 
+def tolerance_key(tol: float) -> str:
+    """``1e-3 -> "1e-3"``, ``2.5e-4 -> "2_5e-4"``: a tolerance in a figure's name.
+
+    Examples
+    --------
+    >>> tolerance_key(1e-3), tolerance_key(2.5e-4), tolerance_key(0.1)
+    ('1e-3', '2_5e-4', '1e-1')
+    """
+    return np.format_float_scientific(tol, trim="-", exp_digits=1).replace(".", "_")
+
+
 def error_norm(result: CoSimResult, reference: str, estimate: str) -> np.ndarray:
     """``||reference - estimate||`` at every recorded time."""
     return np.linalg.norm(result.vector(reference) - result.vector(estimate), axis=1)
@@ -38,7 +58,18 @@ def window_mask(time: np.ndarray, a: float, b: float) -> np.ndarray:
 
 
 def error_figures(result: CoSimResult, evaluation: Evaluation) -> dict[str, dict[str, float]]:
-    """The evaluation's figures per error signal (see the module docstring)."""
+    """The evaluation's figures per error signal (see the module docstring).
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 2.0, 5)
+    >>> x, x_hat = np.full(5, 4.0), np.array([0.0, -2.0, 4.0 - 2.0**-9, 4.0, 4.0])
+    >>> r = CoSimResult(t, ("p.x", "o.x"), np.column_stack((x, x_hat)), 4, 0.0)
+    >>> ev = Evaluation(at=(0.5,), converged=(1e-3,), peak=True, floor=1.0,
+    ...                 errors={"o": ("p.x", "o.x")})
+    >>> error_figures(r, ev)
+    {'o': {'error_at_0_5': 6.0, 'time_to_1e-3': 1.0, 'peak': 1.5, 'floor': 0.00048828125}}
+    """
     figures: dict[str, dict[str, float]] = {}
     for name, (reference, estimate) in evaluation.errors.items():
         e = error_norm(result, reference, estimate)
@@ -54,8 +85,45 @@ def error_figures(result: CoSimResult, evaluation: Evaluation) -> dict[str, dict
             key = f"{time_key(a)}_{time_key(b)}"
             out[f"max_error_{key}"] = float(np.max(e[mask]))
             out[f"rms_error_{key}"] = float(np.sqrt(np.mean(e[mask] ** 2)))
-        figures[name] = out
+        scale = float(np.max(np.linalg.norm(result.vector(reference), axis=1)))
+        figures[name] = out | settling_figures(result.time, e, scale, evaluation)
     return figures
+
+
+def settling_figures(time: np.ndarray, e: np.ndarray, scale: float,
+                     evaluation: Evaluation) -> dict[str, float]:
+    """``time_to_<tol>``, ``peak`` and ``floor`` of an error signal (module docstring), those
+    the evaluation asks for.
+
+    Parameters
+    ----------
+    time, e : numpy.ndarray
+        The sample times and the error norm at each.
+    scale : float
+        What the relative error is relative to: ``max_t ||reference||``.
+    evaluation : Evaluation
+        Its ``converged``, ``peak`` and ``floor``.
+
+    Examples
+    --------
+    >>> settling_figures(np.arange(4.0), np.array([2.0, 1.0, 0.0, 0.0]), 10.0,
+    ...                  Evaluation(converged=(0.15, 0.05), peak=True, floor=2.0))
+    {'time_to_1_5e-1': 1.0, 'time_to_5e-2': 2.0, 'peak': 1.0, 'floor': 0.1}
+    """
+    out: dict[str, float] = {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = e / scale
+        for tol in evaluation.converged:
+            above = np.flatnonzero(~(rel <= tol))  # a NaN counts as above
+            out[f"time_to_{tolerance_key(tol)}"] = (
+                float(time[0]) if above.size == 0
+                else math.inf if above[-1] == rel.size - 1 else float(time[above[-1] + 1]))
+        if evaluation.peak:
+            out["peak"] = float(np.max(e) / e[0])
+    start = None if evaluation.floor is None else time[-1] - evaluation.floor
+    if start is not None and start >= time[0] - 1e-9 * max(1.0, abs(start)):
+        out["floor"] = float(np.max(rel[window_mask(time, start, time[-1])]))
+    return out
 
 
 def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str, Any]:

@@ -8,7 +8,10 @@ co-simulation per point of a sweep file and writes one table of their figures. A
                                    # or a plant spec (a TOML file with A, B, C)
     spec = "examples/pendulum.toml"   # scenario bases: the plant spec designed (default: the
                                       # pendulum's); a plant-spec base is its own spec
-    design = "spec"                # "spec" (default) or "paper" (the published pendulum gains)
+    design = "spec"                # "spec" (default), "paper" (the published pendulum gains)
+                                   # or "defaults" (the spec's plant with the design's
+                                   # defaults: no L_lin, no [noise], of its [observer] table
+                                   # only state_scale and settling_time; harness.zoo)
     fmus = "native"                # "native" (default) or "pythonfmu"
     stop_time = 1.5                # default: the scenario's (a plant: 3 settling times)
     step = 5e-5                    # default: the scenario's (a plant: [noise] sample time or 1e-3)
@@ -28,9 +31,12 @@ co-simulation per point of a sweep file and writes one table of their figures. A
     rho = {uniform = [2.0, 8.0]}   # uniform, loguniform (both bounds > 0), integers (both
     seed = {integers = [0, 999]}   # bounds included), choice (a list of values)
 
-    [evaluation]                   # optional: instants and windows of the figures
-    at = [0.1]
-    windows = [[0.1, 0.2]]
+    [evaluation]                   # optional: the figures (as a system description's
+    at = [0.1]                     # [evaluation], harness.results); each key given replaces
+    windows = [[0.1, 0.2]]         # the base's, the others are kept
+    converged = [1e-3]             # time_to_1e-3: when the relative error settles below 1e-3
+    peak = true                    # peak: the error's peak over its initial size
+    floor = 1.0                    # floor: the relative error's max over the last 1 s
 
     [pareto]                       # optional: the Pareto picture of two bases
     perturbation = "pendulum_perturbed"   # its max error (first window) on the x-axis
@@ -46,7 +52,9 @@ worker's temporary folder); the design and the FMU files' bytes travel to the wo
 its points, which write them into their own temporary folders (no disk is shared). Each point
 then co-simulates the scenario (:func:`harness.master.run_system`) and returns its row: its
 parameters, the figures of :func:`harness.results.error_figures` per estimator
-(``<estimator>.<figure>``), wall time, status and, when it failed, the reason. A scenario base
+(``<estimator>.<figure>``), wall time, status and, when it failed, the reason. The points run
+on dask (:func:`run_sweep`), or one after the other in the calling process
+(:func:`run_in_process`: the same tasks, the same rows, no cluster). A scenario base
 runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_plant_system`
 (as ``harness plant``).
 
@@ -87,14 +95,16 @@ SWEEP_DIR = Path(__file__).resolve().parent / "sweeps"
 TOP_KEYS = ("name", "base", "spec", "design", "fmus", "stop_time", "step", "grid", "random",
             "evaluation", "pareto")
 RANDOM_KEYS = ("samples", "seed", "axes")
-EVALUATION_KEYS = ("at", "windows")
+EVALUATION_KEYS = ("at", "windows", "converged", "peak", "floor")
 PARETO_KEYS = ("perturbation", "noisy", "estimators")
-DESIGNS = ("spec", "paper")
+DESIGNS = ("spec", "paper", "defaults")
 FLAVOURS = ("native", "pythonfmu")
 RUN_AXES = ("base", "seed", "step", "stop_time")
 """Axes that are not spec entries or start values."""
 DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
 STATUS_OK, STATUS_FAILED = "ok", "failed"
+FIGURE_PREFIXES = ("error_at_", "max_error_", "rms_error_", "time_to_", "peak", "floor")
+"""The figures of :func:`harness.results.error_figures`, by the start of their names."""
 PARETO_LABELS = 12
 """The Pareto picture labels an estimator's points when it has at most this many (more
 labels would cover each other and the picture)."""
@@ -224,7 +234,21 @@ def load_sweep(path: str | Path) -> Sweep:
     (6, ('base', 'seed'))
     """
     path = sweep_path(path)
-    data = _read_toml(path)
+    return sweep_from_table(_read_toml(path), path)
+
+
+def sweep_from_table(data: dict[str, Any], path: Path) -> Sweep:
+    """A sweep from the parsed TOML of a sweep file (:func:`load_sweep`): ``path`` names it
+    in messages and gives its default name and the folder relative files are looked up in
+    first.
+
+    Examples
+    --------
+    >>> sweep = sweep_from_table({"base": "pendulum_noisy", "grid": {"seed": [0, 1]}},
+    ...                          Path("seeds.toml"))
+    >>> sweep.name, [p.params for p in sweep.points]
+    ('seeds', [{'seed': 0}, {'seed': 1}])
+    """
     where = str(path)
     _reject_unknown(data, TOP_KEYS, where)
     settings = _settings(data, where)
@@ -291,26 +315,22 @@ def _settings(data: dict[str, Any], where: str) -> dict[str, Any]:
 
 
 def _evaluation(data: dict[str, Any], where: str) -> dict[str, Any] | None:
-    """The ``[evaluation]`` override: ``{"at": [...], "windows": [[a, b], ...]}``."""
+    """The ``[evaluation]`` override as plain data: the keys it gives, checked as a system
+    description's (:func:`harness.system.parse_evaluation`); the error signals are the base's."""
+    from harness.system import parse_evaluation
+
     if "evaluation" not in data:
         return None
     table = data["evaluation"]
     if not isinstance(table, dict):
-        raise SweepError(f"{where}: evaluation must be a table with at and windows")
+        raise SweepError(f"{where}: evaluation must be a table (at, windows, converged, peak, "
+                         "floor)")
     _reject_unknown(table, EVALUATION_KEYS, f"{where}: [evaluation]")
-    at = table.get("at", [])
-    windows = table.get("windows", [])
-    if not isinstance(at, list) or not isinstance(windows, list):
-        raise SweepError(f"{where}: [evaluation] at and windows must be lists")
-    out = {"at": [_number(t, f"{where}: evaluation.at") for t in at], "windows": []}
-    for w in windows:
-        if not (isinstance(w, list) and len(w) == 2):
-            raise SweepError(f"{where}: evaluation.windows entry {w!r} must be [start, end]")
-        a, b = (_number(v, f"{where}: evaluation.windows") for v in w)
-        if not a < b:
-            raise SweepError(f"{where}: evaluation.windows entry {w!r} must have start < end")
-        out["windows"].append([a, b])
-    return out
+    try:
+        parsed = parse_evaluation(table, f"{where}: [evaluation]")
+    except DescriptionError as err:
+        raise SweepError(str(err)) from None
+    return {key: _plain(getattr(parsed, key)) for key in table}
 
 
 def _flatten(table: dict[str, Any], leaf: Any, prefix: str = "") -> dict[str, Any]:
@@ -665,7 +685,8 @@ def spec_changes(params: dict[str, Any]) -> dict[tuple[str, ...], Any]:
 
 
 def design_spec_data(job: dict[str, Any]) -> dict[str, Any]:
-    """The plant spec of a point: its base's spec with the point's spec entries set.
+    """The plant spec of a point: its base's spec (with the design's defaults for the design
+    ``defaults``, :func:`harness.zoo.default_spec_data`) with the point's spec entries set.
 
     Examples
     --------
@@ -673,7 +694,11 @@ def design_spec_data(job: dict[str, Any]) -> dict[str, Any]:
     >>> design_spec_data(job)
     {'A': [[0]], 'observer': {'rho': 2.0, 'nu': -0.2}}
     """
+    from harness.zoo import default_spec_data
+
     data = json.loads(json.dumps(job["spec_data"]))
+    if job.get("design") == "defaults":
+        data = default_spec_data(data)
     for path, value in spec_changes(job["params"]).items():
         table = data
         for key in path[:-1]:
@@ -898,6 +923,34 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
             "build_s": time.perf_counter() - clock}
 
 
+def fmu_bundle(sweep: Sweep, gains: Any, fmu_dir: Path) -> dict[str, dict[str, Any]]:
+    """The bundles of FMUs built already, for :func:`run_in_process`: the design ``gains``
+    of every point of ``sweep`` (a sweep of one design and a scenario base), its FMUs those of
+    ``fmu_dir`` (``<kind>.fmu``, of the sweep's flavour) that the scenario runs.
+
+    Returns
+    -------
+    dict
+        ``{build group: bundle}`` (as :func:`build_bundle` makes them, ``build_s`` 0).
+
+    Examples
+    --------
+    >>> bundles = fmu_bundle(sweep, gains, Path("results/ours/fmus/native"))  # doctest: +SKIP
+    >>> rows = run_in_process(sweep, bundles)                                 # doctest: +SKIP
+    """
+    bundles = {}
+    for _, job, group in point_jobs(sweep, sweep.points):
+        if group not in bundles:
+            kinds = scenario_kinds(job)
+            files = {kind: (f"{kind}.fmu", (fmu_dir / f"{kind}.fmu").read_bytes())
+                     for kind in kinds}
+            key = design_key(job)
+            bundles[group] = {"design_key": key, "gains": gains, "files": files,
+                              "tag": fmu_tag(key, job["fmus"], {"kinds": kinds}),
+                              "build_s": 0.0}
+    return bundles
+
+
 def install_bundle(job: dict[str, Any], bundle: dict[str, Any]) -> None:
     """Take a bundle of :func:`build_bundle` into this process's caches (its FMUs written
     into this worker's temporary folder), so that the point neither designs nor builds."""
@@ -927,7 +980,7 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
     2
     """
     from harness.own_plant import RUNS_PER_SETTLING_TIME, own_plant_system
-    from harness.system import build_blocks
+    from harness.system import build_blocks, override_evaluation
 
     spec, gains, fmus = point_build(job)
     if job["kind"] == "plant":
@@ -940,17 +993,15 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
         step = system.step if job["step"] is None else job["step"]
         system = replace(system, step=step, fmus=_placed(system, fmus, job["files"]))
         stop = job["stop_time"]
-        system = build_blocks(system, _workdir() / "blocks")
+        system = build_blocks(system)  # the user's block cache, as every command
     sets = {axis[4:]: value for axis, value in job["params"].items() if axis.startswith("set.")}
     if sets:
         system = system.with_start(sets)
     if job["seed"] is not None:
         system = system.with_seed(job["seed"])
     if job["evaluation"] is not None:
-        ev = job["evaluation"]
-        system = replace(system, evaluation=replace(
-            system.evaluation, at=tuple(ev["at"]),
-            windows=tuple(tuple(w) for w in ev["windows"])))
+        system = replace(system, evaluation=override_evaluation(
+            system.evaluation, job["evaluation"], "[evaluation]"))
     return system, stop
 
 
@@ -1003,7 +1054,7 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
     >>> run_point(job)["status"]                                      # doctest: +SKIP
     'ok'
     """
-    from harness.master import run_system
+    from harness.master import MasterError, run_system
     from harness.results import error_figures
     from harness.system import resolve_system
 
@@ -1020,6 +1071,10 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
         row["steps"] = result.steps
         for estimator, figures in error_figures(result, system.evaluation).items():
             row |= {f"{estimator}.{name}": value for name, value in figures.items()}
+    except MasterError as err:
+        if err.interrupted is not None:
+            raise  # SIGINT or SIGTERM in this process (run_in_process): the caller stops
+        row |= {"status": STATUS_FAILED, "reason": one_paragraph(err)}
     except Exception as err:  # noqa: BLE001 - a failed point is a row, the sweep goes on
         row |= {"status": STATUS_FAILED, "reason": one_paragraph(err)}
     row |= {"wall_time_s": time.perf_counter() - clock, "started_at": started,
@@ -1040,12 +1095,13 @@ def one_paragraph(err: BaseException) -> str:
 
 
 def _worker_name() -> str:
-    try:
-        from distributed import get_worker
-
-        return str(get_worker().address)
-    except (ImportError, ValueError):
-        return f"{socket.gethostname()}:{os.getpid()}"
+    """The dask worker's address, or host and process id outside a worker (a process that has
+    not imported distributed is none: the in-process runs do not pay for its import)."""
+    distributed = sys.modules.get("distributed")
+    if distributed is not None:
+        with contextlib.suppress(ValueError):
+            return str(distributed.get_worker().address)
+    return f"{socket.gethostname()}:{os.getpid()}"
 
 
 # -- the engine -------------------------------------------------------------------------------
@@ -1205,10 +1261,7 @@ def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Poin
 
     futures, builds = {}, {}
     token = uuid.uuid4().hex[:8]
-    for point in todo:
-        job = make_job(sweep.bases[point.params.get("base", sweep.settings["base"])],
-                       point.params, sweep.settings)
-        group = build_group(job)
+    for point, job, group in point_jobs(sweep, todo):
         if group not in builds:
             builds[group] = client.submit(build_bundle, job, key=f"fhobs-build-{group}-{token}",
                                           pure=False)
@@ -1223,6 +1276,56 @@ def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Poin
             row = {"status": STATUS_FAILED, "reason": one_paragraph(err)}
         future.release()
         yield point, row
+
+
+def point_jobs(sweep: Sweep, points: list[Point]) -> Iterator[tuple[Point, dict, str]]:
+    """Each point with its job (:func:`make_job`) and build group (:func:`build_group`).
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> [(p.index, job["seed"]) for p, job, _ in point_jobs(sweep, sweep.points[:2])]
+    [(0, None), (1, 0)]
+    """
+    for point in points:
+        job = make_job(sweep.bases[point.params.get("base", sweep.settings["base"])],
+                       point.params, sweep.settings)
+        yield point, job, build_group(job)
+
+
+def run_in_process(sweep: Sweep, bundles: dict[str, dict[str, Any]] | None = None
+                   ) -> list[dict[str, Any]]:
+    """Every point of ``sweep`` run in this process, one after the other, with no cluster and
+    no file written: the engine's tasks (:func:`build_bundle` once per design and FMU build,
+    unless ``bundles`` has it; :func:`run_point` per point) and rows (as in the table of
+    :func:`run_sweep`), for a few short points where starting a cluster costs more than
+    running them.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        From :func:`load_sweep` or :func:`sweep_from_table`.
+    bundles : dict, optional
+        ``{build group: bundle}`` of designs built already (:func:`fmu_bundle`).
+
+    Returns
+    -------
+    list of dict
+        The rows, in point order.
+
+    Examples
+    --------
+    >>> rows = run_in_process(load_sweep("pendulum_noisy_seeds"))    # doctest: +SKIP
+    >>> [(r["base"], r["seed"], r["status"]) for r in rows][:2]       # doctest: +SKIP
+    [('pendulum_perturbed', None, 'ok'), ('pendulum_noisy', 0, 'ok')]
+    """
+    built = dict(bundles or {})
+    rows = []
+    for point, job, group in point_jobs(sweep, sweep.points):
+        if group not in built:
+            built[group] = build_bundle(job)
+        rows.append(_full_row(sweep, point, run_point(job, built[group])))
+    return rows
 
 
 def build_group(job: dict[str, Any]) -> str:
@@ -1310,7 +1413,7 @@ def figure_columns(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     for column in dict.fromkeys(k for row in rows for k in row):
         estimator, dot, figure = column.partition(".")
-        if dot and figure.startswith(("error_at_", "max_error_", "rms_error_")):
+        if dot and figure.startswith(FIGURE_PREFIXES):
             out.setdefault(figure, []).append(estimator)
     return out
 
@@ -1362,7 +1465,8 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
     for ax, (figure, estimators) in zip(axes[0], figures.items(), strict=True):
         for estimator in estimators:
             y = [r.get(f"{estimator}.{figure}") for r in rows]
-            pairs = [(a, b) for a, b in zip(x, y, strict=True) if b is not None and b > 0]
+            pairs = [(a, b) for a, b in zip(x, y, strict=True)
+                     if b is not None and 0 < b < math.inf]  # the log axis's values
             if pairs:
                 ax.semilogy(*zip(*pairs, strict=True), "o", ms=4, label=estimator)
         if not numeric:
@@ -1517,5 +1621,6 @@ def check_workers(workers: int | None) -> None:
 
 
 __all__ = ["Base", "ParetoPoint", "Point", "Sweep", "SweepError", "SweepReport", "dask_client",
-           "load_sweep", "make_job", "pareto_points", "plot_sweep", "point_key", "run_point",
-           "run_sweep", "write_table"]
+           "fmu_bundle", "load_sweep", "make_job", "pareto_points", "plot_sweep", "point_jobs",
+           "point_key", "run_in_process", "run_point", "run_sweep", "sweep_from_table",
+           "write_table"]

@@ -36,6 +36,9 @@ File format (all keys except ``fmus`` optional)::
     [evaluation]                     # summary.json figures, see harness.results
     at = [1.5]
     windows = [[1.0, 3.0]]
+    converged = [1e-3]               # optional: time_to_1e-3, the time the error settles
+    peak = true                      # optional: peak, the error's peak over its start
+    floor = 1.0                      # optional: floor, the error over the last 1 s
     [evaluation.errors]
     homogeneous = ["plant.x", "observer.x_hat"]   # error = ||first - second||
     [plots]                          # optional: the paper-style figure of harness.figures
@@ -92,7 +95,7 @@ _PAPER_VALUE = re.compile(r"\$\{(paper\.[A-Za-z0-9_.]+)\}")
 TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evaluation", "plots")
 RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
 CONNECTION_KEYS = ("from", "to", "gain")
-EVALUATION_KEYS = ("at", "windows", "errors")
+EVALUATION_KEYS = ("at", "windows", "converged", "peak", "floor", "errors")
 MAX_STEPS = 10**9
 """The most communication steps of one run (every step is a recorded row)."""
 PLOTS_KEYS = ("figure", "signals")
@@ -125,10 +128,16 @@ class ConnectionSpec:
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Instants and windows for summary figures, and named error signals (reference, estimate)."""
+    """What the summary figures are made of (:mod:`harness.results`): instants, windows, the
+    relative tolerances of the settling times (``converged``), whether to give the peak, the
+    length of the final stretch of the floor (s, or None), and the named error signals
+    (reference, estimate)."""
 
     at: tuple[float, ...] = ()
     windows: tuple[tuple[float, float], ...] = ()
+    converged: tuple[float, ...] = ()
+    peak: bool = False
+    floor: float | None = None
     errors: dict[str, tuple[str, str]] = field(default_factory=dict)
 
 
@@ -291,7 +300,7 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
         for key, default in (("step", 1e-3), ("start_time", 0.0), ("stop_time", 1.0))
     )
     check_timing(step, start_time, stop_time, f"{where}: [run]")
-    evaluation = _evaluation(_table(data, "evaluation", where), f"{where}: [evaluation]")
+    evaluation = parse_evaluation(_table(data, "evaluation", where), f"{where}: [evaluation]")
     outside = evaluation_outside(evaluation, start_time, stop_time)
     if outside:
         raise DescriptionError(
@@ -557,7 +566,24 @@ def _strings(data: dict[str, Any], key: str, where: str) -> dict[str, str]:
     return {k: _string(v, f"{where}: {key}.{k}") for k, v in _table(data, key, where).items()}
 
 
-def _evaluation(ev: dict[str, Any], where: str) -> Evaluation:
+def parse_evaluation(ev: dict[str, Any], where: str) -> Evaluation:
+    """An ``[evaluation]`` table (module docstring) as an :class:`Evaluation`.
+
+    Raises
+    ------
+    DescriptionError
+        Naming ``where`` and the entry: an unknown key, a value of the wrong kind, a window
+        that is not ``[start, end]`` with start < end, a tolerance or a floor length <= 0.
+
+    Examples
+    --------
+    >>> parse_evaluation({"converged": [1e-3], "floor": 1}, "[evaluation]")
+    Evaluation(at=(), windows=(), converged=(0.001,), peak=False, floor=1.0, errors={})
+    >>> parse_evaluation({"peak": 1}, "[evaluation]")
+    Traceback (most recent call last):
+    ...
+    harness.system.DescriptionError: [evaluation]: peak = 1 must be true or false
+    """
     _reject_unknown(ev, EVALUATION_KEYS, where)
     at = tuple(real_number(t, f"{where} at") for t in _list(ev, "at", where))
     windows = []
@@ -576,7 +602,35 @@ def _evaluation(ev: dict[str, Any], where: str) -> Evaluation:
                 f"{where}: errors.{name} = {pair!r} is not a pair of signals [reference, estimate]"
             )
         errors[name] = (pair[0], pair[1])
-    return Evaluation(at=at, windows=tuple(windows), errors=errors)
+    converged = tuple(_positive(t, f"{where}: converged") for t in _list(ev, "converged", where))
+    peak = ev.get("peak", False)
+    if not isinstance(peak, bool):
+        raise DescriptionError(f"{where}: peak = {peak!r} must be true or false")
+    floor = None if "floor" not in ev else _positive(ev["floor"], f"{where}: floor")
+    return Evaluation(at=at, windows=tuple(windows), converged=converged, peak=peak,
+                      floor=floor, errors=errors)
+
+
+def _positive(value: Any, where: str) -> float:
+    """``value`` as a float, or DescriptionError unless it is a finite number > 0."""
+    number = real_number(value, where)
+    if not number > 0.0:
+        raise DescriptionError(f"{where} = {value!r} must be > 0")
+    return number
+
+
+def override_evaluation(evaluation: Evaluation, table: dict[str, Any], where: str) -> Evaluation:
+    """``evaluation`` with each entry that the ``[evaluation]`` table ``table`` gives replaced
+    by the table's (:func:`parse_evaluation`); the others kept.
+
+    Examples
+    --------
+    >>> ev = Evaluation(at=(1.5,), windows=((1.0, 3.0),))
+    >>> override_evaluation(ev, {"converged": [1e-3], "at": []}, "sweep")
+    Evaluation(at=(), windows=((1.0, 3.0),), converged=(0.001,), peak=False, floor=None, errors={})
+    """
+    given = parse_evaluation(table, where)
+    return replace(evaluation, **{key: getattr(given, key) for key in table})
 
 
 def _figure_spec(entry: dict[str, Any], where: str) -> FigureSpec | None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from fhobs.core.gains import ObserverGains
@@ -23,6 +24,8 @@ from fhobs.design.spec import PlantSpec, spec_from_dict
 from fhobs.paper import EXAMPLES
 
 from harness.reference import SimulationResult, simulate
+from harness.results import settling_figures
+from harness.system import Evaluation
 
 ZOO_EXTRAS = ("pendulum", "mass_chain", "triple_integrator")
 """Plants of ``examples/`` (outside ``examples/zoo/``) that belong to the zoo."""
@@ -30,6 +33,8 @@ PLANT_KEYS = ("state_scale", "settling_time")
 """``[observer]`` keys that describe the plant and the request rather than tune the design."""
 CONVERGED = 1e-3
 """Relative error at which the bench and the tests call the transient over."""
+ZOO_EVALUATION = Evaluation(converged=(CONVERGED,), peak=True, floor=1.0)
+"""The zoo's figures (``harness/sweeps/zoo.toml`` asks a sweep for the same)."""
 
 
 def zoo_spec_paths(examples: Path = EXAMPLES) -> dict[str, Path]:
@@ -45,19 +50,31 @@ def zoo_spec_paths(examples: Path = EXAMPLES) -> dict[str, Path]:
     return {path.stem: path for path in sorted(paths, key=lambda p: p.stem)}
 
 
+def default_spec_data(data: dict[str, Any]) -> dict[str, Any]:
+    """A plant spec's parsed TOML without ``L_lin`` and ``[noise]``, and with only
+    ``state_scale`` and ``settling_time`` of its ``[observer]`` table: the plant, designed
+    with the design's defaults.
+
+    Examples
+    --------
+    >>> default_spec_data({"A": [[0]], "L_lin": [[1]], "observer": {"rho": 2, "state_scale": 3}})
+    {'A': [[0]], 'observer': {'state_scale': 3}}
+    """
+    kept = {k: v for k, v in data.get("observer", {}).items() if k in PLANT_KEYS}
+    plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin", "noise")}
+    return plant | {"observer": kept}
+
+
 def load_zoo_spec(path: Path) -> PlantSpec:
-    """A zoo plant's spec without ``L_lin`` and ``[noise]``, and with only ``state_scale``
-    and ``settling_time`` of its ``[observer]`` table: the design's defaults.
+    """A zoo plant's spec with the design's defaults (:func:`default_spec_data`).
 
     Examples
     --------
     >>> load_zoo_spec(zoo_spec_paths()["pendulum"]).disturbance_order
     0
     """
-    data = tomllib.loads(Path(path).read_text())
-    kept = {k: v for k, v in data.get("observer", {}).items() if k in PLANT_KEYS}
-    plant = {k: v for k, v in data.items() if k not in ("observer", "L_lin", "noise")}
-    return spec_from_dict(plant | {"observer": kept}, source=str(path))
+    data = default_spec_data(tomllib.loads(Path(path).read_text()))
+    return spec_from_dict(data, source=str(path))
 
 
 def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
@@ -88,19 +105,17 @@ def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
 
 
 def convergence_figures(result: SimulationResult, estimate: str = "z") -> dict[str, float]:
-    """The zoo's figures of one observer in a closed-loop run.
+    """The zoo's figures of one observer in a closed-loop run: those a sweep gives of a
+    co-simulation (:func:`harness.results.settling_figures`).
 
     Returns
     -------
     dict
-        ``time`` from which the relative error stays <= :data:`CONVERGED` (inf if it ends
-        above), ``peak`` = max |x - x_hat| / |x(0) - x_hat(0)|, ``floor`` = max of the relative
-        error over the last second.
+        ``time_to_1e-3``: the time from which the relative error ``|x - x_hat| / max_t |x|``
+        stays <= :data:`CONVERGED` (inf if it ends above); ``peak`` =
+        ``max |x - x_hat| / |x(0) - x_hat(0)|``; ``floor`` = max of the relative error over
+        the last second.
     """
     error = np.linalg.norm(result.x - getattr(result, estimate), axis=1)
-    rel = error / np.max(np.linalg.norm(result.x, axis=1))  # |x - x_hat| / max_t |x|
-    above = np.flatnonzero(~(rel <= CONVERGED))  # NaN counts as above
-    time = (0.0 if above.size == 0 else
-            np.inf if above[-1] == rel.size - 1 else float(result.t[above[-1] + 1]))
-    return {"time": time, "peak": float(np.max(error) / error[0]),
-            "floor": float(np.max(rel[result.t >= result.t[-1] - 1.0]))}
+    scale = float(np.max(np.linalg.norm(result.x, axis=1)))
+    return settling_figures(result.t, error, scale, ZOO_EVALUATION)

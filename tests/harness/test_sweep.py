@@ -65,6 +65,13 @@ BAD_FILES = {
     "unknown FMU": ('[grid]\n"set.motor.x0" = [[1, 0]]\n', "no FMU 'motor'"),
     "bad spec value": ("[grid]\nrho = [-1.0]\n", "observer.rho = -1.0 must be > 0"),
     "bad step": ("step = 0.3\n[grid]\nseed = [0]\n", "does not divide"),
+    "bad peak": ("[evaluation]\npeak = 1\n[grid]\nseed = [0]\n",
+                 "peak = 1 must be true or false"),
+    "bad floor": ("[evaluation]\nfloor = -1.0\n[grid]\nseed = [0]\n", "floor = -1.0 must be > 0"),
+    "bad tolerance": ("[evaluation]\nconverged = [0]\n[grid]\nseed = [0]\n",
+                      "converged = 0 must be > 0"),
+    "errors in a sweep": ('[evaluation.errors]\nx = ["plant.x", "observer.x_hat"]\n[grid]\n'
+                          'seed = [0]\n', "unknown key 'errors'"),
 }
 
 
@@ -305,6 +312,59 @@ def test_bundled_zoo_sweep_runs_every_zoo_plant_at_two_steps():
     assert sorted((p.params["base"], p.params["step"]) for p in sweep.points) == sorted(
         (plant, step) for plant in plants for step in (1e-4, 1e-3))
     assert sweep.settings["fmus"] == "native"
+    assert (sweep.settings["design"], sweep.settings["stop_time"]) == ("defaults", 10.0)
+    assert sweep.settings["evaluation"] == {"converged": [1e-3], "peak": True, "floor": 1.0}
+
+
+def test_defaults_design_takes_the_plant_alone():
+    """design = "defaults": a point's spec is its file's plant (A, B, C, E, state_scale,
+    settling_time) without L_lin, [noise] and the [observer] tuning, as the zoo designs it;
+    the point's axes still apply on top."""
+    import tomllib
+
+    from fhobs.paper import EXAMPLES
+
+    from harness.sweep import design_spec_data, make_job
+
+    sweep = load_sweep("zoo")
+    file = tomllib.loads((EXAMPLES / "pendulum.toml").read_text())
+    assert {"L_lin", "noise"} <= set(file) and file["observer"]["rho"] == 6.0
+    job = make_job(sweep.bases["pendulum.toml"], {"rho": 4.0}, sweep.settings)
+    data = design_spec_data(job)
+    assert not {"L_lin", "noise"} & set(data)
+    assert data["observer"] == {"rho": 4.0}
+    assert {k: data[k] for k in ("A", "B", "C", "E")} == {k: file[k] for k in ("A", "B", "C", "E")}
+
+
+@pytest.mark.slow  # 4.5 s (a default design and a 10 s run); the figures' arithmetic stays in
+# the fast subset (harness.results' doctests), the engine in the main job's seeds test
+def test_zoo_figures_of_a_cosimulation_match_the_in_process_loop():
+    """The sweep's time_to_1e-3, peak and floor of a zoo plant (quarter_car, step 1e-3, 10 s,
+    native FMUs, in this process) against the zoo's in-process closed loop of the same design
+    (harness.zoo.closed_loop, the numpy runtime and its kernel): the same time (one step),
+    the same peak (1e-6 relative), both floors below the zoo's 1e-9; for the filtering and the
+    Luenberger observers."""
+    import dataclasses
+
+    from fhobs.design.observer import design_for_spec
+
+    from harness.sweep import run_in_process
+    from harness.zoo import closed_loop, convergence_figures, load_zoo_spec, zoo_spec_paths
+
+    sweep = load_sweep("zoo")
+    points = [p for p in sweep.points
+              if p.params == {"base": "zoo/quarter_car.toml", "step": 1e-3}]
+    row, = run_in_process(dataclasses.replace(sweep, points=points))
+    assert row["status"] == STATUS_OK, row["reason"]
+    spec = load_zoo_spec(zoo_spec_paths()["quarter_car"])
+    gains = design_for_spec(spec)
+    loop = closed_loop(gains, 1e-3, 1e-3, 10.0, x0=spec.state_scale)
+    for estimator, field in (("homogeneous", "z"), ("linear", "z_lin")):
+        here = convergence_figures(loop, field)
+        assert 0.5 < here["time_to_1e-3"] < 10.0, here
+        assert abs(row[f"{estimator}.time_to_1e-3"] - here["time_to_1e-3"]) <= 1e-3 + 1e-12
+        assert row[f"{estimator}.peak"] == pytest.approx(here["peak"], rel=1e-6)
+        assert max(row[f"{estimator}.floor"], here["floor"]) <= 1e-9, (row, here)
 
 
 # -- the Pareto picture's estimators ----------------------------------------------------------
@@ -428,3 +488,38 @@ def test_pareto_picture_labels_only_a_readable_number_of_points(tmp_path, monkey
     monkeypatch.setattr(sweep_module, "PARETO_LABELS", 1)
     assert sweep_module.plot_pareto(pareto_rows(), sweep, tmp_path / "b.png").is_file()
     assert labels == []
+
+
+# -- the main job's seeds ---------------------------------------------------------------------
+def test_main_jobs_seed_figures_are_the_sweeps_rows(tmp_path):
+    """``python -m harness paper`` (our design) runs its noisy seeds on the sweep engine: each
+    seed's figures in its summary.json equal, bit for bit, the row of that seed of the bundled
+    sweep pendulum_noisy_seeds run here (its own design and native FMU build, in this
+    process), and the summary's and the printed table's noisy figures are their means."""
+    import dataclasses
+
+    import numpy as np
+
+    from harness.sweep import run_in_process
+
+    job = subprocess.run([sys.executable, "-m", "harness", "paper", "--design", "spec",
+                          "--no-plots", "--out", str(tmp_path / "job")],
+                         capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert job.returncode == 0, job.stderr
+    summary = json.loads((tmp_path / "job" / "ours" / "pendulum_noisy" / "summary.json")
+                         .read_text())
+    sweep = load_sweep("pendulum_noisy_seeds")
+    noisy = [p for p in sweep.points if p.params["base"] == "pendulum_noisy"]
+    rows = run_in_process(dataclasses.replace(sweep, points=noisy))
+    assert [r["seed"] for r in rows] == summary["seeds"] == [0, 1, 2, 3, 4]
+    for row, figures in zip(rows, summary["per_seed"], strict=True):
+        for estimator in ("homogeneous", "linear", "kalman"):
+            columns = {c.partition(".")[2]: v for c, v in row.items()
+                       if c.startswith(f"{estimator}.")}
+            assert figures[estimator] == columns, (row["seed"], estimator)
+    for estimator in ("homogeneous", "linear", "kalman"):
+        mean = np.mean([row[f"{estimator}.rms_error_1_3"] for row in rows])
+        assert summary[estimator]["rms_error_1_3"] == pytest.approx(mean, rel=1e-15)
+        line = next(line for line in job.stdout.splitlines()
+                    if line.startswith("ours pendulum_noisy ") and f" {estimator} " in line)
+        assert f"{mean:.3e}" in line, line

@@ -13,7 +13,7 @@ PUBLIC_MODULES = (
     "fhobs.design.settling", "fhobs.core.disturbance", "fhobs.native.build",
     "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
     "fhobs.fmu.kinds",
-    "harness.figures",
+    "harness.figures", "harness.zoo", "harness.cli",
     pytest.param("fhobs.design.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
 )
 
@@ -45,13 +45,23 @@ def test_public_functions_have_examples():
 
     from harness.master import run_system
     from harness.reference import simulate
+    from harness.results import error_figures, settling_figures
     from harness.ssp import export_ssp
-    from harness.system import build_blocks, load_system, resolve_system
+    from harness.sweep import fmu_bundle, run_in_process, sweep_from_table
+    from harness.system import (
+        build_blocks,
+        load_system,
+        override_evaluation,
+        parse_evaluation,
+        resolve_system,
+    )
 
     for item in (build_fmus, certify, LTIPlant, FilteringObserver, LuenbergerObserver,
                  PrescribedTimeObserver, KalmanObserver,
                  design_for_spec, design_observer, load_spec, plant_spec, paper_gains,
                  published, simulate, error_response, extended_model, load_system,
-                 resolve_system, build_blocks, run_system, export_ssp, build_native_fmus):
+                 resolve_system, build_blocks, run_system, export_ssp, build_native_fmus,
+                 error_figures, settling_figures, parse_evaluation, override_evaluation,
+                 sweep_from_table, run_in_process, fmu_bundle):
         _, heading, examples = item.__doc__.partition("\n    Examples\n    --------\n")
         assert heading and ">>> " in examples, item.__qualname__
