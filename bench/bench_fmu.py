@@ -49,7 +49,7 @@ def time_fmu(path: Path, ys: np.ndarray, us: np.ndarray) -> float:
 
 def time_runtime(gains, ys: np.ndarray, us: np.ndarray) -> float:
     """Seconds per ``FilteringObserver.step`` (+ reading z) in process."""
-    obs = FilteringObserver(gains, h=H, scheme=SCHEMES[0])
+    obs = FilteringObserver(gains.filtering, h=H, scheme=SCHEMES[0])
     start = time.perf_counter()
     for y, u in zip(ys, us, strict=True):
         obs.step(y, u, DT)
@@ -63,8 +63,8 @@ def main() -> None:
     args = parser.parse_args()
     gains = paper_gains()
     rng = np.random.default_rng(0)
-    ys = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.k)), axis=0)
-    us = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.m)), axis=0)
+    ys = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.plant.k)), axis=0)
+    us = np.cumsum(rng.normal(scale=0.01, size=(args.steps, gains.plant.m)), axis=0)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         fmus = build_fmus(gains, Path(tmp))

@@ -36,7 +36,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.linalg import zoh_blocks
 from fhobs.core.plant import LTIPlant
@@ -99,7 +99,7 @@ def fmu_call_costs(fmu: Path, inputs: dict[str, float], outputs: list[str]) -> d
     return costs
 
 
-def model_step_costs(gains: ObserverGains, repeat: int, kernel: bool) -> dict[str, float]:
+def model_step_costs(gains: ObserverDesign, repeat: int, kernel: bool) -> dict[str, float]:
     """Microseconds per ``advance`` (the step the FMUs make, their inputs checked by the slave)
     of each runtime object, in the kernel or in numpy, replaying the inputs of the in-process
     nominal run to T_END in a tight loop (best of ``repeat``): the trajectory the harness
@@ -108,19 +108,20 @@ def model_step_costs(gains: ObserverGains, repeat: int, kernel: bool) -> dict[st
     the step size (ZOH, the observer's gain cap: tens of ms, once per instance and step
     size), is not timed."""
     result = simulate(gains, "nominal", t_end=T_END)
-    ys, us = list(result.x[:-1] @ gains.C.T), list(result.z[:-1] @ K_PAPER.T)
-    E = gains.B if gains.E is None else gains.E
+    ys, us = list(result.x[:-1] @ gains.plant.C.T), list(result.z[:-1] @ K_PAPER.T)
+    E = gains.plant.B if gains.plant.E is None else gains.plant.E
     q = np.zeros(E.shape[1])
     models = {
-        "plant": lambda: (LTIPlant(gains.A, gains.B, gains.C, E, x0=X0_PAPER, kernel=kernel),
+        "plant": lambda: (LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C, E, x0=X0_PAPER,
+                                   kernel=kernel),
                           lambda m, y, u: m.advance(u, q, H_PAPER)),
-        "observer": lambda: (FilteringObserver(gains, h=H_PAPER, kernel=kernel),
+        "observer": lambda: (FilteringObserver(gains.filtering, h=H_PAPER, kernel=kernel),
                              lambda m, y, u: m.advance(y, u, H_PAPER)),
-        "linear": lambda: (LuenbergerObserver(gains, h=H_PAPER, kernel=kernel),
+        "linear": lambda: (LuenbergerObserver(gains.luenberger, h=H_PAPER, kernel=kernel),
                            lambda m, y, u: m.advance(y, u, H_PAPER)),
     }
     if gains.kalman is not None:
-        models["kalman"] = (lambda: (KalmanObserver(gains, kernel=kernel),
+        models["kalman"] = (lambda: (KalmanObserver(gains.kalman, kernel=kernel),
                                      lambda m, y, u: m.advance(y, u, H_PAPER)))
     costs = {}
     for name, make in models.items():
@@ -136,12 +137,12 @@ def model_step_costs(gains: ObserverGains, repeat: int, kernel: bool) -> dict[st
     return costs
 
 
-def bare_numpy_loop(gains: ObserverGains, steps: int) -> None:
+def bare_numpy_loop(gains: ObserverDesign, steps: int) -> None:
     """``steps`` steps of three linear 4-state updates in a plain numpy loop: the plant
     ``x = Ad x + Bd u`` and two observers ``z = Ad z + Bd u + L (C z - y)`` (the Luenberger
     gain's ZOH), u = K z of the first."""
-    Ad, Bd, Ld = zoh_blocks(gains.A, [gains.B, gains.L_lin], H_PAPER)
-    C, K = gains.C, K_PAPER
+    Ad, Bd, Ld = zoh_blocks(gains.plant.A, [gains.plant.B, gains.luenberger.L_lin], H_PAPER)
+    C, K = gains.plant.C, K_PAPER
     x, z1, z2 = X0_PAPER.copy(), np.zeros(4), np.zeros(4)
     for _ in range(steps):
         y, u = C @ x, K @ z1
@@ -244,7 +245,7 @@ def main(argv: list[str] | None = None) -> dict:
         native_dir = build_paper_fmus(Path(tmp) / "native", native=True)
         systems["native"] = resolve_system(
             load_scenario("pendulum_nominal", native_dir, Path(tmp) / "b_native"))
-        gains = ObserverGains.load_json(fmu_dir / "design.json")
+        gains = ObserverDesign.load_json(fmu_dir / "design.json")
         steps = int(round(T_END / systems["kernel"].spec.step))
         plain = contextlib.nullcontext
 

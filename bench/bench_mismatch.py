@@ -48,7 +48,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver
@@ -99,7 +99,7 @@ def excitation(A: np.ndarray, B: np.ndarray, scale: np.ndarray,
 
 
 def designs(spec: PlantSpec, order: int, amplitude: float,
-            w: float) -> tuple[ObserverGains, ObserverGains | None, ObserverGains | None, str]:
+            w: float) -> tuple[ObserverDesign, ObserverDesign | None, ObserverDesign | None, str]:
     """The default design, the E = B disturbance-model design, the latter with its Kalman
     filter (None where they do not exist) and why they do not."""
     nominal = design_for_spec(spec)
@@ -126,7 +126,7 @@ def _short(err: Exception) -> str:
     return text if len(text) <= 200 else text[:197] + "..."
 
 
-def run_draw(spec: PlantSpec, gains: tuple[ObserverGains | None, ...],
+def run_draw(spec: PlantSpec, gains: tuple[ObserverDesign | None, ...],
              mismatch: MismatchSpec, amplitude: float, w: float, stop: float,
              settled: float) -> list[float]:
     """The steady-window RMS scaled error of each estimator (NaN where it does not exist) in
@@ -137,13 +137,13 @@ def run_draw(spec: PlantSpec, gains: tuple[ObserverGains | None, ...],
     K_p = state_feedback(A_p, B_p)
     m, scale = spec.B.shape[1], spec.state_scale
     plant = LTIPlant(A_p, B_p, spec.C, x0=scale)
-    estimators = [FilteringObserver(nominal, h=DT, z0=scale), None,
-                  LuenbergerObserver(nominal, h=DT, z0=scale), None]
+    estimators = [FilteringObserver(nominal.filtering, h=DT, z0=scale), None,
+                  LuenbergerObserver(nominal.luenberger, h=DT, z0=scale), None]
     if lumped is not None:
-        z0 = np.concatenate((scale, np.zeros(lumped.n_model - lumped.n)))
-        estimators[1] = FilteringObserver(lumped, h=DT, z0=z0)
+        z0 = np.concatenate((scale, np.zeros(lumped.model.n_model - lumped.plant.n)))
+        estimators[1] = FilteringObserver(lumped.filtering, h=DT, z0=z0)
     if kalman is not None:
-        estimators[3] = KalmanObserver(kalman, z0=scale)
+        estimators[3] = KalmanObserver(kalman.kalman, z0=scale)
     steps = round(stop / DT)
     phases = 2.0 * math.pi * np.arange(m) / m
     squares = np.zeros(len(estimators))

@@ -103,7 +103,7 @@ def pendulum_case() -> Case:
 def matched_residual(A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray) -> float:
     """Corollary 1's residual for the disturbance model of order 1 at the HOSM degree."""
     gains = design_observer(A, B, C, E=E, disturbance_order=1, rho=4.0)
-    return float(gains.certificate["matched_perturbation_residual"])
+    return float(gains.filtering.certificate["matched_perturbation_residual"])
 
 
 def zoo_case(name: str, path: Path) -> Case | None:
@@ -181,7 +181,7 @@ def measure_zoo(result: NoiseDesign, case: Case, fmus: dict[str, Path], out: Pat
     noisy: dict[str, list[float]] = {"homogeneous": [], "kalman": []}
     for seed in [None, *range(seeds)]:
         amplitude = 0.0 if seed is None else float(np.sqrt(3.0) * case.std)
-        system = own_plant_system(result.gains, fmus, case.state_scale, 3.0 * T,
+        system = own_plant_system(result.design, fmus, case.state_scale, 3.0 * T,
                                   case.sample_time, amplitude, disturbance=disturbance,
                                   settled=T)
         data = run_own_plant(build_blocks(system), out / f"seed_{seed}", settled=T, channels=1,
@@ -203,7 +203,7 @@ def run_case(case: Case, out: Path, seeds: int, harness: bool, seed: int) -> dic
         "plant": case.name, "matched": case.matched,
         "disturbance": case.disturbance, "std": case.std, "sample_time": case.sample_time,
         "settling_time": case.settling_time, "rejection_asked": case.rejection or 1e4,
-        "parameters": result.parameters, "rho_certified": result.gains.rho,
+        "parameters": result.parameters, "rho_certified": result.design.filtering.rho,
         "met": result.met, "candidates": len(result.candidates),
         "kalman_intensity": result.kalman_intensity,
         "predicted": {"homogeneous": {"noisy_rms": result.predicted.noisy_rms,
@@ -214,7 +214,7 @@ def run_case(case: Case, out: Path, seeds: int, harness: bool, seed: int) -> dic
     }
     if harness:
         folder = out / case.name
-        fmus = build_fmus(result.gains, folder / "fmus",
+        fmus = build_fmus(result.design, folder / "fmus",
                           kinds=("observer", "luenberger", "kalman", "plant"))
         row["measured"] = (measure_pendulum(folder / "fmus", folder, max(seeds, 5))
                            if case.name == "pendulum" else

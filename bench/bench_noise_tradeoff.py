@@ -91,7 +91,7 @@ def certified_rho(sweep, homogeneous: list[ParetoPoint]) -> dict[str, float]:
     """The certified rho of each homogeneous design by label (designed here: a fraction of a
     second each; the sweep's rows hold figures only)."""
     base = sweep.bases[sweep.pareto["perturbation"]]
-    return {p.label: float(point_design(make_job(base, p.params, sweep.settings))[1].rho)
+    return {p.label: float(point_design(make_job(base, p.params, sweep.settings))[1].filtering.rho)
             for p in homogeneous}
 
 

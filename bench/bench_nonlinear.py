@@ -63,7 +63,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.runtime import FilteringObserver
 from fhobs.design.kalman import with_kalman
@@ -158,7 +158,7 @@ def record_oscillator(fmu: Path, x0: tuple[float, float], mu: float) -> Data:
     return Data(np.asarray(r["time"]), x, true_q(x, mu), x[:, 0].copy())
 
 
-def design(order: int | None = None) -> tuple[PlantSpec, ObserverGains]:
+def design(order: int | None = None) -> tuple[PlantSpec, ObserverDesign]:
     """The spec of bench/vanderpol.toml (with another disturbance order if given), its design."""
     data = tomllib.loads(SPEC.read_text())
     if order is not None:
@@ -167,8 +167,8 @@ def design(order: int | None = None) -> tuple[PlantSpec, ObserverGains]:
     return spec, design_for_spec(spec)
 
 
-def with_intensity(spec: PlantSpec, gains: ObserverGains, intensity: float,
-                   tuning: str) -> ObserverGains:
+def with_intensity(spec: PlantSpec, gains: ObserverDesign, intensity: float,
+                   tuning: str) -> ObserverDesign:
     """``gains`` with the spec's Kalman filter at process intensity ``intensity``."""
     noise = dataclasses.replace(spec.noise, process_intensity=float(intensity))
     return with_kalman(gains, noise, tuning=tuning)
@@ -202,7 +202,7 @@ def figures(data: Data, z: np.ndarray, q_hat: bool, t_s: float) -> dict[str, flo
     return out
 
 
-def tune_kalman(spec: PlantSpec, gains: ObserverGains, tuning: Data,
+def tune_kalman(spec: PlantSpec, gains: ObserverDesign, tuning: Data,
                 t_s: float) -> tuple[dict[str, float], list[tuple[float, float, float]]]:
     """The W of INTENSITIES with the least steady RMS on the tuning data, noise-free and noisy
     (seed TUNING_SEED); returns ``{"clean": W, "noisy": W}`` and the grid's (W, rms, rms)."""
@@ -210,7 +210,7 @@ def tune_kalman(spec: PlantSpec, gains: ObserverGains, tuning: Data,
     grid = []
     for w in INTENSITIES:
         g = with_intensity(spec, gains, w, "grid")
-        rms = [figures(tuning, run_in_process(KalmanObserver(g), measured[key]), False,
+        rms = [figures(tuning, run_in_process(KalmanObserver(g.kalman), measured[key]), False,
                        t_s)["x_rms_st"] for key in ("clean", "noisy")]
         grid.append((float(w), rms[0], rms[1]))
     best = {key: min(grid, key=lambda row: row[col])[0]
@@ -224,12 +224,13 @@ def compare_orders(tuning: Data, t_s: float) -> dict[int, dict[str, dict[str, fl
     out = {}
     for order in ORDERS:
         _, gains = design(order)
-        out[order] = {key: figures(tuning, run_in_process(FilteringObserver(gains), y), True, t_s)
+        out[order] = {key: figures(tuning, run_in_process(FilteringObserver(gains.filtering), y),
+                                   True, t_s)
                       for key, y in measured.items()}
     return out
 
 
-def build(gains: ObserverGains, out: Path, kinds: list[str], native: bool) -> dict[str, Path]:
+def build(gains: ObserverDesign, out: Path, kinds: list[str], native: bool) -> dict[str, Path]:
     """The FMUs ``kinds`` of ``gains`` in ``out`` (native or pythonfmu)."""
     if native:
         from fhobs.native.build import build_native_fmus
@@ -240,7 +241,7 @@ def build(gains: ObserverGains, out: Path, kinds: list[str], native: bool) -> di
     return build_fmus(gains, out, kinds=kinds)
 
 
-def build_estimators(spec: PlantSpec, gains: ObserverGains, tuned: dict[str, float], out: Path,
+def build_estimators(spec: PlantSpec, gains: ObserverDesign, tuned: dict[str, float], out: Path,
                      native: bool) -> dict[str, Path]:
     """observer, luenberger and the two tuned Kalman filters; ``{estimator name: fmu}``."""
     if out.exists():
@@ -377,12 +378,14 @@ def main(argv: list[str] | None = None) -> int:
     vdp = find_vdp(args.vdp)
     mu = oscillator_mu(vdp)
     spec, gains = design()
-    if gains.A[1, 1] != mu:
-        sys.exit(f"bench_nonlinear: {SPEC.name} linearises at mu = {gains.A[1, 1]:g}, the FMU "
+    if gains.plant.A[1, 1] != mu:
+        sys.exit(f"bench_nonlinear: {SPEC.name} linearises at mu = {gains.plant.A[1, 1]:g}, "
+                 "the FMU "
                  f"has mu = {mu:g}")
     t_s = transient_end(gains, spec.settling_time, STEP, STOP_TIME)
     print(f"third-party FMU: {vdp} (mu = {mu:g}); step {STEP:g} s, {STOP_TIME:g} s; "
-          f"disturbance_order {gains.disturbance_order}, nu = {gains.nu:g}, rho = {gains.rho:g}; "
+          f"disturbance_order {gains.model.disturbance_order}, nu = {gains.model.nu:g}, "
+          f"rho = {gains.filtering.rho:g}; "
           f"windows [0, {t_s:g}] and [{t_s:g}, {STOP_TIME:g}] s")
 
     tuning = record_oscillator(vdp, TUNING_X0, mu)

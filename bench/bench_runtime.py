@@ -106,9 +106,11 @@ def cost_per_step(gains_name: str, steps: int = 20000, repeat: int = 3) -> None:
     print("| observer | " + " | ".join(title for title, _, _ in COST_COLUMNS) + " |")
     print("|---|" + "---|" * len(COST_COLUMNS))
     rng = np.random.default_rng(0)
-    y = 1e-3 * rng.uniform(-1.0, 1.0, size=(steps, gains.k))
-    u = np.zeros(gains.m)
-    for cls in (FilteringObserver, PrescribedTimeObserver, LuenbergerObserver):
+    y = 1e-3 * rng.uniform(-1.0, 1.0, size=(steps, gains.plant.k))
+    u = np.zeros(gains.plant.m)
+    for cls, record in ((FilteringObserver, gains.filtering),
+                        (PrescribedTimeObserver, gains.prescribed_time),
+                        (LuenbergerObserver, gains.luenberger)):
         cells = []
         for _, scheme, kernel in COST_COLUMNS:
             if kernel and cls is PrescribedTimeObserver:  # no kernel step
@@ -117,7 +119,7 @@ def cost_per_step(gains_name: str, steps: int = 20000, repeat: int = 3) -> None:
             options = {} if cls is PrescribedTimeObserver else {"kernel": kernel}
             times = []
             for _ in range(repeat):
-                obs = cls(gains, h=H_PAPER, scheme=scheme, **options)
+                obs = cls(record, h=H_PAPER, scheme=scheme, **options)
                 start = time.perf_counter()
                 try:
                     with np.errstate(all="ignore"):  # a diverging cell is reported, not warned

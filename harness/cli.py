@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 from fhobs.cli import check_output_folder, program_name
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.spec import PlantSpec
 from fhobs.errors import FhobsError, SpecError
 from fhobs.paper import PENDULUM_SPEC
@@ -416,34 +416,34 @@ def build_paper_fmus(out: Path, design: str = "paper", spec: Path = PENDULUM_SPE
     if design not in DESIGN_LABELS:
         raise ValueError(f"design must be one of {sorted(DESIGN_LABELS)}, not {design!r}")
     if design == "spec":
-        _, gains = design_spec_file(spec)
+        _, observers = design_spec_file(spec)
     else:
-        gains = paper_gains()
+        observers = paper_gains()
         noise = load_spec(spec).noise
         if noise is not None:
-            gains = with_kalman(gains, noise)
+            observers = with_kalman(observers, noise)
     out.mkdir(parents=True, exist_ok=True)
-    gains.save_json(out / "design.json")
-    build_fmus(gains, out, kernel=kernel)
+    observers.save_json(out / "design.json")
+    build_fmus(observers, out, kernel=kernel)
     if not native:
         return out
     from fhobs.native.build import build_native_fmus
 
-    build_native_fmus(gains, out / "native")
+    build_native_fmus(observers, out / "native")
     return out / "native"
 
 
 DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 
-def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, ObserverGains]:
+def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, ObserverDesign]:
     """The spec of ``path`` and its design, as build_fmu.py makes it (the design limits
     checked first, by the design; what the design achieved printed); with ``tune_noise`` as
     ``build_fmu.py --tune-noise`` (:func:`fhobs.design.tuning.design_for_noise_spec`).
 
     Returns
     -------
-    tuple of PlantSpec and ObserverGains
+    tuple of PlantSpec and ObserverDesign
     """
     from fhobs.cli import design_summary
     from fhobs.design.observer import design_for_spec
@@ -455,16 +455,16 @@ def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, O
         from fhobs.design.tuning import design_for_noise_spec
 
         tuned = design_for_noise_spec(spec, "--tune-noise")
-        gains, lines = tuned.gains, tuned.summary()
+        design, lines = tuned.design, tuned.summary()
     else:
-        gains = design_for_spec(spec)
-    for line in design_summary(gains) + lines:
+        design = design_for_spec(spec)
+    for line in design_summary(design) + lines:
         print(line)
-    return spec, gains
+    return spec, design
 
 
 def predicted_line(predicted: dict[str, Any], data: dict[str, Any]) -> str:
-    """The noise tuning's predictions (design.json's ``certificate["noise_tuning"]``) beside
+    """The noise tuning's predictions (design.json's ``noise_tuning``) beside
     what the run measured over its steady window (the homogeneous observer's and the Kalman
     filter's RMS of ``||x - x_hat||``).
 
@@ -552,8 +552,8 @@ def paper_seed_rows(name: str, design: str, seeds: list[int], args: argparse.Nam
     if args.stop_time is not None:
         table["stop_time"] = args.stop_time
     sweep = sweep_from_table(table, args.out / DESIGN_LABELS[design] / name)
-    gains = ObserverGains.load_json(args.out / DESIGN_LABELS[design] / "fmus" / "design.json")
-    return run_in_process(sweep, fmu_bundle(sweep, gains, fmu_dir))
+    observers = ObserverDesign.load_json(args.out / DESIGN_LABELS[design] / "fmus" / "design.json")
+    return run_in_process(sweep, fmu_bundle(sweep, observers, fmu_dir))
 
 
 PAPER_LEGEND = """\
@@ -612,7 +612,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
 
     check_output_folder(args.out)
     plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing
-    spec, gains = design_spec_file(args.spec, tune_noise=args.tune_noise)
+    spec, design = design_spec_file(args.spec, tune_noise=args.tune_noise)
     spec = plant_mismatch(spec, args.mismatch, args.mismatch_seed)
     noise = 0.0
     if spec.noise is not None:
@@ -622,32 +622,32 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     stop_time = step * round(stop_time / step)
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
     options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step}
-    fmus = build_fmus(gains, args.out / "fmus", T0=spec.settling_time, **options)
+    fmus = build_fmus(design, args.out / "fmus", T0=spec.settling_time, **options)
     if args.native:
         from fhobs.native.build import build_native_fmus
 
-        native = build_native_fmus(gains, args.out / "fmus" / "native", steps=(step,),
+        native = build_native_fmus(design, args.out / "fmus" / "native", steps=(step,),
                                    T0=spec.settling_time, **options)
         if spec.mismatch is not None:  # its A and B are compiled in: the pythonfmu plant runs
             native.pop("plant")
         fmus |= native
-    settled = transient_end(gains, spec.settling_time, step, stop_time)
+    settled = transient_end(design, spec.settling_time, step, stop_time)
     plant, about = None, {}
     if spec.mismatch is not None:
-        plant = spec.mismatch.perturb(gains.A, gains.B)
+        plant = spec.mismatch.perturb(design.plant.A, design.plant.B)
         about["mismatch"] = {**vars(spec.mismatch), "A": plant[0].tolist(),
                              "B": plant[1].tolist()}
     if spec.disturbance is not None:
         about["disturbance"] = {**vars(spec.disturbance), "size": spec.disturbance.size.tolist()}
-    predicted = gains.certificate.get("noise_tuning")
+    predicted = design.noise_tuning
     if predicted is not None:
         about["predicted"] = predicted
-    system = own_plant_system(gains, fmus, spec.state_scale, stop_time, step, noise,
+    system = own_plant_system(design, fmus, spec.state_scale, stop_time, step, noise,
                               disturbance=spec.disturbance, plant_matrices=plant,
                               settled=settled)
     system = build_blocks(system, args.block_cache)
     data = run_own_plant(system, args.out, settled=settled,
-                         channels=0 if gains.E is None else gains.E.shape[1],
+                         channels=0 if design.plant.E is None else design.plant.E.shape[1],
                          seed=args.seed if noise else None, plots=not args.no_plots,
                          csv_every=csv_every(args, 1), about=about)
     print(plant_table(data))

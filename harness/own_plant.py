@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.feedback import state_feedback
 from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 from fhobs.fmu.kinds import ESTIMATORS
@@ -59,7 +59,7 @@ FIGURES = ("x_max_transient", "x_rms_transient", "x_max_steady", "x_rms_steady",
 """The plant command's figures per estimator (:func:`plant_figures`), the table's columns."""
 
 
-def q_hat_kinds(gains: ObserverGains) -> set[str]:
+def q_hat_kinds(design: ObserverDesign) -> set[str]:
     """The FMU kinds whose FMU has the output ``q_hat`` (a disturbance model).
 
     Examples
@@ -68,13 +68,13 @@ def q_hat_kinds(gains: ObserverGains) -> set[str]:
     >>> q_hat_kinds(paper_gains())
     set()
     """
-    kinds = {"observer", "prescribed_time"} if gains.disturbance_order >= 1 else set()
-    if gains.kalman is not None and gains.kalman.disturbance_order >= 1:
+    kinds = {"observer", "prescribed_time"} if design.model.disturbance_order >= 1 else set()
+    if design.kalman is not None and design.kalman.disturbance_order >= 1:
         kinds.add("kalman")
     return kinds
 
 
-def transient_end(gains: ObserverGains, settling_time: float, step: float,
+def transient_end(design: ObserverDesign, settling_time: float, step: float,
                   stop_time: float) -> float:
     """``T_s``: the end of the transient window, the larger of the requested settling time
     (the prescribed-time observer converges at it) and the design's predicted one (the
@@ -86,7 +86,7 @@ def transient_end(gains: ObserverGains, settling_time: float, step: float,
     >>> transient_end(paper_gains(), 1.0, 1e-3, 3.0)  # the paper's gains predict nothing
     1.0
     """
-    tuning = gains.certificate.get("tuning") or {}
+    tuning = design.settling_tuning or {}
     end = max(float(settling_time), float(tuning.get("settling_time_predicted", 0.0)))
     return float(min(step * np.ceil(end / step - 1e-9), stop_time))
 
@@ -107,7 +107,7 @@ def signal_start(disturbance: DisturbanceSpec) -> dict[str, float | int]:
             "frequency": float(disturbance.frequency or 0.0), "seed": int(disturbance.seed)}
 
 
-def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarray,
+def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.ndarray,
                      stop_time: float, step: float = STEP,
                      noise_amplitude: float = 0.0, *,
                      disturbance: DisturbanceSpec | None = None,
@@ -117,7 +117,7 @@ def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarr
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The design the FMUs were built from.
     fmus : dict
         ``{kind: path}`` from :func:`fhobs.build.build_fmus` (``plant``, ``observer``,
@@ -155,7 +155,8 @@ def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarr
     >>> system.evaluation.windows
     ((0.0, 1.0), (1.0, 3.0))
     """
-    A, B = (gains.A, gains.B) if plant_matrices is None else plant_matrices
+    E = design.plant.E
+    A, B = (design.plant.A, design.plant.B) if plant_matrices is None else plant_matrices
     K = state_feedback(np.asarray(A, dtype=float), np.asarray(B, dtype=float))
     plant_start = expand_start("x0", [float(v) for v in x0])
     plant_start["noise_amplitude"] = float(noise_amplitude)
@@ -169,16 +170,16 @@ def own_plant_system(gains: ObserverGains, fmus: dict[str, object], x0: np.ndarr
     specs = {"plant": FmuSpec("plant", fmus["plant"], plant_start)}
     specs |= {kind: FmuSpec(kind, fmus[kind]) for kind in present}
     connections = [ConnectionSpec("plant.x", "plant.u", K)]
-    if gains.E is not None and disturbance is not None:
+    if E is not None and disturbance is not None:
         specs[DISTURBANCE_BLOCK] = FmuSpec(DISTURBANCE_BLOCK, None, signal_start(disturbance),
-                                           block=("signal", (gains.E.shape[1],)))
+                                           block=("signal", (E.shape[1],)))
         connections.append(ConnectionSpec(f"{DISTURBANCE_BLOCK}.y", "plant.q"))
-    elif gains.E is not None:
-        plant_start |= expand_start("q", [0.0] * gains.E.shape[1])
+    elif E is not None:
+        plant_start |= expand_start("q", [0.0] * E.shape[1])
     for kind in present:
         connections += [ConnectionSpec("plant.y", f"{kind}.y"),
                         ConnectionSpec("plant.x", f"{kind}.u", K)]
-    with_q = q_hat_kinds(gains)
+    with_q = q_hat_kinds(design)
     record = ("plant.x", *(f"{kind}.x_hat" for kind in present),
               *(f"{kind}.q_hat" for kind in present if kind in with_q))
     windows = ((stop_time / 2, stop_time),)

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
@@ -83,7 +83,7 @@ class SimulationResult:
 
 
 def simulate(
-    gains: ObserverGains,
+    design: ObserverDesign,
     scenario: str = "nominal",
     t_end: float = 3.0,
     dt: float = H_PAPER,
@@ -102,8 +102,8 @@ def simulate(
 
     Parameters
     ----------
-    gains : ObserverGains
-        Observer design (E is used for the perturbation; B if E is None).
+    design : ObserverDesign
+        Observer design (its plant's E is used for the perturbation; B if E is None).
     scenario : str
         Key of :data:`fhobs.paper.PAPER_SCENARIOS`.
     t_end : float
@@ -148,21 +148,23 @@ def simulate(
         raise ValueError(f"unknown feedback {feedback!r}; choose one of {FEEDBACKS}")
     spec = PAPER_SCENARIOS[scenario]
     dt = check_step_size(dt)
-    E = gains.B if gains.E is None else gains.E
-    plant = LTIPlant(gains.A, gains.B, gains.C, E, x0=x0,
+    model = design.plant
+    E = model.B if model.E is None else model.E
+    plant = LTIPlant(model.A, model.B, model.C, E, x0=x0,
                      noise_amplitude=spec.noise_amplitude, seed=seed, scheme=plant_scheme,
                      kernel=kernel)
     h = dt if h is None else h
-    obs = FilteringObserver(gains, h=h, scheme=scheme, tau_max=tau_max, kernel=kernel)
-    others = [LuenbergerObserver(gains, h=h, scheme=scheme, kernel=kernel)]
-    if gains.kalman is not None:
-        others.append(KalmanObserver(gains, kernel=kernel))
+    obs = FilteringObserver(design.filtering, h=h, scheme=scheme, tau_max=tau_max,
+                            kernel=kernel)
+    others = [LuenbergerObserver(design.luenberger, h=h, scheme=scheme, kernel=kernel)]
+    if design.kalman is not None:
+        others.append(KalmanObserver(design.kalman, kernel=kernel))
     n_steps = int(round(t_end / dt))
-    n, n_model, k = gains.n, gains.n_model, gains.k
+    n, n_model, k = model.n, design.model.n_model, model.k
     x = np.empty((n_steps + 1, n))
     obs_state = np.empty((n_steps + 1, n_model + k + 1))  # [z, psi, xi] of the filtering observer
     estimates = np.empty((len(others), n_steps + 1, n))
-    ys, us = np.empty((n_steps, k)), np.empty((n_steps, gains.m))
+    ys, us = np.empty((n_steps, k)), np.empty((n_steps, model.m))
     t = np.arange(n_steps + 1) * dt
     q = np.repeat(spec.q_amplitude * np.sin(spec.q_frequency * t)[:, None], E.shape[1], axis=1)
     K = np.asarray(K, dtype=float)
@@ -185,7 +187,7 @@ def simulate(
     return SimulationResult(t=t, x=x, z=obs_state[:, :n],
                             z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
                             q_hat=obs_state[:, n:n_model],
-                            z_kalman=estimates[1] if gains.kalman is not None else None,
+                            z_kalman=estimates[1] if design.kalman is not None else None,
                             y=ys, u=us)
 
 
@@ -206,7 +208,8 @@ def replay(observer, result: SimulationResult) -> np.ndarray:
 
     Examples
     --------
-    >>> z = replay(KalmanObserver(gains), simulate(gains, "perturbed_noisy"))   # doctest: +SKIP
+    >>> result = simulate(design, "perturbed_noisy")            # doctest: +SKIP
+    >>> z = replay(KalmanObserver(design.kalman), result)       # doctest: +SKIP
     """
     dt = float(result.t[1] - result.t[0])
     out = np.empty((result.t.size, result.x.shape[1]))

@@ -723,7 +723,7 @@ def design_key(job: dict[str, Any]) -> str:
 
 # -- the worker side --------------------------------------------------------------------------
 _DESIGNS: dict[str, Any] = {}
-"""Designs of this process by design key: ``(PlantSpec, ObserverGains)``."""
+"""Designs of this process by design key: ``(PlantSpec, ObserverDesign)``."""
 _FMU_DIRS: dict[str, dict[str, Path]] = {}
 """FMUs built in this process, by design key, flavour and options."""
 _WORKDIR: list[Path] = []
@@ -744,14 +744,14 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     Returns
     -------
     tuple
-        ``(PlantSpec, ObserverGains, design key)``.
+        ``(PlantSpec, ObserverDesign, design key)``.
 
     Examples
     --------
     >>> job = {"base": "b", "spec_data": {"A": [[0, 1], [0, 0]], "B": [[0], [1]],
     ...        "C": [[1, 0]], "observer": {"rho": 2.0}}, "design": "spec", "params": {}}
-    >>> spec, gains, key = point_design(job)
-    >>> gains.rho, point_design(job)[1] is gains
+    >>> spec, design, key = point_design(job)
+    >>> design.filtering.rho, point_design(job)[1] is design
     (2.0, True)
     """
     from fhobs.design.kalman import with_kalman
@@ -762,20 +762,20 @@ def point_design(job: dict[str, Any]) -> tuple[Any, Any, str]:
     if key not in _DESIGNS:
         spec = spec_from_dict(design_spec_data(job), source=f"spec of base {job['base']!r}")
         if job["design"] == "paper":
-            gains = paper_gains()
-            gains = gains if spec.noise is None else with_kalman(gains, spec.noise)
+            design = paper_gains()
+            design = design if spec.noise is None else with_kalman(design, spec.noise)
         else:
-            gains = design_for_spec(spec)  # the design limits checked first
-        _DESIGNS[key] = (spec, gains)
+            design = design_for_spec(spec)  # the design limits checked first
+        _DESIGNS[key] = (spec, design)
     return (*_DESIGNS[key], key)
 
 
-def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
+def point_fmus(design: Any, key: str, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
     """The FMUs of a design, built once per process into its temporary folder.
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The design.
     key : str
         Its design key.
@@ -793,14 +793,14 @@ def point_fmus(gains: Any, key: str, flavour: str, options: dict[str, Any]) -> d
 
     Examples
     --------
-    >>> spec, gains, key = point_design(job)                     # doctest: +SKIP
-    >>> sorted(point_fmus(gains, key, "native", {}))              # doctest: +SKIP
+    >>> spec, design, key = point_design(job)                     # doctest: +SKIP
+    >>> sorted(point_fmus(design, key, "native", {}))              # doctest: +SKIP
     ['kalman', 'luenberger', 'observer', 'plant']
     """
     tag = fmu_tag(key, flavour, options)
     if tag not in _FMU_DIRS:
         out = _workdir() / "fmus" / tag
-        _FMU_DIRS[tag] = _build(gains, out, flavour, dict(options))
+        _FMU_DIRS[tag] = _build(design, out, flavour, dict(options))
     return _FMU_DIRS[tag]
 
 
@@ -815,17 +815,17 @@ def fmu_tag(key: str, flavour: str, options: dict[str, Any]) -> str:
     return _digest(json.dumps([key, flavour, options], sort_keys=True, default=float).encode())
 
 
-def _build(gains: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
+def _build(design: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
     """Build the FMUs, native ones with the ``native`` flavour (the design's Kalman filter's
     FMU only when it has one)."""
     from fhobs.build import build_fmus
     from fhobs.native.build import build_native_fmus
 
     kinds = options.pop("kinds", None)
-    if kinds is not None and gains.kalman is None:
+    if kinds is not None and design.kalman is None:
         kinds = [kind for kind in kinds if kind != "kalman"]
     build = build_native_fmus if flavour == "native" else build_fmus
-    return build(gains, out, kinds=kinds, **options)
+    return build(design, out, kinds=kinds, **options)
 
 
 def scenario_kinds(job: dict[str, Any]) -> list[str]:
@@ -884,16 +884,16 @@ def point_build(job: dict[str, Any]) -> tuple[Any, Any, dict[str, Path]]:
     Returns
     -------
     tuple
-        ``(PlantSpec, ObserverGains, {kind: path})``.
+        ``(PlantSpec, ObserverDesign, {kind: path})``.
 
     Examples
     --------
-    >>> spec, gains, fmus = point_build(job)      # doctest: +SKIP
+    >>> spec, design, fmus = point_build(job)      # doctest: +SKIP
     >>> sorted(fmus)                              # doctest: +SKIP
     ['kalman', 'luenberger', 'observer', 'plant']
     """
-    spec, gains, key = point_design(job)
-    return spec, gains, point_fmus(gains, key, job["fmus"], build_options(job, spec))
+    spec, design, key = point_design(job)
+    return spec, design, point_fmus(design, key, job["fmus"], build_options(job, spec))
 
 
 def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
@@ -903,7 +903,7 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``design_key``, ``gains`` (ObserverGains), ``tag`` (:func:`fmu_tag`), ``files``
+        ``design_key``, ``design`` (ObserverDesign), ``tag`` (:func:`fmu_tag`), ``files``
         (``{kind: (path relative to the FMU folder, bytes)}``) and ``build_s`` (the time of
         the design and the build, s).
 
@@ -914,17 +914,17 @@ def build_bundle(job: dict[str, Any]) -> dict[str, Any]:
     'ok'
     """
     clock = time.perf_counter()
-    spec, gains, fmus = point_build(job)
+    spec, design, fmus = point_build(job)
     key = design_key(job)
     tag = fmu_tag(key, job["fmus"], build_options(job, spec))
     root = _workdir() / "fmus" / tag
     files = {kind: (str(path.relative_to(root)), path.read_bytes()) for kind, path in fmus.items()}
-    return {"design_key": key, "gains": gains, "tag": tag, "files": files,
+    return {"design_key": key, "design": design, "tag": tag, "files": files,
             "build_s": time.perf_counter() - clock}
 
 
-def fmu_bundle(sweep: Sweep, gains: Any, fmu_dir: Path) -> dict[str, dict[str, Any]]:
-    """The bundles of FMUs built already, for :func:`run_in_process`: the design ``gains``
+def fmu_bundle(sweep: Sweep, design: Any, fmu_dir: Path) -> dict[str, dict[str, Any]]:
+    """The bundles of FMUs built already, for :func:`run_in_process`: ``design``, the design
     of every point of ``sweep`` (a sweep of one design and a scenario base), its FMUs those of
     ``fmu_dir`` (``<kind>.fmu``, of the sweep's flavour) that the scenario runs.
 
@@ -935,7 +935,7 @@ def fmu_bundle(sweep: Sweep, gains: Any, fmu_dir: Path) -> dict[str, dict[str, A
 
     Examples
     --------
-    >>> bundles = fmu_bundle(sweep, gains, Path("results/ours/fmus/native"))  # doctest: +SKIP
+    >>> bundles = fmu_bundle(sweep, design, Path("results/ours/fmus/native"))  # doctest: +SKIP
     >>> rows = run_in_process(sweep, bundles)                                 # doctest: +SKIP
     """
     bundles = {}
@@ -945,7 +945,7 @@ def fmu_bundle(sweep: Sweep, gains: Any, fmu_dir: Path) -> dict[str, dict[str, A
             files = {kind: (f"{kind}.fmu", (fmu_dir / f"{kind}.fmu").read_bytes())
                      for kind in kinds}
             key = design_key(job)
-            bundles[group] = {"design_key": key, "gains": gains, "files": files,
+            bundles[group] = {"design_key": key, "design": design, "files": files,
                               "tag": fmu_tag(key, job["fmus"], {"kinds": kinds}),
                               "build_s": 0.0}
     return bundles
@@ -958,7 +958,7 @@ def install_bundle(job: dict[str, Any], bundle: dict[str, Any]) -> None:
 
     if bundle["design_key"] not in _DESIGNS:
         spec = spec_from_dict(design_spec_data(job), source=f"spec of base {job['base']!r}")
-        _DESIGNS[bundle["design_key"]] = (spec, bundle["gains"])
+        _DESIGNS[bundle["design_key"]] = (spec, bundle["design"])
     if bundle["tag"] not in _FMU_DIRS:
         root = _workdir() / "fmus" / bundle["tag"]
         paths = {}
@@ -982,12 +982,12 @@ def point_system(job: dict[str, Any]) -> tuple[SystemSpec, float | None]:
     from harness.own_plant import RUNS_PER_SETTLING_TIME, own_plant_system
     from harness.system import build_blocks, override_evaluation
 
-    spec, gains, fmus = point_build(job)
+    spec, design, fmus = point_build(job)
     if job["kind"] == "plant":
         step = _plant_step(job, spec)
         stop = job["stop_time"] or RUNS_PER_SETTLING_TIME * spec.settling_time
         stop = step * round(stop / step)
-        system = own_plant_system(gains, fmus, spec.state_scale, stop, step, _plant_noise(spec))
+        system = own_plant_system(design, fmus, spec.state_scale, stop, step, _plant_noise(spec))
     else:
         system = job["system"]
         step = system.step if job["step"] is None else job["step"]

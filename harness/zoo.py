@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.feedback import state_feedback
 from fhobs.design.spec import PlantSpec, spec_from_dict
 from fhobs.paper import EXAMPLES
@@ -77,13 +77,13 @@ def load_zoo_spec(path: Path) -> PlantSpec:
     return spec_from_dict(data, source=str(path))
 
 
-def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
+def closed_loop(design: ObserverDesign, dt: float, h: float, t_end: float = 10.0,
                 scheme: str = "split", x0: np.ndarray | None = None) -> SimulationResult:
     """The zoo's nominal closed loop: plant, filtering and Luenberger observers, ``u = K x``.
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         A design of the plant.
     dt, h : float
         Communication step and the observers' internal step.
@@ -99,9 +99,10 @@ def closed_loop(gains: ObserverGains, dt: float, h: float, t_end: float = 10.0,
     SimulationResult
         Sampled at ``t_k = k dt``; :func:`convergence_figures` turns it into the figures.
     """
-    return simulate(gains, "nominal", t_end=t_end, dt=dt, h=h, scheme=scheme,
-                    K=state_feedback(gains.A, gains.B),
-                    x0=np.ones(gains.n) if x0 is None else x0, feedback="state")
+    plant = design.plant
+    return simulate(design, "nominal", t_end=t_end, dt=dt, h=h, scheme=scheme,
+                    K=state_feedback(plant.A, plant.B),
+                    x0=np.ones(plant.n) if x0 is None else x0, feedback="state")
 
 
 def convergence_figures(result: SimulationResult, estimate: str = "z") -> dict[str, float]:

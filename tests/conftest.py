@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.spec import PlantSpec, load_spec
 from fhobs.paper import PENDULUM_SPEC
 
@@ -64,24 +64,24 @@ def pendulum_spec() -> PlantSpec:
 
 
 @pytest.fixture(scope="session")
-def tuned_gains(pendulum_spec: PlantSpec) -> ObserverGains:
+def tuned_design(pendulum_spec: PlantSpec) -> ObserverDesign:
     """Our observer design for the pendulum (default objective), without the Kalman filter of
-    its [noise] table (``kalman_gains`` has it)."""
+    its [noise] table (``kalman_design`` has it)."""
     from fhobs.design.observer import design_for_spec  # here: the xdist controller runs no test
 
     return design_for_spec(dataclasses.replace(pendulum_spec, noise=None))
 
 
 @pytest.fixture(scope="session")
-def kalman_gains(tuned_gains: ObserverGains, pendulum_spec: PlantSpec) -> ObserverGains:
+def kalman_design(tuned_design: ObserverDesign, pendulum_spec: PlantSpec) -> ObserverDesign:
     """The pendulum design with the Kalman filter of examples/pendulum.toml's [noise] table."""
     from fhobs.design.kalman import with_kalman
 
-    return with_kalman(tuned_gains, pendulum_spec.noise)
+    return with_kalman(tuned_design, pendulum_spec.noise)
 
 
 @pytest.fixture(scope="session")
-def paper_design() -> ObserverGains:
+def paper_design() -> ObserverDesign:
     """The paper's published gains, certified."""
     from fhobs.design.observer import paper_gains
 

@@ -4,10 +4,12 @@ plants. The gains are shared, so a test must not modify their arrays in place (c
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import Any
 
 import numpy as np
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ESTIMATORS, SHARED, ObserverDesign
 from fhobs.design.observer import design_for_spec
 from fhobs.design.spec import spec_from_dict
 
@@ -17,13 +19,13 @@ ZOO = zoo_spec_paths()
 
 
 @functools.cache
-def zoo_design(name: str) -> ObserverGains:
+def zoo_design(name: str) -> ObserverDesign:
     """The bundled example's design with every tuning parameter at its default."""
     return design_for_spec(load_zoo_spec(ZOO[name]))
 
 
 @functools.cache
-def random_design(seed: int, n: int, k: int, order: int) -> ObserverGains:
+def random_design(seed: int, n: int, k: int, order: int) -> ObserverDesign:
     """A random observable plant (m = 2) designed with explicit rho = 3 and gamma = 2.75; with
     ``order`` >= 1 a random E and a disturbance model of that order."""
     rng = np.random.default_rng(seed)
@@ -35,3 +37,16 @@ def random_design(seed: int, n: int, k: int, order: int) -> ObserverGains:
         data["E"] = rng.standard_normal((n, 1)).tolist()
         data["observer"]["disturbance_order"] = order
     return design_for_spec(spec_from_dict(data, source=f"random seed {seed}"))
+
+
+def edited_design(design: ObserverDesign, path: str, value: Any) -> ObserverDesign:
+    """``design`` with the field ``path`` of one of its records (``"filtering.L"``,
+    ``"plant.A"``, ``"model.G_d"``) replaced by ``value``; an edited plant or model replaces the
+    design's in every estimator record that holds it (they share it)."""
+    head, _, field = path.partition(".")
+    new = dataclasses.replace(getattr(design, head), **{field: value})
+    if head not in SHARED:
+        return dataclasses.replace(design, **{head: new})
+    records = {name: dataclasses.replace(getattr(design, name), **{head: new})
+               for name in ESTIMATORS if hasattr(getattr(design, name), head)}
+    return dataclasses.replace(design, **{head: new}, **records)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fhobs.build import build_fmus
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.plant import LTIPlant
 from fhobs.design.spec import load_spec
 from fhobs.native.build import build_native_fmus
@@ -102,11 +102,11 @@ class FmuDriver:
 
 
 @pytest.fixture(scope="session")
-def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: ObserverGains):
+def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_design: ObserverDesign):
     """observer.fmu, luenberger.fmu, kalman.fmu and plant.fmu of the pendulum design (the
     Kalman filter of its [noise] table), built once."""
     return build_fmus(
-        kalman_gains,
+        kalman_design,
         tmp_path_factory.mktemp("pendulum_fmus"),
         x0=PENDULUM_X0,
         noise_amplitude=NOISE_AMPLITUDE,
@@ -117,7 +117,7 @@ def pendulum_fmus(tmp_path_factory: pytest.TempPathFactory, kalman_gains: Observ
 
 @pytest.fixture(scope="session")
 def paper_design_fmus(tmp_path_factory: pytest.TempPathFactory,
-                      paper_design: ObserverGains) -> dict[str, Path]:
+                      paper_design: ObserverDesign) -> dict[str, Path]:
     """observer.fmu, prescribed_time.fmu and plant.fmu of the paper's gains (default start
     values), built once."""
     return build_fmus(paper_design, tmp_path_factory.mktemp("paper_design_fmus"),
@@ -129,18 +129,18 @@ NATIVE_KINDS = ("observer", "luenberger", "kalman", "plant", "prescribed_time")
 
 @pytest.fixture(scope="session")
 def native_fmus(tmp_path_factory: pytest.TempPathFactory,
-                kalman_gains: ObserverGains) -> dict[str, Path]:
+                kalman_design: ObserverDesign) -> dict[str, Path]:
     """The native FMUs of all five kinds, of the design and options of ``pendulum_fmus``, built
     once (needs linux and cc: the modules that use it skip without). Their modelDescriptions
     are those of the default options but for the plant's start values (x0, noise): a test of
     another kind, or one that sets the plant's start values, can take them."""
-    return build_native_fmus(kalman_gains, tmp_path_factory.mktemp("native"), kinds=NATIVE_KINDS,
+    return build_native_fmus(kalman_design, tmp_path_factory.mktemp("native"), kinds=NATIVE_KINDS,
                              x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
                              noise_seed=NOISE_SEED, h=H)
 
 
 @pytest.fixture(scope="session")
-def chain_gains() -> ObserverGains:
+def chain_design() -> ObserverDesign:
     """A second design with other dimensions (n = 3, k = 1): the triple integrator."""
     from fhobs.design.observer import design_for_spec  # here: the xdist controller runs no test
 
@@ -148,9 +148,9 @@ def chain_gains() -> ObserverGains:
 
 
 @pytest.fixture(scope="session")
-def chain_observer(tmp_path_factory: pytest.TempPathFactory, chain_gains: ObserverGains) -> Path:
+def chain_observer(tmp_path_factory: pytest.TempPathFactory, chain_design: ObserverDesign) -> Path:
     """observer.fmu of the triple integrator."""
-    built = build_fmus(chain_gains, tmp_path_factory.mktemp("chain_fmus"), kinds=("observer",))
+    built = build_fmus(chain_design, tmp_path_factory.mktemp("chain_fmus"), kinds=("observer",))
     return built["observer"]
 
 
@@ -184,14 +184,15 @@ def random_walk(seed: int, steps: int, size: int, scale: float) -> np.ndarray:
     return np.cumsum(rng.normal(scale=scale, size=(steps, size)), axis=0)
 
 
-def plant_measurements(gains: ObserverGains, seed: int, steps: int, dt: float,
+def plant_measurements(gains: ObserverDesign, seed: int, steps: int, dt: float,
                        scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(ys, us): a seeded random run of the design's plant (numpy, noise 1e-3 relative) under
     random-walk inputs, the observers' inputs."""
     rng = np.random.default_rng(seed)
-    plant = LTIPlant(gains.A, gains.B, gains.C, x0=scale * rng.standard_normal(gains.n),
+    plant = LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C,
+                     x0=scale * rng.standard_normal(gains.plant.n),
                      noise_amplitude=1e-3 * scale, seed=seed, kernel=False)
-    us = scale * random_walk(seed, steps, gains.m, 0.3)
+    us = scale * random_walk(seed, steps, gains.plant.m, 0.3)
     ys = []
     for u in us:
         ys.append(plant.y)

@@ -1,7 +1,9 @@
 """fhobs: the filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov) for FMI 2.0.
 
 What a user needs is here: the design (:func:`design_observer`: a plant as arrays -> a
-certified design record :class:`ObserverGains`; :func:`load_spec` and :func:`design_for_spec`
+certified :class:`ObserverDesign`: the :class:`PlantModel`, the :class:`HomogeneousModel` and one
+record per estimator, :class:`FilteringGains`, :class:`PrescribedTimeGains`,
+:class:`LuenbergerGains`, :class:`KalmanGains`; :func:`load_spec` and :func:`design_for_spec`
 for a plant spec file; :func:`paper_gains`, the paper's published design; :func:`certify`), the
 FMUs (:func:`build_fmus`), the runtime estimators the FMUs run (:class:`FilteringObserver`,
 :class:`PrescribedTimeObserver`, :class:`LuenbergerObserver`, :class:`KalmanObserver`,
@@ -13,8 +15,8 @@ the slave classes of :mod:`fhobs.fmu`).
 Examples
 --------
 >>> import fhobs
->>> gains = fhobs.design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
->>> gains.n_tilde
+>>> design = fhobs.design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+>>> design.model.n_tilde
 2
 >>> "FilteringObserver" in dir(fhobs)
 True
@@ -34,7 +36,13 @@ _PUBLIC = {
     "load_spec": "fhobs.design.spec",
     "certify": "fhobs.core.certificate",
     "build_fmus": "fhobs.build",
-    "ObserverGains": "fhobs.core.gains",
+    "ObserverDesign": "fhobs.core.gains",
+    "PlantModel": "fhobs.core.gains",
+    "HomogeneousModel": "fhobs.core.gains",
+    "FilteringGains": "fhobs.core.gains",
+    "PrescribedTimeGains": "fhobs.core.gains",
+    "LuenbergerGains": "fhobs.core.gains",
+    "KalmanGains": "fhobs.core.gains",
     "FilteringObserver": "fhobs.core.runtime",
     "PrescribedTimeObserver": "fhobs.core.runtime",
     "LuenbergerObserver": "fhobs.core.runtime",
@@ -48,16 +56,25 @@ _PUBLIC = {
     "BuildError": "fhobs.errors",
 }
 __all__ = [
-    "BuildError", "CertificateError", "FhobsError", "FilteringObserver", "KalmanDesignError",
-    "KalmanObserver", "LMIError", "LTIPlant", "LuenbergerObserver", "ObserverGains",
-    "PrescribedTimeObserver", "SpecError", "build_fmus", "certify", "design_for_spec",
-    "design_observer", "load_spec", "paper_gains",
+    "BuildError", "CertificateError", "FhobsError", "FilteringGains", "FilteringObserver",
+    "HomogeneousModel", "KalmanDesignError", "KalmanGains", "KalmanObserver", "LMIError",
+    "LTIPlant", "LuenbergerGains", "LuenbergerObserver", "ObserverDesign", "PlantModel",
+    "PrescribedTimeGains", "PrescribedTimeObserver", "SpecError", "build_fmus", "certify",
+    "design_for_spec", "design_observer", "load_spec", "paper_gains",
 ]
 
 if TYPE_CHECKING:  # what the lazy imports below give, for type checkers and editors
     from fhobs.build import build_fmus
     from fhobs.core.certificate import certify
-    from fhobs.core.gains import ObserverGains
+    from fhobs.core.gains import (
+        FilteringGains,
+        HomogeneousModel,
+        KalmanGains,
+        LuenbergerGains,
+        ObserverDesign,
+        PlantModel,
+        PrescribedTimeGains,
+    )
     from fhobs.core.kalman_filter import KalmanObserver
     from fhobs.core.plant import LTIPlant
     from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver

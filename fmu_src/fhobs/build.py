@@ -1,5 +1,5 @@
 """Build ``observer.fmu``, ``luenberger.fmu``, ``prescribed_time.fmu``, ``plant.fmu`` and, when
-the design has a Kalman filter, ``kalman.fmu`` from an :class:`ObserverGains`.
+the design has a Kalman filter, ``kalman.fmu`` from an :class:`ObserverDesign`.
 
 Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from .core.certificate import certify
-from .core.gains import ObserverGains
+from .core.gains import ObserverDesign
 from .core.kernel import (
     HEADER,
     LIBRARY_FLAGS,
@@ -67,7 +67,7 @@ PYTHON_RECORD = "resources/fhobs_python.txt"
 
 
 def build_fmus(
-    gains: ObserverGains,
+    design: ObserverDesign,
     out_dir: Path,
     *,
     kinds: Iterable[str] | None = None,
@@ -79,13 +79,13 @@ def build_fmus(
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The certified design; it is re-certified here (numpy-only check) before building.
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
     kinds : iterable of str, optional
         Among :data:`fhobs.fmu.kinds.KINDS`: observer, luenberger, plant, kalman,
-        prescribed_time. Default: all, ``kalman`` only when ``gains.kalman`` is set.
+        prescribed_time. Default: all, ``kalman`` only when ``design.kalman`` is set.
     status_wrapper : bool, optional
         Put the ``fmi2Error`` wrapper in front of pythonfmu's linux64 binary. Default: when
         a C compiler is found. True without a compiler raises :class:`BuildError`.
@@ -106,13 +106,13 @@ def build_fmus(
     --------
     >>> import tempfile
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> built = build_fmus(gains, tempfile.mkdtemp(), kinds=("observer", "plant"),
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> built = build_fmus(design, tempfile.mkdtemp(), kinds=("observer", "plant"),
     ...                    x0=[1.0, 0.0], status_wrapper=False, kernel=False)
     >>> sorted(path.name for path in built.values())
     ['observer.fmu', 'plant.fmu']
     """
-    kinds = tuple(default_kinds(gains) if kinds is None else kinds)
+    kinds = tuple(default_kinds(design) if kinds is None else kinds)
     unknown = set(kinds) - set(KINDS)
     if unknown:
         raise ValueError(f"unknown FMU kind(s) {sorted(unknown)}; known: {list(KINDS)}")
@@ -125,14 +125,14 @@ def build_fmus(
         kernel = compiler is not None and sys.platform == "linux"
     if kernel and (compiler is None or sys.platform != "linux"):
         raise BuildError("kernel=True needs Linux and a C compiler (cc or gcc) on PATH")
-    certify(gains)
+    certify(design)
     config = {"status_wrapper": status_wrapper, "kernel": kernel,
-              **fmu_options(gains, kinds, **options)}
+              **fmu_options(design, kinds, **options)}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fhobs_build_") as tmp:
         stage = Path(tmp)
-        design_json = json.dumps(gains.to_dict(), indent=1)
+        design_json = json.dumps(design.to_dict(), indent=1)
         tag = build_tag(design_json + json.dumps(config, sort_keys=True))
         library = _compile_kernel() if kernel else None
         (stage / DESIGN_FILE).write_text(design_json)
@@ -157,7 +157,7 @@ def build_fmus(
     return built
 
 
-def default_kinds(gains: ObserverGains) -> tuple[str, ...]:
+def default_kinds(design: ObserverDesign) -> tuple[str, ...]:
     """The kinds built by default: every kind of :data:`~fhobs.fmu.kinds.KINDS`, ``kalman``
     only when the design has a Kalman filter.
 
@@ -167,11 +167,11 @@ def default_kinds(gains: ObserverGains) -> tuple[str, ...]:
     >>> default_kinds(paper_gains())
     ('observer', 'prescribed_time', 'luenberger', 'plant')
     """
-    return tuple(kind for kind in KINDS if kind != "kalman" or gains.kalman is not None)
+    return tuple(kind for kind in KINDS if kind != "kalman" or design.kalman is not None)
 
 
 def fmu_options(
-    gains: ObserverGains,
+    design: ObserverDesign,
     kinds: Iterable[str],
     *,
     h: float = DEFAULT_H,
@@ -191,7 +191,7 @@ def fmu_options(
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The design.
     kinds : iterable of str
         The kinds to build (a prescribed-time FMU needs a T0 that gives an initial xi; a
@@ -230,11 +230,12 @@ def fmu_options(
     >>> fmu_options(paper_gains(), ["observer"], z0=[1, 0, 0, 0])["z0"]
     [1.0, 0.0, 0.0, 0.0]
     """
-    if "kalman" in kinds and gains.kalman is None:
-        raise ValueError("kalman.fmu needs a design with a Kalman filter (gains.kalman is None; "
+    if "kalman" in kinds and design.kalman is None:
+        raise ValueError("kalman.fmu needs a design with a Kalman filter (design.kalman is None; "
                          "give the spec a [noise] table)")
     if "prescribed_time" in kinds:
-        prescribed_xi0(T0, gains.nu, gains.rho)  # ValueError naming T0 if it gives no xi0
+        # ValueError naming T0 if it gives no xi0
+        prescribed_xi0(T0, design.model.nu, design.prescribed_time.rho)
     scheme = SCHEMES[0] if scheme is None else scheme
     if scheme not in SCHEMES:
         raise ValueError(f"scheme {scheme!r} is not one of {SCHEMES}")
@@ -244,11 +245,11 @@ def fmu_options(
         "input_bound": float(input_bound),
         "h": float(h),
         "scheme": scheme,
-        "z0": _vector(z0, gains.n, "z0"),
-        "psi0": _vector(psi0, gains.k, "psi0"),
+        "z0": _vector(z0, design.plant.n, "z0"),
+        "psi0": _vector(psi0, design.plant.k, "psi0"),
         "xi0": float(xi0),
         "T0": float(T0),
-        "x0": _vector(x0, gains.n, "x0"),
+        "x0": _vector(x0, design.plant.n, "x0"),
         "noise_amplitude": float(noise_amplitude),
         "noise_seed": int(noise_seed),
         "plant_scheme": plant_scheme,

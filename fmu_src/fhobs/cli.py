@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.gains import ObserverGains
+from .core.gains import FilteringGains, ObserverDesign
 from .core.runtime import DEFAULT_H
 from .design.limits import check_design_limits
 from .design.spec import OBJECTIVES, load_spec
@@ -87,7 +87,7 @@ OVERRIDES = {
 """The spec's [observer] keys that the command line can set."""
 
 
-def design_summary(gains: ObserverGains) -> list[str]:
+def design_summary(design: ObserverDesign) -> list[str]:
     """The achieved figures of a design, one line each, and a warning line where a requested
     figure is missed.
 
@@ -97,15 +97,17 @@ def design_summary(gains: ObserverGains) -> list[str]:
     >>> design_summary(paper_gains())[0].startswith("observer: nu = -0.333")
     True
     """
-    bar_L = np.vstack([gains.L_tilde, gains.L])
+    filtering, model = design.filtering, design.model
+    bar_L = np.vstack([filtering.L_tilde, filtering.L])
     lines = [
-        f"observer: nu = {gains.nu:.4g}, rho = {gains.rho:.4g}, gamma = {gains.gamma:.4g}, "
-        f"n_tilde = {gains.n_tilde}, model states = {gains.n_model}",
+        f"observer: nu = {model.nu:.4g}, rho = {filtering.rho:.4g}, "
+        f"gamma = {filtering.gamma:.4g}, n_tilde = {model.n_tilde}, "
+        f"model states = {model.n_model}",
         f"gains: |[L_tilde; L]| = {np.linalg.norm(bar_L, 2):.3g}, |L0| = "
-        f"{np.linalg.norm(gains.L0, 2):.3g}; slowest linear mode "
-        f"{slowest_mode(gains):.3g} 1/s",
+        f"{np.linalg.norm(model.L0, 2):.3g}; slowest linear mode "
+        f"{slowest_mode(filtering):.3g} 1/s",
     ]
-    tuning = gains.certificate.get("tuning")
+    tuning = design.settling_tuning
     if tuning:
         lines.append(
             f"predicted settling time (error to 1e-3 of its start, from errors of the size of "
@@ -119,19 +121,21 @@ def design_summary(gains: ObserverGains) -> list[str]:
                 "are not certified): ask for a longer settling_time, give rho yourself, or "
                 "accept the figures above"
             )
-    if gains.kalman is not None:
-        lines.append(f"kalman filter: disturbance order {gains.kalman.disturbance_order}, Ts = "
-                     f"{gains.kalman.sample_time:g} s; {gains.kalman.tuning}")
+    kalman = design.kalman
+    if kalman is not None:
+        lines.append(f"kalman filter: disturbance order {kalman.disturbance_order}, Ts = "
+                     f"{kalman.sample_time:g} s; {kalman.tuning}")
     return lines
 
 
-def slowest_mode(gains: ObserverGains) -> float:
+def slowest_mode(filtering: FilteringGains) -> float:
     """max Re eig(bar_A0 + bar_L bar_C): the slowest mode of the observer's linear part at
     sigma = 1 (its error decays like exp(that rate * sigma^nu t) at a frozen level sigma)."""
     from .design.observer import augmented_system  # the design extra: imported when used
 
-    bar_A0, _, bar_C = augmented_system(gains.A0, gains.model[2], gains.G_d)
-    bar_L = np.vstack([gains.L_tilde, gains.L])
+    bar_A0, _, bar_C = augmented_system(filtering.A0, filtering.model_matrices[2],
+                                        filtering.model.G_d)
+    bar_L = np.vstack([filtering.L_tilde, filtering.L])
     return float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
 
 
@@ -221,9 +225,9 @@ def main(argv: list[str] | None = None) -> int:
             from .design.tuning import design_for_noise_spec
 
             tuned = design_for_noise_spec(spec)
-            gains, tuning_lines = tuned.gains, tuned.summary()
+            design, tuning_lines = tuned.design, tuned.summary()
         else:
-            gains, tuning_lines = design_for_spec(spec, args.objective), []
+            design, tuning_lines = design_for_spec(spec, args.objective), []
     except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 2
@@ -238,24 +242,23 @@ def main(argv: list[str] | None = None) -> int:
     elapsed = time.perf_counter() - start
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        path = gains.save_json(args.out / "design.json")
-        print(
-            f"design: n={gains.n} k={gains.k} n_tilde={gains.n_tilde} in {elapsed:.2f} s -> {path}"
-        )
-        for line in design_summary(gains) + tuning_lines:
+        path = design.save_json(args.out / "design.json")
+        print(f"design: n={design.plant.n} k={design.plant.k} n_tilde={design.model.n_tilde} "
+              f"in {elapsed:.2f} s -> {path}")
+        for line in design_summary(design) + tuning_lines:
             print(line)
         if not args.design_only:
             from .build import build_fmus
 
             kernel = False if args.no_kernel else None
-            for name, fmu in build_fmus(gains, args.out, h=args.h, kernel=kernel).items():
+            for name, fmu in build_fmus(design, args.out, h=args.h, kernel=kernel).items():
                 print(f"{name}: {fmu}")
         if args.native:
             from .build import BuildError
             from .native.build import build_native_fmus
 
             try:
-                native = build_native_fmus(gains, args.out / "native", steps=args.native_step,
+                native = build_native_fmus(design, args.out / "native", steps=args.native_step,
                                            h=args.h)
             except BuildError as exc:
                 print(f"error: native FMUs: {exc}", file=sys.stderr)

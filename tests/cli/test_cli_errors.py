@@ -91,8 +91,8 @@ def test_the_limit_is_on_the_chain_not_on_n(tmp_path, capsys):
     code, err = _design(tmp_path, capsys, _chain(60, 6))
     assert code == 0, err
     design = json.loads((tmp_path / "out" / "design.json").read_text())
-    assert design["n_tilde"] == 10 and np.shape(design["L0"]) == (60, 6)
-    assert design["certificate"]["checks"]["lmi_filtering"] < 0
+    assert design["model"]["n_tilde"] == 10 and np.shape(design["model"]["L0"]) == (60, 6)
+    assert design["filtering"]["certificate"]["checks"]["lmi_filtering"] < 0
 
 
 def test_a_300_chain_is_refused_by_the_limit_function():
@@ -348,11 +348,11 @@ def test_design_overrides_are_checked_like_the_spec(tmp_path, capsys, options, w
 def test_the_api_and_the_command_line_give_one_design(tmp_path):
     """``design_for_spec`` of a spec with a [noise] table is the design.json that
     ``build_fmu.py --design-only`` writes for it: the Kalman filter included."""
-    from fhobs.core.gains import ObserverGains
+    from fhobs.core.gains import ObserverDesign
     from fhobs.paper import PENDULUM_SPEC
 
     assert design_main([str(PENDULUM_SPEC), "--out", str(tmp_path), "--design-only"]) == 0
-    written = ObserverGains.load_json(tmp_path / "design.json").to_dict()
+    written = ObserverDesign.load_json(tmp_path / "design.json").to_dict()
     api = design_for_spec(load_spec(PENDULUM_SPEC)).to_dict()
     assert api["kalman"] is not None
     assert json.dumps(api, sort_keys=True) == json.dumps(written, sort_keys=True)
@@ -388,7 +388,7 @@ def test_tune_noise_picks_a_design_for_the_specs_noise_and_disturbance(tmp_path,
     the [disturbance] step 1e4 times better than the tuned Kalman filter; both predictions
     printed and kept in design.json, and the chosen design re-certifies."""
     from fhobs.core.certificate import certify
-    from fhobs.core.gains import ObserverGains
+    from fhobs.core.gains import ObserverDesign
 
     spec = tmp_path / "di.toml"
     spec.write_text(TUNED_SPEC + '[disturbance]\nshape = "step"\nsize = 0.2\nstart = 0.5\n')
@@ -396,9 +396,9 @@ def test_tune_noise_picks_a_design_for_the_specs_noise_and_disturbance(tmp_path,
                         "--tune-noise"]) == 0
     out = capsys.readouterr().out
     assert "noise tuning:" in out and "Kalman filter (intensity" in out
-    gains = ObserverGains.load_json(tmp_path / "out" / "design.json")
+    gains = ObserverDesign.load_json(tmp_path / "out" / "design.json")
     certify(gains)
-    tuning = gains.certificate["noise_tuning"]
+    tuning = gains.noise_tuning
     assert gains.kalman is not None and tuning["met"]
     assert tuning["predicted_noise_free_max"] * 1e4 <= tuning["kalman_predicted_noise_free_max"]
     assert f"{tuning['predicted_noisy_rms']:.3e}" in out

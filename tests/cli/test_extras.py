@@ -57,10 +57,10 @@ def test_a_runtime_only_user_builds_and_runs_fmus_without_the_extras(tmp_path):
     with_kalman(paper_gains(), load_spec(PENDULUM_SPEC).noise).save_json(tmp_path / "design.json")
     code = (f"from pathlib import Path\n"
             f"from fhobs.build import build_fmus\n"
-            f"from fhobs.core.gains import ObserverGains\n"
+            f"from fhobs.core.gains import ObserverDesign\n"
             f"from harness.cli import main\n"
             f"out = Path({str(tmp_path)!r})\n"
-            f"build_fmus(ObserverGains.load_json(out / 'design.json'), out / 'fmus')\n"
+            f"build_fmus(ObserverDesign.load_json(out / 'design.json'), out / 'fmus')\n"
             f"raise SystemExit(main(['run', 'pendulum_nominal', '--fmu-dir', str(out / 'fmus'),"
             f" '--out', str(out / 'run'), '--stop-time', '0.05', '--no-plots',"
             f" '--set', 'plant.noise_amplitude=0']))\n")

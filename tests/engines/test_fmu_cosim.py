@@ -29,9 +29,9 @@ Q_OMEGA = PAPER_SCENARIOS["perturbed"].q_frequency
 
 def in_process_loop(gains) -> tuple[np.ndarray, np.ndarray]:
     """x and x_hat at t_1..t_N from the numpy runtime, with the gain block's delay."""
-    plant = LTIPlant(gains.A, gains.B, gains.C, gains.E, x0=PENDULUM_X0,
+    plant = LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C, gains.plant.E, x0=PENDULUM_X0,
                      noise_amplitude=NOISE_AMPLITUDE, seed=NOISE_SEED)
-    obs = FilteringObserver(gains, h=H, scheme=SCHEMES[0])
+    obs = FilteringObserver(gains.filtering, h=H, scheme=SCHEMES[0])
     z_delayed = obs.x_hat
     xs, zs = [], []
     for k in range(STEPS):
@@ -50,19 +50,19 @@ def fmpy_loop(open_fmu, gains) -> tuple[np.ndarray, np.ndarray]:
     plant, obs = open_fmu("plant", "plant"), open_fmu("observer", "observer")
     plant.start()
     obs.start()
-    z_delayed = obs.get("x_hat", (gains.n,))
+    z_delayed = obs.get("x_hat", (gains.plant.n,))
     xs, zs = [], []
     for k in range(STEPS):
-        y, u = plant.get("y", (gains.k,)), K @ z_delayed
-        z_delayed = obs.get("x_hat", (gains.n,))
+        y, u = plant.get("y", (gains.plant.k,)), K @ z_delayed
+        z_delayed = obs.get("x_hat", (gains.plant.n,))
         plant.set("u", u)
         plant.set("q", [Q_AMPLITUDE * np.sin(Q_OMEGA * k * DT)])
         obs.set("y", y)
         obs.set("u", u)
         plant.fmu.doStep(k * DT, DT)
         obs.fmu.doStep(k * DT, DT)
-        xs.append(plant.get("x", (gains.n,)))
-        zs.append(obs.get("x_hat", (gains.n,)))
+        xs.append(plant.get("x", (gains.plant.n,)))
+        zs.append(obs.get("x_hat", (gains.plant.n,)))
     return np.array(xs), np.array(zs)
 
 
@@ -79,7 +79,7 @@ def libcosim_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]
     log_output_level(CosimLogLevel.WARNING)
     execution = CosimExecution.from_step_size(step_size=int(round(DT * 1e9)))
     paths = {"plant": fmus["plant"], "observer": fmus["observer"],
-             "gain": block_fmu("gain", (1, gains.n), block_dir),
+             "gain": block_fmu("gain", (1, gains.plant.n), block_dir),
              "sine": block_fmu("sine", (1,), block_dir)}
     index, vr = {}, {}
     for name, path in paths.items():
@@ -92,9 +92,10 @@ def libcosim_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]
             index[src], vr[src][src_var], index[dst], vr[dst][dst_var])
         assert status == 0  # libcosim's success code
 
-    for out_name, in_name in zip(names("y", (gains.k,)), names("y", (gains.k,)), strict=True):
+    k, n = gains.plant.k, gains.plant.n
+    for out_name, in_name in zip(names("y", (k,)), names("y", (k,)), strict=True):
         connect("plant", out_name, "observer", in_name)
-    for out_name, in_name in zip(names("x_hat", (gains.n,)), names("u", (gains.n,)), strict=True):
+    for out_name, in_name in zip(names("x_hat", (n,)), names("u", (n,)), strict=True):
         connect("observer", out_name, "gain", in_name)
     connect("gain", "y[1]", "plant", "u[1]")
     connect("gain", "y[1]", "observer", "u[1]")
@@ -106,8 +107,8 @@ def libcosim_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]
 
     recorder = CosimObserver.create_time_series(buffer_size=STEPS + 2)
     execution.add_observer(recorder)
-    signals = [("plant", n) for n in names("x", (gains.n,))]
-    signals += [("observer", n) for n in names("x_hat", (gains.n,))]
+    signals = [("plant", n) for n in names("x", (gains.plant.n,))]
+    signals += [("observer", n) for n in names("x_hat", (gains.plant.n,))]
     for slave, name in signals:
         recorder.start_time_series(index[slave], vr[slave][name], CosimVariableType.REAL)
     assert execution.step(STEPS)
@@ -120,20 +121,20 @@ def libcosim_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]
                                rtol=0, atol=1e-12)
     execution.stop()
     data = np.column_stack(columns)
-    return data[:, : gains.n], data[:, gains.n:]
+    return data[:, : gains.plant.n], data[:, gains.plant.n:]
 
 
-def test_fmpy_coupled_loop_equals_in_process(open_fmu, tuned_gains):
-    x_ref, z_ref = in_process_loop(tuned_gains)
-    x_fmu, z_fmu = fmpy_loop(open_fmu, tuned_gains)
+def test_fmpy_coupled_loop_equals_in_process(open_fmu, tuned_design):
+    x_ref, z_ref = in_process_loop(tuned_design)
+    x_fmu, z_fmu = fmpy_loop(open_fmu, tuned_design)
     assert np.max(np.abs(z_ref)) > 0.1  # the estimate moved
     np.testing.assert_allclose(x_fmu, x_ref, rtol=0, atol=1e-12)
     np.testing.assert_allclose(z_fmu, z_ref, rtol=0, atol=1e-12)
 
 
-def test_libcosim_coupled_loop_equals_in_process(pendulum_fmus, tuned_gains, tmp_path):
-    x_ref, z_ref = in_process_loop(tuned_gains)
-    x_cosim, z_cosim = libcosim_loop(pendulum_fmus, tmp_path / "blocks", tuned_gains)
+def test_libcosim_coupled_loop_equals_in_process(pendulum_fmus, tuned_design, tmp_path):
+    x_ref, z_ref = in_process_loop(tuned_design)
+    x_cosim, z_cosim = libcosim_loop(pendulum_fmus, tmp_path / "blocks", tuned_design)
     np.testing.assert_allclose(x_cosim, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(z_cosim, z_ref, rtol=0, atol=1e-9)
 
@@ -147,11 +148,12 @@ def ecos_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]:
     structure = EcosSimulationStructure()
     structure.add_model("plant", str(fmus["plant"]))
     structure.add_model("observer", str(fmus["observer"]))
-    structure.add_model("gain", str(block_fmu("gain", (1, gains.n), block_dir)))
+    structure.add_model("gain", str(block_fmu("gain", (1, gains.plant.n), block_dir)))
     structure.add_model("sine", str(block_fmu("sine", (1,), block_dir)))
-    pairs = [(f"plant::{a}", f"observer::{a}") for a in names("y", (gains.k,))]
+    pairs = [(f"plant::{a}", f"observer::{a}") for a in names("y", (gains.plant.k,))]
     pairs += [(f"observer::{a}", f"gain::{b}")
-              for a, b in zip(names("x_hat", (gains.n,)), names("u", (gains.n,)), strict=True)]
+              for a, b in zip(names("x_hat", (gains.plant.n,)), names("u", (gains.plant.n,)),
+                              strict=True)]
     pairs += [("gain::y[1]", "plant::u[1]"), ("gain::y[1]", "observer::u[1]"),
               ("sine::y[1]", "plant::q[1]")]
     for source, sink in pairs:
@@ -159,8 +161,8 @@ def ecos_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]:
     start = {f"gain::{n}": float(v) for n, v in zip(names("K", K.shape), K.ravel(), strict=True)}
     start |= {"sine::amplitude[1]": Q_AMPLITUDE, "sine::omega[1]": Q_OMEGA}
     structure.add_parameter_set("start", start)
-    signals = [f"plant::{n}" for n in names("x", (gains.n,))]
-    signals += [f"observer::{n}" for n in names("x_hat", (gains.n,))]
+    signals = [f"plant::{n}" for n in names("x", (gains.plant.n,))]
+    signals += [f"observer::{n}" for n in names("x_hat", (gains.plant.n,))]
     rows = []
     with EcosSimulation(structure=structure, step_size=DT) as sim:
         sim.init(parameter_set="start")
@@ -169,11 +171,11 @@ def ecos_loop(fmus: dict, block_dir, gains) -> tuple[np.ndarray, np.ndarray]:
             rows.append([sim.get_real(s) for s in signals])
         sim.terminate()
     data = np.array(rows)
-    return data[:, : gains.n], data[:, gains.n:]
+    return data[:, : gains.plant.n], data[:, gains.plant.n:]
 
 
-def test_ecos_coupled_loop_equals_in_process(pendulum_fmus, tuned_gains, tmp_path):
-    x_ref, z_ref = in_process_loop(tuned_gains)
-    x_ecos, z_ecos = ecos_loop(pendulum_fmus, tmp_path / "blocks", tuned_gains)
+def test_ecos_coupled_loop_equals_in_process(pendulum_fmus, tuned_design, tmp_path):
+    x_ref, z_ref = in_process_loop(tuned_design)
+    x_ecos, z_ecos = ecos_loop(pendulum_fmus, tmp_path / "blocks", tuned_design)
     np.testing.assert_allclose(x_ecos, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(z_ecos, z_ref, rtol=0, atol=1e-9)

@@ -312,7 +312,7 @@ def test_plant_whose_zoh_has_no_correct_digit_is_an_error(open_fmu, entry):
         driver.fmu.doStep(0.0, 1e-5)
 
 
-def test_internal_step_larger_than_the_communication_step_is_the_step(open_fmu, tuned_gains):
+def test_internal_step_larger_than_the_communication_step_is_the_step(open_fmu, tuned_design):
     """h = 0.1 at dt = 1e-3: the runtime steps by min(h, dt), so it gives exactly what h = dt
     gives (and the runtime's step)."""
     y, u = np.array([0.3, -0.2]), np.array([0.1])
@@ -323,14 +323,14 @@ def test_internal_step_larger_than_the_communication_step_is_the_step(open_fmu, 
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(0.0, DT)
-        runs.append(driver.get("x_hat", (tuned_gains.n,)))
-    runtime = FilteringObserver(tuned_gains, h=DT, scheme=SCHEMES[0])
+        runs.append(driver.get("x_hat", (tuned_design.plant.n,)))
+    runtime = FilteringObserver(tuned_design.filtering, h=DT, scheme=SCHEMES[0])
     runtime.step(y, u, DT)
     np.testing.assert_array_equal(runs[0], runs[1])
     np.testing.assert_allclose(runs[1], runtime.x_hat, rtol=0, atol=1e-12)
 
 
-def test_step_size_the_observer_cannot_follow_is_an_error(open_fmu, tuned_gains):
+def test_step_size_the_observer_cannot_follow_is_an_error(open_fmu, tuned_design):
     """At dt = 0.2 no gain level makes the pendulum's sampled observer contract: doStep says so
     (fmi2Error and the reason in the log) instead of running a diverging observer; the state is
     kept and a step the observer can follow still works."""
@@ -338,7 +338,8 @@ def test_step_size_the_observer_cannot_follow_is_an_error(open_fmu, tuned_gains)
     driver.start()
     assert_error(driver, driver.fmu.doStep, 0.0, 0.2,
                  words="no gain level makes the split step of size 0.2 contractive")
-    np.testing.assert_array_equal(driver.get("x_hat", (tuned_gains.n,)), np.zeros(tuned_gains.n))
+    n = tuned_design.plant.n
+    np.testing.assert_array_equal(driver.get("x_hat", (n,)), np.zeros(n))
     driver.fmu.doStep(0.0, DT)
 
 
@@ -382,7 +383,7 @@ def test_outputs_cannot_be_set(open_fmu):
     assert driver.fmu.getReal([vr]) == before
 
 
-def test_messages_are_readable(open_fmu, tuned_gains):
+def test_messages_are_readable(open_fmu, tuned_design):
     """Numbers appear as Python floats, an uncomputable certificate figure says why."""
     driver = open_fmu("observer")
     driver.start()
@@ -390,7 +391,7 @@ def test_messages_are_readable(open_fmu, tuned_gains):
     assert_error(driver, driver.fmu.doStep, 0.0, DT, words="input y[1] = nan is not finite")
     other = open_fmu("observer", "p_bar")
     other.fmu.setupExperiment(startTime=0.0)
-    for name in names("P_bar", tuned_gains.P_bar.shape):
+    for name in names("P_bar", tuned_design.filtering.P_bar.shape):
         other.fmu.setReal([other.vr[name]], [0.0])
     other.fmu.enterInitializationMode()
     assert_error(other, other.fmu.exitInitializationMode,

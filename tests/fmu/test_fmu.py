@@ -39,21 +39,22 @@ STEPS = 120
 
 def observer_inputs(gains, seed: int = 1, steps: int = STEPS) -> tuple[np.ndarray, np.ndarray]:
     """Seeded y and u sequences for an observer."""
-    return random_walk(seed, steps, gains.k, 0.05), random_walk(seed + 1, steps, gains.m, 0.1)
+    return (random_walk(seed, steps, gains.plant.k, 0.05),
+            random_walk(seed + 1, steps, gains.plant.m, 0.1))
 
 
 def run_filtering_fmu(driver, gains, ys, us, first_step: int = 0) -> np.ndarray:
     """Step an initialised observer FMU; rows = [x_hat, q_hat, psi, xi, sigma] after each step
     (q_hat: the disturbance model's states, none without one)."""
     rows = []
-    n_q = gains.n_model - gains.n
+    n_q = gains.model.n_model - gains.plant.n
     for k, (y, u) in enumerate(zip(ys, us, strict=True), start=first_step):
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(k * DT, DT)
         q_hat = driver.get("q_hat", (n_q,)) if n_q else np.zeros(0)
         rows.append(np.concatenate([
-            driver.get("x_hat", (gains.n,)), q_hat, driver.get("psi", (gains.k,)),
+            driver.get("x_hat", (gains.plant.n,)), q_hat, driver.get("psi", (gains.plant.k,)),
             driver.get("xi", ()).ravel(), driver.get("sigma", ()).ravel(),
         ]))
     return np.array(rows)
@@ -61,7 +62,7 @@ def run_filtering_fmu(driver, gains, ys, us, first_step: int = 0) -> np.ndarray:
 
 def run_filtering_runtime(gains, ys, us) -> np.ndarray:
     """The same rows from the in-process runtime, started at zero like the FMU's defaults."""
-    obs = FilteringObserver(gains, h=H, scheme=SCHEMES[0])
+    obs = FilteringObserver(gains.filtering, h=H, scheme=SCHEMES[0])
     rows = []
     for y, u in zip(ys, us, strict=True):
         obs.step(y, u, DT)
@@ -111,115 +112,120 @@ def test_array_elements_consecutive_and_row_major(pendulum_fmus, kind):
         assert indices == expected, base
 
 
-def test_observer_interface_and_start_values(pendulum_fmus, tuned_gains):
-    g = tuned_gains
+def test_observer_interface_and_start_values(pendulum_fmus, tuned_design):
+    g = tuned_design
     variables = {v.get("name"): v for v in model_variables(pendulum_fmus["observer"])}
 
     def start(name):
         return float(variables[name].find("Real").get("start"))
 
-    for base in ("A", "B", "C", "L0", "G_d", "L_tilde", "L", "P_bar"):
-        value = getattr(g, base)
+    matrices = {"A": g.plant.A, "B": g.plant.B, "C": g.plant.C, "L0": g.model.L0,
+                "G_d": g.model.G_d, "L_tilde": g.filtering.L_tilde, "L": g.filtering.L,
+                "P_bar": g.filtering.P_bar}
+    for base, value in matrices.items():
         starts = np.array([start(n) for n in names(base, value.shape)]).reshape(value.shape)
         np.testing.assert_allclose(starts, value, rtol=1e-15, atol=0, err_msg=base)
         assert variables[names(base, value.shape)[0]].get("causality") == "parameter"
-    for name in ("nu", "gamma", "rho"):
-        assert start(name) == pytest.approx(getattr(g, name), rel=1e-15)
-    for name in ["h", "xi0", *names("z0", (g.n,)), *names("psi0", (g.k,))]:
+    for name, value in (("nu", g.model.nu), ("gamma", g.filtering.gamma),
+                        ("rho", g.filtering.rho)):
+        assert start(name) == pytest.approx(value, rel=1e-15)
+    for name in ["h", "xi0", *names("z0", (g.plant.n,)), *names("psi0", (g.plant.k,))]:
         assert variables[name].get("causality") == "parameter"
     assert start("h") == H
     assert variables["scheme"].get("causality") == "parameter"
     causality = {
-        "input": names("y", (g.k,)) + names("u", (g.m,)),
-        "output": names("x_hat", (g.n,)) + names("psi", (g.k,)) + ["xi", "sigma"],
+        "input": names("y", (g.plant.k,)) + names("u", (g.plant.m,)),
+        "output": names("x_hat", (g.plant.n,)) + names("psi", (g.plant.k,)) + ["xi", "sigma"],
     }
     for expected, listed in causality.items():
         assert all(variables[n].get("causality") == expected for n in listed)
 
 
-def test_plant_and_luenberger_interface(pendulum_fmus, tuned_gains):
-    g = tuned_gains
+def test_plant_and_luenberger_interface(pendulum_fmus, tuned_design):
+    g = tuned_design
     plant = {v.get("name"): v.get("causality") for v in model_variables(pendulum_fmus["plant"])}
-    for name in names("u", (g.m,)) + names("q", (g.E.shape[1],)):
+    for name in names("u", (g.plant.m,)) + names("q", (g.plant.E.shape[1],)):
         assert plant[name] == "input"
-    for name in names("y", (g.k,)) + names("x", (g.n,)):
+    for name in names("y", (g.plant.k,)) + names("x", (g.plant.n,)):
         assert plant[name] == "output"
-    for name in [*names("x0", (g.n,)), "noise_amplitude", "noise_seed"]:
+    for name in [*names("x0", (g.plant.n,)), "noise_amplitude", "noise_seed"]:
         assert plant[name] == "parameter"
     luen = {v.get("name"): v.get("causality") for v in model_variables(pendulum_fmus["luenberger"])}
-    assert all(luen[n] == "parameter" for n in names("L_lin", g.L_lin.shape))
-    assert all(luen[n] == "output" for n in names("x_hat", (g.n,)))
+    assert all(luen[n] == "parameter" for n in names("L_lin", g.luenberger.L_lin.shape))
+    assert all(luen[n] == "output" for n in names("x_hat", (g.plant.n,)))
 
 
 # -- results against the in-process runtime ----------------------------------------------------
-def test_observer_equals_runtime(open_fmu, tuned_gains):
-    ys, us = observer_inputs(tuned_gains)
+def test_observer_equals_runtime(open_fmu, tuned_design):
+    ys, us = observer_inputs(tuned_design)
     driver = open_fmu("observer")
     driver.start()
-    fmu_rows = run_filtering_fmu(driver, tuned_gains, ys, us)
-    runtime_rows = run_filtering_runtime(tuned_gains, ys, us)
+    fmu_rows = run_filtering_fmu(driver, tuned_design, ys, us)
+    runtime_rows = run_filtering_runtime(tuned_design, ys, us)
     assert np.max(np.abs(runtime_rows)) > 1e-3  # the estimate moved
     np.testing.assert_allclose(fmu_rows, runtime_rows, rtol=0, atol=1e-12)
 
 
-def test_luenberger_equals_runtime(open_fmu, tuned_gains):
-    g = tuned_gains
+def test_luenberger_equals_runtime(open_fmu, tuned_design):
+    g = tuned_design
     ys, us = observer_inputs(g, seed=5)
     driver = open_fmu("luenberger")
     z0 = np.array([0.1, -0.2, 0.3, -0.4])
     driver.start({"z0": z0})
-    obs = LuenbergerObserver(g, h=H, scheme=SCHEMES[0], z0=z0)
+    obs = LuenbergerObserver(g.luenberger, h=H, scheme=SCHEMES[0], z0=z0)
     for k, (y, u) in enumerate(zip(ys, us, strict=True)):
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(k * DT, DT)
         obs.step(y, u, DT)
-        np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.x_hat, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(driver.get("x_hat", (g.plant.n,)), obs.x_hat, rtol=0, atol=1e-12)
 
 
-def test_plant_equals_runtime_with_noise(open_fmu, tuned_gains):
-    g = tuned_gains
-    us = random_walk(9, STEPS, g.m, 0.1)
-    qs = random_walk(10, STEPS, g.E.shape[1], 0.1)
+def test_plant_equals_runtime_with_noise(open_fmu, tuned_design):
+    g = tuned_design
+    us = random_walk(9, STEPS, g.plant.m, 0.1)
+    qs = random_walk(10, STEPS, g.plant.E.shape[1], 0.1)
     driver = open_fmu("plant")
     driver.start()
-    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.E, x0=PENDULUM_X0,
+                     noise_amplitude=NOISE_AMPLITUDE,
                      seed=NOISE_SEED)
-    np.testing.assert_allclose(driver.get("y", (g.k,)), plant.y, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(driver.get("y", (g.plant.k,)), plant.y, rtol=0, atol=1e-12)
     for k, (u, q) in enumerate(zip(us, qs, strict=True)):
         driver.set("u", u)
         driver.set("q", q)
         driver.fmu.doStep(k * DT, DT)
         plant.step(u, q, DT)
-        np.testing.assert_allclose(driver.get("x", (g.n,)), plant.x, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(driver.get("y", (g.k,)), plant.y, rtol=0, atol=1e-12)
-    assert np.ptp(driver.get("y", (g.k,)) - g.C @ plant.x) > 0  # noise is on
+        np.testing.assert_allclose(driver.get("x", (g.plant.n,)), plant.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(driver.get("y", (g.plant.k,)), plant.y, rtol=0, atol=1e-12)
+    assert np.ptp(driver.get("y", (g.plant.k,)) - g.plant.C @ plant.x) > 0  # noise is on
 
 
-def test_edited_initial_state_is_used(open_fmu, tuned_gains):
-    g = tuned_gains
+def test_edited_initial_state_is_used(open_fmu, tuned_design):
+    g = tuned_design
     driver = open_fmu("observer")
-    z0, psi0 = np.arange(1.0, g.n + 1), np.full(g.k, 0.5)
+    z0, psi0 = np.arange(1.0, g.plant.n + 1), np.full(g.plant.k, 0.5)
     driver.start({"z0": z0, "psi0": psi0, "xi0": 2.0})
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), z0)
+    np.testing.assert_array_equal(driver.get("x_hat", (g.plant.n,)), z0)
     ys, us = observer_inputs(g, steps=3)
-    z0_model = np.concatenate([z0, np.zeros(g.n_model - g.n)])  # the q states start at zero
-    obs = FilteringObserver(g, h=H, scheme=SCHEMES[0], z0=z0_model, psi0=psi0, xi0=2.0)
+    # the q states start at zero
+    z0_model = np.concatenate([z0, np.zeros(g.model.n_model - g.plant.n)])
+    obs = FilteringObserver(g.filtering, h=H, scheme=SCHEMES[0], z0=z0_model, psi0=psi0, xi0=2.0)
     for k, (y, u) in enumerate(zip(ys, us, strict=True)):
         run_filtering_fmu(driver, g, [y], [u], first_step=k)
         obs.step(y, u, DT)
-    np.testing.assert_allclose(driver.get("x_hat", (g.n,)), obs.x_hat, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(driver.get("x_hat", (g.plant.n,)), obs.x_hat, rtol=0, atol=1e-12)
 
 
 # -- FMU state ---------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["observer", "plant"])
-def test_restore_and_replay_is_bit_identical(open_fmu, tuned_gains, kind):
-    g = tuned_gains
+def test_restore_and_replay_is_bit_identical(open_fmu, tuned_design, kind):
+    g = tuned_design
     driver = open_fmu(kind)
     driver.start()
-    inputs = {"y": random_walk(3, 40, g.k, 0.05), "u": random_walk(4, 40, g.m, 0.1)}
+    inputs = {"y": random_walk(3, 40, g.plant.k, 0.05), "u": random_walk(4, 40, g.plant.m, 0.1)}
     if kind == "plant":
-        inputs = {"u": inputs["u"], "q": random_walk(5, 40, g.E.shape[1], 0.1)}
+        inputs = {"u": inputs["u"], "q": random_walk(5, 40, g.plant.E.shape[1], 0.1)}
     outputs = ["x_hat", "psi", "xi", "sigma"] if kind == "observer" else ["x", "y"]
     out_vrs = [driver.vr[n] for n in driver.vr if n.split("[")[0] in outputs]
 
@@ -246,15 +252,15 @@ def test_restore_and_replay_is_bit_identical(open_fmu, tuned_gains, kind):
     driver.fmu.freeFMUstate(state)
 
 
-def test_reset_returns_to_initial_state(open_fmu, tuned_gains):
-    g = tuned_gains
+def test_reset_returns_to_initial_state(open_fmu, tuned_design):
+    g = tuned_design
     ys, us = observer_inputs(g, steps=30)
     driver = open_fmu("observer")
     driver.start({"xi0": 0.7})
     first = run_filtering_fmu(driver, g, ys, us)
     driver.fmu.reset()
     driver.start({"xi0": 0.7})
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), np.zeros(g.n))
+    np.testing.assert_array_equal(driver.get("x_hat", (g.plant.n,)), np.zeros(g.plant.n))
     np.testing.assert_array_equal(run_filtering_fmu(driver, g, ys, us), first)
     driver.fmu.reset()
     driver.start()  # parameters are back at their start values (xi0 = 0)
@@ -268,8 +274,8 @@ def test_reset_returns_to_initial_state(open_fmu, tuned_gains):
     [(np.nan, "not finite"), (np.inf, "not finite"), (-np.inf, "not finite"),
      (1e20, "exceeds input_bound")],
 )
-def test_bad_input_is_an_error_state_kept_instance_usable(open_fmu, tuned_gains, bad, words):
-    g = tuned_gains
+def test_bad_input_is_an_error_state_kept_instance_usable(open_fmu, tuned_design, bad, words):
+    g = tuned_design
     ys, us = observer_inputs(g, steps=20)
     driver = open_fmu("observer")
     driver.start()
@@ -277,7 +283,7 @@ def test_bad_input_is_an_error_state_kept_instance_usable(open_fmu, tuned_gains,
     driver.set("y", np.array([ys[10][0], bad]))
     driver.set("u", us[10])
     assert "y[2]" in assert_error(driver, driver.fmu.doStep, 10 * DT, DT, words=words)
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), before[: g.n])
+    np.testing.assert_array_equal(driver.get("x_hat", (g.plant.n,)), before[: g.plant.n])
     # still usable: the rest of the run equals an uninterrupted run
     rest = run_filtering_fmu(driver, g, ys[10:], us[10:], first_step=10)
     np.testing.assert_array_equal(rest, run_filtering_runtime(g, ys, us)[10:])
@@ -322,7 +328,7 @@ def test_absurd_step_size_is_an_error_not_a_hang(open_fmu):
         ({"A[1,1]": np.nan}, "A[1,1]"),
     ],
 )
-def test_edited_parameters_fail_initialisation_with_fmi_error(open_fmu, tuned_gains, edit, check):
+def test_edited_parameters_fail_initialisation_with_fmi_error(open_fmu, tuned_design, edit, check):
     driver = open_fmu("observer")
     driver.fmu.setupExperiment(startTime=0.0)
     for name, value in edit.items():
@@ -346,22 +352,23 @@ def test_scheme_index_checked(open_fmu):
     assert_error(driver, driver.fmu.exitInitializationMode, words="scheme = 99")
 
 
-def test_luenberger_rejects_unstable_gain(open_fmu, tuned_gains):
+def test_luenberger_rejects_unstable_gain(open_fmu, tuned_design):
     driver = open_fmu("luenberger")
     driver.fmu.setupExperiment(startTime=0.0)
-    driver.set("L_lin", -tuned_gains.L_lin)
+    driver.set("L_lin", -tuned_design.luenberger.L_lin)
     driver.fmu.enterInitializationMode()
     assert_error(driver, driver.fmu.exitInitializationMode, words="hurwitz_luenberger")
 
 
 # -- several instances, several designs -------------------------------------------------------
-def test_instances_and_designs_are_independent(open_fmu, tuned_gains, chain_gains):
+def test_instances_and_designs_are_independent(open_fmu, tuned_design, chain_design):
     """Two pendulum instances and a triple-integrator observer, stepped interleaved."""
-    assert (chain_gains.n, chain_gains.k) != (tuned_gains.n, tuned_gains.k)
+    assert ((chain_design.plant.n, chain_design.plant.k)
+            != (tuned_design.plant.n, tuned_design.plant.k))
     cases = [
-        (open_fmu("observer", "p1"), tuned_gains, observer_inputs(tuned_gains, seed=11)),
-        (open_fmu("chain", "c1"), chain_gains, observer_inputs(chain_gains, seed=12)),
-        (open_fmu("observer", "p2"), tuned_gains, observer_inputs(tuned_gains, seed=13)),
+        (open_fmu("observer", "p1"), tuned_design, observer_inputs(tuned_design, seed=11)),
+        (open_fmu("chain", "c1"), chain_design, observer_inputs(chain_design, seed=12)),
+        (open_fmu("observer", "p2"), tuned_design, observer_inputs(tuned_design, seed=13)),
     ]
     for driver, _, _ in cases:
         driver.start()
@@ -450,7 +457,7 @@ def test_fmus_of_one_design_do_not_share_modules(pendulum_fmus, tmp_path, first,
     np.testing.assert_array_equal(after, fresh)
 
 
-def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_gains, tmp_path):
+def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_design, tmp_path):
     """In a fresh interpreter where importing scipy/cvxpy/fhobs fails, the FMU still runs."""
     script = tmp_path / "run.py"
     script.write_text(
@@ -476,14 +483,14 @@ def test_runs_without_scipy_or_cvxpy(pendulum_fmus, tuned_gains, tmp_path):
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
-def test_overflowing_step_is_rolled_back(open_fmu, tuned_gains):
+def test_overflowing_step_is_rolled_back(open_fmu, tuned_design):
     """A step whose new outputs are not finite (y = C x overflows) is an fmi2Error; outputs and
     the serialized FMU state stay exactly as before the call (the slaves' rollback)."""
-    C = tuned_gains.C.copy()
+    C = tuned_design.plant.C.copy()
     C[0, 0] = 1.7e308
     driver = open_fmu("plant")
-    driver.start({"C": C, "x0": np.ones(tuned_gains.n)})
-    outputs = [*names("y", (tuned_gains.k,)), *names("x", (tuned_gains.n,))]
+    driver.start({"C": C, "x0": np.ones(tuned_design.plant.n)})
+    outputs = [*names("y", (tuned_design.plant.k,)), *names("x", (tuned_design.plant.n,))]
     refs = [driver.vr[name] for name in outputs]
     k, (before, state) = steps_until_error(
         driver, 1e-2, lambda: (driver.fmu.getReal(refs), serialized_state(driver)))
@@ -501,7 +508,7 @@ def serialized_state(driver) -> bytes:
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="the status wrapper is linux64 only")
-def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_gains):
+def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_design):
     """With the status wrapper, fmi2GetReal / fmi2SetReal of Real variables use the slave's
     buffer without entering Python: the values are those the slave itself holds, in any order,
     and fmi2Reset hands the wrapper the new slave's buffer. fmi2DoStep calls the slave through
@@ -511,7 +518,7 @@ def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_gains):
     fmi2Fatal: not exercised here, since nothing may be called on an instance after it.)"""
     import gc
 
-    g = tuned_gains
+    g = tuned_design
     driver = open_fmu("observer", "direct")
 
     def slaves() -> list:
@@ -544,4 +551,4 @@ def test_calls_served_by_the_wrapper_equal_pythonfmus(open_fmu, tuned_gains):
     assert_error(driver, driver.fmu.getReal, [driver.vr["x_hat[1]"]],
                  words="fmi2GetReal is not allowed in the state instantiated")
     driver.start()
-    np.testing.assert_array_equal(driver.get("x_hat", (g.n,)), np.zeros(g.n))
+    np.testing.assert_array_equal(driver.get("x_hat", (g.plant.n,)), np.zeros(g.plant.n))

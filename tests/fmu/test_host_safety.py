@@ -51,7 +51,8 @@ def test_asymmetric_lyapunov_matrix_fails_initialisation(open_paper, paper_desig
     initialises."""
     driver = open_paper(kind)
     vr = driver.vr[f"{matrix}[1,2]"]
-    value = float(getattr(paper_design, matrix)[0, 1])
+    record = paper_design.filtering if kind == "observer" else paper_design.prescribed_time
+    value = float(getattr(record, matrix)[0, 1])
     driver.fmu.setupExperiment(startTime=0.0)
     driver.fmu.setReal([vr], [value + 1.0])
     driver.fmu.enterInitializationMode()
@@ -66,7 +67,7 @@ def test_round_off_asymmetry_is_accepted(open_paper, paper_design):
     """An asymmetry of one unit in the last place of an entry is round-off, not an edit."""
     driver = open_paper("observer")
     vr = driver.vr["P_bar[1,2]"]
-    value = float(paper_design.P_bar[0, 1])
+    value = float(paper_design.filtering.P_bar[0, 1])
     driver.fmu.setupExperiment(startTime=0.0)
     driver.fmu.setReal([vr], [float(np.nextafter(value, np.inf))])
     driver.fmu.enterInitializationMode()

@@ -40,19 +40,19 @@ def run_fmu(driver, g, ys, us, dt):
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(k * dt, dt)
-        rows.append(np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))]))
+        rows.append(np.concatenate([driver.get("x_hat", (g.plant.n,)), driver.get("q_hat", (1,))]))
     return np.array(rows)
 
 
 @pytest.mark.parametrize("cycles", [1, 4])
-def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
-    g = kalman_gains
+def test_fmu_equals_runtime(open_kalman, kalman_design, cycles):
+    g = kalman_design
     dt = cycles * g.kalman.sample_time
-    ys, us = random_walk(3, 100, g.k, 0.05), random_walk(4, 100, g.m, 0.1)
+    ys, us = random_walk(3, 100, g.plant.k, 0.05), random_walk(4, 100, g.plant.m, 0.1)
     driver = open_kalman()
     driver.start()
     rows = run_fmu(driver, g, ys, us, dt)
-    obs = KalmanObserver(g)
+    obs = KalmanObserver(g.kalman)
     expected = []
     for y, u in zip(ys, us, strict=True):
         obs.step(y, u, dt)
@@ -60,17 +60,17 @@ def test_fmu_equals_runtime(open_kalman, kalman_gains, cycles):
     np.testing.assert_allclose(rows, np.array(expected), rtol=0, atol=1e-12)
 
 
-def test_fmu_takes_any_step_as_the_runtime(open_kalman, kalman_gains):
+def test_fmu_takes_any_step_as_the_runtime(open_kalman, kalman_design):
     """Steps of 0.4 Ts with the time accumulated in floating point, a short last step, then
     variable steps: the FMU runs the runtime's cycles (one per sample instant inside a step)."""
-    g = kalman_gains
+    g = kalman_design
     ts = g.kalman.sample_time
     variable = ts * np.random.default_rng(8).uniform(0.1, 3.3, 40)
     steps = [0.4 * ts] * 40 + [3e-13] + variable.tolist()
-    ys, us = random_walk(3, len(steps), g.k, 0.05), random_walk(4, len(steps), g.m, 0.1)
+    ys, us = random_walk(3, len(steps), g.plant.k, 0.05), random_walk(4, len(steps), g.plant.m, 0.1)
     driver = open_kalman()
     driver.start()
-    obs = KalmanObserver(g)
+    obs = KalmanObserver(g.kalman)
     t = 0.0
     for dt, y, u in zip(steps, ys, us, strict=True):
         driver.set("y", y)
@@ -78,36 +78,36 @@ def test_fmu_takes_any_step_as_the_runtime(open_kalman, kalman_gains):
         driver.fmu.doStep(t, dt)
         t += dt
         obs.step(y, u, dt)
-        got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+        got = np.concatenate([driver.get("x_hat", (g.plant.n,)), driver.get("q_hat", (1,))])
         np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
 
 
-def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_gains):
+def test_fmu_rejects_an_unstable_edited_gain(open_kalman, kalman_design):
     driver = open_kalman()
     driver.fmu.setupExperiment(startTime=0.0)
-    driver.set("kalman_gain", -kalman_gains.kalman.gain)
+    driver.set("kalman_gain", -kalman_design.kalman.gain)
     driver.fmu.enterInitializationMode()
     assert_error(driver, driver.fmu.exitInitializationMode, words="schur_kalman")
 
 
-def test_build_without_kalman_design_is_refused(tuned_gains, tmp_path):
+def test_build_without_kalman_design_is_refused(tuned_design, tmp_path):
     with pytest.raises(ValueError, match="Kalman"):
-        build_fmus(tuned_gains, tmp_path, kinds=("kalman",))
+        build_fmus(tuned_design, tmp_path, kinds=("kalman",))
 
 
-def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, native_fmus, tmp_path):
+def test_native_fmu_takes_any_step_as_the_runtime(kalman_design, native_fmus, tmp_path):
     """The native kalman.fmu (the shared build) under the same host-like steps: the runtime's
     cycles, and its FMU state carries the offset to the next sample."""
-    g = kalman_gains
+    g = kalman_design
     path = native_fmus["kalman"]
     ts = g.kalman.sample_time
     variable = ts * np.random.default_rng(9).uniform(0.1, 3.3, 40)
     steps = [0.4 * ts] * 40 + [3e-13] + variable.tolist()
-    ys, us = random_walk(5, len(steps), g.k, 0.05), random_walk(6, len(steps), g.m, 0.1)
+    ys, us = random_walk(5, len(steps), g.plant.k, 0.05), random_walk(6, len(steps), g.plant.m, 0.1)
     driver = FmuDriver(path, extract(str(path), str(tmp_path / "kalman")), "native")
     try:
         driver.start()
-        obs = KalmanObserver(g)
+        obs = KalmanObserver(g.kalman)
         times = np.concatenate(([0.0], np.cumsum(steps)))
         for i, (dt, y, u) in enumerate(zip(steps, ys, us, strict=True)):
             driver.set("y", y)
@@ -116,7 +116,7 @@ def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, native_fmus, tmp
                 state, saved = driver.fmu.getFMUstate(), obs.get_state()
             driver.fmu.doStep(times[i], dt)
             obs.step(y, u, dt)
-            got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+            got = np.concatenate([driver.get("x_hat", (g.plant.n,)), driver.get("q_hat", (1,))])
             np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
         driver.fmu.setFMUstate(state)
         obs.set_state(saved)
@@ -125,7 +125,7 @@ def test_native_fmu_takes_any_step_as_the_runtime(kalman_gains, native_fmus, tmp
             driver.set("u", us[i])
             driver.fmu.doStep(times[i], steps[i])
             obs.step(ys[i], us[i], steps[i])
-        got = np.concatenate([driver.get("x_hat", (g.n,)), driver.get("q_hat", (1,))])
+        got = np.concatenate([driver.get("x_hat", (g.plant.n,)), driver.get("q_hat", (1,))])
         np.testing.assert_allclose(got, obs.z, rtol=0, atol=1e-12)
     finally:
         driver.fmu.freeInstance()

@@ -36,11 +36,11 @@ RTOL = 1e-12
 
 
 @pytest.fixture(scope="module")
-def fmu_pair(tmp_path_factory, tuned_gains, pendulum_fmus):
+def fmu_pair(tmp_path_factory, tuned_design, pendulum_fmus):
     """The pendulum FMUs built with and without the kernel: kind -> (path, unzip dir). With the
     kernel: those of ``pendulum_fmus`` (same options, the kernel shipped by default where it
     compiles, as this module requires; its Kalman filter changes only kalman.fmu, not taken)."""
-    fmus = build_fmus(tuned_gains, tmp_path_factory.mktemp("kernel_False"), x0=PENDULUM_X0,
+    fmus = build_fmus(tuned_design, tmp_path_factory.mktemp("kernel_False"), x0=PENDULUM_X0,
                       noise_amplitude=NOISE_AMPLITUDE, noise_seed=NOISE_SEED, h=H, kernel=False)
     return {False: {kind: (path, extract(str(path))) for kind, path in fmus.items()},
             True: {kind: (pendulum_fmus[kind], extract(str(pendulum_fmus[kind])))
@@ -69,10 +69,10 @@ def test_kernel_is_shipped_only_when_asked(fmu_pair):
             assert len(shipped) == (1 if with_kernel else 0)
 
 
-def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tuned_gains):
-    g, dt = tuned_gains, 1e-3
+def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tuned_design):
+    g, dt = tuned_design, 1e-3
     ys, us = plant_measurements(g, 8, 120, dt)
-    runtime = FilteringObserver(g, h=H, kernel=False)
+    runtime = FilteringObserver(g.filtering, h=H, kernel=False)
     drivers = [open_pair(False, "observer"), open_pair(True, "observer", "k")]
     for driver in drivers:
         driver.start()
@@ -83,8 +83,8 @@ def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tu
             driver.set("y", y)
             driver.set("u", u)
             driver.fmu.doStep(step * dt, dt)
-            outputs.append(np.concatenate([driver.get("x_hat", (g.n,)),
-                                           driver.get("psi", (g.k,)),
+            outputs.append(np.concatenate([driver.get("x_hat", (g.plant.n,)),
+                                           driver.get("psi", (g.plant.k,)),
                                            driver.get("xi", ()).ravel()]))
         expected = np.concatenate([runtime.x_hat, runtime.diagnostics()["psi"],
                                    [runtime.diagnostics()["xi"]]])
@@ -93,13 +93,14 @@ def test_fallback_fmus_equal_the_numpy_runtime_and_the_kernel_fmus(open_pair, tu
 
 
 @pytest.mark.parametrize("with_kernel", [False, True])
-def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_gains,
+def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_design,
                                                              with_kernel):
-    g, dt = tuned_gains, 1e-3
-    us, qs = random_walk(9, 40, g.m, 0.1), random_walk(10, 40, g.E.shape[1], 0.1)
+    g, dt = tuned_design, 1e-3
+    us, qs = random_walk(9, 40, g.plant.m, 0.1), random_walk(10, 40, g.plant.E.shape[1], 0.1)
     driver = open_pair(with_kernel, "plant")
     driver.start()
-    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.E, x0=PENDULUM_X0,
+                     noise_amplitude=NOISE_AMPLITUDE,
                      seed=NOISE_SEED, kernel=with_kernel)
 
     def run(steps):
@@ -108,7 +109,8 @@ def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_g
             driver.set("u", us[k])
             driver.set("q", qs[k])
             driver.fmu.doStep(k * dt, dt)
-            rows.append(np.concatenate([driver.get("x", (g.n,)), driver.get("y", (g.k,))]))
+            rows.append(np.concatenate([driver.get("x", (g.plant.n,)),
+                                        driver.get("y", (g.plant.k,))]))
         return np.array(rows)
 
     for k, row in zip(range(20), run(range(20)), strict=True):
@@ -122,19 +124,19 @@ def test_fmu_plant_equals_runtime_and_replays_bit_identically(open_pair, tuned_g
 
 
 @pytest.mark.parametrize("with_kernel", [False, True])
-def test_fmu_bad_input_and_overflow_are_errors_state_kept(open_pair, tuned_gains, with_kernel):
-    g = tuned_gains
+def test_fmu_bad_input_and_overflow_are_errors_state_kept(open_pair, tuned_design, with_kernel):
+    g = tuned_design
     observer = open_pair(with_kernel, "observer")
     observer.start()
     observer.set("y", [np.nan, 0.0])
     assert_error(observer, observer.fmu.doStep, 0.0, 1e-3, words="y[1]")
     observer.set("y", [0.1, 0.2])
     observer.fmu.doStep(0.0, 1e-3)  # still usable
-    C = g.C.copy()
+    C = g.plant.C.copy()
     C[0, 0] = 1.7e308
     plant = open_pair(with_kernel, "plant", "p")
-    plant.start({"C": C, "x0": np.ones(g.n)})
-    refs = [plant.vr[f"x[{i + 1}]"] for i in range(g.n)]
+    plant.start({"C": C, "x0": np.ones(g.plant.n)})
+    refs = [plant.vr[f"x[{i + 1}]"] for i in range(g.plant.n)]
     with np.errstate(over="ignore"):
         k, before = steps_until_error(plant, 1e-2, lambda: plant.fmu.getReal(refs))
     assert k > 0

@@ -34,9 +34,10 @@ def test_ball_and_beam_kalman_fmu_initialises_and_converges(tmp_path):
         driver.start()
         assert not any(status >= 3 for status, _ in driver.messages), driver.messages
         Ts = gains.kalman.sample_time
-        plant = LTIPlant(gains.A, gains.B, gains.C, x0=np.array([1.0, 0.0, 0.1, 0.0]),
+        plant = LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C,
+                         x0=np.array([1.0, 0.0, 0.1, 0.0]),
                          kernel=False)
-        obs = KalmanObserver(gains, kernel=False)
+        obs = KalmanObserver(gains.kalman, kernel=False)
         errors = []
         for k in range(5000):
             y, u = plant.y, np.zeros(1)

@@ -115,7 +115,7 @@ def fnv1a(data: bytes) -> int:
 
 # -- interface -------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", KINDS)
-def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned_gains):
+def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned_design):
     """Names, value references, types, causalities, variabilities and initial attributes are
     the pythonfmu FMU's; the start values are the same numbers, written exactly (the pythonfmu
     XML rounds them to 16 digits)."""
@@ -127,7 +127,8 @@ def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned
         assert math.isclose(float(a.start), float(b.start), rel_tol=1e-15, abs_tol=1e-300)
     if kind == "observer":
         start = {v.name: float(v.start) for v in native.modelVariables}
-        assert start["L[1,1]"] == tuned_gains.L[0, 0] and start["nu"] == tuned_gains.nu
+        assert start["L[1,1]"] == tuned_design.filtering.L[0, 0]
+        assert start["nu"] == tuned_design.model.nu
     assert native.coSimulation.needsExecutionTool is False
     files = native.buildConfigurations[0].sourceFileSets[0].sourceFiles
     units = ["fmi2_layer.c", "gain_levels.c", "kernel.c", "model_data.c", "models.c", "planner.c"]
@@ -356,16 +357,16 @@ def test_wrong_call_sequence_and_bad_parameters(native_fmus):
     fmu.freeInstance()
 
 
-def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_gains, tmp_path):
+def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_design, tmp_path):
     with pytest.raises(BuildError, match="--native-step 0.5"):
-        build_native_fmus(tuned_gains, tmp_path, steps=[0.5], kinds=["observer"])
+        build_native_fmus(tuned_design, tmp_path, steps=[0.5], kinds=["observer"])
 
 
-def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_gains, tmp_path):
+def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_design, tmp_path):
     with pytest.raises(BuildError, match="no native FMU of kind sampled: native FMUs are built "
                                          "for observer, prescribed_time, luenberger, "
                                          "kalman, plant"):
-        build_native_fmus(tuned_gains, tmp_path, kinds=["observer", "sampled"])
+        build_native_fmus(tuned_design, tmp_path, kinds=["observer", "sampled"])
     assert not any(tmp_path.iterdir())
 
 
@@ -498,15 +499,15 @@ def test_fmpys_simulate_fmu_runs_the_native_plant_as_the_pythonfmu_one(pendulum_
 
 
 @pytest.mark.slow
-def test_another_design_complex_spectrum_no_perturbation_input(chain_gains, tmp_path):
+def test_another_design_complex_spectrum_no_perturbation_input(chain_design, tmp_path):
     """The triple integrator (k = 1, complex eigenvalues of the injection flow, no E, no
     disturbance model): native observer, Luenberger observer and plant against the pythonfmu
     ones at three step sizes and with the euler schemes (3e-4)."""
     from fhobs.build import build_fmus
 
     kinds = ("observer", "luenberger", "plant")
-    pairs = {"pythonfmu": build_fmus(chain_gains, tmp_path / "py", kinds=kinds, x0=[1, -1, 2]),
-             "native": build_native_fmus(chain_gains, tmp_path / "native", kinds=kinds,
+    pairs = {"pythonfmu": build_fmus(chain_design, tmp_path / "py", kinds=kinds, x0=[1, -1, 2]),
+             "native": build_native_fmus(chain_design, tmp_path / "native", kinds=kinds,
                                          x0=[1, -1, 2])}
     for kind in kinds:
         for dt, scheme in [*((dt, 0) for dt in STEPS), (3e-4, 1)]:

@@ -69,14 +69,14 @@ def closed_loop(gains, steps: np.ndarray, drivers: tuple[FmuDriver, ...]) -> tup
     xs, rows = [], [[] for _ in drivers]
     holds = {}  # the plant's ZOH per step size (a host's steps repeat)
     for dt in steps:
-        y, u = gains.C @ x, K_PAPER @ x
+        y, u = gains.plant.C @ x, K_PAPER @ x
         for driver, out in zip(drivers, rows, strict=True):
             driver.set("y", y)
             driver.set("u", u)
             driver.fmu.doStep(t, dt)
             out.append(outputs(driver))
         if dt not in holds:
-            holds[dt] = zoh(gains.A, gains.B, dt)
+            holds[dt] = zoh(gains.plant.A, gains.plant.B, dt)
         Phi, Gamma = holds[dt]
         x = Phi @ x + Gamma @ u
         t += dt
@@ -100,11 +100,11 @@ def assert_rows_agree(native: np.ndarray, python: np.ndarray) -> float:
     return error
 
 
-def test_accumulated_time_and_a_short_last_step(open_pair, kalman_gains):
+def test_accumulated_time_and_a_short_last_step(open_pair, kalman_design):
     python, native = open_pair()
     steps = accumulated_steps(1e-3, 1.3)
     assert steps[-1] < 1e-9  # the host's round-off step
-    xs, (p_rows, n_rows) = closed_loop(kalman_gains, steps, (python, native))
+    xs, (p_rows, n_rows) = closed_loop(kalman_design, steps, (python, native))
     assert_rows_agree(n_rows, p_rows)
     times = np.cumsum(steps)
     after = times >= 1.05 * T0
@@ -113,20 +113,20 @@ def test_accumulated_time_and_a_short_last_step(open_pair, kalman_gains):
     assert n_rows[times >= T0 + 1e-9, -1].max() == 0.0  # xi reaches 0 at T0 and stays
 
 
-def test_variable_steps(open_pair, kalman_gains):
+def test_variable_steps(open_pair, kalman_design):
     python, native = open_pair()
     rng = np.random.default_rng(3)
     sizes = np.array([2e-4, 5e-4, 1e-3, 2.5e-3, 7e-4, 3e-3])
     steps = rng.choice(sizes, 600)
-    closed = closed_loop(kalman_gains, steps, (python, native))[1]
+    closed = closed_loop(kalman_design, steps, (python, native))[1]
     assert_rows_agree(closed[1], closed[0])
 
 
-def test_state_get_set_serialize_round_trip(open_pair, kalman_gains):
+def test_state_get_set_serialize_round_trip(open_pair, kalman_design):
     _, native = open_pair()
     fmu = native.fmu
     steps = np.full(300, 2e-3)
-    closed_loop(kalman_gains, steps[:100], (native,))
+    closed_loop(kalman_design, steps[:100], (native,))
     state = fmu.getFMUstate()
     blob = fmu.serializeFMUstate(state)
     before = outputs(native)
@@ -151,17 +151,17 @@ def test_bad_T0_is_refused_at_initialisation(open_pair, value):
     assert_error(native, native.fmu.exitInitializationMode, words="T0")
 
 
-def test_T0_sets_the_prescribed_time(open_pair, kalman_gains):
+def test_T0_sets_the_prescribed_time(open_pair, kalman_design):
     python, native = open_pair({"T0": 0.4})
     steps = np.full(300, 2e-3)
-    xs, (p_rows, n_rows) = closed_loop(kalman_gains, steps, (python, native))
+    xs, (p_rows, n_rows) = closed_loop(kalman_design, steps, (python, native))
     assert_rows_agree(n_rows, p_rows)
     assert n_rows[0, -1] > 0.0 and n_rows[200:, -1].max() == 0.0
 
 
-def test_non_finite_inputs_are_refused_with_the_state_kept(open_pair, kalman_gains):
+def test_non_finite_inputs_are_refused_with_the_state_kept(open_pair, kalman_design):
     python, native = open_pair()
-    closed_loop(kalman_gains, np.full(20, 1e-3), (python, native))
+    closed_loop(kalman_design, np.full(20, 1e-3), (python, native))
     kept = outputs(native)
     native.set("y", [np.nan, 0.0])
     assert_error(native, native.fmu.doStep, 0.02, 1e-3, words="y")
@@ -173,12 +173,12 @@ def test_non_finite_inputs_are_refused_with_the_state_kept(open_pair, kalman_gai
     assert_rows_agree([outputs(native)], [outputs(python)])
 
 
-def test_compiled_parameters_and_the_euler_scheme(open_pair, kalman_gains):
+def test_compiled_parameters_and_the_euler_scheme(open_pair, kalman_design):
     _, native = open_pair(start=False)
     fmu = native.fmu
-    native.set("rho", float(kalman_gains.rho))  # the built value: accepted
+    native.set("rho", float(kalman_design.filtering.rho))  # the built value: accepted
     with pytest.raises(FMICallException):
-        native.set("rho", float(kalman_gains.rho) * 2.0)
+        native.set("rho", float(kalman_design.filtering.rho) * 2.0)
     assert "compiled into the native FMU" in native.messages[-1][1]
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()

@@ -120,22 +120,25 @@ def runtime_rows(kind: str, gains, columns: list[str], inputs: dict[str, np.ndar
                  steps: np.ndarray) -> np.ndarray:
     """The same run of the numpy runtime (no compiled kernel): the FMU's outputs ``columns``."""
     if kind == "plant":
-        model = LTIPlant(gains.A, gains.B, gains.C, E=gains.E, x0=PENDULUM_X0,
-                         noise_amplitude=NOISE_AMPLITUDE, seed=NOISE_SEED, kernel=False)
+        model = LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C, E=gains.plant.E,
+                         x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE, seed=NOISE_SEED,
+                         kernel=False)
         pairs = zip(inputs["u"], inputs["q"], strict=True)
 
         def outputs() -> dict[str, float]:
             return named({"y": model.y, "x": model.x})
     else:
-        cls = FilteringObserver if kind == "observer" else LuenbergerObserver
-        model = cls(gains, h=H, kernel=False)
+        if kind == "observer":
+            model = FilteringObserver(gains.filtering, h=H, kernel=False)
+        else:
+            model = LuenbergerObserver(gains.luenberger, h=H, kernel=False)
         pairs = zip(inputs["y"], inputs["u"], strict=True)
 
         def outputs() -> dict[str, float]:
             values = {"x_hat": model.x_hat}
             if kind == "observer":
                 d = model.diagnostics()
-                values.update(q_hat=model.z[gains.n:], psi=d["psi"], xi=d["xi"],
+                values.update(q_hat=model.z[gains.plant.n:], psi=d["psi"], xi=d["xi"],
                               sigma=d["sigma"])
             return named(values)
 
@@ -154,7 +157,7 @@ def runtime_rows(kind: str, gains, columns: list[str], inputs: dict[str, np.ndar
                  (kind, pattern) == ("observer", "variable") else ())
     for kind in KINDS for pattern in sorted(PATTERNS)])
 def test_c_host_steps_agree_with_pythonfmu_and_the_runtime(native_host, native_fmus,
-                                                            pendulum_fmus, kalman_gains, kind,
+                                                            pendulum_fmus, kalman_design, kind,
                                                             pattern, tmp_path):
     steps = PATTERNS[pattern]
     inputs = signals(kind, len(steps) + 1, seed=12)
@@ -163,7 +166,7 @@ def test_c_host_steps_agree_with_pythonfmu_and_the_runtime(native_host, native_f
     table = np.hstack(list(inputs.values()))
     columns, native = host_rows(native_host, native_fmus[kind], names, table, steps, tmp_path)
     python = fmpy_rows(pendulum_fmus[kind], columns, names, table, steps, tmp_path)
-    numpy_runtime = runtime_rows(kind, kalman_gains, columns, inputs, steps)
+    numpy_runtime = runtime_rows(kind, kalman_design, columns, inputs, steps)
     assert relative(native, python) <= RTOL
     assert relative(native, numpy_runtime) <= RTOL
     assert native.shape == (len(steps) + 1, len(columns))

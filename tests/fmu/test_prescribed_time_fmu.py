@@ -38,7 +38,7 @@ needs_wrapper = pytest.mark.skipif(
 
 def xi0_of(gains, T0: float) -> float:
     """xi0 with ``T0 = xi0^(-nu) / (-nu rho)``, solved here by hand."""
-    return (-gains.nu * gains.rho * T0) ** (-1.0 / gains.nu)
+    return (-gains.model.nu * gains.filtering.rho * T0) ** (-1.0 / gains.model.nu)
 
 
 def closed_loop(gains, dt: float, t_end: float, T0: float = 1.0, scheme: str = SCHEMES[0],
@@ -48,13 +48,13 @@ def closed_loop(gains, dt: float, t_end: float, T0: float = 1.0, scheme: str = S
     Returns the inputs ``y`` (steps x k), ``u`` (steps x m), the observer's model state after
     each step and at the start (``z``, steps+1 x N), its xi, and the plant state ``x``.
     """
-    Phi, Gamma = zoh(gains.A, gains.B, dt)
-    obs = PrescribedTimeObserver(gains, h=h, scheme=scheme, xi0=xi0_of(gains, T0))
+    Phi, Gamma = zoh(gains.plant.A, gains.plant.B, dt)
+    obs = PrescribedTimeObserver(gains.prescribed_time, h=h, scheme=scheme, xi0=xi0_of(gains, T0))
     steps = int(round(t_end / dt))
     x = X0.copy()
     ys, us, zs, xis, xs = [], [], [obs.z], [obs.diagnostics()["xi"]], [x]
     for _ in range(steps):
-        y, u = gains.C @ x, K @ x
+        y, u = gains.plant.C @ x, K @ x
         obs.step(y, u, dt)
         x = Phi @ x + Gamma @ u
         ys.append(y), us.append(u), zs.append(obs.z), xis.append(obs.diagnostics()["xi"])
@@ -86,44 +86,46 @@ def open_pt(pt_fmu):
 
 def run_fmu(driver, gains, ys, us, dt=DT):
     """Step the FMU on the (y, u) sequence; the model state (x_hat, q_hat) and xi per step."""
-    N = gains.n_model
-    z = [np.concatenate([driver.get("x_hat", (gains.n,)), driver.get("q_hat", (N - gains.n,))])]
+    N = gains.model.n_model
+    n = gains.plant.n
+    z = [np.concatenate([driver.get("x_hat", (n,)), driver.get("q_hat", (N - n,))])]
     xi = [driver.get("xi", ())]
     for k, (y, u) in enumerate(zip(ys, us, strict=True)):
         driver.set("y", y)
         driver.set("u", u)
         driver.fmu.doStep(k * dt, dt)
-        z.append(np.concatenate([driver.get("x_hat", (gains.n,)),
-                                 driver.get("q_hat", (N - gains.n,))]))
+        z.append(np.concatenate([driver.get("x_hat", (gains.plant.n,)),
+                                 driver.get("q_hat", (N - gains.plant.n,))]))
         xi.append(driver.get("xi", ()))
     return np.array(z), np.array(xi, dtype=float)
 
 
-def test_model_description_is_valid_and_declares_no_feedthrough(pt_fmu, tuned_gains):
+def test_model_description_is_valid_and_declares_no_feedthrough(pt_fmu, tuned_design):
     """fmpy's validation passes; the variables are the contract's; no output depends on an
     input (the harness's algebraic-loop check relies on it)."""
     path, _ = pt_fmu
     assert validate_fmu(str(path)) == []
     description = read_model_description(str(path))
     causality = {v.name: v.causality for v in description.modelVariables}
-    g = tuned_gains
-    outputs = ["xi", *names("x_hat", (g.n,)), *names("q_hat", (g.n_model - g.n,))]
+    g = tuned_design
+    outputs = ["xi", *names("x_hat", (g.plant.n,)), *names("q_hat", (g.model.n_model - g.plant.n,))]
     assert sorted(n for n, c in causality.items() if c == "output") == sorted(outputs)
     assert sorted(n for n, c in causality.items() if c == "input") == sorted(
-        names("y", (g.k,)) + names("u", (g.m,)))
-    for name in ("L0", "G_d", "L_pt", "P_pt"):
-        assert all(causality[n] == "parameter" for n in names(name, getattr(g, name).shape))
+        names("y", (g.plant.k,)) + names("u", (g.plant.m,)))
+    for name, value in (("L0", g.model.L0), ("G_d", g.model.G_d),
+                        ("L_pt", g.prescribed_time.L_pt), ("P_pt", g.prescribed_time.P_pt)):
+        assert all(causality[n] == "parameter" for n in names(name, value.shape))
     assert {"nu", "rho", "T0", "h", "input_bound", "z0[1]", "A[1,1]"} <= set(causality)
     assert all(unknown.dependencies == [] for unknown in description.outputs)
 
 
 # -- (a) the FMU is the runtime -----------------------------------------------------------------
 @pytest.mark.parametrize(("scheme", "T0", "h"), [("split", 1.0, 5e-5), ("euler", 0.8, 2.5e-4)])
-def test_fmu_equals_the_runtime_on_the_same_inputs(open_pt, tuned_gains, scheme, T0, h):
+def test_fmu_equals_the_runtime_on_the_same_inputs(open_pt, tuned_design, scheme, T0, h):
     """Through T0 and beyond (the capped gain): x_hat, q_hat and xi of the FMU are the
     runtime's to 1e-12 relative, under both schemes; the FMU's first xi is the xi0 of its T0
     parameter."""
-    ys, us, zs, xis, _ = closed_loop(tuned_gains, DT, 1.2, T0=T0, scheme=scheme, h=h)
+    ys, us, zs, xis, _ = closed_loop(tuned_design, DT, 1.2, T0=T0, scheme=scheme, h=h)
     driver = open_pt()
     start = {} if T0 == 1.0 else {"T0": T0}
     driver.fmu.setupExperiment(startTime=0.0)
@@ -132,8 +134,8 @@ def test_fmu_equals_the_runtime_on_the_same_inputs(open_pt, tuned_gains, scheme,
     driver.fmu.setInteger([driver.vr["scheme"]], [SCHEMES.index(scheme)])
     driver.fmu.enterInitializationMode()
     driver.fmu.exitInitializationMode()
-    z_fmu, xi_fmu = run_fmu(driver, tuned_gains, ys, us)
-    assert xi_fmu[0] == pytest.approx(xi0_of(tuned_gains, T0), rel=1e-14)
+    z_fmu, xi_fmu = run_fmu(driver, tuned_design, ys, us)
+    assert xi_fmu[0] == pytest.approx(xi0_of(tuned_design, T0), rel=1e-14)
     if scheme == "split":  # xi integrated exactly: 0 from T0 on
         assert xis[-1] == 0.0 and xi_fmu[-1] == 0.0
     scale = np.abs(zs).max(axis=0)
@@ -142,18 +144,18 @@ def test_fmu_equals_the_runtime_on_the_same_inputs(open_pt, tuned_gains, scheme,
 
 
 # -- (b) the prescribed-time property -------------------------------------------------------------
-def test_error_vanishes_at_T0_not_before(tuned_gains):
+def test_error_vanishes_at_T0_not_before(tuned_design):
     """From e0 = |x0| = 3.6 (observer at zero): at T0/2 the error is still above 1e-3 e0
     (measured 1.6e-2 e0), from T0 on below 1e-10 e0 (measured 2e-14 e0 at T0 + 5 dt)."""
     T0 = 1.0
-    _, _, zs, xis, xs = closed_loop(tuned_gains, DT, 1.2 * T0, T0=T0)
-    error = np.linalg.norm(zs[:, :tuned_gains.n] - xs, axis=1)
+    _, _, zs, xis, xs = closed_loop(tuned_design, DT, 1.2 * T0, T0=T0)
+    error = np.linalg.norm(zs[:, :tuned_design.plant.n] - xs, axis=1)
     e0, at = error[0], lambda t: int(round(t / DT))
     assert e0 == pytest.approx(np.linalg.norm(X0))
     assert error[at(T0 / 2)] > 1e-3 * e0
     assert error[at(T0) + 5] < 1e-10 * e0
     assert error[at(T0):].max() < 1e-10 * e0
-    assert np.abs(zs[at(T0):, tuned_gains.n:]).max() < 1e-9  # q_hat of q = 0
+    assert np.abs(zs[at(T0):, tuned_design.plant.n:]).max() < 1e-9  # q_hat of q = 0
     assert xis[at(T0) - 1] > 0.0 and xis[at(T0) + 1] == 0.0  # 0 within a step of T0
 
 
@@ -161,20 +163,23 @@ def theorem1_error(gains, T0: float, times: list[float]) -> np.ndarray:
     """Fine-step scipy solution of Theorem 1's error dynamics of the model (q = 0, so the
     model's state is (x, 0)), e(0) = -(x0, 0): ``de/dt = (A_m + (L0 + |xi|^(nu-1)
     expm(ln|xi| (G_d - nu I)) L_pt) C_m) e``, ``dxi/dt = -rho |xi|^(1+nu)``."""
-    N, n, nu = gains.n_model, gains.n, gains.nu
-    A_m = np.block([[gains.A, gains.E], [np.zeros((N - n, N))]])  # q constant: dq/dt = 0
-    C_m = np.hstack([gains.C, np.zeros((gains.k, N - n))])
-    G = gains.G_d - nu * np.eye(N)
+    N, n, nu = gains.model.n_model, gains.plant.n, gains.model.nu
+    # q constant: dq/dt = 0
+    A_m = np.block([[gains.plant.A, gains.plant.E], [np.zeros((N - n, N))]])
+    C_m = np.hstack([gains.plant.C, np.zeros((gains.plant.k, N - n))])
+    G = gains.model.G_d - nu * np.eye(N)
     # expm(s G) = V exp(s w) V^-1 (G is diagonalisable: checked against scipy's expm)
     w, V = np.linalg.eig(G)
-    V_inv_L = np.linalg.solve(V, gains.L_pt)
+    V_inv_L = np.linalg.solve(V, gains.prescribed_time.L_pt)
     np.testing.assert_allclose((V * np.exp(-2.0 * w)) @ V_inv_L,
-                               scipy.linalg.expm(-2.0 * G) @ gains.L_pt, rtol=1e-10, atol=1e-12)
+                               scipy.linalg.expm(-2.0 * G) @ gains.prescribed_time.L_pt,
+                               rtol=1e-10, atol=1e-12)
 
     def rate(_t, s):
         e, xi = s[:N], s[N]
         gain = xi ** (nu - 1.0) * ((V * np.exp(np.log(xi) * w)) @ V_inv_L).real
-        return np.append((A_m + (gains.L0 + gain) @ C_m) @ e, -gains.rho * xi ** (1.0 + nu))
+        return np.append((A_m + (gains.model.L0 + gain) @ C_m) @ e,
+                         -gains.prescribed_time.rho * xi ** (1.0 + nu))
 
     start = np.append(-np.append(X0, np.zeros(N - n)), xi0_of(gains, T0))
     sol = solve_ivp(rate, (0.0, times[-1]), start, method="DOP853", t_eval=times,
@@ -183,17 +188,18 @@ def theorem1_error(gains, T0: float, times: list[float]) -> np.ndarray:
     return sol.y[:N].T
 
 
-def test_sampled_error_follows_the_continuous_theorem1_dynamics(tuned_gains):
+def test_sampled_error_follows_the_continuous_theorem1_dynamics(tuned_design):
     """The split scheme freezes the gain over each step, so it follows the continuous error
     dynamics to first order in dt: up to 3 T0/4 the relative difference is below 250 dt
     (measured 24 dt at T0/4, 90 dt at T0/2, 170 dt at 3 T0/4) and shrinks by 4 +- 1 when dt
     does (measured 3.95..4.12)."""
     T0, times = 1.0, [0.25, 0.5, 0.75]
-    reference = theorem1_error(tuned_gains, T0, times)
+    reference = theorem1_error(tuned_design, T0, times)
     differences = {}
     for dt in (2e-4, 5e-5):
-        _, _, zs, _, xs = closed_loop(tuned_gains, dt, times[-1], T0=T0)
-        model_x = np.hstack([xs, np.zeros((len(xs), tuned_gains.n_model - tuned_gains.n))])
+        _, _, zs, _, xs = closed_loop(tuned_design, dt, times[-1], T0=T0)
+        q_states = tuned_design.model.n_model - tuned_design.plant.n
+        model_x = np.hstack([xs, np.zeros((len(xs), q_states))])
         rows = [int(round(t / dt)) for t in times]
         error = zs[rows] - model_x[rows]
         differences[dt] = (np.linalg.norm(error - reference, axis=1)
@@ -288,25 +294,26 @@ def test_fmu_state_replays_the_run(open_pt):
 
 
 @needs_wrapper
-def test_edited_L_pt_that_breaks_theorem1_fails_initialisation(open_pt, tuned_gains):
+def test_edited_L_pt_that_breaks_theorem1_fails_initialisation(open_pt, tuned_design):
     """L_pt -> -L_pt makes A0 + L_pt C + rho (G_d - nu I) non-Hurwitz (checked here with numpy),
     so no P_pt can satisfy Theorem 1's LMI: exitInitializationMode answers fmi2Error naming the
     check, doStep is refused; corrected, the instance initialises."""
-    g = tuned_gains
-    N, n = g.n_model, g.n
-    A_m = np.block([[g.A, g.E], [np.zeros((N - n, N))]])
-    C_m = np.hstack([g.C, np.zeros((g.k, N - n))])
-    H = A_m + (g.L0 - g.L_pt) @ C_m + g.rho * (g.G_d - g.nu * np.eye(N))
+    g = tuned_design
+    N, n = g.model.n_model, g.plant.n
+    A_m = np.block([[g.plant.A, g.plant.E], [np.zeros((N - n, N))]])
+    C_m = np.hstack([g.plant.C, np.zeros((g.plant.k, N - n))])
+    H = (A_m + (g.model.L0 - g.prescribed_time.L_pt) @ C_m
+         + g.prescribed_time.rho * (g.model.G_d - g.model.nu * np.eye(N)))
     assert np.linalg.eigvals(H).real.max() > 0.0
     driver = open_pt()
     driver.fmu.setupExperiment(startTime=0.0)
-    driver.set("L_pt", -g.L_pt)
+    driver.set("L_pt", -g.prescribed_time.L_pt)
     driver.fmu.enterInitializationMode()
     assert_error(driver, driver.fmu.exitInitializationMode, words="lmi_pt")
     assert "hurwitz_pt" in driver.messages[-1][1]
     assert_error(driver, driver.fmu.doStep, 0.0, DT,
                  words="fmi2DoStep is not allowed in the state initialisation mode")
-    driver.set("L_pt", g.L_pt)
+    driver.set("L_pt", g.prescribed_time.L_pt)
     driver.fmu.exitInitializationMode()
     steps(driver, 1)
 

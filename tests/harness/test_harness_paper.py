@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.paper import K_PAPER, X0_PAPER
 from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import build_vendor_plant
@@ -43,8 +43,8 @@ def block_cache(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def gains(fmu_dir) -> ObserverGains:
-    return ObserverGains.load_json(fmu_dir / "design.json")
+def gains(fmu_dir) -> ObserverDesign:
+    return ObserverDesign.load_json(fmu_dir / "design.json")
 
 
 def _scenario(name, fmu_dir, block_cache):

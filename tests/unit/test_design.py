@@ -3,18 +3,28 @@ rejection of broken solver results, and the design.json contract of build_fmu.py
 
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
-from types import SimpleNamespace
 
 import fhobs.design.observer
 import numpy as np
 import pytest
 import scipy.linalg
-from fhobs.core.certificate import augmented_matrices, certify, checked_model
+from designs import edited_design
+from fhobs.core.certificate import (
+    FIGURES,
+    augmented_matrices,
+    certify,
+    certify_filtering,
+    certify_luenberger,
+    certify_prescribed_time,
+    checked_model,
+)
 from fhobs.core.disturbance import extended_model
+from fhobs.core.gains import PlantModel
 from fhobs.design.homogenisation import homogenise, observability_index
 from fhobs.design.lmi import LMISolution
 from fhobs.design.observer import augmented_system, design_for_spec, matched_perturbation_residual
@@ -37,10 +47,10 @@ def printed_tolerance(value: float) -> float:
 def test_pendulum_homogenisation_matches_published_digits(paper_design, name):
     """paper_gains recomputes L0 and G_d with fhobs.design.homogenisation (no disturbance model)."""
     published = np.array(PAPER["design"][name])
-    ours = getattr(paper_design, name)
+    ours = getattr(paper_design.model, name)
     tol = np.vectorize(printed_tolerance)(published)
     assert np.all(np.abs(ours - published) <= tol + 1e-12), ours - published
-    assert paper_design.n_tilde == 2
+    assert paper_design.model.n_tilde == 2
 
 
 def test_printed_sign_of_the_homogenisation_equation_fails():
@@ -64,22 +74,23 @@ def test_printed_sign_of_the_homogenisation_equation_fails():
 
 
 def test_paper_gains_are_the_published_ones_and_certified(paper_design):
-    assert np.array_equal(paper_design.L, np.array(PAPER["design"]["L"]))
-    assert np.array_equal(paper_design.L_tilde, np.array(PAPER["design"]["L_tilde"]))
-    assert np.array_equal(paper_design.L_lin, np.array(PAPER["linear_observer"]["L_lin"]))
+    assert np.array_equal(paper_design.filtering.L, np.array(PAPER["design"]["L"]))
+    assert np.array_equal(paper_design.filtering.L_tilde, np.array(PAPER["design"]["L_tilde"]))
+    assert np.array_equal(paper_design.luenberger.L_lin,
+                          np.array(PAPER["linear_observer"]["L_lin"]))
     certify(paper_design)
 
 
-def test_matched_perturbation_condition_for_pendulum(tuned_gains, paper_design):
+def test_matched_perturbation_condition_for_pendulum(tuned_design, paper_design):
     """Corollary 1: E = B satisfies (n_tilde + 1) G_d E = E, E = e1 does not; with the
     disturbance model, the model's unknown input dq/dt (entering the q state) satisfies it."""
-    assert paper_design.certificate["matched_perturbation_residual"] < 1e-12
+    assert paper_design.filtering.certificate["matched_perturbation_residual"] < 1e-12
     e1 = np.eye(4)[:, :1]
-    assert matched_perturbation_residual(paper_design.G_d, e1, 2) > 0.1
-    assert tuned_gains.disturbance_order == 1 and tuned_gains.n_tilde == 3
+    assert matched_perturbation_residual(paper_design.model.G_d, e1, 2) > 0.1
+    assert tuned_design.model.disturbance_order == 1 and tuned_design.model.n_tilde == 3
     E_model = np.eye(5)[:, 4:]
-    assert matched_perturbation_residual(tuned_gains.G_d, E_model, 3) < 1e-12
-    assert tuned_gains.certificate["matched_perturbation_residual"] < 1e-12
+    assert matched_perturbation_residual(tuned_design.model.G_d, E_model, 3) < 1e-12
+    assert tuned_design.filtering.certificate["matched_perturbation_residual"] < 1e-12
 
 
 def model_by_loops(A, C, E, order):
@@ -106,21 +117,22 @@ def model_by_loops(A, C, E, order):
 
 def augmented_by_loops(gains):
     """bar_A0, bar_G, bar_C of Theorem 2 from :func:`model_by_loops` and scipy's block_diag."""
-    A_model, C_model = model_by_loops(gains.A, gains.C, gains.E, gains.disturbance_order)
+    A_model, C_model = model_by_loops(gains.plant.A, gains.plant.C, gains.plant.E,
+                                      gains.model.disturbance_order)
     k, n = C_model.shape
     bar_A0 = np.zeros((k + n, k + n))
     bar_A0[:k, k:] = C_model
-    bar_A0[k:, k:] = A_model + gains.L0 @ C_model
+    bar_A0[k:, k:] = A_model + gains.model.L0 @ C_model
     bar_C = np.zeros((k, k + n))
     for i in range(k):
         bar_C[i, i] = 1.0
-    return bar_A0, scipy.linalg.block_diag(np.eye(k), gains.G_d), bar_C
+    return bar_A0, scipy.linalg.block_diag(np.eye(k), gains.model.G_d), bar_C
 
 
 def closed_loop_error_matrix(gains) -> np.ndarray:
     """(psi, z - x) error system of Theorem 2 at sigma = 1: bar_A0 + bar_L bar_C."""
     bar_A0, _, bar_C = augmented_by_loops(gains)
-    return bar_A0 + np.vstack([gains.L_tilde, gains.L]) @ bar_C
+    return bar_A0 + np.vstack([gains.filtering.L_tilde, gains.filtering.L]) @ bar_C
 
 
 @pytest.mark.parametrize("order, p", [(0, 1), (1, 1), (2, 1), (3, 1), (1, 2), (3, 2)])
@@ -131,24 +143,24 @@ def test_the_three_model_constructions_agree(order, p):
     C, E = rng.standard_normal((2, 3)), rng.standard_normal((3, p))
     expected_A, expected_C = model_by_loops(A, C, E, order)
     design_A, _, design_C = extended_model(A, B, C, E, order)
-    gains = SimpleNamespace(A=A, C=C, E=E, disturbance_order=order)
-    checked_A, checked_C = checked_model(gains)
+    checked_A, checked_C = checked_model(PlantModel(A, B, C, E), order)
     for got in (design_A, checked_A):
         np.testing.assert_array_equal(got, expected_A)
     for got in (design_C, checked_C):
         np.testing.assert_array_equal(got, expected_C)
 
 
-def test_the_design_and_certificate_augmented_systems_agree_with_the_tests(tuned_gains):
-    g = tuned_gains
+def test_the_design_and_certificate_augmented_systems_agree_with_the_tests(tuned_design):
+    g = tuned_design
     expected = augmented_by_loops(g)
-    for built in (augmented_matrices(g), augmented_system(g.A0, g.model[2], g.G_d)):
+    for built in (augmented_matrices(g.filtering),
+                  augmented_system(g.filtering.A0, g.filtering.model_matrices[2], g.model.G_d)):
         for got, want in zip(built, expected, strict=True):
             np.testing.assert_array_equal(got, want)
 
 
-def test_tuned_and_paper_error_systems_are_stable(tuned_gains, paper_design):
-    ours = np.linalg.eigvals(closed_loop_error_matrix(tuned_gains))
+def test_tuned_and_paper_error_systems_are_stable(tuned_design, paper_design):
+    ours = np.linalg.eigvals(closed_loop_error_matrix(tuned_design))
     theirs = np.linalg.eigvals(closed_loop_error_matrix(paper_design))
     assert ours.size == 2 + 5 and theirs.size == 2 + 4  # (psi, model error) of each design
     assert np.max(ours.real) < 0 and np.max(theirs.real) < 0
@@ -188,45 +200,59 @@ def test_random_observable_plants(seed, n, k):
     spec = spec_from_dict(data, source=f"random seed {seed}")
     gains = design_for_spec(spec)
     A, C, nu, eye = spec.A, spec.C, spec.nu, np.eye(n)
-    A0 = A + gains.L0 @ C
-    scale = np.linalg.norm(A0) * np.linalg.norm(gains.G_d)
-    assert np.linalg.norm(A0 @ gains.G_d - (gains.G_d + nu * eye) @ A0) <= 1e-8 * scale
-    assert np.linalg.norm(C @ gains.G_d - (1 + nu) * C) <= 1e-9 * np.linalg.norm(C)
-    assert np.linalg.norm(np.linalg.matrix_power(A0, gains.n_tilde)) <= (
-        1e-8 * np.linalg.norm(A0) ** gains.n_tilde)
-    assert np.min(np.linalg.eigvals(gains.G_d).real) > 0
-    weights = np.sort(np.linalg.eigvals(gains.G_d).real)
-    expected = np.sort([1 + nu + nu * j for j in range(gains.n_tilde)])
+    A0 = A + gains.model.L0 @ C
+    scale = np.linalg.norm(A0) * np.linalg.norm(gains.model.G_d)
+    assert np.linalg.norm(A0 @ gains.model.G_d - (gains.model.G_d + nu * eye) @ A0) <= 1e-8 * scale
+    assert np.linalg.norm(C @ gains.model.G_d - (1 + nu) * C) <= 1e-9 * np.linalg.norm(C)
+    assert np.linalg.norm(np.linalg.matrix_power(A0, gains.model.n_tilde)) <= (
+        1e-8 * np.linalg.norm(A0) ** gains.model.n_tilde)
+    assert np.min(np.linalg.eigvals(gains.model.G_d).real) > 0
+    weights = np.sort(np.linalg.eigvals(gains.model.G_d).real)
+    expected = np.sort([1 + nu + nu * j for j in range(gains.model.n_tilde)])
     assert np.allclose(np.unique(weights.round(8)), expected, atol=1e-7)
     bar_A0, bar_G, _ = augmented_by_loops(gains)
     p_min, mono, lmi = independent_lmi_check(
-        gains.P_bar, closed_loop_error_matrix(gains), bar_G, gains.rho)
+        gains.filtering.P_bar, closed_loop_error_matrix(gains), bar_G, gains.filtering.rho)
     assert p_min > 0 and mono > 0 and lmi < 0
+    pt = gains.prescribed_time
     p_min, mono, lmi = independent_lmi_check(
-        gains.P_pt, A0 + gains.L_pt @ C, gains.G_d - nu * eye, gains.rho)
+        pt.P_pt, A0 + pt.L_pt @ C, gains.model.G_d - nu * eye, pt.rho)
     assert p_min > 0 and mono > 0 and lmi < 0
-    assert np.max(np.linalg.eigvals(A + gains.L_lin @ C).real) < 0
-    assert observability_index(A, C)[0] == gains.n_tilde
+    assert np.max(np.linalg.eigvals(A + gains.luenberger.L_lin @ C).real) < 0
+    assert observability_index(A, C)[0] == gains.model.n_tilde
+
+
+CERTIFY = {"filtering": certify_filtering, "prescribed_time": certify_prescribed_time,
+           "luenberger": certify_luenberger}
 
 
 @pytest.mark.parametrize(
-    ("field", "edit", "check"),
+    ("path", "edit", "check"),
     [
-        ("L", lambda g: -g.L, "lmi_filtering"),
-        ("L_tilde", lambda g: -g.L_tilde, "lmi_filtering"),
-        ("P_bar", lambda g: g.P_bar - 2 * np.linalg.norm(g.P_bar, 2) * np.eye(len(g.P_bar)),
-         "P_bar_positive"),
-        ("A", lambda g: g.A + np.diag([0, 0, 0.01, 0]), "homogenisation_residual"),
-        ("G_d", lambda g: g.G_d + 0.01 * np.eye(g.n_model)[::-1], "output_homogeneity"),
-        ("L_pt", lambda g: 0 * g.L_pt, "lmi_pt"),
-        ("L_lin", lambda g: 0 * g.L_lin, "hurwitz_luenberger"),
-        ("gamma", lambda g: 2 * g.rho + 0.1, "gamma_rho"),
+        ("filtering.L", lambda g: -g.filtering.L, "lmi_filtering"),
+        ("filtering.L_tilde", lambda g: -g.filtering.L_tilde, "lmi_filtering"),
+        ("filtering.P_bar", lambda g: g.filtering.P_bar - 2 * np.linalg.norm(g.filtering.P_bar, 2)
+         * np.eye(len(g.filtering.P_bar)), "P_bar_positive"),
+        ("plant.A", lambda g: g.plant.A + np.diag([0, 0, 0.01, 0]), "homogenisation_residual"),
+        ("model.G_d", lambda g: g.model.G_d + 0.01 * np.eye(g.model.n_model)[::-1],
+         "output_homogeneity"),
+        ("prescribed_time.L_pt", lambda g: 0 * g.prescribed_time.L_pt, "lmi_pt"),
+        ("luenberger.L_lin", lambda g: 0 * g.luenberger.L_lin, "hurwitz_luenberger"),
+        ("filtering.gamma", lambda g: 2 * g.filtering.rho + 0.1, "gamma_rho"),
     ],
 )
-def test_certificate_rejects_broken_designs(tuned_gains, field, edit, check):
-    broken = dataclasses.replace(tuned_gains, **{field: edit(tuned_gains)})
-    with pytest.raises(CertificateError, match=rf"{check} = [-+0-9.e]+ \(required"):
+def test_certificate_rejects_broken_designs(tuned_design, path, edit, check):
+    """certify of the whole design and the certificate of the record that holds the edited
+    field (the shared plant and model: every homogeneous record's) name the failed check."""
+    broken = edited_design(tuned_design, path, edit(tuned_design))
+    failing = re.compile(rf"{check} = [-+0-9.e]+ \(required")
+    with pytest.raises(CertificateError, match=failing):
         certify(broken)
+    record = path.partition(".")[0]
+    for name in (("filtering", "prescribed_time") if record in ("plant", "model") else (record,)):
+        if check in FIGURES[name](getattr(broken, name)):
+            with pytest.raises(CertificateError, match=failing):
+                CERTIFY[name](getattr(broken, name))
 
 
 def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
@@ -251,12 +277,17 @@ def test_build_fmu_design_only_writes_design_json(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     design = json.loads((out / "design.json").read_text())
-    for key in ("A", "B", "C", "nu", "rho", "gamma", "n_tilde", "L0", "G_d", "L_tilde", "L",
-                "L_lin", "certificate"):
-        assert key in design
-    assert design["A"] == tomllib.loads((EXAMPLES / "pendulum.toml").read_text())["A"]
-    assert design["disturbance_order"] == 1 and np.shape(design["L0"]) == (5, 2)
-    assert design["certificate"]["checks"]["lmi_filtering"] < 0
+    for record, keys in {"plant": ("A", "B", "C", "E"), "model": ("nu", "n_tilde", "L0", "G_d"),
+                         "filtering": ("rho", "gamma", "L_tilde", "L", "P_bar", "certificate"),
+                         "prescribed_time": ("rho", "L_pt", "P_pt", "certificate"),
+                         "luenberger": ("L_lin", "certificate"), "kalman": ("gain",)}.items():
+        for key in keys:
+            assert key in design[record], (record, key)
+    for record in ("filtering", "prescribed_time", "luenberger", "kalman"):
+        assert "plant" not in design[record] and "model" not in design[record]
+    assert design["plant"]["A"] == tomllib.loads((EXAMPLES / "pendulum.toml").read_text())["A"]
+    assert design["model"]["disturbance_order"] == 1 and np.shape(design["model"]["L0"]) == (5, 2)
+    assert design["filtering"]["certificate"]["checks"]["lmi_filtering"] < 0
     assert not list(out.glob("*.fmu"))
 
 
@@ -277,7 +308,7 @@ def test_build_fmu_bad_spec_exit_code_and_message(tmp_path):
 def test_filter_scale_multiplies_l_tilde_and_certifies_at_a_lower_rho(pendulum_spec):
     base = design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=1.0))
     scaled = design_for_spec(dataclasses.replace(pendulum_spec, filter_scale=2.0))
-    assert np.allclose(scaled.L_tilde, 2.0 * base.L_tilde)
-    assert np.array_equal(scaled.L, base.L)
-    assert pendulum_spec.gamma / 2 < scaled.rho < base.rho == pendulum_spec.rho
+    assert np.allclose(scaled.filtering.L_tilde, 2.0 * base.filtering.L_tilde)
+    assert np.array_equal(scaled.filtering.L, base.filtering.L)
+    assert pendulum_spec.gamma / 2 < scaled.filtering.rho < base.filtering.rho == pendulum_spec.rho
     certify(scaled)

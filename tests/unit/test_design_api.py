@@ -7,6 +7,7 @@ import pytest
 from fhobs.design.observer import design_for_spec, design_observer
 from fhobs.design.spec import load_spec
 from fhobs.errors import SpecError
+from fhobs.fmu.kinds import record_field
 
 A = [[0.0, 1.0], [0.0, 0.0]]
 B = [[0.0], [1.0]]
@@ -14,9 +15,12 @@ C = [[1.0, 0.0]]
 
 
 def same_design(first, second):
-    for name in ("L0", "G_d", "L_tilde", "L", "P_bar", "L_pt", "P_pt", "L_lin"):
-        np.testing.assert_array_equal(getattr(first, name), getattr(second, name), err_msg=name)
-    assert (first.nu, first.rho, first.gamma) == (second.nu, second.rho, second.gamma)
+    for path in ("model.L0", "model.G_d", "filtering.L_tilde", "filtering.L", "filtering.P_bar",
+                 "prescribed_time.L_pt", "prescribed_time.P_pt", "luenberger.L_lin"):
+        np.testing.assert_array_equal(record_field(first, path), record_field(second, path),
+                                      err_msg=path)
+    for path in ("model.nu", "filtering.rho", "filtering.gamma", "prescribed_time.rho"):
+        assert record_field(first, path) == record_field(second, path), path
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +50,12 @@ def test_tuning_keywords_reach_the_design():
     E = [[0.0], [1.0]]
     gains = design_observer(A, B, C, E=E, disturbance_order=1, rho=3.0, gamma=2.0,
                             filter_scale=2.0, objective="min_gain")
-    assert gains.disturbance_order == 1 and gains.n_model == 3 and gains.gamma == 2.0
-    assert gains.rho < 3.0  # the certified rho of the scaled filter gain
-    assert gains.certificate["objective"] == "min_gain"
-    np.testing.assert_array_equal(gains.E, np.array(E))
+    assert gains.model.disturbance_order == 1 and gains.model.n_model == 3
+    assert gains.filtering.gamma == 2.0
+    assert gains.filtering.rho < 3.0  # the certified rho of the scaled filter gain
+    for record in (gains.filtering, gains.prescribed_time, gains.luenberger):
+        assert record.certificate["objective"] == "min_gain"
+    np.testing.assert_array_equal(gains.plant.E, np.array(E))
 
 
 @pytest.mark.parametrize("call, message", [
@@ -80,9 +86,10 @@ def test_bad_arguments_are_named(call, message):
 
 
 def test_the_solver_status_is_reported(reference):
-    """Each LMI's status as the solver gave it: optimal here (a double integrator)."""
-    assert reference.certificate["solver_status"] == {
-        "filtering": "optimal", "prescribed_time": "optimal", "luenberger": "optimal"}
+    """Each LMI's status as the solver gave it, in the record it made: optimal here (a double
+    integrator)."""
+    for record in (reference.filtering, reference.prescribed_time, reference.luenberger):
+        assert record.certificate["solver_status"] == "optimal"
 
 
 def test_an_inaccurate_solve_is_reported_as_such(monkeypatch):
@@ -100,21 +107,25 @@ def test_an_inaccurate_solve_is_reported_as_such(monkeypatch):
 
     monkeypatch.setattr(cp.Problem, "solve", inaccurate)
     gains = design_observer(A, B, C, rho=2.0, gamma=3.0)
-    assert set(gains.certificate["solver_status"].values()) == {"optimal_inaccurate"}
+    for record in (gains.filtering, gains.prescribed_time, gains.luenberger):
+        assert record.certificate["solver_status"] == "optimal_inaccurate"
     gains = design_observer(A, B, C, rho=2.0, gamma=3.0, L_lin=[[-2.0], [-1.0]])
-    assert gains.certificate["solver_status"] == {
-        "filtering": "optimal_inaccurate", "prescribed_time": "optimal_inaccurate"}
+    for record in (gains.filtering, gains.prescribed_time):
+        assert record.certificate["solver_status"] == "optimal_inaccurate"
+    assert set(gains.luenberger.certificate) == {"checks"}  # given, not solved
 
 
 def test_the_extended_model_is_built_once_per_record(reference):
     import dataclasses
 
-    assert reference.model is reference.model and reference.A0 is reference.A0
-    np.testing.assert_array_equal(reference.A0,
-                                  reference.model[0] + reference.L0 @ reference.model[2])
-    edited = dataclasses.replace(reference, L0=2.0 * reference.L0)
-    A_model, _, C_model = edited.model
-    np.testing.assert_array_equal(edited.A0, A_model + 2.0 * reference.L0 @ C_model)
+    for record in (reference.filtering, reference.prescribed_time):
+        assert record.model_matrices is record.model_matrices and record.A0 is record.A0
+        A_model, _, C_model = record.model_matrices
+        np.testing.assert_array_equal(record.A0, A_model + reference.model.L0 @ C_model)
+        model = dataclasses.replace(reference.model, L0=2.0 * reference.model.L0)
+        edited = dataclasses.replace(record, model=model)
+        A_model, _, C_model = edited.model_matrices
+        np.testing.assert_array_equal(edited.A0, A_model + 2.0 * reference.model.L0 @ C_model)
 
 
 def test_the_public_api_is_listed_and_lazy():
@@ -125,13 +136,14 @@ def test_the_public_api_is_listed_and_lazy():
     import sys
 
     import fhobs
-    from fhobs.core.gains import ObserverGains
+    from fhobs.core.gains import ObserverDesign
     from fhobs.core.runtime import FilteringObserver
 
-    assert {"ObserverGains", "FilteringObserver", "KalmanObserver", "paper_gains",
-            "FhobsError", "CertificateError"} <= set(fhobs.__all__)
+    assert {"ObserverDesign", "PlantModel", "HomogeneousModel", "FilteringGains",
+            "PrescribedTimeGains", "LuenbergerGains", "KalmanGains", "FilteringObserver",
+            "KalmanObserver", "paper_gains", "FhobsError", "CertificateError"} <= set(fhobs.__all__)
     assert set(fhobs.__all__) <= set(dir(fhobs))
-    assert fhobs.ObserverGains is ObserverGains and fhobs.FilteringObserver is FilteringObserver
+    assert fhobs.ObserverDesign is ObserverDesign and fhobs.FilteringObserver is FilteringObserver
     assert all(isinstance(getattr(fhobs, name), type) or callable(getattr(fhobs, name))
                for name in fhobs.__all__)
     light = subprocess.run([sys.executable, "-c", "import sys, fhobs; print(sorted(m for m in "

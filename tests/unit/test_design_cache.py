@@ -2,14 +2,14 @@
 repeated call is answered from the cache with the same record, other inputs compute again, and
 a file that is unreadable or whose design fails its certificate is computed again, replaced."""
 
-import dataclasses
 import pickle
 from collections.abc import Callable
 
 import numpy as np
 import pytest
+from designs import edited_design
 from fhobs.core.certificate import certify
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.cache import cached
 from fhobs.design.observer import design_observer
 
@@ -22,7 +22,7 @@ def cache_home(tmp_path, monkeypatch):
     return tmp_path / "fhobs" / "designs"
 
 
-def counted(rho: float, calls: list) -> Callable[[], ObserverGains]:
+def counted(rho: float, calls: list) -> Callable[[], ObserverDesign]:
     def compute():
         calls.append(rho)
         return design_observer(*PLANT, rho=rho)
@@ -35,9 +35,10 @@ def test_a_repeated_call_is_answered_from_the_cache(cache_home):
     assert not hit and calls == [2.0]
     again, hit = cached("test", ("plant", 2.0), counted(2.0, calls), certify)
     assert hit and calls == [2.0]
-    assert np.array_equal(again.L, first.L) and np.array_equal(again.P_bar, first.P_bar)
+    assert np.array_equal(again.filtering.L, first.filtering.L)
+    assert np.array_equal(again.filtering.P_bar, first.filtering.P_bar)
     other, hit = cached("test", ("plant", 3.0), counted(3.0, calls), certify)
-    assert not hit and calls == [2.0, 3.0] and other.rho != first.rho
+    assert not hit and calls == [2.0, 3.0] and other.filtering.rho != first.filtering.rho
     assert len(list(cache_home.glob("test_*.pickle"))) == 2
 
 
@@ -48,16 +49,16 @@ def test_an_unreadable_file_is_computed_again_and_replaced(cache_home):
     path.write_bytes(b"partial")
     result, hit = cached("test", 1, counted(2.0, calls), certify)
     assert not hit and calls == [2.0, 2.0]
-    assert np.array_equal(pickle.loads(path.read_bytes()).L, result.L)
+    assert np.array_equal(pickle.loads(path.read_bytes()).filtering.L, result.filtering.L)
 
 
 def test_a_design_that_fails_its_certificate_is_not_used(cache_home):
     calls = []
     good, _ = cached("test", 1, counted(2.0, calls), certify)
     (path,) = cache_home.glob("test_*.pickle")
-    path.write_bytes(pickle.dumps(dataclasses.replace(good, L=-good.L)))
+    path.write_bytes(pickle.dumps(edited_design(good, "filtering.L", -good.filtering.L)))
     result, hit = cached("test", 1, counted(2.0, calls), certify)
-    assert not hit and calls == [2.0, 2.0] and np.array_equal(result.L, good.L)
+    assert not hit and calls == [2.0, 2.0] and np.array_equal(result.filtering.L, good.filtering.L)
 
 
 def test_an_unwritable_cache_only_costs_time(cache_home):
@@ -66,5 +67,5 @@ def test_an_unwritable_cache_only_costs_time(cache_home):
     calls = []
     for _ in range(2):
         result, hit = cached("test", 1, counted(2.0, calls), certify)
-        assert not hit and result.rho == 2.0
+        assert not hit and result.filtering.rho == 2.0
     assert calls == [2.0, 2.0]

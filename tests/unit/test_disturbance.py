@@ -30,12 +30,12 @@ def test_extended_model_blocks():
     np.testing.assert_array_equal((A_m @ A_m @ E_model)[:3], E)
 
 
-def test_constant_perturbation_is_estimated_to_round_off(tuned_gains):
+def test_constant_perturbation_is_estimated_to_round_off(tuned_design):
     """q = 0.3 constant in the paper's closed loop (noise-free): the model is exact, so x_hat and
     q_hat converge to round-off, like the nominal case."""
-    g, dt, q = tuned_gains, 5e-5, np.array([0.3])
-    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=X0_PAPER)
-    obs = FilteringObserver(g, h=dt)
+    g, dt, q = tuned_design, 5e-5, np.array([0.3])
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.E, x0=X0_PAPER)
+    obs = FilteringObserver(g.filtering, h=dt)
     for _ in range(int(round(1.5 / dt))):
         y, u = plant.y, K_PAPER @ obs.x_hat
         plant.step(u, q, dt)
@@ -54,11 +54,12 @@ def test_disturbance_models_of_every_order_design_on_the_pendulum(order):
     data = {k: v for k, v in data.items() if k in ("A", "B", "C", "E")}
     data["observer"] = {"disturbance_order": order, "rho": 6.0, "gamma": 6.0}
     g = design_for_spec(spec_from_dict(data, f"pendulum, order {order}"))
-    assert g.n_model == 4 + order and g.certificate["checks"]["lmi_filtering"] < 0
+    assert g.model.n_model == 4 + order
+    assert g.filtering.certificate["checks"]["lmi_filtering"] < 0
     dt, coefficients = 1e-3, [0.3, -0.2, 0.1][:order]
-    plant = LTIPlant(g.A, g.B, g.C, g.E, x0=X0_PAPER)
-    obs = FilteringObserver(g, h=dt)
-    K = state_feedback(g.A, g.B)
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.E, x0=X0_PAPER)
+    obs = FilteringObserver(g.filtering, h=dt)
+    K = state_feedback(g.plant.A, g.plant.B)
     size = 0.0
     for step in range(int(round(4.0 / dt))):
         t = step * dt

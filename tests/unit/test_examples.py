@@ -12,7 +12,7 @@ PUBLIC_MODULES = (
     "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "harness.reference",
     "fhobs.design.settling", "fhobs.core.disturbance", "fhobs.native.build",
     "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
-    "fhobs.fmu.kinds",
+    "fhobs.fmu.kinds", "fhobs.core.gains",
     "harness.figures", "harness.zoo", "harness.cli",
     pytest.param("fhobs.design.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
 )
@@ -28,8 +28,16 @@ def test_docstring_examples(name):
 
 def test_public_functions_have_examples():
     from fhobs.build import build_fmus
-    from fhobs.core.certificate import certify
+    from fhobs.core.certificate import (
+        certify,
+        certify_filtering,
+        certify_kalman,
+        certify_luenberger,
+        certify_parts,
+        certify_prescribed_time,
+    )
     from fhobs.core.disturbance import extended_model
+    from fhobs.core.gains import ObserverDesign
     from fhobs.core.kalman_filter import KalmanObserver
     from fhobs.core.plant import LTIPlant
     from fhobs.core.runtime import (
@@ -56,8 +64,9 @@ def test_public_functions_have_examples():
         resolve_system,
     )
 
-    for item in (build_fmus, certify, LTIPlant, FilteringObserver, LuenbergerObserver,
-                 PrescribedTimeObserver, KalmanObserver,
+    for item in (build_fmus, certify, certify_parts, certify_filtering, certify_prescribed_time,
+                 certify_luenberger, certify_kalman, ObserverDesign, LTIPlant, FilteringObserver,
+                 LuenbergerObserver, PrescribedTimeObserver, KalmanObserver,
                  design_for_spec, design_observer, load_spec, plant_spec, paper_gains,
                  published, simulate, error_response, extended_model, load_system,
                  resolve_system, build_blocks, run_system, export_ssp, build_native_fmus,

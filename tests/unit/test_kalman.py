@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 from fhobs.core.disturbance import extended_model
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign, PlantModel
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.design.kalman import RADIUS_MARGIN, REGULARISATION, design_kalman, van_loan
@@ -31,10 +31,10 @@ TS = 5e-5
 
 def model(gains, order):
     """(A_model, B_model, C_model) and the noise input G written out here (not fhobs')."""
-    A, B, C = extended_model(gains.A, gains.B, gains.C, gains.E, order)
+    A, B, C = extended_model(gains.plant.A, gains.plant.B, gains.plant.C, gains.plant.E, order)
     G = np.zeros((A.shape[0], 1))
     if order == 0:
-        G = gains.E
+        G = gains.plant.E
     else:
         G[-1, 0] = 1.0
     return A, B, C, G
@@ -42,19 +42,19 @@ def model(gains, order):
 
 # -- design ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("order", [0, 1, 2, 3])
-def test_gain_equals_python_control_dlqe(tuned_gains, order):
-    g = tuned_gains
-    kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 10.0, TS)
+def test_gain_equals_python_control_dlqe(tuned_design, order):
+    g = tuned_design
+    kf = design_kalman(g.plant, order, STD, 10.0, TS)
     A, _, C, G = model(g, order)
     Phi, Qd = van_loan(A, 10.0 * G @ G.T, TS)
     L, P, _ = control.dlqe(Phi, np.eye(A.shape[0]), C, Qd, np.diag(STD**2))
     np.testing.assert_allclose(Phi @ kf.gain, L, rtol=1e-8, atol=1e-12 * np.abs(L).max())
     np.testing.assert_allclose(kf.covariance, P, rtol=1e-8, atol=1e-12 * np.abs(P).max())
-    assert kf.gain.shape == (g.n + order, g.k) and kf.disturbance_order == order
+    assert kf.gain.shape == (g.plant.n + order, g.plant.k) and kf.disturbance_order == order
 
 
-def test_van_loan_equals_quadrature(tuned_gains):
-    A, _, _, G = model(tuned_gains, 2)
+def test_van_loan_equals_quadrature(tuned_design):
+    A, _, _, G = model(tuned_design, 2)
     Ts, W = 1e-2, 3.0
     Phi, Qd = van_loan(A, W * G @ G.T, Ts)
     integral, _ = quad_vec(lambda t: sl.expm(t * A) @ (W * G @ G.T) @ sl.expm(t * A).T, 0, Ts,
@@ -63,11 +63,11 @@ def test_van_loan_equals_quadrature(tuned_gains):
     np.testing.assert_allclose(Phi, sl.expm(Ts * A), rtol=1e-12, atol=1e-14)
 
 
-def test_gain_is_the_limit_of_the_riccati_recursion(tuned_gains):
+def test_gain_is_the_limit_of_the_riccati_recursion(tuned_design):
     """Independent of any Riccati solver: the covariance recursion iterated to convergence."""
-    g = tuned_gains
+    g = tuned_design
     Ts, W = 1e-2, 1.0
-    kf = design_kalman(g.A, g.B, g.C, g.E, 1, STD, W, Ts)
+    kf = design_kalman(g.plant, 1, STD, W, Ts)
     A, _, C, G = model(g, 1)
     Phi = sl.expm(Ts * A)
     Qd, _ = quad_vec(lambda t: sl.expm(t * A) @ (W * G @ G.T) @ sl.expm(t * A).T, 0, Ts,
@@ -87,32 +87,36 @@ def test_gain_is_the_limit_of_the_riccati_recursion(tuned_gains):
      ({"measurement_std": [1e-3]}, "measurement_std"),
      ({"process_intensity": -1.0}, "process_intensity"), ({"sample_time": np.nan}, "sample_time")],
 )
-def test_design_rejects_bad_arguments(tuned_gains, change, words):
-    g = tuned_gains
-    args = dict(A=g.A, B=g.B, C=g.C, E=g.E, order=1, measurement_std=STD,
-                process_intensity=1.0, sample_time=TS) | change
+def test_design_rejects_bad_arguments(tuned_design, change, words):
+    g = tuned_design
+    plant = dataclasses.replace(g.plant, **{k: v for k, v in change.items() if k == "E"})
+    args = dict(order=1, measurement_std=STD, process_intensity=1.0, sample_time=TS) | {
+        k: v for k, v in change.items() if k != "E"}
     with pytest.raises(KalmanDesignError, match=words):
-        design_kalman(**args)
+        design_kalman(plant, **args)
 
 
-def test_inaccurate_riccati_solution_is_refused(tuned_gains):
+def test_inaccurate_riccati_solution_is_refused(tuned_design):
     """Order 0 with an intensity 1e6: scipy returns a P with an O(1) residual (or, in other
     scipy versions, fails to reorder the pencil); not a filter either way."""
-    g = tuned_gains
+    g = tuned_design
     with pytest.raises(KalmanDesignError, match="inaccurate|no stabilising solution"):
-        design_kalman(g.A, g.B, g.C, g.E, 0, STD, 1e6, TS)
+        design_kalman(g.plant, 0, STD, 1e6, TS)
 
 
-def test_design_record_round_trips(kalman_gains, pendulum_spec, tmp_path):
-    path = kalman_gains.save_json(tmp_path / "design.json")
-    back = ObserverGains.load_json(path)
-    for field in dataclasses.fields(kalman_gains.kalman):
-        a, b = getattr(back.kalman, field.name), getattr(kalman_gains.kalman, field.name)
+def test_design_record_round_trips(kalman_design, pendulum_spec, tmp_path):
+    path = kalman_design.save_json(tmp_path / "design.json")
+    back = ObserverDesign.load_json(path)
+    for field in dataclasses.fields(kalman_design.kalman):
+        if field.name == "plant":
+            continue
+        a, b = getattr(back.kalman, field.name), getattr(kalman_design.kalman, field.name)
         assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+    assert back.kalman.plant is back.plant  # the design's plant, written once
     assert back.kalman.process_intensity == pendulum_spec.noise.process_intensity
     assert back.kalman.disturbance_order == 1 and back.kalman.sample_time == 5e-5
-    without = dataclasses.replace(kalman_gains, kalman=None)
-    assert ObserverGains.load_json(without.save_json(tmp_path / "plain.json")).kalman is None
+    without = dataclasses.replace(kalman_design, kalman=None)
+    assert ObserverDesign.load_json(without.save_json(tmp_path / "plain.json")).kalman is None
 
 
 # -- runtime -----------------------------------------------------------------------------------
@@ -132,25 +136,25 @@ def written_out(gains, ys, us, cycles):
 
 
 @pytest.mark.parametrize("cycles", [1, 3])
-def test_runtime_equals_the_equations_written_out(kalman_gains, cycles):
-    g = kalman_gains
-    ys, us = random_walk(1, 200, g.k, 0.05), random_walk(2, 200, g.m, 0.1)
-    obs = KalmanObserver(g)
+def test_runtime_equals_the_equations_written_out(kalman_design, cycles):
+    g = kalman_design
+    ys, us = random_walk(1, 200, g.plant.k, 0.05), random_walk(2, 200, g.plant.m, 0.1)
+    obs = KalmanObserver(g.kalman)
     rows = []
     for y, u in zip(ys, us, strict=True):
         obs.step(y, u, cycles * TS)
         rows.append(obs.z)
-        np.testing.assert_array_equal(obs.x_hat, obs.z[:g.n])
+        np.testing.assert_array_equal(obs.x_hat, obs.z[:g.plant.n])
     expected = written_out(g, ys, us, cycles)
     np.testing.assert_allclose(np.array(rows), expected, rtol=0,
                                atol=1e-10 * np.abs(expected).max())
 
 
-def test_state_round_trip_and_bad_inputs(kalman_gains):
-    g = kalman_gains
-    obs = KalmanObserver(g, z0=np.arange(1.0, g.n + 1))
-    assert obs.z.size == g.n + 1 and obs.z[-1] == 0.0
-    ys, us = random_walk(5, 20, g.k, 0.05), random_walk(6, 20, g.m, 0.1)
+def test_state_round_trip_and_bad_inputs(kalman_design):
+    g = kalman_design
+    obs = KalmanObserver(g.kalman, z0=np.arange(1.0, g.plant.n + 1))
+    assert obs.z.size == g.plant.n + 1 and obs.z[-1] == 0.0
+    ys, us = random_walk(5, 20, g.plant.k, 0.05), random_walk(6, 20, g.plant.m, 0.1)
     for y, u in zip(ys[:10], us[:10], strict=True):
         obs.step(y, u, TS)
     state = obs.get_state()
@@ -160,19 +164,19 @@ def test_state_round_trip_and_bad_inputs(kalman_gains):
     np.testing.assert_array_equal(np.array(first), np.array(again))
     with pytest.raises(ValueError, match="y"):
         obs.step(np.array([np.nan, 0.0]), us[0], TS)
-    with pytest.raises(ValueError, match="Kalman filter"):
-        KalmanObserver(dataclasses.replace(g, kalman=None))
+    with pytest.raises(ValueError, match="Kalman gain has shape"):
+        KalmanObserver(dataclasses.replace(g.kalman, gain=g.kalman.gain[1:]))
 
 
-def test_unbiased_on_a_constant_perturbation_with_a_disturbance_model(tuned_gains):
+def test_unbiased_on_a_constant_perturbation_with_a_disturbance_model(tuned_design):
     """Constant q, no noise, the plant stabilised by state feedback: with a disturbance model
     (order >= 1) the error vanishes; without one (order 0) a bias remains."""
-    g, Ts, steps = tuned_gains, 1e-3, 3000
+    g, Ts, steps = tuned_design, 1e-3, 3000
     errors = {}
     for order in (0, 1, 2):
-        kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 1.0, Ts)
-        obs = KalmanObserver(dataclasses.replace(g, kalman=kf))
-        plant = LTIPlant(g.A, g.B, g.C, g.E, x0=X0_PAPER)
+        kf = design_kalman(g.plant, order, STD, 1.0, Ts)
+        obs = KalmanObserver(kf)
+        plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.E, x0=X0_PAPER)
         for _ in range(steps):
             u = K_PAPER @ plant.x
             y = plant.y
@@ -185,12 +189,12 @@ def test_unbiased_on_a_constant_perturbation_with_a_disturbance_model(tuned_gain
     assert errors[0] > 1e-3
 
 
-def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_gains):
+def test_noisy_scenario_kalman_beats_the_luenberger_baseline(kalman_design):
     """The paper's noisy scenario (short run, seed 2): the Kalman filter's RMS over [0.8, 1.2]
     is far below the paper's Luenberger observer's, on the same data; the reference's Kalman
     estimate equals an open-loop replay on the recorded (y, u)."""
-    r = simulate(kalman_gains, "perturbed_noisy", t_end=1.2, seed=2)
-    np.testing.assert_array_equal(replay(KalmanObserver(kalman_gains), r), r.z_kalman)
+    r = simulate(kalman_design, "perturbed_noisy", t_end=1.2, seed=2)
+    np.testing.assert_array_equal(replay(KalmanObserver(kalman_design.kalman), r), r.z_kalman)
     mask = r.window(0.8, 1.2)
     rms_kalman = np.sqrt(np.mean(r.error_kalman[mask] ** 2))
     rms_lin = np.sqrt(np.mean(r.error_lin[mask] ** 2))
@@ -236,8 +240,8 @@ def test_unreached_states_get_a_small_documented_process_noise(order):
     states the table's noise does not reach (the beam's theta and theta')."""
     W, Ts = BALL_BEAM_NOISE["process_intensity"], BALL_BEAM_NOISE["sample_time"]
     std = np.array(BALL_BEAM_NOISE["measurement_std"])
-    kf = design_kalman(*(np.array(BALL_BEAM[key], dtype=float) for key in "ABCE"), order,
-                       std, W, Ts, "from the test")
+    plant = PlantModel(*(np.array(BALL_BEAM[key], dtype=float) for key in "ABCE"))
+    kf = design_kalman(plant, order, std, W, Ts, "from the test")
     A, C, G = ball_beam_model(order)
     Phi, Qd = van_loan(A, W * G @ G.T + REGULARISATION * W * np.eye(A.shape[0]), Ts)
     L, P, _ = control.dlqe(Phi, np.eye(A.shape[0]), C, Qd, np.diag(std**2))
@@ -251,10 +255,10 @@ def test_unreached_states_get_a_small_documented_process_noise(order):
 
 
 @pytest.mark.parametrize("order", [0, 1, 2, 3])
-def test_stable_filter_is_left_as_specified(tuned_gains, order):
+def test_stable_filter_is_left_as_specified(tuned_design, order):
     """The pendulum's noise reaches every state: no process noise is added."""
-    g = tuned_gains
-    kf = design_kalman(g.A, g.B, g.C, g.E, order, STD, 10.0, TS, "as given")
+    g = tuned_design
+    kf = design_kalman(g.plant, order, STD, 10.0, TS, "as given")
     assert kf.tuning == "as given"
 
 
@@ -267,7 +271,7 @@ def test_noise_that_cannot_be_regularised_names_the_states():
     C = np.array([[1.0, 0.0]])
     E = np.array([[1.0], [0.0]])
     with pytest.raises(KalmanDesignError, match=r"does not reach x\[2\]"):
-        design_kalman(A, E, C, E, 0, [1e3], 1e-12, 1e-3)
+        design_kalman(PlantModel(A, E, C, E), 0, [1e3], 1e-12, 1e-3)
 
 
 # -- the spec's [noise] table ------------------------------------------------------------------

@@ -20,7 +20,8 @@ def exact_reference(gains, steps, ys, us):
     sample instant j Ts with t_k <= j Ts < t_k+1 (rational times; a sample within
     SAMPLE_SLACK Ts of the step's end counts in the next step, as the documented convention)."""
     kf = gains.kalman
-    A, B, C = extended_model(gains.A, gains.B, gains.C, gains.E, kf.disturbance_order)
+    A, B, C = extended_model(gains.plant.A, gains.plant.B, gains.plant.C, gains.plant.E,
+                             kf.disturbance_order)
     Phi, Gamma = zoh(A, B, kf.sample_time)
     ts = Fraction(kf.sample_time)
     slack = Fraction(SAMPLE_SLACK) * ts
@@ -36,7 +37,7 @@ def exact_reference(gains, steps, ys, us):
 
 
 def run(gains, steps, ys, us, kernel=True):
-    obs = KalmanObserver(gains, kernel=kernel)
+    obs = KalmanObserver(gains.kalman, kernel=kernel)
     rows = []
     for dt, y, u in zip(steps, ys, us, strict=True):
         obs.step(y, u, dt)
@@ -62,20 +63,20 @@ def host_steps(ts: float, pattern: str) -> list[float]:
 
 
 @pytest.mark.parametrize("pattern", ["accumulated", "variable", "never_seen"])
-def test_any_step_runs_the_samples_inside_it(kalman_gains, pattern):
-    g = kalman_gains
+def test_any_step_runs_the_samples_inside_it(kalman_design, pattern):
+    g = kalman_design
     steps = host_steps(g.kalman.sample_time, pattern)
-    ys, us = random_walk(3, len(steps), g.k, 0.05), random_walk(4, len(steps), g.m, 0.1)
+    ys, us = random_walk(3, len(steps), g.plant.k, 0.05), random_walk(4, len(steps), g.plant.m, 0.1)
     expected = exact_reference(g, steps, ys, us)
     for kernel in (True, False):
         got = run(g, steps, ys, us, kernel)
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
 
 
-def test_short_last_step_holds_the_estimate(kalman_gains):
+def test_short_last_step_holds_the_estimate(kalman_design):
     """A host's last step of 3e-13 s, no sample instant inside: the estimate is held."""
-    g = kalman_gains
-    obs = KalmanObserver(g)
+    g = kalman_design
+    obs = KalmanObserver(g.kalman)
     ts = g.kalman.sample_time
     for _ in range(10):
         obs.step(np.array([0.1, 0.2]), np.array([0.3]), ts * (1 - 1e-12))
@@ -100,18 +101,18 @@ def test_samples_in_step_counts_against_exact_arithmetic():
         assert 0.0 <= offset < ts
 
 
-def test_too_many_samples_rejected_state_kept(kalman_gains):
-    obs = KalmanObserver(kalman_gains)
+def test_too_many_samples_rejected_state_kept(kalman_design):
+    obs = KalmanObserver(kalman_design.kalman)
     before = obs.get_state()
     with pytest.raises(ValueError, match="more than"):
-        obs.step(np.array([0.1, 0.2]), np.array([0.3]), 1e7 * kalman_gains.kalman.sample_time)
+        obs.step(np.array([0.1, 0.2]), np.array([0.3]), 1e7 * kalman_design.kalman.sample_time)
     np.testing.assert_array_equal(obs.get_state(), before)
 
 
-def test_state_carries_the_offset(kalman_gains):
-    g = kalman_gains
+def test_state_carries_the_offset(kalman_design):
+    g = kalman_design
     ts = g.kalman.sample_time
-    obs = KalmanObserver(g)
+    obs = KalmanObserver(g.kalman)
     obs.step(np.array([0.1, 0.2]), np.array([0.3]), 0.3 * ts)
     state = obs.get_state()
     assert state.size == obs.z.size + 1 and state[-1] == pytest.approx(0.7 * ts)

@@ -94,7 +94,7 @@ def test_filtering_observer_matches_numpy_on_random_designs(case, dt):
     convergence, every step in C."""
     g = random_design(*case)
     ys, us = plant_measurements(g, case[0], 300, dt)
-    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    make = lambda c: FilteringObserver(g.filtering, kernel=c)  # noqa: E731
     a, b, numpy_steps = run_pair(make, ys, us, dt)
     assert relative(a, b) <= tolerance(make, ys, us, dt)  # RTOL but for seed 2 (3.5e-12)
     assert numpy_steps == 0
@@ -108,8 +108,9 @@ def test_euler_scheme_matches_numpy_on_random_designs(case, dt, h):
     """The explicit Euler substeps (one, or four per communication step) of both observers."""
     g = random_design(*case)
     ys, us = plant_measurements(g, 1, 300, dt)
-    for cls in (FilteringObserver, LuenbergerObserver):
-        a, b, _ = run_pair(lambda c, cls=cls: cls(g, h=h, scheme="euler", kernel=c), ys, us, dt)
+    for cls, record in ((FilteringObserver, g.filtering), (LuenbergerObserver, g.luenberger)):
+        a, b, _ = run_pair(lambda c, cls=cls, record=record: cls(record, h=h, scheme="euler",
+                                                                  kernel=c), ys, us, dt)
         assert relative(a, b) <= RTOL
 
 
@@ -117,10 +118,10 @@ def test_filtering_observer_matches_numpy_for_huge_errors():
     """Errors of 1e10: the level at its ceiling, where the level search ends at once (in C)."""
     g, dt = random_design(4, 10, 3, 1), 1e-3
     ys, us = plant_measurements(g, 2, 200, dt, scale=1e10)
-    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    make = lambda c: FilteringObserver(g.filtering, kernel=c)  # noqa: E731
     a, b, numpy_steps = run_pair(make, ys, us, dt)
     ceiling = make(False)._ceiling(dt)
-    assert np.all(np.sqrt(0.5 * np.sum(b[1:, g.n_model:-1] ** 2, axis=1)) > ceiling)
+    assert np.all(np.sqrt(0.5 * np.sum(b[1:, g.model.n_model:-1] ** 2, axis=1)) > ceiling)
     assert relative(a, b) <= RTOL
     assert numpy_steps == 0
 
@@ -132,22 +133,23 @@ def test_filtering_observer_matches_numpy_for_tiny_errors(scale):
     changes in the numpy run (about 5e-11 relative here), not to 1e-12."""
     g, dt = random_design(4, 10, 3, 1), 1e-3
     ys, us = plant_measurements(g, 2, 200, dt, scale=scale)
-    make = lambda c: FilteringObserver(g, kernel=c)  # noqa: E731
+    make = lambda c: FilteringObserver(g.filtering, kernel=c)  # noqa: E731
     a, b, numpy_steps = run_pair(make, ys, us, dt)
     assert relative(a, b) <= tolerance(make, ys, us, dt)
     assert numpy_steps == 0
 
 
-def test_filtering_observer_matches_numpy_near_convergence(tuned_gains):
+def test_filtering_observer_matches_numpy_near_convergence(tuned_design):
     """Started next to the plant's state with sigma = 0: tiny errors, the level at its floor
     (the capped spectral factors reused)."""
-    g, dt = tuned_gains, 5e-5
+    g, dt = tuned_design, 5e-5
     ys, us = plant_measurements(g, 3, 400, dt)
     ys = ys * 0 + ys[0]  # a plant at rest at x with y = C x: the observer at z0 = x errs by 1e-9
     us = us * 0
-    x = np.linalg.lstsq(g.C, ys[0], rcond=None)[0]
-    z0 = np.concatenate((x + 1e-9, np.zeros(g.n_model - g.n)))
-    a, b, numpy_steps = run_pair(lambda c: FilteringObserver(g, z0=z0, kernel=c), ys, us, dt)
+    x = np.linalg.lstsq(g.plant.C, ys[0], rcond=None)[0]
+    z0 = np.concatenate((x + 1e-9, np.zeros(g.model.n_model - g.plant.n)))
+    a, b, numpy_steps = run_pair(lambda c: FilteringObserver(g.filtering, z0=z0, kernel=c),
+                                 ys, us, dt)
     assert relative(a, b) <= RTOL
     assert numpy_steps == 0  # the first steps' level search (psi grows from sigma = 0) in C
 
@@ -155,11 +157,11 @@ def test_filtering_observer_matches_numpy_near_convergence(tuned_gains):
 def test_real_spectrum_of_the_injection_flow(chain_gains_for_kernel):
     """R = [[L_tilde, 1], [C L, 0]] with real eigenvalues (real spectral factors in numpy)."""
     g = chain_gains_for_kernel
-    g = dataclasses.replace(g, L_tilde=np.array([[-40.0]]))
-    obs = FilteringObserver(g)
+    filtering = dataclasses.replace(g.filtering, L_tilde=np.array([[-40.0]]))
+    obs = FilteringObserver(filtering)
     assert obs._flow.kernel_arrays()["real_lam"]
     ys, us = plant_measurements(g, 4, 200, 1e-3)
-    a, b, _ = run_pair(lambda c: FilteringObserver(g, kernel=c), ys, us, 1e-3)
+    a, b, _ = run_pair(lambda c: FilteringObserver(filtering, kernel=c), ys, us, 1e-3)
     assert relative(a, b) <= RTOL
 
 
@@ -174,11 +176,11 @@ def test_linear_models_match_numpy(seed, n, k, order):
     step)."""
     g, dt = random_design(seed, n, k, order), 1e-3
     ys, us = plant_measurements(g, seed, 200, dt)
-    a, b, _ = run_pair(lambda c: LuenbergerObserver(g, kernel=c), ys, us, dt)
+    a, b, _ = run_pair(lambda c: LuenbergerObserver(g.luenberger, kernel=c), ys, us, dt)
     assert relative(a, b) <= RTOL
-    E = np.ones((n, 1)) if g.E is None else g.E
-    plants = [LTIPlant(g.A, g.B, g.C, E, x0=np.ones(n), noise_amplitude=1e-3, seed=1, kernel=c)
-              for c in (True, False)]
+    E = np.ones((n, 1)) if g.plant.E is None else g.plant.E
+    plants = [LTIPlant(g.plant.A, g.plant.B, g.plant.C, E, x0=np.ones(n), noise_amplitude=1e-3,
+                       seed=1, kernel=c) for c in (True, False)]
     qs = random_walk(seed, 200, 1, 1.0)
     for u, q in zip(us, qs, strict=True):
         for plant in plants:
@@ -187,21 +189,25 @@ def test_linear_models_match_numpy(seed, n, k, order):
         assert relative(plants[0].y, plants[1].y) <= RTOL
     noise = NoiseSpec(measurement_std=np.full(k, 1e-3), sample_time=dt / 2,
                       process_intensity=1e-2, disturbance_order=order)
-    gk = with_kalman(g if order else dataclasses.replace(g, E=E), noise)
-    filters = [KalmanObserver(gk, kernel=c) for c in (True, False)]
+    plant = dataclasses.replace(g.plant, E=E)
+    design = dataclasses.replace(
+        g, plant=plant, **{name: dataclasses.replace(getattr(g, name), plant=plant)
+                           for name in ("filtering", "prescribed_time", "luenberger")})
+    kalman = with_kalman(design, noise).kalman
+    filters = [KalmanObserver(kalman, kernel=c) for c in (True, False)]
     for y, u in zip(ys, us, strict=True):
         for kf in filters:
             kf.step(y, u, dt)
         assert relative(filters[0].get_state(), filters[1].get_state()) <= RTOL
 
 
-def test_state_restore_and_rollback(tuned_gains):
+def test_state_restore_and_rollback(tuned_design):
     """A step leaves the arrays of the state before it untouched (it writes the other buffer),
     so the FMU slaves' rollback (their attributes as before the step) and set_state continue
     exactly as the uninterrupted run."""
-    g, dt = tuned_gains, 1e-3
+    g, dt = tuned_design, 1e-3
     ys, us = plant_measurements(g, 6, 60, dt)
-    obs = FilteringObserver(g)
+    obs = FilteringObserver(g.filtering)
     for y, u in zip(ys[:20], us[:20], strict=True):
         obs.step(y, u, dt)
     state = obs.get_state()
@@ -218,7 +224,7 @@ def test_state_restore_and_rollback(tuned_gains):
             np.testing.assert_array_equal(obs.get_state(), np.concatenate(before))
             obs.step(y, u, dt)
         first.append(obs.get_state())
-    other = FilteringObserver(g)
+    other = FilteringObserver(g.filtering)
     other.set_state(state)
     restored = []
     for y, u in zip(ys[20:], us[20:], strict=True):
@@ -237,29 +243,30 @@ def test_non_finite_step_is_refused_state_kept():
     np.testing.assert_array_equal(plant.x, [1e10])
 
 
-def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_gains):
-    assert FilteringObserver(tuned_gains).compiled
-    assert FilteringObserver(tuned_gains, scheme="euler").compiled
-    assert PrescribedTimeObserver(tuned_gains).compiled
-    assert not PrescribedTimeObserver(tuned_gains, scheme="euler").compiled  # split step only
-    assert not FilteringObserver(tuned_gains, kernel=False).compiled
-    assert not PrescribedTimeObserver(tuned_gains, kernel=False).compiled
+def test_environment_variable_and_option_turn_the_kernel_off(monkeypatch, tuned_design):
+    assert FilteringObserver(tuned_design.filtering).compiled
+    assert FilteringObserver(tuned_design.filtering, scheme="euler").compiled
+    assert PrescribedTimeObserver(tuned_design.prescribed_time).compiled
+    # the prescribed-time observer: split step only
+    assert not PrescribedTimeObserver(tuned_design.prescribed_time, scheme="euler").compiled
+    assert not FilteringObserver(tuned_design.filtering, kernel=False).compiled
+    assert not PrescribedTimeObserver(tuned_design.prescribed_time, kernel=False).compiled
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
-    assert not FilteringObserver(tuned_gains).compiled
-    assert not PrescribedTimeObserver(tuned_gains).compiled
-    assert not LTIPlant(tuned_gains.A, tuned_gains.B, tuned_gains.C).compiled
+    assert not FilteringObserver(tuned_design.filtering).compiled
+    assert not PrescribedTimeObserver(tuned_design.prescribed_time).compiled
+    assert not LTIPlant(tuned_design.plant.A, tuned_design.plant.B, tuned_design.plant.C).compiled
 
 
-def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_gains, tmp_path):
+def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_design, tmp_path):
     """No cc/gcc: the runtime falls back to numpy silently; build_fmus(kernel=True) refuses."""
     with monkeypatch.context() as patch:
         patch.setattr(kernel.shutil, "which", lambda name: None)
         kernel._load.cache_clear()
         try:
             assert kernel.library() is None
-            assert not FilteringObserver(tuned_gains).compiled
+            assert not FilteringObserver(tuned_design.filtering).compiled
             with pytest.raises(BuildError, match="kernel=True needs Linux and a C compiler"):
-                build_fmus(tuned_gains, tmp_path / "fmus", kinds=("plant",), kernel=True)
+                build_fmus(tuned_design, tmp_path / "fmus", kinds=("plant",), kernel=True)
         finally:
             kernel._load.cache_clear()  # found again below, the compiler back
     assert kernel.library() is not None
@@ -268,23 +275,23 @@ def test_without_a_compiler_the_models_run_numpy(monkeypatch, tuned_gains, tmp_p
 # -- the paper's scenarios end to end ---------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["nominal", "perturbed", "perturbed_noisy"])
-def test_paper_scenarios_with_and_without_kernel(kalman_gains, scenario):
+def test_paper_scenarios_with_and_without_kernel(kalman_design, scenario):
     """Every state of the closed loop (u = K z follows from z: K's cancellations make its
     relative difference 1.1e-12 where z's is 7e-13 on the nominal run)."""
-    fast = reference.simulate(kalman_gains, scenario, t_end=1.5)
-    slow = reference.simulate(kalman_gains, scenario, t_end=1.5, kernel=False)
+    fast = reference.simulate(kalman_design, scenario, t_end=1.5)
+    slow = reference.simulate(kalman_design, scenario, t_end=1.5, kernel=False)
     for name in ("x", "z", "z_lin", "z_kalman", "psi", "xi"):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name
 
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
-def test_paper_scenario_with_the_euler_scheme(kalman_gains):
+def test_paper_scenario_with_the_euler_scheme(kalman_design):
     """The noisy scenario with both observers on the explicit Euler scheme. (Not the nominal
     one: there Euler's sigma collapses to 1e-14, where its gain sigma^(nu-1) is about 1e17 and
     any round-off, in numpy as in C, moves the estimate by 1e-10 or more.)"""
-    fast = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler")
-    slow = reference.simulate(kalman_gains, "perturbed_noisy", t_end=1.5, scheme="euler",
+    fast = reference.simulate(kalman_design, "perturbed_noisy", t_end=1.5, scheme="euler")
+    slow = reference.simulate(kalman_design, "perturbed_noisy", t_end=1.5, scheme="euler",
                               kernel=False)
     for name in ("x", "z", "z_lin", "psi", "xi"):
         assert relative(getattr(fast, name), getattr(slow, name)) <= RTOL, name

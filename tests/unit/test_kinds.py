@@ -16,13 +16,14 @@ from tests.designs import random_design
 
 
 def _models(design):
-    E = design.B if design.E is None else design.E
+    E = design.plant.B if design.plant.E is None else design.plant.E
     return {
-        "observer": FilteringObserver(design, h=1e-4),
-        "prescribed_time": PrescribedTimeObserver(design, h=1e-4),
-        "luenberger": LuenbergerObserver(design, h=1e-4),
-        "kalman": KalmanObserver(design, kalman=design.kalman) if design.kalman else None,
-        "plant": LTIPlant(design.A, design.B, design.C, E, x0=np.ones(design.n)),
+        "observer": FilteringObserver(design.filtering, h=1e-4),
+        "prescribed_time": PrescribedTimeObserver(design.prescribed_time, h=1e-4),
+        "luenberger": LuenbergerObserver(design.luenberger, h=1e-4),
+        "kalman": KalmanObserver(design.kalman) if design.kalman else None,
+        "plant": LTIPlant(design.plant.A, design.plant.B, design.plant.C, E,
+                          x0=np.ones(design.plant.n)),
     }
 
 
@@ -53,11 +54,11 @@ def test_every_output_has_a_source(kind):
 def test_observer_outputs_are_the_papers_quantities():
     """x_hat, q_hat, psi, xi of the state z, psi, xi after some steps; sigma from psi and xi."""
     design = random_design(5, 3, 2, 1)
-    n, N, k = design.n, design.n_model, design.k
-    model = FilteringObserver(design, h=1e-4)
+    n, N, k = design.plant.n, design.model.n_model, design.plant.k
+    model = FilteringObserver(design.filtering, h=1e-4)
     rng = np.random.default_rng(5)
     for _ in range(20):
-        model.advance(rng.normal(size=k), rng.normal(size=design.m), 1e-3)
+        model.advance(rng.normal(size=k), rng.normal(size=design.plant.m), 1e-3)
     sizes = {"x_hat": n, "q_hat": N - n, "psi": k, "xi": 1, "sigma": 1}
     values = _flat_outputs("observer", model, sizes)
     z, psi, xi = model.z, model.get_state()[N:N + k], model.get_state()[N + k]
@@ -67,7 +68,8 @@ def test_observer_outputs_are_the_papers_quantities():
 
 def test_plant_outputs_are_y_then_x():
     design = random_design(7, 3, 2, 0)
-    plant = LTIPlant(design.A, design.B, design.C, design.B, x0=np.arange(1.0, design.n + 1))
-    values = _flat_outputs("plant", plant, {"y": design.k, "x": design.n})
-    x = np.arange(1.0, design.n + 1)
-    assert values == [*(design.C @ x), *x]
+    plant = LTIPlant(design.plant.A, design.plant.B, design.plant.C, design.plant.B,
+                     x0=np.arange(1.0, design.plant.n + 1))
+    values = _flat_outputs("plant", plant, {"y": design.plant.k, "x": design.plant.n})
+    x = np.arange(1.0, design.plant.n + 1)
+    assert values == [*(design.plant.C @ x), *x]

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from fhobs.core.certificate import certify
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.design.lmi import chain_basis
 from fhobs.design.observer import design_observer
 from fhobs.errors import LMIError, SpecError
@@ -161,19 +161,19 @@ def dilation(G_d: np.ndarray, nu: float, n_tilde: int):
     return w, V, V_inv
 
 
-def error_system(gains: ObserverGains, A_model: np.ndarray, C_model: np.ndarray):
+def error_system(gains: ObserverDesign, A_model: np.ndarray, C_model: np.ndarray):
     """Theorem 2's error system in (eps, psi, xi), eps = z - x (x and q errors), with the
     model written out here (tests/unit/test_zoo.py states the equations)."""
-    A0 = A_model + gains.L0 @ C_model
-    N, k, nu, gamma = A_model.shape[0], gains.k, gains.nu, gains.gamma
-    w, V, V_inv = dilation(gains.G_d, nu, gains.n_tilde)
-    VL = V_inv @ gains.L
+    A0 = A_model + gains.model.L0 @ C_model
+    N, k, nu, gamma = A_model.shape[0], gains.plant.k, gains.model.nu, gains.filtering.gamma
+    w, V, V_inv = dilation(gains.model.G_d, nu, gains.model.n_tilde)
+    VL = V_inv @ gains.filtering.L
 
     def rhs(_t: float, s: np.ndarray) -> np.ndarray:
         eps, psi, xi = s[:N], s[N:N + k], s[-1]
         half = 0.5 * psi @ psi
         sigma = np.sqrt(max(xi, half))
-        dpsi = C_model @ eps + sigma**nu * (gains.L_tilde @ psi)
+        dpsi = C_model @ eps + sigma**nu * (gains.filtering.L_tilde @ psi)
         deps = A0 @ eps + sigma ** (nu - 1.0) * (V @ (sigma**w * (VL @ psi)))
         gap = xi - half
         dxi = abs(psi @ dpsi) - gamma * np.sign(gap) * abs(gap) ** (nu / 2.0 + 1.0)
@@ -182,11 +182,12 @@ def error_system(gains: ObserverGains, A_model: np.ndarray, C_model: np.ndarray)
     return rhs
 
 
-def settling(gains: ObserverGains, A_model: np.ndarray, C_model: np.ndarray) -> tuple[float, float]:
+def settling(gains: ObserverDesign, A_model: np.ndarray,
+             C_model: np.ndarray) -> tuple[float, float]:
     """Time for |eps| to fall to SETTLED of its start, from eps(0) = (-1 on x, +1 on q), and
     the peak |eps(t)| / |eps(0)|; RK45 as in test_zoo (the right-hand side is not smooth)."""
-    N, k = A_model.shape[0], gains.k
-    eps0 = np.concatenate([-np.ones(gains.n), np.ones(N - gains.n)])
+    N, k = A_model.shape[0], gains.plant.k
+    eps0 = np.concatenate([-np.ones(gains.plant.n), np.ones(N - gains.plant.n)])
     size0 = np.linalg.norm(eps0)
 
     def done(_t, s):
@@ -206,30 +207,30 @@ def settling(gains: ObserverGains, A_model: np.ndarray, C_model: np.ndarray) -> 
 
 # -- the checks of one plant ---------------------------------------------------------------------
 @functools.cache
-def textbook_design(name: str, order: int) -> ObserverGains:
+def textbook_design(name: str, order: int) -> ObserverDesign:
     A, B, C, E = TEXTBOOK[name]
     return design_observer(A, B, C, E=E, disturbance_order=order)
 
 
-def check_design(gains: ObserverGains, A, C, E, order: int) -> dict[str, float]:
+def check_design(gains: ObserverDesign, A, C, E, order: int) -> dict[str, float]:
     """Certificate, the paper's identities, the observability indices against G_d's weights and
     the convergence of the x and q errors; returns the measured figures."""
     A_model, C_model = extended(A, C, E, order)
     assert certify(gains)  # raises CertificateError naming the failed check
-    N, nu = A_model.shape[0], gains.nu
-    A0 = A_model + gains.L0 @ C_model
-    scale = np.linalg.norm(A0) * np.linalg.norm(gains.G_d)
-    assert np.linalg.norm(A0 @ gains.G_d - (gains.G_d + nu * np.eye(N)) @ A0) <= (
+    N, nu = A_model.shape[0], gains.model.nu
+    A0 = A_model + gains.model.L0 @ C_model
+    scale = np.linalg.norm(A0) * np.linalg.norm(gains.model.G_d)
+    assert np.linalg.norm(A0 @ gains.model.G_d - (gains.model.G_d + nu * np.eye(N)) @ A0) <= (
         IDENTITY_TOL * scale)
-    assert np.linalg.norm(C_model @ gains.G_d - (1 + nu) * C_model) <= (
-        IDENTITY_TOL * np.linalg.norm(C_model) * np.linalg.norm(gains.G_d))
+    assert np.linalg.norm(C_model @ gains.model.G_d - (1 + nu) * C_model) <= (
+        IDENTITY_TOL * np.linalg.norm(C_model) * np.linalg.norm(gains.model.G_d))
     lengths = chain_lengths(A_model, C_model)
-    assert gains.n_tilde == lengths[0]
-    assert np.linalg.norm(np.linalg.matrix_power(A0, gains.n_tilde)) <= (
-        1e-8 * max(np.linalg.norm(A0), 1.0) ** gains.n_tilde)
+    assert gains.model.n_tilde == lengths[0]
+    assert np.linalg.norm(np.linalg.matrix_power(A0, gains.model.n_tilde)) <= (
+        1e-8 * max(np.linalg.norm(A0), 1.0) ** gains.model.n_tilde)
     # the weight 1 + (j + 1) nu has one eigenvector per chain longer than j
-    for j in range(gains.n_tilde):
-        rank = np.linalg.matrix_rank(gains.G_d - (1 + (j + 1) * nu) * np.eye(N), tol=1e-8)
+    for j in range(gains.model.n_tilde):
+        rank = np.linalg.matrix_rank(gains.model.G_d - (1 + (j + 1) * nu) * np.eye(N), tol=1e-8)
         assert N - rank == sum(length > j for length in lengths), (j, lengths)
     t_settled, peak = settling(gains, A_model, C_model)
     assert peak < CT_PEAK_BOUND
@@ -276,8 +277,8 @@ def test_ball_and_beam_estimates_the_ball_disturbance():
     A_model, C_model = extended(BALL_BEAM_A, BALL_BEAM_C, BALL_ON_BALL, 1)
     assert chain_lengths(A_model, C_model) == [3, 2]
     gains = textbook_design("ball_beam", 1)
-    assert gains.n_tilde == 3 and gains.n_model == 5 and gains.k == 2
-    assert gains.certificate["tuning"]["met"]
+    assert gains.model.n_tilde == 3 and gains.model.n_model == 5 and gains.plant.k == 2
+    assert gains.settling_tuning["met"]
 
 
 @pytest.mark.parametrize("seed", [

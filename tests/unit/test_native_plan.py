@@ -25,7 +25,7 @@ import sys
 import numpy as np
 import pytest
 from designs import ZOO, random_design, zoo_design
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from fhobs.native.build import captured_plan
@@ -53,11 +53,12 @@ prescribed-time observer) is decided by round-off (module docstring): the ceilin
 compared there."""
 
 
-def models(gains: ObserverGains) -> dict[str, object]:
+def models(gains: ObserverDesign) -> dict[str, object]:
     """The runtime models whose plans the native FMUs compute."""
-    return {"observer": FilteringObserver(gains), "luenberger": LuenbergerObserver(gains),
-            "plant": LTIPlant(gains.A, gains.B, gains.C, E=gains.E),
-            "prescribed_time": PrescribedTimeObserver(gains)}
+    return {"observer": FilteringObserver(gains.filtering),
+            "luenberger": LuenbergerObserver(gains.luenberger),
+            "plant": LTIPlant(gains.plant.A, gains.plant.B, gains.plant.C, E=gains.plant.E),
+            "prescribed_time": PrescribedTimeObserver(gains.prescribed_time)}
 
 
 def relative(a: np.ndarray | float, b: np.ndarray | float) -> float:
@@ -101,7 +102,7 @@ def zoh_error(kind: str, model: object, dt: float, plan: dict, reference: dict) 
     return error / max(RTOL, ULP_FACTOR * own)
 
 
-def plan_errors(gains: ObserverGains, roundoff: tuple[int, ...] = ()
+def plan_errors(gains: ObserverDesign, roundoff: tuple[int, ...] = ()
                 ) -> dict[tuple[str, float], float]:
     """Per kind and step size, the largest relative difference of the C plan's fields from the
     numpy runtime's, divided by its tolerance (module docstring): at most 1 where they agree
@@ -131,7 +132,7 @@ def plan_errors(gains: ObserverGains, roundoff: tuple[int, ...] = ()
     return errors
 
 
-def assert_plans_agree(gains: ObserverGains, roundoff: tuple[int, ...] = ()) -> None:
+def assert_plans_agree(gains: ObserverDesign, roundoff: tuple[int, ...] = ()) -> None:
     errors = plan_errors(gains, roundoff)
     worst = max(errors, key=errors.get)
     assert errors[worst] <= 1.0, (worst, errors[worst])
@@ -144,7 +145,7 @@ def test_pendulum_paper_gains(paper_design):
 def test_pendulum_plans_are_followed_at_every_step_size(paper_design):
     """The pendulum's observer follows every step size of the scan (none refused), so the
     comparison above covers the floor and the ceiling at each of them."""
-    observer = FilteringObserver(paper_design)
+    observer = FilteringObserver(paper_design.filtering)
     for dt in STEPS:
         plan = c_plan("observer", observer, dt)
         assert 0.0 < plan["floor_level"] <= plan["ceiling"]
@@ -153,7 +154,7 @@ def test_pendulum_plans_are_followed_at_every_step_size(paper_design):
 def test_prescribed_time_refuses_what_the_runtime_refuses(paper_design):
     """dt = 0.1 for the paper's pendulum: the prescribed-time observer's scan finds no
     contractive level in C as in numpy, and names the same smallest spectral radius."""
-    observer = PrescribedTimeObserver(paper_design)
+    observer = PrescribedTimeObserver(paper_design.prescribed_time)
     with pytest.raises(ValueError) as numpy_error:
         captured_plan(observer, 0.1)
     with pytest.raises(ValueError) as c_error:
@@ -190,7 +191,7 @@ def test_random_designs_all(case):
 def test_a_step_the_observer_cannot_follow_is_refused_by_both():
     """dt = 0.5 for the tuned pendulum: no gain level contracts; the C planner names the
     same smallest spectral radius as the numpy runtime (to its 6 digits)."""
-    observer = FilteringObserver(zoo_design("pendulum"))
+    observer = FilteringObserver(zoo_design("pendulum").filtering)
     with pytest.raises(ValueError) as numpy_error:
         captured_plan(observer, 0.5)
     with pytest.raises(ValueError) as c_error:

@@ -18,9 +18,9 @@ RTOL = 1e-12
 
 
 def pair(gains, T0: float = 1.0, **options):
-    xi0 = prescribed_xi0(T0, gains.nu, gains.rho)
-    compiled = PrescribedTimeObserver(gains, xi0=xi0, **options)
-    reference = PrescribedTimeObserver(gains, xi0=xi0, kernel=False, **options)
+    xi0 = prescribed_xi0(T0, gains.model.nu, gains.filtering.rho)
+    compiled = PrescribedTimeObserver(gains.prescribed_time, xi0=xi0, **options)
+    reference = PrescribedTimeObserver(gains.prescribed_time, xi0=xi0, kernel=False, **options)
     assert compiled.compiled and not reference.compiled
     return compiled, reference
 
@@ -34,13 +34,14 @@ def test_pendulum_closed_loop_to_after_T0(paper_design):
     compiled, reference = pair(gains)
     x, t = X0_PAPER.copy(), 0.0
     worst = 0.0
-    holds = {dt: zoh(gains.A, gains.B, dt) for dt in (1e-3, 4e-4)}  # the plant's, per step size
+    # the plant's, per step size
+    holds = {dt: zoh(gains.plant.A, gains.plant.B, dt) for dt in (1e-3, 4e-4)}
     for k in range(1500):
         # variable steps before T0 only: after it, the capped observer switching between
         # the floors of two step sizes is not contractive (numpy's runtime too)
         dt = 1e-3 if k % 5 or t > 0.8 else 4e-4
         t += dt
-        y, u = gains.C @ x, K_PAPER @ x
+        y, u = gains.plant.C @ x, K_PAPER @ x
         compiled.step(y, u, dt)
         reference.step(y, u, dt)
         worst = max(worst, relative(compiled.get_state(), reference.get_state()))
@@ -56,11 +57,11 @@ def test_pendulum_closed_loop_to_after_T0(paper_design):
                 for name in ("pendulum", "triple_integrator"))])
 def test_bundled_designs_with_seeded_inputs(name):
     gains = zoo_design(name)
-    compiled, reference = pair(gains, T0=0.5, z0=np.ones(gains.n))
+    compiled, reference = pair(gains, T0=0.5, z0=np.ones(gains.plant.n))
     rng = np.random.default_rng(1)
     worst = 0.0
     for k in range(400):
-        y, u = rng.standard_normal(gains.k) * 0.1, rng.standard_normal(gains.m) * 0.1
+        y, u = rng.standard_normal(gains.plant.k) * 0.1, rng.standard_normal(gains.plant.m) * 0.1
         dt = (2e-4, 5e-4, 1e-3)[k % 3]
         compiled.step(y, u, dt)
         reference.step(y, u, dt)
@@ -79,6 +80,6 @@ def test_a_step_size_without_a_contractive_level_is_refused_with_the_state_kept(
 
 def test_no_kernel_for_the_euler_scheme_or_when_disabled(monkeypatch, paper_design):
     gains = paper_design
-    assert not PrescribedTimeObserver(gains, scheme="euler").compiled
+    assert not PrescribedTimeObserver(gains.prescribed_time, scheme="euler").compiled
     monkeypatch.setenv(kernel.DISABLE_ENV, "1")
-    assert not PrescribedTimeObserver(gains).compiled
+    assert not PrescribedTimeObserver(gains.prescribed_time).compiled

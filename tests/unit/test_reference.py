@@ -38,10 +38,10 @@ def scenario_runs(gains) -> dict:
 
 
 @pytest.fixture(scope="module")
-def tuned_runs(tuned_gains, pendulum_spec):
+def tuned_runs(tuned_design, pendulum_spec):
     """The default design with the Kalman filter of the [noise] table (order 1, as ours),
     which runs on the same recorded (y, u)."""
-    return scenario_runs(with_kalman(tuned_gains, pendulum_spec.noise))
+    return scenario_runs(with_kalman(tuned_design, pendulum_spec.noise))
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +54,9 @@ def test_jacobi_sequence(paper_design):
     g, dt, steps = paper_design, 1e-3, 30
     result = simulate(g, "perturbed_noisy", t_end=steps * dt, dt=dt, seed=3)
     q = PAPER_SCENARIOS["perturbed_noisy"]
-    plant = LTIPlant(g.A, g.B, g.C, g.B, x0=X0_PAPER, noise_amplitude=q.noise_amplitude, seed=3)
-    obs, lin = FilteringObserver(g, h=dt), LuenbergerObserver(g, h=dt)
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, g.plant.B, x0=X0_PAPER,
+                     noise_amplitude=q.noise_amplitude, seed=3)
+    obs, lin = FilteringObserver(g.filtering, h=dt), LuenbergerObserver(g.luenberger, h=dt)
     for k in range(steps):
         y, u = plant.y, K_PAPER @ obs.z
         plant.step(u, [q.q_amplitude * np.sin(q.q_frequency * k * dt)], dt)
@@ -139,7 +140,7 @@ def test_least_noisy_design_of_the_search(pendulum_spec):
     noisy_1 = accuracy_metrics(noisy, "perturbed_noisy")
     # the loop is closed through the homogeneous observer alone: the order-2 filter on the
     # same data is a replay of the recorded (y, u)
-    replayed = [dataclasses.replace(r, z_kalman=replay(KalmanObserver(kalman[2]), r))
+    replayed = [dataclasses.replace(r, z_kalman=replay(KalmanObserver(kalman[2].kalman), r))
                 for r in noisy]
     noisy_2 = accuracy_metrics(replayed, "perturbed_noisy")
     nominal = accuracy_metrics([simulate(gains, "nominal", t_end=1.5)], "nominal")

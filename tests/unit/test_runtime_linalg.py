@@ -63,14 +63,15 @@ def test_expm_family_falls_back_on_defective_matrix():
 
 @pytest.mark.parametrize("force_fallback", [False, True])
 def test_dilation_matches_scipy(paper_design, force_fallback):
-    dilation = Dilation(paper_design.G_d, force_fallback=force_fallback)
-    with_gain = Dilation(paper_design.G_d, right=paper_design.L, force_fallback=force_fallback)
+    dilation = Dilation(paper_design.model.G_d, force_fallback=force_fallback)
+    with_gain = Dilation(paper_design.model.G_d, right=paper_design.filtering.L,
+                         force_fallback=force_fallback)
     x = np.array([1.0, -2.0, 0.5, 3.0])
     for s in (-30.0, -1.0, 0.0, 2.0):
-        ref = sl.expm(s * paper_design.G_d)
-        ref_gain = ref @ paper_design.L @ x[:2]
+        ref = sl.expm(s * paper_design.model.G_d)
+        ref_gain = ref @ paper_design.filtering.L @ x[:2]
         assert np.allclose(with_gain.apply(s, x[:2]), ref_gain, rtol=1e-10,
-                           atol=1e-13 * np.abs(ref).max() * np.abs(paper_design.L).max())
+                           atol=1e-13 * np.abs(ref).max() * np.abs(paper_design.filtering.L).max())
         atol = 1e-13 * np.abs(ref).max()
         assert np.allclose(dilation.apply(s, x), ref @ x, rtol=1e-10, atol=atol * np.abs(x).max())
         assert np.allclose(dilation.matrix(s), ref, rtol=1e-10, atol=atol)
@@ -101,17 +102,18 @@ def assert_flow_matches(flow, L_tilde, L, C, G_d, nu, levels, steps, seed=5):
 
 
 @pytest.mark.parametrize("force_fallback", [False, True])
-@pytest.mark.parametrize("design", ["paper_design", "tuned_gains"])
+@pytest.mark.parametrize("design", ["paper_design", "tuned_design"])
 def test_injection_flow_matches_scipy(request, design, force_fallback):
     """The frozen-level flow of (psi, z) against scipy's expm of the unscaled linear system:
     this also checks the scaling by ``C G_d = (1 + nu) C`` the flow relies on. The smallest
     tau reaches the series branch of phi1."""
     g = request.getfixturevalue(design)
-    _, _, C = g.model
-    flow = InjectionFlow(g.L_tilde, C, Dilation(g.G_d, right=g.L), g.nu,
+    _, _, C = g.filtering.model_matrices
+    flow = InjectionFlow(g.filtering.L_tilde, C, Dilation(g.model.G_d, right=g.filtering.L),
+                         g.model.nu,
                          force_fallback=force_fallback)
     assert flow.eigen is not force_fallback
-    assert_flow_matches(flow, g.L_tilde, g.L, C, g.G_d, g.nu,
+    assert_flow_matches(flow, g.filtering.L_tilde, g.filtering.L, C, g.model.G_d, g.model.nu,
                         levels=(1e-3, 0.7, 40.0, 3e4), steps=(5e-5, 1e-13))
 
 

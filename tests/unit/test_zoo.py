@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from designs import ZOO, zoo_design
-from fhobs.core.gains import ObserverGains
+from fhobs.core.gains import ObserverDesign
 from reference_math import zoh
 from scipy.integrate import solve_ivp
 
@@ -49,7 +49,8 @@ def test_zoo_has_its_thirteen_plants():
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_default_design_is_certified(name):
     gains = zoo_design(name)  # raises (LMIError, CertificateError, ...) if not certified
-    assert gains.certificate["checks"]
+    for record in (gains.filtering, gains.prescribed_time, gains.luenberger):
+        assert record.certificate["checks"]
 
 
 @pytest.mark.parametrize("name", sorted(ZOO))
@@ -63,9 +64,9 @@ def test_closed_loop_feeds_back_the_true_state():
     """The plant of the zoo's loop follows the sampled LQR loop x_{k+1} = (Phi + Gamma K) x_k
     (ZOH blocks from one expm of the augmented matrix), whatever the observers do."""
     gains = zoo_design("quarter_car")
-    dt, n = 1e-3, gains.n
-    Phi, Gamma = zoh(gains.A, gains.B, dt)
-    step = Phi + Gamma @ state_feedback(gains.A, gains.B)
+    dt, n = 1e-3, gains.plant.n
+    Phi, Gamma = zoh(gains.plant.A, gains.plant.B, dt)
+    step = Phi + Gamma @ state_feedback(gains.plant.A, gains.plant.B)
     result = closed_loop(gains, dt, dt, t_end=0.5)
     x = np.ones(n)
     for k in range(result.t.size):
@@ -87,24 +88,25 @@ def dilation(G_d: np.ndarray):
     return w, V, V_inv
 
 
-def error_system(gains: ObserverGains):
+def error_system(gains: ObserverDesign):
     """Right-hand side of Theorem 2's extended error system in s = (eps, psi, xi), eps = z - x:
 
     psi' = C eps + sigma^nu L_tilde psi
     eps' = A0 eps + sigma^(nu-1) d(ln sigma) L psi
     xi'  = |psi^T psi'| - gamma floor(xi - |psi|^2/2)^(nu/2+1),  sigma = sqrt(max(xi, |psi|^2/2))
     """
-    A_model, _, C_model = gains.model
-    A0 = A_model + gains.L0 @ C_model
-    n_model, k, nu, gamma = gains.n_model, gains.k, gains.nu, gains.gamma
-    w, V, V_inv = dilation(gains.G_d)
-    VL = V_inv @ gains.L
+    A_model, _, C_model = gains.filtering.model_matrices
+    A0 = A_model + gains.model.L0 @ C_model
+    n_model, k = gains.model.n_model, gains.plant.k
+    nu, gamma = gains.model.nu, gains.filtering.gamma
+    w, V, V_inv = dilation(gains.model.G_d)
+    VL = V_inv @ gains.filtering.L
 
     def rhs(_t: float, s: np.ndarray) -> np.ndarray:
         eps, psi, xi = s[:n_model], s[n_model:n_model + k], s[-1]
         half = 0.5 * psi @ psi
         sigma = np.sqrt(max(xi, half))
-        dpsi = C_model @ eps + sigma**nu * (gains.L_tilde @ psi)
+        dpsi = C_model @ eps + sigma**nu * (gains.filtering.L_tilde @ psi)
         deps = A0 @ eps + sigma ** (nu - 1.0) * (V @ (sigma**w * (VL @ psi)))
         gap = xi - half
         dxi = abs(psi @ dpsi) - gamma * np.sign(gap) * abs(gap) ** (nu / 2.0 + 1.0)
@@ -125,7 +127,7 @@ def test_continuous_error_system_converges(name):
     random_mimo10, RK45 ~1e4; both agree on the convergence times to 1e-3 s elsewhere).
     """
     gains = zoo_design(name)
-    n, n_model, k = gains.n, gains.n_model, gains.k
+    n, n_model, k = gains.plant.n, gains.model.n_model, gains.plant.k
     eps0 = np.concatenate([-load_zoo_spec(ZOO[name]).state_scale, np.zeros(n_model - n)])
     size0 = np.linalg.norm(eps0[:n])
 
@@ -143,7 +145,7 @@ def test_continuous_error_system_converges(name):
     below = np.flatnonzero(error <= CONVERGED)
     assert below.size, f"{name}: error {error[-1]:.3g} of its initial size at t = {sol.t[-1]:.3g}"
     assert np.all(error[below[0]:] <= 10 * CONVERGED), "the error grew back after 1e-3"
-    tuning = gains.certificate["tuning"]
+    tuning = gains.settling_tuning
     if tuning["met"]:  # the design's prediction (discrete, runtime) against this integration
         assert sol.t[below[0]] <= SETTLING_TOLERANCE * tuning["settling_time_requested"], (
             sol.t[below[0]], tuning)

@@ -1,6 +1,6 @@
 """The numpy-only core of fhobs: everything that runs inside the FMUs.
 
-The design record (``gains``), its extended model (``disturbance``), the certificate
+The design and its records (``gains``), the extended model (``disturbance``), the certificate
 (``certificate``), the discrete-time observers (``runtime``, ``injection``, ``dilation``,
 ``linalg``), the plant (``plant``), the Kalman filter (``kalman_filter``), the compiled step kernel
 (``kernel`` with ``kernel.c``), the argument checks (``validation``) and the exception

@@ -2,7 +2,11 @@
 
 numpy-only: it also runs inside the FMU, on parameters a user may have edited.
 
-Every check yields one number, compared with one bound:
+Each estimator's record is certified by itself (the FMU that runs it checks it):
+:func:`certify_filtering` (the homogeneity figures, ``gamma_rho`` and Theorem 2's),
+:func:`certify_prescribed_time` (the homogeneity figures and Theorem 1's),
+:func:`certify_luenberger` and :func:`certify_kalman`; :func:`certify` checks every record of
+a design at once. Every check yields one number, compared with one bound:
 
 ============================  ===========================================================  =======
 check                         value                                                        pass if
@@ -18,6 +22,7 @@ check                         value                                             
 ``hurwitz_filtering``         max Re eig(H + rho bar_G), H = bar_A0 + bar_L bar_C          < 0
 ``P_pt_positive`` etc.        the same four checks for Theorem 1 with G = G_d - nu I       ...
 ``hurwitz_luenberger``        max Re eig(A + L_lin C)                                      < 0
+``schur_kalman``              max |eig(Phi (I - M C))|, Phi = expm(Ts A_model)             < 1
 ============================  ===========================================================  =======
 
 The figures are computed in balanced coordinates ``x = diag(d) x_b`` (d powers of two from
@@ -26,7 +31,7 @@ P), so every value is that of the original coordinates, with a rounding error th
 for plants whose entries span many decades. The homogeneous observers' figures are of the
 observer's model (the plant, or its extended-state model, built here by :func:`checked_model`
 independently of the design's :mod:`fhobs.core.disturbance`); ``hurwitz_luenberger`` is of the
-plant.
+plant, ``schur_kalman`` of the Kalman filter's own model.
 sym(M) = (M + M^T) / 2. The LMIs are homogeneous in P, so their figures are generalised
 eigenvalues (rates in 1/s in the P-norm, independent of P's scale): ``lmi`` is the decay rate the
 LMI guarantees beyond rho, ``monotone`` the dilation's monotonicity rate. ``m`` is the required
@@ -41,8 +46,16 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import CertificateError
-from .gains import ObserverGains
-from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity
+from .gains import (
+    FilteringGains,
+    HomogeneousGains,
+    KalmanGains,
+    LuenbergerGains,
+    ObserverDesign,
+    PlantModel,
+    PrescribedTimeGains,
+)
+from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity, expm
 
 DEFAULT_TOLERANCE = 1e-7
 CERTIFICATE_MARGIN = 1e-6
@@ -52,31 +65,37 @@ margin the design solves with (:data:`fhobs.design.lmi.LMI_MARGIN`)."""
 EPS = float(np.finfo(float).eps)
 
 
-def checked_model(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray]:
-    """``(A_model, C_model)``, the observer's model, built here from the plant's A, C, E and
-    ``disturbance_order`` (not by :mod:`fhobs.core.disturbance`, which the design uses, so that
-    one error in building the model cannot pass both the design and its certificate).
+def checked_model(plant: PlantModel, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(A_model, C_model)``, the observer's model with a disturbance model of ``order``,
+    built here from the plant's A, C, E (not by :mod:`fhobs.core.disturbance`, which the design
+    uses, so that one error in building the model cannot pass both the design and its
+    certificate).
 
-    With r = ``disturbance_order`` and p the columns of E: ``A_model = [[A, E S], [0, J]]``
-    with ``S = [I_p, 0, ..., 0]`` (p x r p) and ``J = kron(shift_r, I_p)``, ``shift_r`` the
-    r x r upper shift; ``C_model = [C, 0]``.
+    With r = ``order`` and p the columns of E: ``A_model = [[A, E S], [0, J]]`` with
+    ``S = [I_p, 0, ..., 0]`` (p x r p) and ``J = kron(shift_r, I_p)``, ``shift_r`` the r x r
+    upper shift; ``C_model = [C, 0]``.
     """
-    A, C, order = gains.A, gains.C, gains.disturbance_order
+    A, C = plant.A, plant.C
     if order == 0:
         return A, C
-    p = gains.E.shape[1]
+    p = plant.E.shape[1]
     S = np.kron(np.eye(1, order), np.eye(p))
     J = np.kron(np.eye(order, k=1), np.eye(p))
-    A_model = np.block([[A, gains.E @ S], [np.zeros((order * p, A.shape[0])), J]])
+    A_model = np.block([[A, plant.E @ S], [np.zeros((order * p, A.shape[0])), J]])
     return A_model, np.hstack([C, np.zeros((C.shape[0], order * p))])
 
 
-def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _homogeneous_model(record: HomogeneousGains) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`checked_model` of a homogeneous observer's record."""
+    return checked_model(record.plant, record.model.disturbance_order)
+
+
+def augmented_matrices(filtering: FilteringGains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The (psi, z) system of Theorem 2: bar_A0, bar_G, bar_C, from :func:`checked_model`.
 
     Parameters
     ----------
-    gains : ObserverGains
+    filtering : FilteringGains
 
     Returns
     -------
@@ -87,11 +106,11 @@ def augmented_matrices(gains: ObserverGains) -> tuple[np.ndarray, np.ndarray, np
     bar_C : numpy.ndarray
         [I_k, 0], k x (k+n).
     """
-    A_model, C_model = checked_model(gains)
+    A_model, C_model = _homogeneous_model(filtering)
     n, k = A_model.shape[0], C_model.shape[0]
-    A0 = A_model + gains.L0 @ C_model
+    A0 = A_model + filtering.model.L0 @ C_model
     bar_A0 = np.block([[np.zeros((k, k)), C_model], [np.zeros((n, k)), A0]])
-    bar_G = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), gains.G_d]])
+    bar_G = np.block([[np.eye(k), np.zeros((k, n))], [np.zeros((n, k)), filtering.model.G_d]])
     bar_C = np.hstack([np.eye(k), np.zeros((k, n))])
     return bar_A0, bar_G, bar_C
 
@@ -191,14 +210,16 @@ def check_symmetry(**matrices: np.ndarray) -> None:
             raise CertificateError(problem)
 
 
-def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
+def homogeneity_values(record: HomogeneousGains) -> dict[str, float]:
     """The four homogeneity figures of the table in the module docstring (in balanced
-    coordinates, :func:`fhobs.core.linalg.balancing_scale` of the model matrix)."""
-    A_model, C_model = checked_model(gains)
+    coordinates, :func:`fhobs.core.linalg.balancing_scale` of the model matrix), of a
+    homogeneous observer's record."""
+    A_model, C_model = _homogeneous_model(record)
+    model = record.model
     d = balancing_scale(A_model)
-    A0 = diagonal_similarity(A_model + gains.L0 @ C_model, d)
-    G_d = diagonal_similarity(gains.G_d, d)
-    C, nu = C_model * d, gains.nu
+    A0 = diagonal_similarity(A_model + model.L0 @ C_model, d)
+    G_d = diagonal_similarity(model.G_d, d)
+    C, nu = C_model * d, model.nu
     eye = np.eye(A0.shape[0])
     a0_norm = max(np.linalg.norm(A0), 1e-300)
     return {
@@ -209,7 +230,7 @@ def homogeneity_values(gains: ObserverGains) -> dict[str, float]:
             np.linalg.norm(C @ G_d - (1.0 + nu) * C) / max(np.linalg.norm(C), 1e-300)
         ),
         "nilpotency": float(
-            np.linalg.norm(np.linalg.matrix_power(A0, gains.n_tilde)) / a0_norm**gains.n_tilde
+            np.linalg.norm(np.linalg.matrix_power(A0, model.n_tilde)) / a0_norm**model.n_tilde
         ),
         "dilation_anti_hurwitz": float(np.min(np.linalg.eigvals(G_d).real)),
     }
@@ -277,41 +298,64 @@ def lmi_values(
     }
 
 
-def certificate_values(gains: ObserverGains) -> dict[str, float]:
-    """Every figure of the module docstring's table, without judging them."""
-    values = homogeneity_values(gains)
-    values["gamma_rho"] = gains.rho - gains.gamma / 2
-    A_model, C_model = checked_model(gains)
+def filtering_values(filtering: FilteringGains) -> dict[str, float]:
+    """The filtering observer's figures of the module docstring's table (homogeneity,
+    ``gamma_rho``, the Theorem 2 LMI), without judging them."""
+    values = homogeneity_values(filtering)
+    values["gamma_rho"] = filtering.rho - filtering.gamma / 2
+    A_model, _ = _homogeneous_model(filtering)
     d = balancing_scale(A_model)
-    d_bar = np.concatenate([np.ones(gains.k), d])
-    bar_A0, bar_G, bar_C = augmented_matrices(gains)
-    bar_L = np.vstack([gains.L_tilde, gains.L])
-    values |= lmi_values(diagonal_congruence(gains.P_bar, d_bar),
+    d_bar = np.concatenate([np.ones(filtering.plant.k), d])
+    bar_A0, bar_G, bar_C = augmented_matrices(filtering)
+    bar_L = np.vstack([filtering.L_tilde, filtering.L])
+    values |= lmi_values(diagonal_congruence(filtering.P_bar, d_bar),
                          diagonal_similarity(bar_A0 + bar_L @ bar_C, d_bar),
-                         diagonal_similarity(bar_G, d_bar), gains.rho, "filtering")
-    values |= prescribed_time_lmi_values(gains)
-    values["hurwitz_luenberger"] = luenberger_abscissa(gains)
+                         diagonal_similarity(bar_G, d_bar), filtering.rho, "filtering")
     return values
 
 
-def prescribed_time_lmi_values(gains: ObserverGains) -> dict[str, float]:
+def prescribed_time_lmi_values(prescribed_time: PrescribedTimeGains) -> dict[str, float]:
     """The four Theorem 1 figures (``P_pt_positive``, ``P_pt_monotone``, ``lmi_pt``,
     ``hurwitz_pt``, with ``P_pt_rounding``): the LMI with P_pt, ``H = A0 + L_pt C_model`` and
     ``G = G_d - nu I``, in balanced coordinates."""
-    A_model, C_model = checked_model(gains)
+    A_model, C_model = _homogeneous_model(prescribed_time)
+    model = prescribed_time.model
     d = balancing_scale(A_model)
-    G_pt = gains.G_d - gains.nu * np.eye(A_model.shape[0])
-    return lmi_values(diagonal_congruence(gains.P_pt, d),
-                      diagonal_similarity(A_model + (gains.L0 + gains.L_pt) @ C_model, d),
-                      diagonal_similarity(G_pt, d), gains.rho, "pt")
+    G_pt = model.G_d - model.nu * np.eye(A_model.shape[0])
+    return lmi_values(diagonal_congruence(prescribed_time.P_pt, d),
+                      diagonal_similarity(A_model + (model.L0 + prescribed_time.L_pt) @ C_model,
+                                          d),
+                      diagonal_similarity(G_pt, d), prescribed_time.rho, "pt")
 
 
-def certify_prescribed_time(
-    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = CERTIFICATE_MARGIN
+def prescribed_time_values(prescribed_time: PrescribedTimeGains) -> dict[str, float]:
+    """The prescribed-time observer's figures: homogeneity and the Theorem 1 LMI."""
+    return homogeneity_values(prescribed_time) | prescribed_time_lmi_values(prescribed_time)
+
+
+def luenberger_values(luenberger: LuenbergerGains) -> dict[str, float]:
+    """``hurwitz_luenberger``: ``max Re eig(A + L_lin C)`` (< 0: Hurwitz)."""
+    plant = luenberger.plant
+    return {"hurwitz_luenberger":
+            float(np.max(np.linalg.eigvals(plant.A + luenberger.L_lin @ plant.C).real))}
+
+
+def kalman_values(kalman: KalmanGains) -> dict[str, float]:
+    """``schur_kalman``: the spectral radius of the filter's error map ``Phi (I - M C)``
+    (< 1: Schur stable), Phi the exact ZOH of its model over Ts (from :func:`checked_model`)."""
+    A, C = checked_model(kalman.plant, kalman.disturbance_order)
+    Phi = expm(kalman.sample_time * A)
+    return {"schur_kalman":
+            float(np.max(np.abs(np.linalg.eigvals(Phi - Phi @ kalman.gain @ C))))}
+
+
+def certify_filtering(
+    filtering: FilteringGains, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
 ) -> dict[str, float]:
-    """The part of :func:`certify` that covers Theorem 1, the prescribed-time observer: nu and
-    rho in range (:func:`tuning_problem`, gamma not used), the homogeneity identities and the
-    LMI with P_pt. The prescribed-time FMU's check of edited parameters.
+    """The filtering observer's certificate (``observer.fmu`` checks it, with
+    :func:`check_tuning`, on its edited parameters): P_bar symmetric, then
+    :func:`filtering_values` judged.
 
     Parameters and Raises as for :func:`certify`; returns the figures checked.
 
@@ -319,37 +363,79 @@ def certify_prescribed_time(
     --------
     >>> import dataclasses
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> bool(certify_prescribed_time(gains)["lmi_pt"] < 0)
+    >>> filtering = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0).filtering
+    >>> bool(certify_filtering(filtering)["lmi_filtering"] < 0)
     True
-    >>> certify_prescribed_time(dataclasses.replace(gains, L_pt=-gains.L_pt))
+    >>> certify_filtering(dataclasses.replace(filtering, L=-filtering.L))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: ...lmi_filtering...
+    """
+    check_symmetry(P_bar=filtering.P_bar)
+    return _judged(filtering_values(filtering), tolerance, margin)
+
+
+def certify_prescribed_time(
+    prescribed_time: PrescribedTimeGains, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
+) -> dict[str, float]:
+    """The prescribed-time observer's certificate (Theorem 1): nu and rho in range
+    (:func:`tuning_problem`, gamma not used), the homogeneity identities and the LMI with P_pt.
+    The prescribed-time FMU's check of edited parameters.
+
+    Parameters and Raises as for :func:`certify`; returns the figures checked.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from fhobs.design.observer import design_observer
+    >>> pt = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0).prescribed_time
+    >>> bool(certify_prescribed_time(pt)["lmi_pt"] < 0)
+    True
+    >>> certify_prescribed_time(dataclasses.replace(pt, L_pt=-pt.L_pt))
     Traceback (most recent call last):
     ...
     fhobs.core.errors.CertificateError: ...lmi_pt...
     """
-    problem = tuning_problem(gains.nu, gains.rho, None, gains.n_tilde)
+    model = prescribed_time.model
+    problem = tuning_problem(model.nu, prescribed_time.rho, None, model.n_tilde)
     if problem:
         raise CertificateError(problem)
-    check_symmetry(P_pt=gains.P_pt)
-    values = homogeneity_values(gains) | prescribed_time_lmi_values(gains)
-    _judge(values, tolerance, margin)
-    return values
+    check_symmetry(P_pt=prescribed_time.P_pt)
+    return _judged(prescribed_time_values(prescribed_time), tolerance, margin)
 
 
-def luenberger_abscissa(gains: ObserverGains) -> float:
-    """``max Re eig(A + L_lin C)``, the Luenberger baseline's check (< 0: Hurwitz)."""
-    return float(np.max(np.linalg.eigvals(gains.A + gains.L_lin @ gains.C).real))
+def certify_luenberger(luenberger: LuenbergerGains) -> dict[str, float]:
+    """The Luenberger baseline's certificate: ``A + L_lin C`` Hurwitz (``luenberger.fmu``'s
+    check of edited parameters).
+
+    Examples
+    --------
+    >>> from fhobs.core.gains import LuenbergerGains, PlantModel
+    >>> plant = PlantModel(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)))
+    >>> certify_luenberger(LuenbergerGains(plant, np.array([[-2.0]])))
+    {'hurwitz_luenberger': -2.0}
+    >>> certify_luenberger(LuenbergerGains(plant, np.array([[1.0]])))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: ... hurwitz_luenberger = 1.000e+00 (required < 0)
+    """
+    return _judged(luenberger_values(luenberger), DEFAULT_TOLERANCE, CERTIFICATE_MARGIN)
 
 
-def check_luenberger(gains: ObserverGains) -> None:
-    """Raise :class:`CertificateError` unless ``A + L_lin C`` is Hurwitz (the Luenberger FMU's
-    check of edited parameters; :func:`certify` makes it with the others)."""
-    abscissa = luenberger_abscissa(gains)
-    if not abscissa < 0.0:
-        raise CertificateError(
-            f"check hurwitz_luenberger failed: max Re eig(A + L_lin C) = {abscissa:.3e} "
-            "(required < 0)"
-        )
+def certify_kalman(kalman: KalmanGains) -> dict[str, float]:
+    """The Kalman filter's certificate: its error map ``Phi (I - M C)`` Schur stable
+    (``kalman.fmu``'s check of edited parameters).
+
+    Examples
+    --------
+    >>> from fhobs.core.gains import KalmanGains, PlantModel
+    >>> plant = PlantModel(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)))
+    >>> kalman = KalmanGains(plant, 0, 0.1, np.ones(1), 1.0, np.array([[0.5]]), np.eye(1))
+    >>> certify_kalman(kalman)
+    {'schur_kalman': 0.5}
+    """
+    return _judged(kalman_values(kalman), DEFAULT_TOLERANCE, CERTIFICATE_MARGIN)
 
 
 def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: int,
@@ -379,21 +465,23 @@ def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: i
     return ""
 
 
-def check_tuning(gains: ObserverGains) -> None:
-    """Raise CertificateError if :func:`tuning_problem` finds the design's nu, gamma or rho
-    outside Theorem 2's ranges (the spec loader's rules).
+def check_tuning(filtering: FilteringGains) -> None:
+    """Raise CertificateError if :func:`tuning_problem` finds the filtering observer's nu,
+    gamma or rho outside Theorem 2's ranges (the spec loader's rules).
 
     Examples
     --------
     >>> import dataclasses
     >>> from fhobs.design.observer import paper_gains
-    >>> check_tuning(paper_gains())
-    >>> check_tuning(dataclasses.replace(paper_gains(), gamma=-5.0))
+    >>> filtering = paper_gains().filtering
+    >>> check_tuning(filtering)
+    >>> check_tuning(dataclasses.replace(filtering, gamma=-5.0))
     Traceback (most recent call last):
     ...
     fhobs.core.errors.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
     """
-    problem = tuning_problem(gains.nu, gains.rho, gains.gamma, gains.n_tilde)
+    model = filtering.model
+    problem = tuning_problem(model.nu, filtering.rho, filtering.gamma, model.n_tilde)
     if problem:
         raise CertificateError(problem)
 
@@ -422,6 +510,8 @@ def _violations(
         elif name.endswith("_monotone"):
             bound = margin + rounding
             ok, need = value > bound, f"> {bound:.3g}"
+        elif name.startswith("schur_"):
+            ok, need = value < 1.0, "< 1"
         elif name.endswith("_positive"):
             ok, need = value > 1e-14, "> 1e-14"
         else:  # dilation_anti_hurwitz, gamma_rho
@@ -439,14 +529,42 @@ def _rounding_key(name: str) -> str:
     return name.rsplit("_", 1)[0] + "_rounding"
 
 
+FIGURES = {"filtering": filtering_values, "prescribed_time": prescribed_time_values,
+           "luenberger": luenberger_values, "kalman": kalman_values}
+"""Each estimator record's figures, by the design's attribute that holds it."""
+
+
+def certify_parts(
+    design: ObserverDesign, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
+) -> dict[str, dict[str, float]]:
+    """:func:`certify`, with the figures of each estimator record apart (the design's
+    attribute -> its figures; the homogeneity figures in both homogeneous observers').
+
+    Examples
+    --------
+    >>> from fhobs.design.observer import design_observer
+    >>> parts = certify_parts(design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0))
+    >>> sorted(parts), sorted(parts["luenberger"])
+    (['filtering', 'luenberger', 'prescribed_time'], ['hurwitz_luenberger'])
+    """
+    check_symmetry(P_bar=design.filtering.P_bar, P_pt=design.prescribed_time.P_pt)
+    parts = {name: figures(getattr(design, name)) for name, figures in FIGURES.items()
+             if getattr(design, name) is not None}
+    _judge(_merged(parts), tolerance, margin)
+    return parts
+
+
 def certify(
-    gains: ObserverGains, tolerance: float = DEFAULT_TOLERANCE, margin: float = CERTIFICATE_MARGIN
+    design: ObserverDesign, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
 ) -> dict[str, float]:
-    """Check a design and return its figures; raise if any is out of bounds.
+    """Check every estimator of a design and return their figures; raise if any is out of
+    bounds (one error naming every failed check of every estimator).
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The design (possibly with user-edited entries).
     tolerance : float
         Bound of the relative identity residuals.
@@ -456,7 +574,8 @@ def certify(
     Returns
     -------
     dict
-        Check name -> value, as in the module docstring's table.
+        Check name -> value, as in the module docstring's table (``schur_kalman`` too when the
+        design has a Kalman filter).
 
     Raises
     ------
@@ -469,16 +588,26 @@ def certify(
     --------
     >>> import dataclasses
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> bool(certify(gains)["lmi_filtering"] < 0)
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> bool(certify(design)["lmi_filtering"] < 0)
     True
-    >>> certify(dataclasses.replace(gains, L_lin=-gains.L_lin))
+    >>> luenberger = dataclasses.replace(design.luenberger, L_lin=-design.luenberger.L_lin)
+    >>> certify(dataclasses.replace(design, luenberger=luenberger))
     Traceback (most recent call last):
     ...
     fhobs.core.errors.CertificateError: ...hurwitz_luenberger...
     """
-    check_symmetry(P_bar=gains.P_bar, P_pt=gains.P_pt)
-    values = certificate_values(gains)
+    return _merged(certify_parts(design, tolerance, margin))
+
+
+def _merged(parts: dict[str, dict[str, float]]) -> dict[str, float]:
+    """The figures of every record in one dict (the homogeneity figures, equal in both
+    homogeneous records, once)."""
+    return {name: value for part in parts.values() for name, value in part.items()}
+
+
+def _judged(values: dict[str, float], tolerance: float, margin: float) -> dict[str, float]:
+    """``values``, after :func:`_judge` found every figure within its bound."""
     _judge(values, tolerance, margin)
     return values
 

@@ -1,7 +1,7 @@
 """Steady-state discrete Kalman filter (numpy only): the noise-optimal linear baseline.
 
 The filter runs on the extended model of :mod:`fhobs.core.disturbance` (order
-``gains.kalman.disturbance_order``) sampled with the exact zero-order hold at the filter's
+``kalman.disturbance_order``) sampled with the exact zero-order hold at the filter's
 sample time Ts: ``Phi = expm(Ts A_model)``, ``Gamma = int_0^Ts expm(t A_model) dt B_model``.
 One cycle with the measurement y_k and the input u_k of the sample t_k:
 
@@ -35,8 +35,7 @@ import math
 import numpy as np
 
 from . import kernel as compiled
-from .disturbance import extended_model
-from .gains import KalmanGains, ObserverGains
+from .gains import KalmanGains
 from .linalg import zoh_blocks
 from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
@@ -91,13 +90,11 @@ class KalmanObserver:
 
     Parameters
     ----------
-    gains : ObserverGains
-        The design; ``gains.kalman`` (a :class:`KalmanGains`) must be set.
+    kalman : KalmanGains
+        The filter's record (a design's ``kalman``), on its plant.
     z0 : array_like or None
         Initial prediction: the plant's n states, or the model's N (zeros if None; with n
         entries the disturbance states start at zero).
-    kalman : KalmanGains or None
-        Use this filter instead of ``gains.kalman`` (an edited FMU parameter set).
     kernel : bool
         Run the cycles in the compiled kernel when it is available (:mod:`fhobs.core.kernel`);
         False: numpy only.
@@ -112,28 +109,26 @@ class KalmanObserver:
     ...                        "E": [[0], [1]], "observer": {"rho": 2.0},
     ...                        "noise": {"measurement_std": [0.01], "sample_time": 0.01,
     ...                                  "process_intensity": 1.0}})
-    >>> gains = design_for_spec(spec)  # with the Kalman filter of the [noise] table
-    >>> obs = KalmanObserver(gains)
+    >>> kalman = design_for_spec(spec).kalman  # the Kalman filter of the [noise] table
+    >>> obs = KalmanObserver(kalman)
     >>> for _ in range(500):
-    ...     obs.step(y=[1.0], u=[0.0], dt=gains.kalman.sample_time)
+    ...     obs.step(y=[1.0], u=[0.0], dt=kalman.sample_time)
     >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-9))
     True
     """
 
-    def __init__(self, gains: ObserverGains, z0: np.ndarray | None = None,
-                 kalman: KalmanGains | None = None, kernel: bool = True) -> None:
-        kalman = gains.kalman if kalman is None else kalman
-        if kalman is None:
-            raise ValueError("the design has no Kalman filter (ObserverGains.kalman is None)")
-        self.gains, self.kalman = gains, kalman
+    def __init__(self, kalman: KalmanGains, z0: np.ndarray | None = None,
+                 kernel: bool = True) -> None:
+        plant = kalman.plant
+        self.kalman = kalman
         self.sample_time = check_step_size(kalman.sample_time)
-        A, B, C = extended_model(gains.A, gains.B, gains.C, gains.E, kalman.disturbance_order)
+        A, B, C = plant.extended_model(kalman.disturbance_order)
         size = A.shape[0]
-        if kalman.gain.shape != (size, gains.k):
+        if kalman.gain.shape != (size, plant.k):
             raise ValueError(f"Kalman gain has shape {kalman.gain.shape}, expected "
-                             f"({size}, {gains.k}) for disturbance order "
+                             f"({size}, {plant.k}) for disturbance order "
                              f"{kalman.disturbance_order}")
-        self._k, self._m, self._n = gains.k, gains.m, gains.n
+        self._k, self._m, self._n = plant.k, plant.m, plant.n
         Phi, Gamma = zoh_blocks(A, [B], self.sample_time)
         self._cycle = np.hstack((Phi - Phi @ kalman.gain @ C, Phi @ kalman.gain, Gamma))
         self._z = np.zeros(size)

@@ -76,7 +76,7 @@ import numpy as np
 
 from . import kernel as compiled
 from .dilation import Dilation
-from .gains import ObserverGains
+from .gains import FilteringGains, LuenbergerGains, PrescribedTimeGains
 from .injection import InjectionFlow
 from .linalg import PHI1_SERIES, ZOH_CACHE_SIZE, ExpmFamily, zoh_blocks
 from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
@@ -142,27 +142,33 @@ def spectral_radius(F: np.ndarray) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(F))))
 
 
+Gains = FilteringGains | PrescribedTimeGains | LuenbergerGains
+"""The record an observer runs (its plant, and its gains)."""
+
+
 class _Observer:
     """Common machinery: input checks, substepping, ZOH model, transactional state.
 
     Subclasses set ``_aux`` (their extra states), ``_L_inj`` (the gain of the held innovation in
-    the prediction) and implement ``_correct``, ``_euler_rates`` and ``_level``. ``model`` is the
+    the prediction) and implement ``_correct``, ``_euler_rates`` and ``_level``; the
+    homogeneous ones set ``_nu``. ``gains`` is the estimator's record, ``model`` the
     ``(A, B, C)`` the observer runs on: the plant's for the Luenberger observer,
-    ``gains.model`` (possibly with a disturbance model) for the homogeneous ones.
+    ``gains.model_matrices`` (possibly with a disturbance model) for the homogeneous ones.
     """
 
     _aux: np.ndarray
     _n_error_aux = 0
     """Number of leading aux entries that belong to the estimation error (psi)."""
+    _nu: float
 
-    def __init__(self, gains: ObserverGains, h: float, scheme: str, z0: np.ndarray | None,
+    def __init__(self, gains: Gains, h: float, scheme: str, z0: np.ndarray | None,
                  L_inj: np.ndarray, model: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         if scheme not in SCHEMES:
             raise ValueError(f"unknown scheme {scheme!r}; choose one of {SCHEMES}")
         self.gains = gains
         self.h = check_step_size(h)
         self.scheme = scheme
-        self._k, self._m, self._nu = gains.k, gains.m, gains.nu
+        self._n, self._k, self._m = gains.plant.n, gains.plant.k, gains.plant.m
         self._A, self._B, self._C = model
         n = self._A.shape[0]
         self._z = np.zeros(n) if z0 is None else as_finite_vector(z0, n, "z0")
@@ -183,7 +189,7 @@ class _Observer:
     @property
     def x_hat(self) -> np.ndarray:
         """Estimate of the plant's state (copy of the first n entries of z)."""
-        return self._z[:self.gains.n].copy()
+        return self._z[:self._n].copy()
 
     def step(self, y: np.ndarray, u: np.ndarray, dt: float) -> None:
         """Advance by dt with y and u held, in substeps of size <= h.
@@ -371,7 +377,7 @@ class _Observer:
                                 else self._auto_taus(dt))
             if self._roundoff_level is None:
                 self._roundoff_level = self._amplification_level()
-            inverse_nu = 1.0 / self.gains.nu
+            inverse_nu = 1.0 / self._nu
             floor = max((tau_max / dt) ** inverse_nu, self._roundoff_level)
             ceiling = math.inf if tau_min is None else (tau_min / dt) ** inverse_nu
             if len(self._caps) >= CAP_CACHE_SIZE:
@@ -383,12 +389,12 @@ class _Observer:
         """The level s at which ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` equals
         ``AMPLIFICATION_LIMIT`` (bisection in ln s; 0 if no level below 1 reaches it);
         ``(.)_x``: the rows of the plant's states (a disturbance model's states are not)."""
-        g = self.gains
-        dilation, c_norm = Dilation(g.G_d), np.linalg.norm(self._C, 2)
+        dilation, c_norm = Dilation(self.gains.model.G_d), np.linalg.norm(self._C, 2)
+        n, nu = self._n, self._nu
 
         def amplification(log_s: float) -> float:
-            return c_norm * np.linalg.norm(dilation.matrix(log_s)[:g.n], 2) / math.exp(
-                (1.0 + g.nu) * log_s)
+            return c_norm * np.linalg.norm(dilation.matrix(log_s)[:n], 2) / math.exp(
+                (1.0 + nu) * log_s)
 
         lo, hi = -700.0, 0.0
         if amplification(lo) <= AMPLIFICATION_LIMIT:
@@ -427,14 +433,14 @@ class _Observer:
         with x = 0, y = 0 and u = 0, which is linear in the error; for the gain cap, analysis
         and tests. In these coordinates its entries are of moderate size at every level, so
         its eigenvalues are computed accurately (those of the unscaled map are not)."""
-        g = self.gains
         n_lin = self._n_error_aux
         S = self._error_scaling(level)
         columns = []
         for e in S.T:
             aux = np.zeros_like(self._aux)
             aux[:n_lin] = e[:n_lin]
-            z, aux = self._run_split(e[n_lin:], aux, np.zeros(g.k), np.zeros(g.m), dt, level)
+            z, aux = self._run_split(e[n_lin:], aux, np.zeros(self._k), np.zeros(self._m), dt,
+                                     level)
             columns.append(np.concatenate([aux[:n_lin], z]))
         return np.linalg.solve(S, np.column_stack(columns))
 
@@ -452,7 +458,7 @@ class _Observer:
         """``(tau_min, tau_max)`` on ``TAU_GRID``: tau_max minimises the spectral radius of the
         dilated error map, tau_min is the smallest tau of the contractive run that holds
         tau_max, None when that run starts at the grid's first tau (module docstring)."""
-        nu = self.gains.nu
+        nu = self._nu
         radii = [self._dilated_radius((tau / dt) ** (1.0 / nu), dt) for tau in TAU_GRID]
         best = int(np.argmin(radii))
         if not radii[best] < CONTRACTION_LIMIT:
@@ -470,15 +476,15 @@ class FilteringObserver(_Observer):
 
     Parameters
     ----------
-    gains : ObserverGains
-        The design (uses A, B, C, L0, G_d, L_tilde, L, nu, gamma).
+    filtering : FilteringGains
+        The observer's record (a design's ``filtering``).
     h : float
         Maximal internal step.
     scheme : str
         One of ``SCHEMES``.
     z0, psi0 : array_like or None
-        Initial model state (``gains.n_model`` entries: x, then the disturbance model's) and
-        filter state (zeros if None).
+        Initial model state (``filtering.model.n_model`` entries: x, then the disturbance
+        model's) and filter state (zeros if None).
     xi0 : float
         Initial xi.
     tau_max : float or None
@@ -492,24 +498,27 @@ class FilteringObserver(_Observer):
     Examples
     --------
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> obs = FilteringObserver(gains, h=1e-3, z0=[0.5, 0.0])
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = FilteringObserver(design.filtering, h=1e-3, z0=[0.5, 0.0])
     >>> obs.step(y=[0.5], u=[0.0], dt=1e-2)
     >>> obs.x_hat.shape, bool(abs(obs.x_hat[0] - 0.5) < 1e-6)
     ((2,), True)
     """
 
-    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
-                 z0: np.ndarray | None = None, psi0: np.ndarray | None = None,
-                 xi0: float = 0.0, tau_max: float | None = None, kernel: bool = True) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
-        k = gains.k
+    def __init__(self, filtering: FilteringGains, h: float = DEFAULT_H,
+                 scheme: str = SCHEMES[0], z0: np.ndarray | None = None,
+                 psi0: np.ndarray | None = None, xi0: float = 0.0,
+                 tau_max: float | None = None, kernel: bool = True) -> None:
+        model = filtering.model
+        super().__init__(filtering, h, scheme, z0, model.L0, filtering.model_matrices)
+        self._nu = nu = model.nu
+        k = self._k
         psi = np.zeros(k) if psi0 is None else as_finite_vector(psi0, k, "psi0")
         self._aux = np.append(psi, as_finite_vector(xi0, 1, "xi0"))
         self._n_error_aux = k
-        self._dilation = Dilation(gains.G_d, right=gains.L)
-        self._flow = InjectionFlow(gains.L_tilde, self._C, self._dilation, gains.nu)
-        self._p = gains.nu / 2.0 + 1.0
+        self._dilation = Dilation(model.G_d, right=filtering.L)
+        self._flow = InjectionFlow(filtering.L_tilde, self._C, self._dilation, nu)
+        self._p = nu / 2.0 + 1.0
         self.tau_max = None if tau_max is None else float(tau_max)
         if kernel and (self._flow.eigen if scheme == "split" else self._dilation.use_eig):
             self._use_kernel("fhobs_filter_step")
@@ -539,7 +548,7 @@ class FilteringObserver(_Observer):
         k, n = self._k, self._z.size
         S = np.zeros((k + n, k + n))
         S[:k, :k] = level * np.eye(k)
-        S[k:, k:] = Dilation(self.gains.G_d).matrix(math.log(level))
+        S[k:, k:] = Dilation(self.gains.model.G_d).matrix(math.log(level))
         return S
 
     def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
@@ -626,13 +635,13 @@ class FilteringObserver(_Observer):
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
-        g = self.gains
+        g, nu = self.gains, self._nu
         psi, xi = aux[:-1], float(aux[-1])
         sigma = self._sigma(aux)
         if sigma > 0.0:
             log_s = math.log(max(sigma, SIGMA_GUARD))
-            dz_gain = math.exp((g.nu - 1.0) * log_s) * self._dilation.apply(log_s, psi)
-            dpsi = v + math.exp(g.nu * log_s) * (g.L_tilde @ psi)
+            dz_gain = math.exp((nu - 1.0) * log_s) * self._dilation.apply(log_s, psi)
+            dpsi = v + math.exp(nu * log_s) * (g.L_tilde @ psi)
         else:  # sigma = 0 forces psi = 0: the homogeneous terms vanish
             dz_gain, dpsi = np.zeros(self._z.size), v
         dxi = abs(psi @ dpsi) - g.gamma * signed_power(xi - 0.5 * psi @ psi, self._p)
@@ -677,8 +686,8 @@ class PrescribedTimeObserver(_Observer):
 
     Parameters
     ----------
-    gains : ObserverGains
-        The design (uses A, B, C, L0, G_d, L_pt, nu, rho).
+    prescribed_time : PrescribedTimeGains
+        The observer's record (a design's ``prescribed_time``).
     h, scheme, z0 :
         As for :class:`FilteringObserver`.
     xi0 : float
@@ -696,8 +705,8 @@ class PrescribedTimeObserver(_Observer):
     after the prescribed time T0 the estimate is the state.
 
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> obs = PrescribedTimeObserver(gains, h=1e-3, xi0=1.0)
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = PrescribedTimeObserver(design.prescribed_time, h=1e-3, xi0=1.0)
     >>> obs.T0
     1.5
     >>> for k in range(200):
@@ -706,13 +715,16 @@ class PrescribedTimeObserver(_Observer):
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
-                 z0: np.ndarray | None = None, xi0: float = 1.0,
+    def __init__(self, prescribed_time: PrescribedTimeGains, h: float = DEFAULT_H,
+                 scheme: str = SCHEMES[0], z0: np.ndarray | None = None, xi0: float = 1.0,
                  tau_max: float | None = None, kernel: bool = True) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L0, gains.model)
+        model = prescribed_time.model
+        super().__init__(prescribed_time, h, scheme, z0, model.L0,
+                         prescribed_time.model_matrices)
+        self._nu = model.nu
         self._aux = as_finite_vector(xi0, 1, "xi0")
-        self._dilation = Dilation(gains.G_d, right=gains.L_pt)
-        self._Q = ExpmFamily(self._C @ gains.L_pt)
+        self._dilation = Dilation(model.G_d, right=prescribed_time.L_pt)
+        self._Q = ExpmFamily(self._C @ prescribed_time.L_pt)
         self.tau_max = None if tau_max is None else float(tau_max)
         if kernel and scheme == "split" and self.eigen:
             self._use_kernel("fhobs_prescribed_step")
@@ -733,8 +745,8 @@ class PrescribedTimeObserver(_Observer):
         Examples
         --------
         >>> from fhobs.design.observer import design_observer
-        >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-        >>> data = PrescribedTimeObserver(gains).kernel_arrays()
+        >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+        >>> data = PrescribedTimeObserver(design.prescribed_time).kernel_arrays()
         >>> data["Q_inv"].shape, data["V_g"].shape, data["inverse_L"].shape
         ((1, 1), (2, 2), (2, 1))
         """
@@ -775,8 +787,8 @@ class PrescribedTimeObserver(_Observer):
     @property
     def T0(self) -> float:
         """Time (from the current state) at which xi reaches 0."""
-        g = self.gains
-        return abs(float(self._aux[0])) ** (-g.nu) / (-g.nu * g.rho)
+        nu = self._nu
+        return abs(float(self._aux[0])) ** (-nu) / (-nu * self.gains.rho)
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
         """``z``, ``xi`` and the gain level actually used."""
@@ -784,7 +796,7 @@ class PrescribedTimeObserver(_Observer):
 
     def _error_scaling(self, level: float) -> np.ndarray:
         """``d_pt(ln level) = level^-nu d(ln level)``: the dilation of ``z - x``."""
-        return level ** -self.gains.nu * Dilation(self.gains.G_d).matrix(math.log(level))
+        return level ** -self._nu * Dilation(self.gains.model.G_d).matrix(math.log(level))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
         """|xi| between the floor and the ceiling of dt (module docstring)."""
@@ -792,29 +804,28 @@ class PrescribedTimeObserver(_Observer):
 
     def _xi_exact(self, xi: float, hs: float) -> float:
         """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
-        g = self.gains
+        nu = self._nu
         if xi == 0.0:
             return 0.0
-        return math.copysign(max(abs(xi) ** (-g.nu) + g.nu * g.rho * hs, 0.0) ** (-1.0 / g.nu),
+        return math.copysign(max(abs(xi) ** (-nu) + nu * self.gains.rho * hs, 0.0) ** (-1.0 / nu),
                              xi)
 
     def _correct(self, aux: np.ndarray, v: np.ndarray, hs: float,
                  level: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Exact flow of ``dz = gain (C z - y)`` with x frozen: ``dv = xi^nu C L_pt v``."""
-        g = self.gains
+        nu = self._nu
         log_x = math.log(level)
-        tau = hs * math.exp(g.nu * log_x)
-        _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + g.nu) * log_x))  # tau phi1(tau Q) v
+        tau = hs * math.exp(nu * log_x)
+        _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + nu) * log_x))  # tau phi1(tau Q) v
         dz = self._dilation.apply(log_x, phi_v)
         return np.array([self._xi_exact(float(aux[0]), hs)]), dz
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
-        g = self.gains
         xi = float(aux[0])
         log_x = math.log(self._level(aux, dt))
         dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, v)
-        return np.array([-g.rho * signed_power(xi, 1.0 + g.nu)]), dz_gain
+        return np.array([-self.gains.rho * signed_power(xi, 1.0 + self._nu)]), dz_gain
 
 
 class LuenbergerObserver(_Observer):
@@ -822,22 +833,25 @@ class LuenbergerObserver(_Observer):
 
     The split scheme is the exact ZOH of the model with the innovation held, i.e. the error
     obeys ``e_{k+1} = (expm(h A) + Gamma_Llin C) e_k`` exactly; ``euler`` is explicit Euler.
-    The parameters are those of :class:`FilteringObserver` (the gain is ``gains.L_lin``).
+    The parameters are those of :class:`FilteringObserver`, the record a
+    :class:`~fhobs.core.gains.LuenbergerGains` (the gain is its ``L_lin``).
 
     Examples
     --------
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> obs = LuenbergerObserver(gains, h=1e-3)
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> obs = LuenbergerObserver(design.luenberger, h=1e-3)
     >>> for _ in range(2000):
     ...     obs.step(y=[1.0], u=[0.0], dt=1e-2)
     >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-6))
     True
     """
 
-    def __init__(self, gains: ObserverGains, h: float = DEFAULT_H, scheme: str = SCHEMES[0],
-                 z0: np.ndarray | None = None, kernel: bool = True) -> None:
-        super().__init__(gains, h, scheme, z0, gains.L_lin, (gains.A, gains.B, gains.C))
+    def __init__(self, luenberger: LuenbergerGains, h: float = DEFAULT_H,
+                 scheme: str = SCHEMES[0], z0: np.ndarray | None = None,
+                 kernel: bool = True) -> None:
+        plant = luenberger.plant
+        super().__init__(luenberger, h, scheme, z0, luenberger.L_lin, (plant.A, plant.B, plant.C))
         self._aux = np.zeros(0)
         if kernel:
             self._use_kernel("fhobs_luenberger_step")

@@ -39,11 +39,10 @@ from scipy.linalg import expm, solve_discrete_are
 
 from ..core.disturbance import (
     describe_direction,
-    extended_model,
     model_perturbation_matrix,
     model_state_names,
 )
-from ..core.gains import KalmanGains, ObserverGains
+from ..core.gains import KalmanGains, ObserverDesign, PlantModel
 from ..errors import KalmanDesignError
 from .homogenisation import unobservable_directions
 from .spec import NoiseSpec
@@ -126,10 +125,7 @@ def van_loan(A: np.ndarray, GWGt: np.ndarray, Ts: float) -> tuple[np.ndarray, np
 
 
 def design_kalman(
-    A: np.ndarray,
-    B: np.ndarray,
-    C: np.ndarray,
-    E: np.ndarray | None,
+    plant: PlantModel,
     order: int,
     measurement_std: np.ndarray,
     process_intensity: float,
@@ -140,10 +136,8 @@ def design_kalman(
 
     Parameters
     ----------
-    A, B, C : numpy.ndarray
-        Plant matrices (n x n, n x m, k x n).
-    E : numpy.ndarray or None
-        Perturbation input matrix (n x p); required (the process noise enters through it).
+    plant : PlantModel
+        The plant; its E (n x p) is required (the process noise enters through it).
     order : int
         Disturbance-model order r in 0..3 (:func:`fhobs.core.disturbance.extended_model`).
     measurement_std : array_like
@@ -158,6 +152,7 @@ def design_kalman(
     Returns
     -------
     KalmanGains
+        On ``plant``.
 
     Raises
     ------
@@ -172,10 +167,12 @@ def design_kalman(
     Examples
     --------
     >>> A = np.array([[0.0, 1.0], [0.0, 0.0]]); B = E = np.array([[0.0], [1.0]])
-    >>> kf = design_kalman(A, B, np.array([[1.0, 0.0]]), E, 1, [1e-3], 1.0, 1e-3)
+    >>> plant = PlantModel(A, B, np.array([[1.0, 0.0]]), E)
+    >>> kf = design_kalman(plant, 1, [1e-3], 1.0, 1e-3)
     >>> kf.gain.shape
     (3, 1)
     """
+    A, C, E = plant.A, plant.C, plant.E
     if E is None:
         raise KalmanDesignError("the Kalman filter needs E: the process noise enters through it")
     std = np.asarray(measurement_std, dtype=float).reshape(-1)
@@ -185,7 +182,7 @@ def design_kalman(
     for name, value in (("process_intensity", process_intensity), ("sample_time", sample_time)):
         if not (np.isfinite(value) and value > 0):
             raise KalmanDesignError(f"{name} = {value!r} must be a positive finite number")
-    A_model, _, C_model = extended_model(A, B, C, E, order)
+    A_model, _, C_model = plant.extended_model(order)
     G = noise_input_matrix(E, A.shape[0], order)
     noise = process_intensity * G @ G.T
     R = np.diag(std**2)
@@ -201,7 +198,8 @@ def design_kalman(
         P, gain, note = _regularised_filter(A_model, C_model, G, noise, R, sample_time, order,
                                             E.shape[1], A.shape[0], label, failure)
         tuning = f"{tuning}; {note}" if tuning else note
-    return KalmanGains(order, float(sample_time), std, float(process_intensity), gain, P, tuning)
+    return KalmanGains(plant, order, float(sample_time), std, float(process_intensity), gain, P,
+                       tuning)
 
 
 def steady_state_filter(
@@ -302,14 +300,14 @@ def _regularised_filter(
         f"table's own intensity does not stabilise it ({failure})")
 
 
-def with_kalman(gains: ObserverGains, noise: NoiseSpec,
-                tuning: str = "process_intensity from the spec's [noise] table") -> ObserverGains:
-    """``gains`` with the Kalman filter of a spec's ``[noise]`` table attached.
+def with_kalman(design: ObserverDesign, noise: NoiseSpec,
+                tuning: str = "process_intensity from the spec's [noise] table") -> ObserverDesign:
+    """``design`` with the Kalman filter of a spec's ``[noise]`` table attached.
 
     Parameters
     ----------
-    gains : ObserverGains
-        A design (its A, B, C, E are used).
+    design : ObserverDesign
+        A design (the filter runs on its plant).
     noise : fhobs.design.spec.NoiseSpec
         The validated ``[noise]`` table.
     tuning : str
@@ -317,7 +315,7 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
 
     Returns
     -------
-    ObserverGains
+    ObserverDesign
         A copy with ``kalman`` set.
 
     Examples
@@ -329,11 +327,10 @@ def with_kalman(gains: ObserverGains, noise: NoiseSpec,
     >>> noise = spec_from_dict(plant | {"noise": {"measurement_std": [0.01],
     ...                                           "sample_time": 0.01,
     ...                                           "process_intensity": 1.0}}).noise
-    >>> gains = with_kalman(design_for_spec(spec_from_dict(plant)), noise)
-    >>> gains.kalman.gain.shape, gains.kalman.sample_time
+    >>> design = with_kalman(design_for_spec(spec_from_dict(plant)), noise)
+    >>> design.kalman.gain.shape, design.kalman.sample_time
     ((2, 1), 0.01)
     """
-    kalman = design_kalman(gains.A, gains.B, gains.C, gains.E, noise.disturbance_order,
-                           noise.measurement_std, noise.process_intensity, noise.sample_time,
-                           tuning)
-    return dataclasses.replace(gains, kalman=kalman)
+    kalman = design_kalman(design.plant, noise.disturbance_order, noise.measurement_std,
+                           noise.process_intensity, noise.sample_time, tuning)
+    return dataclasses.replace(design, kalman=kalman)

@@ -17,17 +17,16 @@ The steps:
 Fast output filter (``[observer] filter_scale = c``, default 1). After step 2, L_tilde is
 multiplied by c (L unchanged) and P_bar is found again for the fixed gain by
 :func:`fhobs.design.lmi.certify_gain_lmi` (convex in P_bar), at the largest rho in (gamma/2, rho]
-that
-certifies it (bisection); that rho is the design's (``gains.rho``, used by the certificate and the
-prescribed-time observer). The LMI's rho is then a speed knob; the certified rho is roughly
-0.85 rho / c. Why: in the chain basis the filtering observer is, per output, a third-order
-chain (psi, position, velocity) whose only self-feedback is L_tilde; a fast psi pole (one pole
-near -c L_tilde, the two others slower) changes the level sigma that the xi equation settles at
-under measurement noise, and with it the noise-to-velocity-error balance: with the pendulum's
-noise the velocity errors drop by about 30 % at equal perturbed accuracy. Imposing the filter
-gain inside the LMI instead is not convex in (P, Y) (L_tilde = (P^-1 Y)_psi), and the convex
-restriction that makes it linear (P block-diagonal between psi and z in the chain basis) is
-infeasible: the z block of the LMI then has no injection.
+that certifies it (bisection); that rho is the design's (``filtering.rho``, used by the
+certificate and the prescribed-time observer). The LMI's rho is then a speed knob; the certified
+rho is roughly 0.85 rho / c. Why: in the chain basis the filtering observer is, per output, a
+third-order chain (psi, position, velocity) whose only self-feedback is L_tilde; a fast psi pole
+(one pole near -c L_tilde, the two others slower) changes the level sigma that the xi equation
+settles at under measurement noise, and with it the noise-to-velocity-error balance: with the
+pendulum's noise the velocity errors drop by about 30 % at equal perturbed accuracy. Imposing the
+filter gain inside the LMI instead is not convex in (P, Y) (L_tilde = (P^-1 Y)_psi), and the
+convex restriction that makes it linear (P block-diagonal between psi and z in the chain basis)
+is infeasible: the z block of the LMI then has no injection.
 """
 
 from __future__ import annotations
@@ -40,9 +39,16 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ..core.certificate import certify
+from ..core.certificate import certify_parts
 from ..core.disturbance import extended_model, model_perturbation_matrix
-from ..core.gains import ObserverGains
+from ..core.gains import (
+    FilteringGains,
+    HomogeneousModel,
+    LuenbergerGains,
+    ObserverDesign,
+    PlantModel,
+    PrescribedTimeGains,
+)
 from ..core.linalg import diagonal_congruence, diagonal_similarity
 from ..errors import CertificateError, LMIError, SpecError
 from ..paper import PAPER_REFERENCE
@@ -158,7 +164,7 @@ def design_observer(
     filter_scale: float = 1.0,
     objective: str = DEFAULT_OBJECTIVE,
     margin: float = LMI_MARGIN,
-) -> ObserverGains:
+) -> ObserverDesign:
     """Design and certify the filtering homogeneous observer of ``dx/dt = A x + B u + E q``,
     ``y = C x``.
 
@@ -194,9 +200,9 @@ def design_observer(
 
     Returns
     -------
-    ObserverGains
-        The gains of the three observers, the Lyapunov matrices and ``certificate`` holding
-        the checked figures.
+    ObserverDesign
+        The records of the three observers (gains, Lyapunov matrices and each one's
+        ``certificate`` holding its checked figures).
 
     Raises
     ------
@@ -209,10 +215,10 @@ def design_observer(
     --------
     A double integrator measured in position:
 
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
-    >>> gains.n, gains.k, gains.n_tilde, gains.rho
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> design.plant.n, design.plant.k, design.model.n_tilde, design.filtering.rho
     (2, 1, 2, 2.0)
-    >>> bool(gains.certificate["checks"]["hurwitz_luenberger"] < 0)
+    >>> bool(design.luenberger.certificate["checks"]["hurwitz_luenberger"] < 0)
     True
     """
     if B is None and C is None and not isinstance(A, np.ndarray | list | tuple):
@@ -248,7 +254,7 @@ def design_for_spec(
     objective: str | None = None,
     margin: float = LMI_MARGIN,
     filter_scale: float | None = None,
-) -> ObserverGains:
+) -> ObserverDesign:
     """Everything a validated plant spec asks for: the certified filtering homogeneous
     observer (with its prescribed-time and Luenberger companions) and, with a ``[noise]``
     table, the Kalman filter baseline; what ``build_fmu.py`` and ``harness plant`` build.
@@ -267,9 +273,9 @@ def design_for_spec(
 
     Returns
     -------
-    ObserverGains
-        With ``certificate`` holding the checked figures, ``kalman`` the Kalman filter of the
-        spec's ``[noise]`` table (None without one).
+    ObserverDesign
+        Each estimator's record with its ``certificate`` holding its checked figures,
+        ``kalman`` the Kalman filter of the spec's ``[noise]`` table (None without one).
 
     Raises
     ------
@@ -294,17 +300,17 @@ def design_for_spec(
     >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
     ...                        "observer": {"rho": 2.0, "gamma": 3.0}})
-    >>> gains = design_for_spec(spec)
-    >>> gains.gamma, gains.kalman is None
+    >>> design = design_for_spec(spec)
+    >>> design.filtering.gamma, design.kalman is None
     (3.0, True)
     """
     check_design_limits(spec)
-    gains = _observer_for_spec(spec, objective, margin, filter_scale)
-    return gains if spec.noise is None else with_kalman(gains, spec.noise)
+    design = _observer_for_spec(spec, objective, margin, filter_scale)
+    return design if spec.noise is None else with_kalman(design, spec.noise)
 
 
 def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
-                       filter_scale: float | None) -> ObserverGains:
+                       filter_scale: float | None) -> ObserverDesign:
     """The certified observer design of ``spec`` (no Kalman filter): at the spec's rho, or by
     the settling-time search when it names none (see :func:`design_for_spec`)."""
     objective = objective or spec.objective
@@ -327,15 +333,15 @@ def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
 
 def _design_for_settling_time(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
-) -> ObserverGains:
+) -> ObserverDesign:
     """The design at the smallest rho of ``RHO_LADDER`` whose predicted settling time
     (:func:`fhobs.design.settling.error_response` from errors of the size of ``spec.state_scale``)
     meets ``spec.settling_time`` with a peaking of at most ``MAX_PEAKING``; gamma is the
     spec's, or rho. If no rung does (peaking grows with rho on long observability chains, and
     large rho is not certified on some plants), the fastest rung within that peaking, else the
-    fastest rung; ``certificate["tuning"]`` says whether the request was met."""
+    fastest rung; the design's ``settling_tuning`` says whether the request was met."""
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
-    candidates: list[tuple[ObserverGains, ErrorResponse]] = []
+    candidates: list[tuple[ObserverDesign, ErrorResponse]] = []
     last_error: Exception | None = None
     stalled = 0  # consecutive rungs that failed or were no faster than the best so far
     for rho in RHO_LADDER:
@@ -345,23 +351,23 @@ def _design_for_settling_time(
         if stalled >= LADDER_PATIENCE:
             break
         try:
-            gains = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
-                                       filter_scale)
+            design = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
+                                        filter_scale)
         except (LMIError, CertificateError) as exc:
             last_error, stalled = exc, stalled + 1
             continue
-        response = error_response(gains, scale, spec.settling_time)
+        response = error_response(design.filtering, scale, spec.settling_time)
         best = min((c[1].settling_time for c in candidates), default=np.inf)
         stalled = stalled + 1 if candidates and not response.settling_time < best else 0
-        candidates.append((gains, response))
+        candidates.append((design, response))
         if response.peaking <= MAX_PEAKING and response.settling_time <= spec.settling_time:
             break
     if not candidates:
         raise LMIError(f"no rho of {RHO_LADDER} gives a certified design: {last_error}")
     bounded = [c for c in candidates if c[1].peaking <= MAX_PEAKING
                and np.isfinite(c[1].settling_time)]
-    gains, response = min(bounded or candidates,
-                          key=lambda c: (c[1].settling_time, c[1].peaking))
+    design, response = min(bounded or candidates,
+                           key=lambda c: (c[1].settling_time, c[1].peaking))
     tuning = {
         "settling_time_requested": spec.settling_time,
         "settling_time_predicted": response.settling_time,
@@ -370,12 +376,12 @@ def _design_for_settling_time(
         "met": bool(response.settling_time <= spec.settling_time
                     and response.peaking <= MAX_PEAKING),
     }
-    return replace(gains, certificate=gains.certificate | {"tuning": tuning})
+    return replace(design, settling_tuning=tuning)
 
 
 def _design_at_margin(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
-) -> ObserverGains:
+) -> ObserverDesign:
     """One design: homogenisation, the three LMIs at ``margin``, the certificate.
 
     The homogeneous observers are designed in balanced coordinates ``x = D x_b`` (D diagonal,
@@ -406,15 +412,21 @@ def _design_at_margin(
     solver_status = {"filtering": filtering.status, "prescribed_time": pt.status}
     if luenberger_status is not None:
         solver_status["luenberger"] = luenberger_status
-    base = dict(
-        A=spec.A, B=spec.B, C=spec.C, E=spec.E, nu=spec.nu, rho=rho, gamma=spec.gamma,
-        n_tilde=hom.n_tilde, G0=diagonal_similarity(hom.G0, 1.0 / d), L0=hom.L0 * d[:, None],
-        G_d=diagonal_similarity(hom.G_d, 1.0 / d), L_tilde=bar_L[:k], L=bar_L[k:] * d[:, None],
-        P_bar=diagonal_congruence(P_bar, 1.0 / d_bar), L_pt=pt.gain * d[:, None],
-        P_pt=diagonal_congruence(pt.P, 1.0 / d),
-        L_lin=L_lin, disturbance_order=spec.disturbance_order,
+    plant = PlantModel(spec.A, spec.B, spec.C, spec.E)
+    model = HomogeneousModel(
+        spec.disturbance_order, hom.n_tilde, spec.nu, G0=diagonal_similarity(hom.G0, 1.0 / d),
+        L0=hom.L0 * d[:, None], G_d=diagonal_similarity(hom.G_d, 1.0 / d),
     )
-    return _certified(base, objective, margin, solver_status)
+    design = ObserverDesign(
+        plant, model,
+        filtering=FilteringGains(plant, model, rho, spec.gamma, L_tilde=bar_L[:k],
+                                 L=bar_L[k:] * d[:, None],
+                                 P_bar=diagonal_congruence(P_bar, 1.0 / d_bar)),
+        prescribed_time=PrescribedTimeGains(plant, model, rho, L_pt=pt.gain * d[:, None],
+                                            P_pt=diagonal_congruence(pt.P, 1.0 / d)),
+        luenberger=LuenbergerGains(plant, L_lin),
+    )
+    return _certified(design, objective, margin, solver_status)
 
 
 def _max_certified_rho(
@@ -441,29 +453,37 @@ def _max_certified_rho(
     return float(lo), P
 
 
-def _certified(
-    base: dict, objective: str, margin: float, solver_status: dict[str, str] | None = None
-) -> ObserverGains:
-    """Run the numpy certificate on a candidate and attach its figures, with the status of
-    each LMI solve behind it (``"optimal_inaccurate"`` ones are kept when they pass the
-    certificate, which is the judge)."""
-    values = certify(ObserverGains(**base))
-    E, order = base["E"], base["disturbance_order"]
-    if E is not None and order:  # the model's unknown input is q^(order)
-        E = model_perturbation_matrix(E.shape[0], E.shape[1], order)
-    report = {
-        "checks": values,
-        "objective": objective,
-        "lmi_margin": margin,
-        "solver_status": dict(solver_status or {}),
-        "matched_perturbation_residual": (
-            None if E is None else matched_perturbation_residual(base["G_d"], E, base["n_tilde"])
-        ),
-    }
-    return ObserverGains(**base, certificate=report)
+def _certified(design: ObserverDesign, objective: str, margin: float,
+               solver_status: dict[str, str]) -> ObserverDesign:
+    """Run the numpy certificate on a candidate and give each estimator's record its report:
+    its checked figures, the objective and margin of the LMIs behind it and each solve's
+    status (``"optimal_inaccurate"`` ones are kept when they pass the certificate, which is
+    the judge); none but the figures for a given (not designed) L_lin."""
+    parts = certify_parts(design)
+    plant, model = design.plant, design.model
+    E = plant.E
+    if E is not None and model.disturbance_order:  # the model's unknown input is q^(order)
+        E = model_perturbation_matrix(E.shape[0], E.shape[1], model.disturbance_order)
+
+    def report(name: str) -> dict[str, Any]:
+        designed = {"objective": objective, "lmi_margin": margin}
+        if name in solver_status:
+            designed["solver_status"] = solver_status[name]
+        elif name == "luenberger":
+            designed = {}
+        return {"checks": parts[name]} | designed
+
+    residual = None if E is None else matched_perturbation_residual(model.G_d, E, model.n_tilde)
+    return replace(
+        design,
+        filtering=replace(design.filtering, certificate=report("filtering")
+                          | {"matched_perturbation_residual": residual}),
+        prescribed_time=replace(design.prescribed_time, certificate=report("prescribed_time")),
+        luenberger=replace(design.luenberger, certificate=report("luenberger")),
+    )
 
 
-def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
+def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverDesign:
     """The paper's pendulum design: published L_tilde, L, L_lin, certified here.
 
     L0 and G_d are recomputed by :func:`fhobs.design.homogenisation.homogenise` (they equal the
@@ -479,14 +499,14 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
 
     Returns
     -------
-    ObserverGains
+    ObserverDesign
 
     Examples
     --------
-    >>> gains = paper_gains()
-    >>> gains.n, gains.k, gains.L.shape
+    >>> design = paper_gains()
+    >>> design.plant.n, design.plant.k, design.filtering.L.shape
     (4, 2, (4, 2))
-    >>> gains.certificate["lmi_margin"] > 0
+    >>> design.filtering.certificate["lmi_margin"] > 0
     True
     """
     ref = json.loads(Path(reference).read_text())
@@ -500,9 +520,11 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverGains:
         source=str(reference),
     )
     tuned = _observer_for_spec(spec, None, LMI_MARGIN, None)
-    base = {f: getattr(tuned, f) for f in tuned.__dataclass_fields__ if f != "certificate"}
-    base |= dict(L_tilde=np.array(published["L_tilde"]), L=np.array(published["L"]))
-    bar_A0, bar_G, bar_C = augmented_system(tuned.A0, tuned.model[2], tuned.G_d)
-    bar_L = np.vstack([base["L_tilde"], base["L"]])
-    base["P_bar"] = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
-    return _certified(base, "published", LMI_MARGIN)
+    filtering = tuned.filtering
+    L_tilde, L = np.array(published["L_tilde"]), np.array(published["L"])
+    bar_A0, bar_G, bar_C = augmented_system(filtering.A0, filtering.model_matrices[2],
+                                            tuned.model.G_d)
+    bar_L = np.vstack([L_tilde, L])
+    P_bar = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
+    published_filtering = replace(filtering, L_tilde=L_tilde, L=L, P_bar=P_bar)
+    return _certified(replace(tuned, filtering=published_filtering), "published", LMI_MARGIN, {})

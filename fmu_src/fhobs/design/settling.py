@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.gains import ObserverGains
+from ..core.gains import FilteringGains
 from ..core.runtime import FilteringObserver
 
 SETTLED = 1e-3
@@ -60,14 +60,14 @@ def initial_errors(state_scale: np.ndarray) -> list[np.ndarray]:
     return [state_scale.copy(), state_scale * signs]
 
 
-def error_response(gains: ObserverGains, state_scale: np.ndarray,
+def error_response(filtering: FilteringGains, state_scale: np.ndarray,
                    settling_time: float) -> ErrorResponse:
     """Simulate the error from each of :func:`initial_errors` for ``HORIZON`` settling times.
 
     Parameters
     ----------
-    gains : ObserverGains
-        The design.
+    filtering : FilteringGains
+        The filtering observer.
     state_scale : numpy.ndarray
         Typical size of each plant state (n entries).
     settling_time : float
@@ -81,18 +81,19 @@ def error_response(gains: ObserverGains, state_scale: np.ndarray,
     Examples
     --------
     >>> from fhobs.design.observer import paper_gains
-    >>> response = error_response(paper_gains(), np.ones(4), settling_time=2.0)
+    >>> response = error_response(paper_gains().filtering, np.ones(4), settling_time=2.0)
     >>> bool(response.settling_time < 2.0), bool(response.peaking >= 1.0)
     (True, True)
     """
     dt = settling_time / STEPS_PER_SETTLING_TIME
     steps = int(round(HORIZON * STEPS_PER_SETTLING_TIME))
-    y, u = np.zeros(gains.k), np.zeros(gains.m)
+    plant = filtering.plant
+    y, u = np.zeros(plant.k), np.zeros(plant.m)
     worst_time, worst_peak = 0.0, 1.0
     for e0 in initial_errors(state_scale):
-        z0 = np.zeros(gains.n_model)
-        z0[:gains.n] = -e0
-        observer = FilteringObserver(gains, h=dt, z0=z0)
+        z0 = np.zeros(filtering.model.n_model)
+        z0[:plant.n] = -e0
+        observer = FilteringObserver(filtering, h=dt, z0=z0)
         size = float(np.linalg.norm(e0))
         last_above = 0
         for step in range(1, steps + 1):

@@ -44,8 +44,8 @@ and a seeded refinement:
 The keys given in ``fixed`` (nu, rho, gamma, filter_scale, objective) are kept in every
 candidate. The chosen design is designed again with its keys
 (:func:`fhobs.design.observer.design_for_spec`)
-and certified; its record carries the tuned Kalman filter (``gains.kalman``) and the predictions
-(``gains.certificate["noise_tuning"]``).
+and certified; its record carries the tuned Kalman filter (``design.kalman``) and the predictions
+(``design.noise_tuning``).
 """
 
 from __future__ import annotations
@@ -60,8 +60,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.certificate import certify
-from ..core.gains import ObserverGains
+from ..core.certificate import certify, certify_filtering
+from ..core.gains import FilteringGains, KalmanGains, ObserverDesign, PlantModel
 from ..core.kalman_filter import KalmanObserver
 from ..core.linalg import zoh_blocks
 from ..core.runtime import FilteringObserver
@@ -134,12 +134,12 @@ class NoiseDesign:
 
     Attributes
     ----------
-    gains : ObserverGains
-        The chosen certified design, with the tuned Kalman filter (``gains.kalman``) and
-        ``gains.certificate["noise_tuning"]`` (the predictions, the window, the intensity).
+    design : ObserverDesign
+        The chosen certified design, with the tuned Kalman filter (``design.kalman``) and
+        ``design.noise_tuning`` (the predictions, the window, the intensity).
     parameters : dict
         Its ``[observer]`` keys: ``nu``, ``rho``, ``gamma``, ``filter_scale``, ``objective``
-        (``rho`` as given to the LMI; ``gains.rho`` is the certified one).
+        (``rho`` as given to the LMI; ``design.filtering.rho`` is the certified one).
     predicted : ErrorPrediction
         The filtering observer's predicted error.
     kalman : ErrorPrediction
@@ -161,7 +161,7 @@ class NoiseDesign:
         inputs searched before by the same code; the design certified again when read).
     """
 
-    gains: ObserverGains
+    design: ObserverDesign
     parameters: dict[str, Any]
     predicted: ErrorPrediction
     kalman: ErrorPrediction
@@ -187,7 +187,7 @@ class NoiseDesign:
         p, k = self.predicted, self.kalman
         keys = ", ".join(f"{key} = {_short(value)}" for key, value in self.parameters.items())
         return [
-            f"noise tuning: {keys} (certified rho {self.gains.rho:.4g}); "
+            f"noise tuning: {keys} (certified rho {self.design.filtering.rho:.4g}); "
             f"{len(self.candidates)} candidates in {self.seconds:.1f} s"
             + (" (from the cache)" if self.cached else ""),
             f"predicted over [{self.window[0]:g}, {self.window[1]:g}] s: homogeneous noisy RMS "
@@ -277,7 +277,7 @@ def design_for_noise(
     ...     [[0, 1], [0, 0]], [[0], [1]], [[1, 0]], [[0], [1]],
     ...     measurement_std=[1e-3], sample_time=1e-2,
     ...     disturbance={"shape": "step", "size": 0.2, "start": 0.5}, refine=0)
-    >>> result.gains.disturbance_order, result.gains.kalman is not None
+    >>> result.design.model.disturbance_order, result.design.kalman is not None
     (1, True)
     >>> result.predicted.noisy_rms > 0 and result.window
     (2.0, 6.0)
@@ -303,7 +303,7 @@ def _certified(result: NoiseDesign) -> None:
     """Raise CertificateError unless ``result`` is a search's result whose design certifies."""
     if not isinstance(result, NoiseDesign):
         raise CertificateError(f"not a noise tuning's result: {type(result).__name__}")
-    certify(result.gains)
+    certify(result.design)
 
 
 def design_for_noise_spec(spec: PlantSpec, what: str | None = None,
@@ -371,12 +371,12 @@ def check_noise_tables(spec: PlantSpec, what: str) -> None:
                         f"has {have}")
 
 
-def predict_error(gains: ObserverGains, *, measurement_std: ArrayLike, sample_time: float,
+def predict_error(design: ObserverDesign, *, measurement_std: ArrayLike, sample_time: float,
                   disturbance: DisturbanceSpec | Mapping[str, Any], settling_time: float,
                   state_scale: ArrayLike, estimator: str = "homogeneous",
                   noise_draws: int = NOISE_DRAWS, seed: int = 0) -> ErrorPrediction:
     """The predicted error of one design's filtering observer (``estimator="homogeneous"``) or
-    Kalman filter (``"kalman"``, needs ``gains.kalman``) under the given noise and disturbance,
+    Kalman filter (``"kalman"``, needs ``design.kalman``) under the given noise and disturbance,
     by the prediction of the module docstring.
 
     Returns
@@ -386,24 +386,26 @@ def predict_error(gains: ObserverGains, *, measurement_std: ArrayLike, sample_ti
     Examples
     --------
     >>> from fhobs.design.observer import design_observer
-    >>> gains = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], E=[[0], [1]],
-    ...                         disturbance_order=1, rho=3.0)
-    >>> p = predict_error(gains, measurement_std=[1e-3], sample_time=1e-2,
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], E=[[0], [1]],
+    ...                          disturbance_order=1, rho=3.0)
+    >>> p = predict_error(design, measurement_std=[1e-3], sample_time=1e-2,
     ...                   disturbance={"shape": "step", "size": 0.2, "start": 0.5},
     ...                   settling_time=2.0, state_scale=1.0)
     >>> bool(p.noise_free_max < 1e-6 < p.noisy_rms)
     True
     """
-    spec = _validated_spec(gains.A, gains.B, gains.C, gains.E, measurement_std, sample_time,
-                           disturbance, gains.disturbance_order, settling_time, state_scale,
-                           None, None)
+    plant = design.plant
+    spec = _validated_spec(plant.A, plant.B, plant.C, plant.E, measurement_std, sample_time,
+                           disturbance, design.model.disturbance_order, settling_time,
+                           state_scale, None, None)
     if estimator not in ("homogeneous", "kalman") or (estimator == "kalman"
-                                                       and gains.kalman is None):
+                                                       and design.kalman is None):
         raise SpecError(f"predict_error: estimator = {estimator!r} must be 'homogeneous' or "
-                        "'kalman' (the latter with gains.kalman)")
+                        "'kalman' (the latter with design.kalman)")
     data = _Scenario(spec, np.asarray(measurement_std, dtype=float).ravel(),
                      float(sample_time), int(noise_draws), int(seed))
-    prediction = data.predict(gains, estimator)
+    record = design.kalman if estimator == "kalman" else design.filtering
+    prediction = data.predict(record, estimator)
     if isinstance(prediction, str):
         raise ValueError(prediction)
     return prediction
@@ -510,6 +512,10 @@ def disturbance_samples(disturbance: DisturbanceSpec, channels: int, step: float
     return q
 
 
+Estimator = FilteringGains | KalmanGains
+"""The record of an estimator whose error the tuning predicts."""
+
+
 class _Scenario:
     """The recorded plant data (noise-free, then each noise draw) and the replays."""
 
@@ -546,28 +552,29 @@ class _Scenario:
             out[i + 1] = estimator.x_hat
         return np.linalg.norm(self.x - out, axis=1)[self.mask]
 
-    def _make(self, gains: ObserverGains, estimator: str) -> Any:
-        if estimator == "kalman":
-            return KalmanObserver(gains)
-        return FilteringObserver(gains, h=self.step)
+    def _make(self, record: Estimator) -> Any:
+        if isinstance(record, KalmanGains):
+            return KalmanObserver(record)
+        return FilteringObserver(record, h=self.step)
 
-    def noise_free(self, gains: ObserverGains, estimator: str) -> tuple[float, float] | str:
-        """(max, RMS) without noise, or the reason of a failed replay."""
+    def noise_free(self, record: Estimator, estimator: str) -> tuple[float, float] | str:
+        """(max, RMS) without noise, or the reason of a failed replay; ``record``: the
+        estimator's (a filtering observer's or a Kalman filter's), ``estimator`` its name."""
         try:
-            e = self._errors(self._make(gains, estimator), self.y[0])
+            e = self._errors(self._make(record), self.y[0])
         except ValueError as err:
             return f"the {estimator} replay failed: {err}"
         if not np.all(np.isfinite(e)):
             return f"the {estimator} replay diverged"
         return float(np.max(e)), float(np.sqrt(np.mean(e**2)))
 
-    def noisy(self, gains: ObserverGains, estimator: str,
+    def noisy(self, record: Estimator, estimator: str,
               draws: int | None = None) -> tuple[float, ...] | str:
         """The noisy RMS of each draw (the first ``draws``), or the reason of a failure."""
         out = []
         for y in self.y[1:] if draws is None else self.y[1:1 + draws]:
             try:
-                e = self._errors(self._make(gains, estimator), y)
+                e = self._errors(self._make(record), y)
             except ValueError as err:
                 return f"the {estimator} replay failed under noise: {err}"
             if not np.all(np.isfinite(e)):
@@ -575,11 +582,11 @@ class _Scenario:
             out.append(float(np.sqrt(np.mean(e**2))))
         return tuple(out)
 
-    def predict(self, gains: ObserverGains, estimator: str) -> ErrorPrediction | str:
-        clean = self.noise_free(gains, estimator)
+    def predict(self, record: Estimator, estimator: str) -> ErrorPrediction | str:
+        clean = self.noise_free(record, estimator)
         if isinstance(clean, str):
             return clean
-        noisy = self.noisy(gains, estimator)
+        noisy = self.noisy(record, estimator)
         if isinstance(noisy, str):
             return noisy
         return ErrorPrediction(float(np.mean(noisy)), noisy, *clean)
@@ -589,20 +596,19 @@ class _Scenario:
 
 def _tuned_kalman(
     spec: PlantSpec, data: _Scenario, std: np.ndarray, step: float, order: int,
-    template: ObserverGains,
-) -> tuple[ObserverGains, float, ErrorPrediction]:
+) -> tuple[KalmanGains, float, ErrorPrediction]:
     """The Kalman filter of the least predicted noisy RMS over intensities 10^(j/2): whole
     decades on the first draw, then the half-decades around the best on every draw."""
-    def attempt(exponent: float) -> tuple[float, ObserverGains] | None:
+    plant = PlantModel(spec.A, spec.B, spec.C, spec.E)
+
+    def attempt(exponent: float) -> tuple[float, KalmanGains] | None:
         intensity = 10.0 ** exponent
         try:
-            kalman = design_kalman(spec.A, spec.B, spec.C, spec.E, order, std, intensity, step,
-                                   "process_intensity tuned by fhobs.design.tuning (least "
-                                   "predicted noisy RMS)")
+            return intensity, design_kalman(plant, order, std, intensity, step,
+                                            "process_intensity tuned by fhobs.design.tuning "
+                                            "(least predicted noisy RMS)")
         except KalmanDesignError:
             return None
-        gains = dataclasses.replace(template, kalman=kalman)
-        return intensity, gains
 
     coarse = []
     for j in range(KALMAN_DECADES[0], KALMAN_DECADES[1] + 1):
@@ -615,7 +621,7 @@ def _tuned_kalman(
         raise KalmanDesignError("design_for_noise: no process intensity of 1e-12..1e12 gives a "
                                 "stable Kalman filter that runs on the predicted data")
     centre = min(coarse)[1]
-    best: tuple[float, float, ObserverGains, ErrorPrediction] | None = None
+    best: tuple[float, float, KalmanGains, ErrorPrediction] | None = None
     for exponent in (centre - 0.5, centre, centre + 0.5):
         made = attempt(exponent)
         if made is None:
@@ -629,7 +635,7 @@ def _tuned_kalman(
     return best[2], best[1], best[3]
 
 
-def _design(spec: PlantSpec, keys: dict[str, Any]) -> ObserverGains:
+def _design(spec: PlantSpec, keys: dict[str, Any]) -> ObserverDesign:
     """One design of the spec with ``keys`` set in its [observer] table."""
     return design_for_spec(dataclasses.replace(spec, **keys))
 
@@ -648,18 +654,16 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
     start = time.perf_counter()
     data = _Scenario(spec, std, step, draws, seed)
     auto = design_for_spec(spec)  # the automatic design (the spec holds the fixed keys)
-    nu_hosm = -1.0 / (auto.n_tilde + 1)
-    template = dataclasses.replace(auto, certificate=dict(auto.certificate))
-    kalman_gains, intensity, kalman = _tuned_kalman(spec, data, std, step, kalman_order,
-                                                    template)
+    nu_hosm = -1.0 / (auto.model.n_tilde + 1)
+    kalman_gains, intensity, kalman = _tuned_kalman(spec, data, std, step, kalman_order)
     bound = kalman.noise_free_max / rejection
     candidates: list[dict[str, Any]] = []
-    designs: dict[tuple, ObserverGains | str] = {}
+    designs: dict[tuple, ObserverDesign | str] = {}
 
     seen: set[tuple] = set()
 
     def evaluate(keys: dict[str, Any], ratios: Sequence[float],
-                 prebuilt: ObserverGains | None = None) -> None:
+                 prebuilt: ObserverDesign | None = None) -> None:
         label = tuple(sorted(keys.items()))
         if label not in designs:
             try:
@@ -669,7 +673,7 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
                 designs[label] = f"{type(err).__name__}: {err}"
         design = designs[label]
         gammas = ([fixed["gamma"]] if "gamma" in fixed else
-                  [min(c, MAX_GAMMA_RATIO) * design.rho for c in ratios]
+                  [min(c, MAX_GAMMA_RATIO) * design.filtering.rho for c in ratios]
                   if not isinstance(design, str) else [math.nan])
         for gamma in gammas:
             if (label, round(float(gamma), 12)) in seen:
@@ -679,21 +683,22 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
             if isinstance(design, str):
                 candidates.append(row | {"failed": design})
                 continue
-            gains = dataclasses.replace(design, gamma=float(gamma))
+            filtering = dataclasses.replace(design.filtering, gamma=float(gamma))
             try:
-                checks = certify(gains)
+                checks = certify_filtering(filtering)
             except CertificateError as err:
                 candidates.append(row | {"failed": f"CertificateError: {err}"})
                 continue
-            gains = dataclasses.replace(gains, certificate=design.certificate | {"checks": checks})
-            row["rho_certified"] = gains.rho
-            clean = data.noise_free(gains, "homogeneous")
+            filtering = dataclasses.replace(
+                filtering, certificate=design.filtering.certificate | {"checks": checks})
+            row["rho_certified"] = filtering.rho
+            clean = data.noise_free(filtering, "homogeneous")
             if isinstance(clean, str):
                 candidates.append(row | {"failed": clean})
                 continue
             row["noise_free_max"], row["noise_free_rms"] = clean
             if clean[0] <= bound:
-                noisy = data.noisy(gains, "homogeneous")
+                noisy = data.noisy(filtering, "homogeneous")
                 if isinstance(noisy, str):
                     row["failed"] = noisy
                 else:
@@ -701,25 +706,27 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
             candidates.append(row)
 
     if spec.filter_scale == 1.0:  # the automatic design as it is (today's default)
-        evaluate({"nu": auto.nu, "rho": auto.rho, "filter_scale": 1.0,
-                  "objective": spec.objective}, [auto.gamma / auto.rho], auto)
+        evaluate({"nu": auto.model.nu, "rho": auto.filtering.rho, "filter_scale": 1.0,
+                  "objective": spec.objective}, [auto.filtering.gamma / auto.filtering.rho],
+                 auto)
     for f in NU_FRACTIONS:
         for r in RHO_FACTORS:
             for fs in FILTER_SCALES:
-                evaluate(_candidate_keys(fixed, nu_hosm, auto.rho, f, r, fs, spec.objective),
-                         GAMMA_RATIOS)
+                evaluate(_candidate_keys(fixed, nu_hosm, auto.filtering.rho, f, r, fs,
+                                         spec.objective), GAMMA_RATIOS)
     rng = np.random.default_rng(seed)
     for round_, spread in enumerate(REFINE_SPREADS):
         best = _best(candidates)
         if best is None:
             break
-        f0, r0 = best["nu"] / nu_hosm, best["rho"] / auto.rho
+        f0, r0 = best["nu"] / nu_hosm, best["rho"] / auto.filtering.rho
         fs0, c0 = best["filter_scale"], best["gamma"] / best["rho_certified"]
         share = refine // len(REFINE_SPREADS) + (round_ < refine % len(REFINE_SPREADS))
         for _ in range(share):
             f, r, fs, c = (v * math.exp(rng.uniform(-spread, spread))
                            for v in (f0, r0, fs0, c0))
-            evaluate(_candidate_keys(fixed, nu_hosm, auto.rho, f, r, fs, spec.objective), [c])
+            evaluate(_candidate_keys(fixed, nu_hosm, auto.filtering.rho, f, r, fs,
+                                     spec.objective), [c])
     best = _best(candidates)
     met = best is not None
     if best is None:  # no candidate meets the rejection bound: the strongest rejection
@@ -729,8 +736,8 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
                            + "; ".join(sorted({row["failed"][:120] for row in candidates})))
         best = min(ok, key=lambda row: row["noise_free_max"])
     parameters = {key: best[key] for key in TUNED_KEYS}
-    gains = _design(spec, parameters)
-    predicted = data.predict(gains, "homogeneous")
+    design = _design(spec, parameters)
+    predicted = data.predict(design.filtering, "homogeneous")
     if isinstance(predicted, str):
         raise LMIError(f"design_for_noise: the chosen design fails on the data: {predicted}")
     seconds = time.perf_counter() - start
@@ -744,9 +751,9 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
         "kalman_predicted_noise_free_max": kalman.noise_free_max,
         "candidates": len(candidates),
     }
-    gains = dataclasses.replace(gains, kalman=kalman_gains.kalman,
-                                certificate=gains.certificate | {"noise_tuning": tuning})
-    return NoiseDesign(gains, parameters, predicted, kalman, intensity, data.window, met,
+    design = dataclasses.replace(
+        design, kalman=dataclasses.replace(kalman_gains, plant=design.plant), noise_tuning=tuning)
+    return NoiseDesign(design, parameters, predicted, kalman, intensity, data.window, met,
                        tuple(candidates), seconds)
 
 

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.disturbance import extended_model
+from ..core.certificate import certify_kalman
 from ..core.kalman_filter import KalmanObserver
-from ..core.linalg import expm
 from .kinds import KINDS
 from .slave_base import ObserverSlave, positive_parameter
 
@@ -27,18 +26,11 @@ class FhobsKalman(ObserverSlave):
         positive_parameter(self, "Ts", "sample time Ts")
 
     def _check_gains(self) -> None:
-        design = self.edited_design()
-        kalman = design.kalman
-        A, _, C = extended_model(design.A, design.B, design.C, design.E,
-                                 kalman.disturbance_order)
-        Phi = expm(kalman.sample_time * A)
-        radius = float(np.max(np.abs(np.linalg.eigvals(Phi - Phi @ kalman.gain @ C))))
-        if not radius < 1.0:
-            raise ValueError(
-                f"check schur_kalman failed: spectral radius of Phi (I - M C) = {radius:.6g} "
-                "(required < 1)"
-            )
+        certify_kalman(self.edited_record())
+
+    def _model_matrix(self) -> np.ndarray:
+        kalman = self.edited_record()
+        return kalman.plant.extended_model(kalman.disturbance_order)[0]
 
     def _make_model(self) -> KalmanObserver:
-        design = self.edited_design()
-        return KalmanObserver(design, z0=self._padded_z0(), kalman=design.kalman)
+        return KalmanObserver(self.edited_record(), z0=self._padded_z0())

@@ -6,7 +6,7 @@ its start value comes from. Everything else is derived from it:
 
 - the pythonfmu slave (:mod:`fhobs.fmu.slave_base`) registers the variables of its kind in
   this order (so the value references are these), maps the design parameters back to the
-  design record at initialisation (:func:`edited_design`) and lays its output buffer out as
+  record it runs at initialisation (:func:`edited_record`) and lays its output buffer out as
   :attr:`Kind.outputs`;
 - :mod:`fhobs.build` finds the slave class and the default kinds here;
 - :mod:`fhobs.native.build` writes the native FMU's modelDescription, its value references
@@ -14,7 +14,12 @@ its start value comes from. Everything else is derived from it:
   declaration, without building the pythonfmu FMU: both builds of a kind have one interface;
 - the harness labels an estimator's figures with :attr:`Kind.label`.
 
-Roles: ``input`` and ``output`` signals; ``design`` parameters, a field of the design record
+Each kind runs one record of the design (:attr:`Kind.record`: ``filtering``,
+``prescribed_time``, ``luenberger``, ``kalman`` or ``plant``, an attribute of
+:class:`fhobs.core.gains.ObserverDesign`); its variables' shapes, start values and field paths
+are of that record.
+
+Roles: ``input`` and ``output`` signals; ``design`` parameters, a field of the kind's record
 (:attr:`Variable.field`), re-certified by the pythonfmu FMUs when edited and compiled into the
 native FMUs; ``setting`` parameters, per-instance values from the build options
 (:attr:`Variable.option`: initial states, internal step, scheme, noise, ``input_bound``),
@@ -40,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.gains import ObserverGains
+from ..core.gains import ObserverDesign
 from ..core.plant import PLANT_SCHEMES
 from ..core.runtime import SCHEMES
 
@@ -61,13 +66,13 @@ class Variable:
     description : str
         The modelDescription's text.
     field : str
-        ``design`` role: the attribute of the design record it is (``"L0"``,
-        ``"kalman.gain"``: a field of a record held by the design).
+        ``design`` role: the attribute of the kind's record it is (``"L_tilde"``,
+        ``"model.L0"``, ``"plant.A"``: a field of a record held by the record).
     option : str
         ``setting`` role: the key of the build options (``fmu_config.json``) holding its start.
     shape : callable, optional
-        ``input`` / ``output`` role: the shape from the design (zeros are the start value;
-        a shape with no element leaves the variable out).
+        ``input`` / ``output`` role: the shape from the kind's record (zeros are the start
+        value; a shape with no element leaves the variable out).
     choices : tuple of str
         An Integer ``setting`` that selects one of ``choices`` (its start is the index of the
         option's value).
@@ -85,28 +90,29 @@ class Variable:
     description: str
     field: str = ""
     option: str = ""
-    shape: Callable[[ObserverGains], tuple[int, ...]] | None = None
+    shape: Callable[[Any], tuple[int, ...]] | None = None
     choices: tuple[str, ...] = ()
     integer: bool = False
     source: str = "state"
 
-    def start(self, design: ObserverGains, options: Mapping[str, Any]) -> Any:
-        """The start value for ``design`` and the build ``options`` (None: left out).
+    def start(self, record: Any, options: Mapping[str, Any]) -> Any:
+        """The start value for the kind's ``record`` and the build ``options`` (None: left
+        out).
 
         Examples
         --------
         >>> from fhobs.design.observer import paper_gains
-        >>> KINDS["observer"].variable("L_tilde").start(paper_gains(), {}).shape  # k x k
+        >>> KINDS["observer"].variable("L_tilde").start(paper_gains().filtering, {}).shape
         (2, 2)
         """
         if self.role == "local":
             return 0
         if self.role == "design":
-            return design_field(design, self.field)
+            return record_field(record, self.field)
         if self.role == "setting":
             value = options[self.option]
             return self.choices.index(value) if self.choices else value
-        shape = self.shape(design)
+        shape = self.shape(record)
         return np.zeros(shape) if int(np.prod(shape)) or not shape else None
 
 
@@ -126,6 +132,9 @@ class Kind:
         The modelDescription's description.
     label : str
         The estimator's label in the harness's figures ('' for the plant).
+    record : str
+        The attribute of the design (:class:`~fhobs.core.gains.ObserverDesign`) holding the
+        record the kind runs.
     variables : tuple of Variable
         In value-reference order.
     outputs : tuple of str
@@ -137,6 +146,7 @@ class Kind:
     slave: str
     description: str
     label: str
+    record: str
     variables: tuple[Variable, ...]
     outputs: tuple[str, ...]
 
@@ -168,79 +178,94 @@ class Kind:
             offset += sizes[name] if source == "state" else 0
         return sources
 
-    def starts(self, design: ObserverGains,
-               options: Mapping[str, Any]) -> list[tuple[Variable, Any]]:
-        """The variables present for ``design`` with their start values, in value-reference
-        order (a variable whose start is None, such as ``q_hat`` without a disturbance model
-        or ``E`` of a plant without one, is left out).
+    def runs(self, design: ObserverDesign) -> Any:
+        """The record of ``design`` that the kind runs (its :attr:`record`).
+
+        Examples
+        --------
+        >>> from fhobs.design.observer import paper_gains
+        >>> design = paper_gains()
+        >>> KINDS["luenberger"].runs(design) is design.luenberger
+        True
+        """
+        record = getattr(design, self.record)
+        if record is None:
+            raise ValueError(f"the design has no {self.record} record (it is null)")
+        return record
+
+    def starts(self, record: Any, options: Mapping[str, Any]) -> list[tuple[Variable, Any]]:
+        """The variables present for the kind's ``record`` with their start values, in
+        value-reference order (a variable whose start is None, such as ``q_hat`` without a
+        disturbance model or ``E`` of a plant without one, is left out).
 
         Examples
         --------
         >>> from fhobs.design.observer import paper_gains
         >>> options = {"x0": [0.0] * 4, "noise_amplitude": 0.0, "noise_seed": 0,
         ...            "plant_scheme": "zoh", "input_bound": 1e8}
-        >>> [v.name for v, _ in KINDS["plant"].starts(paper_gains(), options)][:6]
+        >>> [v.name for v, _ in KINDS["plant"].starts(paper_gains().plant, options)][:6]
         ['status', 'A', 'B', 'C', 'E', 'x0']
         """
         present = []
         for variable in self.variables:
-            value = variable.start(design, options)
+            value = variable.start(record, options)
             if value is not None:
                 present.append((variable, value))
         return present
 
 
-def design_field(design: ObserverGains, path: str) -> Any:
-    """The attribute ``path`` of the design record (``"L0"``, ``"kalman.gain"``).
+def record_field(record: Any, path: str) -> Any:
+    """The attribute ``path`` of a record (``"L_tilde"``, ``"model.L0"``, ``"plant.A"``).
 
     Examples
     --------
     >>> from fhobs.design.observer import paper_gains
-    >>> design_field(paper_gains(), "nu") == paper_gains().nu
+    >>> filtering = paper_gains().filtering
+    >>> record_field(filtering, "model.nu") == filtering.model.nu
     True
     """
-    value: Any = design
-    parts = path.split(".")
-    for depth, part in enumerate(parts):
-        if value is None:
-            raise ValueError(f"the design record has no {'.'.join(parts[:depth])} (it is null)")
+    value = record
+    for part in path.split("."):
         value = getattr(value, part)
     return value
 
 
-def edited_design(design: ObserverGains, values: Mapping[str, Any]) -> ObserverGains:
-    """``design`` with the fields of ``values`` (``{path: value}`` as :attr:`Variable.field`)
-    replaced: a new record, ``design`` unchanged.
+def edited_record(record: Any, values: Mapping[str, Any]) -> Any:
+    """``record`` with the fields of ``values`` (``{path: value}`` as :attr:`Variable.field`)
+    replaced: a new record (with new nested records where a path goes into one), ``record``
+    unchanged.
 
     Examples
     --------
     >>> from fhobs.design.observer import paper_gains
-    >>> edited_design(paper_gains(), {"rho": 3.0}).rho
-    3.0
+    >>> filtering = paper_gains().filtering
+    >>> edited = edited_record(filtering, {"rho": 3.0, "model.nu": -0.2})
+    >>> edited.rho, edited.model.nu, round(filtering.model.nu, 4)
+    (3.0, -0.2, -0.3333)
     """
     changes: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
     for path, value in values.items():
-        record, _, field = path.rpartition(".")
-        if record:
-            nested.setdefault(record, {})[field] = value
+        head, _, rest = path.partition(".")
+        if rest:
+            nested.setdefault(head, {})[rest] = value
         else:
-            changes[field] = value
-    for record, fields in nested.items():
-        changes[record] = dataclasses.replace(design_field(design, record), **fields)
-    return dataclasses.replace(design, **changes)
+            changes[head] = value
+    for head, inner in nested.items():
+        changes[head] = edited_record(getattr(record, head), inner)
+    return dataclasses.replace(record, **changes)
 
 
-def _disturbance_states(design: ObserverGains) -> tuple[int, ...]:
-    return (design.n_model - design.n,)
+def _disturbance_states(record: Any) -> tuple[int, ...]:
+    return (record.model.n_model - record.plant.n,)
 
 
-def _kalman_disturbance_states(design: ObserverGains) -> tuple[int, ...]:
-    return (design_field(design, "kalman.gain").shape[0] - design.n,)
+def _kalman_disturbance_states(kalman: Any) -> tuple[int, ...]:
+    return (kalman.gain.shape[0] - kalman.plant.n,)
 
 
-def _perturbations(design: ObserverGains) -> tuple[int, ...]:
-    return (0 if design.E is None else design.E.shape[1],)
+def _perturbations(plant: Any) -> tuple[int, ...]:
+    return (0 if plant.E is None else plant.E.shape[1],)
 
 
 STATUS = Variable("status", "local", "status of the last call the slave answered (0 ok, 3 error)",
@@ -248,14 +273,14 @@ STATUS = Variable("status", "local", "status of the last call the slave answered
 INPUT_BOUND = Variable("input_bound", "setting",
                        "inputs of larger magnitude are rejected as absurd", option="input_bound")
 PLANT_MATRICES = (
-    Variable("A", "design", "plant state matrix (n x n)", field="A"),
-    Variable("B", "design", "plant input matrix (n x m)", field="B"),
-    Variable("C", "design", "plant output matrix (k x n)", field="C"),
+    Variable("A", "design", "plant state matrix (n x n)", field="plant.A"),
+    Variable("B", "design", "plant input matrix (n x m)", field="plant.B"),
+    Variable("C", "design", "plant output matrix (k x n)", field="plant.C"),
 )
 ESTIMATOR_SIGNALS = (
-    Variable("y", "input", "measured plant output", shape=lambda d: (d.k,)),
-    Variable("u", "input", "plant input", shape=lambda d: (d.m,)),
-    Variable("x_hat", "output", "state estimate z", shape=lambda d: (d.n,)),
+    Variable("y", "input", "measured plant output", shape=lambda r: (r.plant.k,)),
+    Variable("u", "input", "plant input", shape=lambda r: (r.plant.m,)),
+    Variable("x_hat", "output", "state estimate z", shape=lambda r: (r.plant.n,)),
 )
 Z0 = Variable("z0", "setting", "initial state estimate", option="z0")
 TIMING = (
@@ -268,41 +293,42 @@ Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its de
                  shape=_disturbance_states)
 
 
-def _estimator(name: str, number: int, slave: str, description: str, label: str,
+def _estimator(name: str, number: int, slave: str, description: str, label: str, record: str,
                gains: tuple[Variable, ...], outputs: tuple[str, ...],
                timing: tuple[Variable, ...] = TIMING) -> Kind:
     """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat."""
     variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *ESTIMATOR_SIGNALS, INPUT_BOUND)
-    return Kind(name, number, slave, description, label, variables, outputs)
+    return Kind(name, number, slave, description, label, record, variables, outputs)
 
 
 # N below: states of the observer's model (n, or n + r q-states with a disturbance model)
 _HOMOGENISATION = (
     Variable("L0", "design", "homogenisation gain, A0 = A_model + L0 C_model nilpotent (N x k)",
-             field="L0"),
+             field="model.L0"),
 )
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (
     _estimator(
         "observer", 1, "FhobsObserver",
         "Filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov), Theorem 2",
-        "homogeneous",
+        "homogeneous", "filtering",
         gains=(
             *_HOMOGENISATION,
-            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)", field="G_d"),
+            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)",
+                     field="model.G_d"),
             Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
                      field="L_tilde"),
             Variable("L", "design", "gain of the estimate z (N x k)", field="L"),
             Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
                      field="P_bar"),
-            Variable("nu", "design", "homogeneity degree", field="nu"),
+            Variable("nu", "design", "homogeneity degree", field="model.nu"),
             Variable("gamma", "design", "gain of the xi equation", field="gamma"),
             Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field="rho"),
             Variable("psi0", "setting", "initial output-filter state", option="psi0"),
             Variable("xi0", "setting", "initial xi", option="xi0"),
-            Variable("psi", "output", "output-filter state psi", shape=lambda d: (d.k,)),
-            Variable("xi", "output", "scalar gain state xi", shape=lambda d: ()),
+            Variable("psi", "output", "output-filter state psi", shape=lambda r: (r.plant.k,)),
+            Variable("xi", "output", "scalar gain state xi", shape=lambda r: ()),
             Variable("sigma", "output", "sigma = sqrt(max(xi, |psi|^2 / 2))",
-                     shape=lambda d: (), source="sigma"),
+                     shape=lambda r: (), source="sigma"),
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
@@ -310,44 +336,47 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
     _estimator(
         "prescribed_time", 5, "FhobsPrescribedTime",
         "Prescribed-time observer (Ping, Zimenko, Polyakov, Efimov), Theorem 1: nominal "
-        "convergence at T0", "prescribed_time",
+        "convergence at T0", "prescribed_time", "prescribed_time",
         gains=(
             *_HOMOGENISATION,
             Variable("G_d", "design", "dilation generator of Theorem 2; Theorem 1 uses "
-                     "G_d - nu I (N x N)", field="G_d"),
+                     "G_d - nu I (N x N)", field="model.G_d"),
             Variable("L_pt", "design", "gain of the prescribed-time injection (N x k)",
                      field="L_pt"),
             Variable("P_pt", "design", "Lyapunov matrix of the Theorem 1 LMI (N x N)",
                      field="P_pt"),
-            Variable("nu", "design", "homogeneity degree", field="nu"),
+            Variable("nu", "design", "homogeneity degree", field="model.nu"),
             Variable("rho", "design", "decay parameter of the xi equation", field="rho"),
             Variable("T0", "setting", "prescribed convergence time (s); "
                      "xi0 = (-nu rho T0)^(-1/nu)", option="T0"),
-            Variable("xi", "output", "scalar gain state xi (0 from T0 on)", shape=lambda d: ()),
+            Variable("xi", "output", "scalar gain state xi (0 from T0 on)", shape=lambda r: ()),
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "xi"),
-    ),    _estimator(
+    ),
+    _estimator(
         "luenberger", 2, "FhobsLuenberger",
-        "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)", "linear",
+        "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)", "linear", "luenberger",
         gains=(Variable("L_lin", "design", "observer gain (n x k)", field="L_lin"),),
         outputs=("x_hat",),
     ),
     _estimator(
         "kalman", 4, "FhobsKalman",
         "Steady-state discrete Kalman filter (exact ZOH model, disturbance model)", "kalman",
+        "kalman",
         gains=(
             Variable("kalman_gain", "design",
                      "measurement-update gain M = P C^T (C P C^T + R)^-1 (N x k)",
-                     field="kalman.gain"),
+                     field="gain"),
             dataclasses.replace(Q_HAT, shape=_kalman_disturbance_states),
         ),
         timing=(Variable("Ts", "design", "sample time of the filter (s): one cycle per sample "
-                         "instant inside a step", field="kalman.sample_time"),),
+                         "instant inside a step", field="sample_time"),),
         outputs=("x_hat", "q_hat"),
     ),
     Kind(
         "plant", 3, "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",
+        "plant",
         variables=(
             STATUS,
             Variable("A", "design", "state matrix (n x n)", field="A"),
@@ -363,11 +392,11 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Variable("scheme", "setting", "plant step: "
                      + ", ".join(f"{i} = {s}" for i, s in enumerate(PLANT_SCHEMES)),
                      option="plant_scheme", choices=PLANT_SCHEMES, integer=True),
-            Variable("u", "input", "control input", shape=lambda d: (d.m,)),
+            Variable("u", "input", "control input", shape=lambda p: (p.m,)),
             Variable("q", "input", "perturbation (through E)", shape=_perturbations),
-            Variable("y", "output", "measured output C x + noise", shape=lambda d: (d.k,),
+            Variable("y", "output", "measured output C x + noise", shape=lambda p: (p.k,),
                      source="y"),
-            Variable("x", "output", "true state", shape=lambda d: (d.n,)),
+            Variable("x", "output", "true state", shape=lambda p: (p.n,)),
             INPUT_BOUND,
         ),
         outputs=("y", "x"),

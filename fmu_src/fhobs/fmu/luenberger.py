@@ -6,7 +6,9 @@ dz/dt = A z + B u + L_lin (C z - y). Shipped in the FMU by :mod:`fhobs.build` li
 
 from __future__ import annotations
 
-from ..core.certificate import check_luenberger
+import numpy as np
+
+from ..core.certificate import certify_luenberger
 from ..core.runtime import LuenbergerObserver
 from .kinds import KINDS
 from .slave_base import ObserverSlave
@@ -18,11 +20,14 @@ class FhobsLuenberger(ObserverSlave):
     kind = KINDS["luenberger"]
 
     def _check_gains(self) -> None:
-        check_luenberger(self.edited_design())
+        certify_luenberger(self.edited_record())
+
+    def _model_matrix(self) -> np.ndarray:
+        return self.edited_record().plant.A
 
     def _make_model(self) -> LuenbergerObserver:
         return LuenbergerObserver(
-            self.edited_design(),
+            self.edited_record(),
             h=float(self.array("h")),
             scheme=self.scheme_name(),
             z0=self.array("z0"),

@@ -6,25 +6,25 @@ build-unique name.
 
 from __future__ import annotations
 
-from ..core.certificate import certify, check_tuning
+from ..core.certificate import certify_filtering, check_tuning
 from ..core.runtime import FilteringObserver
 from .kinds import KINDS
 from .slave_base import ObserverSlave
 
 
 class FhobsObserver(ObserverSlave):
-    """Filtering homogeneous observer with the certificate re-checked at initialisation."""
+    """Filtering homogeneous observer with its certificate re-checked at initialisation."""
 
     kind = KINDS["observer"]
 
     def _check_gains(self) -> None:
-        design = self.edited_design()
-        check_tuning(design)
-        certify(design)
+        filtering = self.edited_record()
+        check_tuning(filtering)
+        certify_filtering(filtering)
 
     def _make_model(self) -> FilteringObserver:
         return FilteringObserver(
-            self.edited_design(),
+            self.edited_record(),
             h=float(self.array("h")),
             scheme=self.scheme_name(),
             z0=self._padded_z0(),

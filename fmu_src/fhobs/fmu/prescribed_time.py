@@ -24,20 +24,20 @@ class FhobsPrescribedTime(ObserverSlave):
     kind = KINDS["prescribed_time"]
 
     def _check_gains(self) -> None:
-        design = self.edited_design()
-        certify_prescribed_time(design)
-        self._xi0(design.nu, design.rho)
+        prescribed_time = self.edited_record()
+        certify_prescribed_time(prescribed_time)
+        self._xi0(prescribed_time.model.nu, prescribed_time.rho)
 
     def _xi0(self, nu: float, rho: float) -> float:
         """xi0 of the parameter T0; ValueError naming T0 if it gives none."""
         return prescribed_xi0(positive_parameter(self, "T0", "prescribed time T0"), nu, rho)
 
     def _make_model(self) -> PrescribedTimeObserver:
-        design = self.edited_design()
+        prescribed_time = self.edited_record()
         return PrescribedTimeObserver(
-            design,
+            prescribed_time,
             h=float(self.array("h")),
             scheme=self.scheme_name(),
             z0=self._padded_z0(),
-            xi0=self._xi0(design.nu, design.rho),
+            xi0=self._xi0(prescribed_time.model.nu, prescribed_time.rho),
         )

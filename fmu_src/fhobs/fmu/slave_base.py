@@ -59,12 +59,12 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from ..core.gains import ObserverGains
+from ..core.gains import ObserverDesign
 from ..core.runtime import SCHEMES
 from .access import AccessRules
 from .call_rules import TIME_TOLERANCE, call_problem, number_text, time_problem
 from .fmu_state import FmuStates
-from .kinds import Kind, edited_design
+from .kinds import Kind, edited_record
 from .modes import (
     INITIALISATION,
     INSTANTIATED,
@@ -134,9 +134,10 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
 
     Subclasses name their :attr:`kind` (whose declaration gives the variables, in
     value-reference order, the output layout and where each output comes from) and implement
-    :meth:`_check_parameters` and :meth:`_make_model`. The design record and the build options
-    are read from the instance's own ``resources`` folder, never from module globals, so that
-    two FMUs sharing Python modules in one process stay independent.
+    :meth:`_check_parameters` and :meth:`_make_model`. The record the kind runs (of the design
+    in ``design.json``) and the build options are read from the instance's own ``resources``
+    folder, never from module globals, so that two FMUs sharing Python modules in one process
+    stay independent.
     """
 
     author = "fhobs"
@@ -152,7 +153,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         resources = Path(self.resources)
-        self.design = ObserverGains.load_json(resources / DESIGN_FILE)
+        self.record: Any = self.kind.runs(ObserverDesign.load_json(resources / DESIGN_FILE))
         self.config: dict[str, Any] = json.loads((resources / CONFIG_FILE).read_text())
         self._status_via_wrapper = bool(self.config["status_wrapper"]) and sys.platform == "linux"
         self._arrays: dict[str, np.ndarray] = {}
@@ -190,20 +191,21 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._writable[self._parameter_vrs] = mode in (INSTANTIATED, INITIALISATION)
         self._write_cache.clear()
 
-    def edited_design(self) -> ObserverGains:
-        """The design record with every design parameter replaced by its current value."""
+    def edited_record(self) -> Any:
+        """The record the kind runs with every design parameter replaced by its current
+        value."""
         values = {}
         for name, field in self._design_fields.items():
             value = self.array(name)
             values[field] = float(value) if value.ndim == 0 else value
-        return edited_design(self.design, values)
+        return edited_record(self.record, values)
 
     def _declare(self) -> None:
-        """Register the variables of :attr:`kind` present for the design, in its order (their
-        value references), with their start values from the design and the build options."""
+        """Register the variables of :attr:`kind` present for its record, in its order (their
+        value references), with their start values from the record and the build options."""
         causality = {"input": "input", "output": "output", "design": "parameter",
                      "setting": "parameter"}
-        for variable, start in self.kind.starts(self.design, self.config):
+        for variable, start in self.kind.starts(self.record, self.config):
             if variable.role == "local":
                 self.register_variable(Integer(
                     variable.name, causality=Fmi2Causality.local,
@@ -497,7 +499,12 @@ class ObserverSlave(FhobsSlave):
         """The exact ZOH of the model over the communication step (the split scheme's
         prediction) must be computable to some digits; an h larger than the step is fine
         (the runtime steps by min(h, step))."""
-        return zoh_problem(self.edited_design().model[0], step_size, "the observer's model")
+        return zoh_problem(self._model_matrix(), step_size, "the observer's model")
+
+    def _model_matrix(self) -> np.ndarray:
+        """The state matrix of the model the (edited) observer runs on: the homogeneous
+        observers' (their record's ``model_matrices``); the others override it."""
+        return self.edited_record().model_matrices[0]
 
     def _padded_z0(self) -> np.ndarray:
         """The model's initial state: the parameter z0 (the plant's states), then zeros (the
@@ -507,4 +514,4 @@ class ObserverSlave(FhobsSlave):
 
     @abstractmethod
     def _check_gains(self) -> None:
-        """Raise ValueError (CertificateError) if the edited design is not certified."""
+        """Raise ValueError (CertificateError) if the edited record is not certified."""

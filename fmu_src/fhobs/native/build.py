@@ -30,7 +30,7 @@ does not re-check it.
 
 Examples
 --------
->>> built = build_native_fmus(gains, Path("build/native"))  # doctest: +SKIP
+>>> built = build_native_fmus(design, Path("build/native"))  # doctest: +SKIP
 >>> sorted(built)                                          # doctest: +SKIP
 ['kalman', 'luenberger', 'observer', 'plant']
 """
@@ -62,7 +62,7 @@ import numpy as np
 from ..build import cache_copy, default_kinds, fmu_options
 from ..core import kernel
 from ..core.certificate import certify
-from ..core.gains import ObserverGains
+from ..core.gains import ObserverDesign, PlantModel
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
 from ..core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
@@ -105,7 +105,7 @@ library exports the fmi2 functions alone either way."""
 
 
 def build_native_fmus(
-    gains: ObserverGains,
+    design: ObserverDesign,
     out_dir: Path,
     *,
     steps: Iterable[float] | None = None,
@@ -116,7 +116,7 @@ def build_native_fmus(
 
     Parameters
     ----------
-    gains : ObserverGains
+    design : ObserverDesign
         The design; certified here first.
     out_dir : Path
         Created if missing; the FMUs are written as ``<kind>.fmu``.
@@ -149,13 +149,13 @@ def build_native_fmus(
     Examples
     --------
     >>> from fhobs.design.observer import paper_gains
-    >>> gains = paper_gains()
-    >>> build_native_fmus(gains, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
+    >>> design = paper_gains()
+    >>> build_native_fmus(design, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
     {'observer': PosixPath('out/observer.fmu')}
     """
     if kinds is None:
-        kinds = tuple(kind for kind in default_kinds(gains)
-                      if kind != "prescribed_time" or PrescribedTimeObserver(gains).eigen)
+        kinds = tuple(kind for kind in default_kinds(design) if kind != "prescribed_time"
+                      or PrescribedTimeObserver(design.prescribed_time).eigen)
     kinds = tuple(kinds)
     unknown = sorted(set(kinds) - set(KINDS))
     if unknown:
@@ -165,7 +165,7 @@ def build_native_fmus(
     if compiler is None or sys.platform != "linux" or kernel.library() is None:
         raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
                          "compiled step kernel (FHOBS_NO_KERNEL unset)")
-    certify(gains)
+    certify(design)
     steps = tuple(float(dt) for dt in (steps or ()))
     for dt in steps:
         if not (np.isfinite(dt) and dt > 0.0):
@@ -173,14 +173,15 @@ def build_native_fmus(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     built = {}
-    config = fmu_options(gains, kinds, **options)
+    config = fmu_options(design, kinds, **options)
     with tempfile.TemporaryDirectory(prefix="fhobs_native_") as tmp:
         stage = Path(tmp)
         staged = {}
         for kind in kinds:
-            variables = _variables(KINDS[kind], gains, config)
-            data = _native_data(kind, gains, steps, config["h"])
-            staged[kind] = _stage(kind, variables, data, _sizes(kind, gains, data), stage / kind)
+            variables = _variables(KINDS[kind], design, config)
+            data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
+            staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
+                                  stage / kind)
         binaries = _compile_all(staged, stage / "shared", compiler)
         for kind, fmu in staged.items():
             built[kind] = _package(fmu, binaries[kind], out_dir / f"{kind}.fmu")
@@ -188,22 +189,23 @@ def build_native_fmus(
 
 
 # -- the design data of the planner ----------------------------------------------------------------
-def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
+def _native_data(kind: str, record: Any, steps: tuple[float, ...],
                  h: float) -> dict[str, Any]:
-    """What the native FMU of ``kind`` compiles in, from the numpy runtime's model of it: the
+    """What the native FMU of ``kind`` compiles in, from the numpy runtime's model of the
+    ``record`` it runs (:meth:`fhobs.fmu.kinds.Kind.runs`): the
     planner's design data (:func:`fhobs.native.planner.design_data`), the plant's matrices, the
     euler plan (None without one), the Kalman filter's cycle plan and Ts. Each step size of
     ``steps`` must have a plan in the numpy runtime (:class:`BuildError` otherwise)."""
     if kind == "kalman":
-        observer = KalmanObserver(gains)
+        observer = KalmanObserver(record)
         return {"kalman": captured_plan(observer, 1.0),  # one cycle; doStep sets the count
-                "Ts": float(gains.kalman.sample_time)}
+                "Ts": float(record.sample_time)}
     if kind == "plant":
-        model = LTIPlant(gains.A, gains.B, gains.C, E=gains.E)
+        model = LTIPlant(record.A, record.B, record.C, E=record.E)
     else:
         cls = {"observer": FilteringObserver, "luenberger": LuenbergerObserver,
                "prescribed_time": PrescribedTimeObserver}[kind]
-        model = cls(gains, h=h)
+        model = cls(record, h=h)
     if kind == "prescribed_time" and not model.eigen:
         raise BuildError("the prescribed_time's split step does not run in the compiled kernel "
                          "for this design (C L_pt's exponential or the dilation of G_d has no "
@@ -222,7 +224,7 @@ def _native_data(kind: str, gains: ObserverGains, steps: tuple[float, ...],
     elif kind == "prescribed_time":
         data["euler"] = None  # split only: the euler scheme's gain level needs the tau scan
     else:
-        euler = cls(gains, h=h, scheme="euler")
+        euler = cls(record, h=h, scheme="euler")
         data["euler"] = captured_plan(euler, h) if euler.compiled else None
     return data
 
@@ -401,15 +403,15 @@ def _split_data(lines: list[str], types: dict[str, tuple[str, int]]) -> tuple[st
 
 
 # -- one FMU ------------------------------------------------------------------------------------
-def _variables(kind: Kind, gains: ObserverGains,
+def _variables(kind: Kind, design: ObserverDesign,
                options: dict[str, Any]) -> list[dict[str, Any]]:
-    """Every scalar variable of the FMU of ``kind`` for ``gains`` and the build ``options``,
+    """Every scalar variable of the FMU of ``kind`` for ``design`` and the build ``options``,
     in value-reference order (:meth:`fhobs.fmu.kinds.Kind.starts`): name, value reference,
     type, C role, causality, description and exact start value (of an output: the model's
     output at its initial state, :func:`_start_outputs`)."""
     variables = []
-    outputs = _start_outputs(kind, gains, options)
-    for variable, start in kind.starts(gains, options):
+    outputs = _start_outputs(kind, design, options)
+    for variable, start in kind.starts(kind.runs(design), options):
         start = outputs.get(variable.name, start)
         values = np.asarray(start, dtype=float)
         for name, value in zip(element_names(variable.name, values.shape), values.flat,
@@ -424,14 +426,14 @@ def _variables(kind: Kind, gains: ObserverGains,
     return variables
 
 
-def _start_outputs(kind: Kind, gains: ObserverGains,
+def _start_outputs(kind: Kind, design: ObserverDesign,
                    options: dict[str, Any]) -> dict[str, np.ndarray]:
     """The start values of the outputs: what the pythonfmu slave of ``kind`` publishes when it
     is instantiated (the model's outputs at its initial state), from an instance made in this
     process (no FMU built, no status wrapper)."""
     with tempfile.TemporaryDirectory(prefix="fhobs_interface_") as tmp:
         resources = Path(tmp)
-        (resources / DESIGN_FILE).write_text(json.dumps(gains.to_dict()))
+        (resources / DESIGN_FILE).write_text(json.dumps(design.to_dict()))
         config = {"status_wrapper": False, "kernel": False, **options}
         (resources / CONFIG_FILE).write_text(json.dumps(config))
         module = importlib.import_module(f"{__package__.rpartition('.')[0]}.fmu.{kind.name}")
@@ -440,14 +442,14 @@ def _start_outputs(kind: Kind, gains: ObserverGains,
                 if variable.role == "output" and slave.has(variable.name)}
 
 
-def _sizes(kind: str, gains: ObserverGains, data: dict[str, Any]) -> dict[str, int]:
+def _sizes(kind: str, plant: PlantModel, data: dict[str, Any]) -> dict[str, int]:
     """The sizes model_data.c defines (``FHOBS_<NAME>``): the plant's states n, the model's
     states (the plan's n), outputs k, inputs m, perturbations r, the state kept."""
     n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
-    r = 0 if gains.E is None else gains.E.shape[1]
-    state = {"observer": n_model + gains.k + 1, "plant": gains.n + 1,
+    r = 0 if plant.E is None else plant.E.shape[1]
+    state = {"observer": n_model + plant.k + 1, "plant": plant.n + 1,
              "kalman": n_model + 1, "prescribed_time": n_model + 1}.get(kind, n_model)
-    return {"n": gains.n, "n_model": n_model, "k": gains.k, "m": gains.m, "r": r,
+    return {"n": plant.n, "n_model": n_model, "k": plant.k, "m": plant.m, "r": r,
             "state_size": state}
 
 

@@ -13,7 +13,7 @@ Examples
 --------
 >>> from fhobs.design.observer import paper_gains
 >>> from fhobs.core.runtime import FilteringObserver
->>> observer = FilteringObserver(paper_gains())
+>>> observer = FilteringObserver(paper_gains().filtering)
 >>> sorted(c_plan("observer", observer, 1e-3))  # doctest: +SKIP
 ['F', 'M', 'ceiling', 'floor_level']
 """
@@ -75,7 +75,7 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     --------
     >>> from fhobs.design.observer import paper_gains
     >>> from fhobs.core.runtime import PrescribedTimeObserver
-    >>> data = design_data("prescribed_time", PrescribedTimeObserver(paper_gains()))
+    >>> data = design_data("prescribed_time", PrescribedTimeObserver(paper_gains().prescribed_time))
     >>> sorted(data), data["top"].shape
     (['base', 'scan', 'top'], (4, 7))
     """
@@ -87,20 +87,21 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     if kind == "luenberger":
         return {"top": top, "base": {"n": n, "k": k, "m": m, "cycles": 1, "C": C}}
     gains = model.gains
-    dilation = Dilation(gains.G_d)
+    nu = float(gains.model.nu)
+    dilation = Dilation(gains.model.G_d)
     scan = {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
             "Vg_inv": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
             "roundoff": float(model._amplification_level()),
             "contraction": CONTRACTION_LIMIT}
     if kind == "prescribed_time":
         data = model.kernel_arrays()
-        base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"], "nu": float(gains.nu),
+        base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"], "nu": nu,
                 "rho": float(gains.rho), "tiny": data["tiny"], "series": PHI1_SERIES, "C": C,
                 **{name: data[name] for name in ("Q_inv", "Q_V", "lam", "V_g", "g",
                                                  "inverse_L")}}
         return {"top": top, "base": base, "scan": scan}
     flow = model._flow.kernel_arrays()
-    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": float(gains.nu),
+    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": nu,
             "gamma": float(gains.gamma), "p": model._p, "mismatch": LEVEL_MISMATCH,
             "tiny": flow["tiny"], "series": PHI1_SERIES, "C": C,
             **{name: flow[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")}}
