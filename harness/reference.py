@@ -168,8 +168,11 @@ def simulate(
     t = np.arange(n_steps + 1) * dt
     q = np.repeat(spec.q_amplitude * np.sin(spec.q_frequency * t)[:, None], E.shape[1], axis=1)
     K = np.asarray(K, dtype=float)
-    # the loop computes y, u and q itself (finite, of the right sizes): the models' advance,
-    # their step without the argument checks; a non-finite result still raises
+    if K.shape != (model.m, model.n) or not np.all(np.isfinite(K)):
+        raise ValueError(f"K must be a finite {model.m} x {model.n} matrix (inputs x states) for "
+                         f"this plant; got shape {K.shape}")
+    # with K checked the loop computes y, u and q itself (finite, of the right sizes): the
+    # models' advance, their step without the argument checks; a non-finite result still raises
     for step in range(n_steps + 1):
         x[step], obs_state[step] = plant.x, obs.get_state()
         for estimate, other in zip(estimates, others, strict=True):

@@ -69,3 +69,32 @@ def test_an_unwritable_cache_only_costs_time(cache_home):
         result, hit = cached("test", 1, counted(2.0, calls), certify)
         assert not hit and result.filtering.rho == 2.0
     assert calls == [2.0, 2.0]
+
+
+def test_every_input_of_the_noise_tuning_is_part_of_its_key(cache_home, monkeypatch):
+    """design_for_noise through the cache with a counting search: the same call is answered
+    from the cache, a change of any one input searches again."""
+    from fhobs.design import tuning
+
+    searches = []
+
+    def search(spec, *arguments):
+        searches.append(arguments)
+        design = design_observer(spec.A, spec.B, spec.C, E=spec.E, disturbance_order=1, rho=2.0)
+        prediction = tuning.ErrorPrediction(1.0, (1.0,), 1.0, 1.0)
+        return tuning.NoiseDesign(design, {}, prediction, prediction, 1.0, (0.0, 1.0), True, (),
+                                  0.0)
+
+    monkeypatch.setattr(tuning, "_search", search)
+    base = dict(measurement_std=[1e-3], sample_time=1e-2,
+                disturbance={"shape": "step", "size": 0.2, "start": 0.5})
+    changes = [{}, {"measurement_std": [2e-3]}, {"sample_time": 2e-2}, {"kalman_order": 2},
+               {"fixed": {"rho": 3.0}}, {"rejection": 50.0}, {"noise_draws": 2}, {"seed": 1},
+               {"refine": 2}, {"settling_time": 3.0}, {"state_scale": 2.0},
+               {"disturbance": {"shape": "step", "size": 0.3, "start": 0.5}}]
+    for change in changes:
+        result = tuning.design_for_noise(*PLANT, [[0], [1]], **(base | change))
+        assert not result.cached, change
+    assert len(searches) == len(changes)
+    again = tuning.design_for_noise(*PLANT, [[0], [1]], **base)
+    assert again.cached and len(searches) == len(changes)

@@ -49,6 +49,16 @@ def paper_runs(paper_design):
     return scenario_runs(paper_design)
 
 
+@pytest.mark.parametrize("kernel", [True, False])
+@pytest.mark.parametrize("K", [np.zeros((1, 2)), np.zeros((2, 4)), K_PAPER * np.nan],
+                         ids=["too_few_states", "too_many_inputs", "not_finite"])
+def test_a_feedback_gain_of_another_plant_is_refused(paper_design, K, kernel):
+    """The loop checks K once (it then advances the models without their per-step checks): a
+    gain of the wrong shape or not finite is a ValueError naming K, before any step."""
+    with pytest.raises(ValueError, match=r"K must be a finite 1 x 4 matrix"):
+        simulate(paper_design, "nominal", t_end=0.01, K=K, kernel=kernel)
+
+
 def test_jacobi_sequence(paper_design):
     """simulate() is exactly: y_k, u_k = K z_k, q_k from t_k = k dt; then every block steps."""
     g, dt, steps = paper_design, 1e-3, 30

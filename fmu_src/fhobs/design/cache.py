@@ -23,11 +23,13 @@ from ..errors import CertificateError
 
 T = TypeVar("T")
 
-LIBRARIES = ("numpy", "scipy", "cvxpy", "clarabel")
-"""The libraries whose version is part of every key (their numbers make the results)."""
+LIBRARIES = ("fhobs", "numpy", "scipy", "cvxpy", "clarabel")
+"""The packages whose version is part of every key: fhobs itself (an install without sources
+still keys by its version) and the libraries whose numbers make the results."""
 UNREADABLE = (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError,
-              TypeError, ValueError, IndexError)
-"""What reading a stale, partial or foreign cache file raises."""
+              TypeError, ValueError, IndexError, CertificateError)
+"""What reading a stale, partial or foreign cache file raises, and a result failing its check
+(CertificateError is a ValueError; named for the reader)."""
 
 
 def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T], Any],
@@ -44,8 +46,9 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     compute : callable
         Makes the result (picklable) when the cache has none.
     check : callable
-        Called on a result read from the cache; any exception it raises discards the file
-        (a design is certified again: a cached design never skips its certificate).
+        Called on a result read from the cache; a CertificateError (or any error of
+        :data:`UNREADABLE`) it raises discards the file (a design is certified again: a cached
+        design never skips its certificate).
 
     Returns
     -------
@@ -54,19 +57,21 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     Examples
     --------
     >>> import tempfile, os
+    >>> saved = os.environ.get("XDG_CACHE_HOME")
     >>> os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp()
     >>> cached("example", (1, 2), lambda: 3, check=int)
     (3, False)
     >>> cached("example", (1, 2), lambda: 4, check=int)
     (3, True)
-    >>> del os.environ["XDG_CACHE_HOME"]
+    >>> _ = os.environ.pop("XDG_CACHE_HOME") if saved is None else os.environ.update(
+    ...     XDG_CACHE_HOME=saved)
     """
     path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
     try:
         result = pickle.loads(path.read_bytes())
         check(result)
         return result, True
-    except UNREADABLE + (CertificateError,):
+    except UNREADABLE:
         pass  # no file, a stale or partial one, or a result that fails its check
     result = compute()
     _write(path, pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
