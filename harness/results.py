@@ -12,9 +12,10 @@ with the relative error ``r(t) = e(t) / max_t ||ref||`` (over the whole run):
 - ``time_to_<tol>`` for each tolerance of ``converged``: the time from which ``r`` stays
   ``<= tol`` to the end (the run's start if it always does, inf if it ends above; a NaN counts
   as above), ``<tol>`` written as ``1e-3`` (``2.5e-4 -> 2_5e-4``),
-- ``peak`` with ``peak = true``: ``max_t e / e(t0)``, how far the error grows beyond its start,
+- ``peak`` with ``peak = true``: ``max_t e / e(t0)``, how far the error grows beyond its start
+  (inf, or NaN if the error stays 0, for an estimator that starts exact),
 - ``floor`` with ``floor = D``: the max of ``r`` over the last ``D`` seconds of the run, the
-  error left at the end.
+  error left at the end (absent if the run is shorter than ``D``; the commands say so).
 """
 
 from __future__ import annotations

@@ -503,8 +503,8 @@ def check_timing(step: float, start_time: float, stop_time: float, where: str) -
 
 
 def evaluation_outside(evaluation: Evaluation, start_time: float, stop_time: float) -> list[str]:
-    """The ``[evaluation]`` instants and windows that do not lie within ``[start_time,
-    stop_time]`` (to 1e-9 relative), as they are written in the file.
+    """The ``[evaluation]`` instants, windows and floor stretch that do not lie within
+    ``[start_time, stop_time]`` (to 1e-9 relative), as they are written in the file.
 
     Parameters
     ----------
@@ -525,15 +525,20 @@ def evaluation_outside(evaluation: Evaluation, start_time: float, stop_time: flo
     ['at = 10']
     >>> evaluation_outside(ev, 0.0, 0.05)
     ['at = 1.5', 'at = 10', 'window [1, 3]']
+    >>> evaluation_outside(Evaluation(floor=2.0), 0.0, 1.5)
+    ['floor = 2']
     """
     tol = 1e-9 * max(1.0, abs(start_time), abs(stop_time))
 
     def inside(t: float) -> bool:
         return start_time - tol <= t <= stop_time + tol
 
+    floor = evaluation.floor
     return ([f"at = {t:g}" for t in evaluation.at if not inside(t)]
             + [f"window [{a:g}, {b:g}]" for a, b in evaluation.windows
-               if not (inside(a) and inside(b))])
+               if not (inside(a) and inside(b))]
+            + ([f"floor = {floor:g}"] if floor is not None and not inside(stop_time - floor)
+               else []))
 
 
 def _reject_unknown(table: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
