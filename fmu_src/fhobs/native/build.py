@@ -102,6 +102,23 @@ SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=c99")
 """``-fvisibility=hidden`` only confirms what the sources say (kernel.h's FHOBS_HIDDEN): the
 library exports the fmi2 functions alone either way."""
+UNIT_FLAGS = {"fmi2_layer.c": ("-O1",)}
+"""Flags added for one translation unit (after :data:`COMPILE_FLAGS`, so they win). The FMI
+layer is compiled once per FMU kind and design (ten times in the main job's first run) and
+holds argument checks and copies, no arithmetic a step repeats: at -O1 it compiles in 0.18 s
+instead of 0.42 s, its results the same (no floating-point contraction either way)."""
+
+
+def unit_flags(name: str) -> tuple[str, ...]:
+    """The compiler flags of the translation unit ``name``: :data:`COMPILE_FLAGS` and its own
+    (:data:`UNIT_FLAGS`).
+
+    Examples
+    --------
+    >>> unit_flags("fmi2_layer.c")[-1], unit_flags("kernel.c") == COMPILE_FLAGS
+    ('-O1', True)
+    """
+    return (*COMPILE_FLAGS, *UNIT_FLAGS.get(name, ()))
 
 
 def build_native_fmus(
@@ -576,7 +593,7 @@ def compile_binary(sources: Path, target: Path, compiler: str,
 
 def compile_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
     """Compile the translation unit ``name`` of the folder ``sources`` into ``out/<stem>.o``
-    (position-independent, :data:`COMPILE_FLAGS`) and return its path.
+    (position-independent, :func:`unit_flags`) and return its path.
 
     Raises
     ------
@@ -585,7 +602,7 @@ def compile_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
     """
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{Path(name).stem}.o"
-    _run_compiler([compiler, *COMPILE_FLAGS, f"-I{sources}", "-c", "-o", str(target),
+    _run_compiler([compiler, *unit_flags(name), f"-I{sources}", "-c", "-o", str(target),
                    str(sources / name)])
     return target
 
@@ -608,7 +625,7 @@ def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
     generated = any(f'"{header}"' in text for header in GENERATED_HEADERS)
     if name in SHARED_UNITS and generated:
         raise BuildError(f"{name} includes the generated model data: it cannot be shared")
-    digest = hashlib.sha256(" ".join((compiler, *COMPILE_FLAGS)).encode())
+    digest = hashlib.sha256(" ".join((compiler, *unit_flags(name))).encode())
     for path in (sources / name, *sorted(sources.glob("*.h"))):
         if generated or path.name not in GENERATED_HEADERS:
             digest.update(path.name.encode() + path.read_bytes())
