@@ -35,7 +35,7 @@ import numpy as np
 from fhobs.core.gains import ObserverDesign
 from fhobs.design.feedback import state_feedback
 from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
-from fhobs.fmu.kinds import ESTIMATORS
+from fhobs.fmu.kinds import LABELS
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.results import error_figures, window_mask, write_csv, write_summary
@@ -163,7 +163,7 @@ def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.nda
     if plant_matrices is not None:
         plant_start |= expand_start("A", np.asarray(A, dtype=float).tolist())
         plant_start |= expand_start("B", np.asarray(B, dtype=float).tolist())
-    observers = dict(ESTIMATORS)
+    observers = dict(LABELS)
     if noise_amplitude > 0.0:  # its gain grows without bound towards T0: noise, amplified
         observers.pop("prescribed_time")
     present = {kind: label for kind, label in observers.items() if kind in fmus}
@@ -370,7 +370,7 @@ def plant_table(data: dict[str, Any]) -> str:
       -                -             -
     """
     labels = [label for label, figures in data.items() if isinstance(figures, dict)
-              and label in ESTIMATORS.values()]
+              and label in LABELS.values()]
     lines = [["estimator", *FIGURES]] + [
         [label, *(f"{data[label][k]:.3e}" if k in data[label] else "-" for k in FIGURES)]
         for label in labels]

@@ -8,6 +8,7 @@ error dynamics of Theorem 1. Caller mistakes follow tests/fmu/test_fault_injecti
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import sys
@@ -37,8 +38,9 @@ needs_wrapper = pytest.mark.skipif(
 
 
 def xi0_of(gains, T0: float) -> float:
-    """xi0 with ``T0 = xi0^(-nu) / (-nu rho)``, solved here by hand."""
-    return (-gains.model.nu * gains.filtering.rho * T0) ** (-1.0 / gains.model.nu)
+    """xi0 with ``T0 = xi0^(-nu) / (-nu rho)``, rho the prescribed-time record's, solved here
+    by hand."""
+    return (-gains.model.nu * gains.prescribed_time.rho * T0) ** (-1.0 / gains.model.nu)
 
 
 def closed_loop(gains, dt: float, t_end: float, T0: float = 1.0, scheme: str = SCHEMES[0],
@@ -141,6 +143,21 @@ def test_fmu_equals_the_runtime_on_the_same_inputs(open_pt, tuned_design, scheme
     scale = np.abs(zs).max(axis=0)
     np.testing.assert_allclose(z_fmu, zs, rtol=1e-12, atol=1e-12 * scale.max())
     np.testing.assert_allclose(xi_fmu, xis, rtol=1e-12, atol=0.0)
+
+
+def test_first_xi_is_the_xi0_of_an_edited_rho(open_pt, tuned_design):
+    """rho edited (halved: Theorem 1's LMI holds for a smaller rho): the FMU's first xi is the
+    xi0 of its T0 with the edited rho, the prescribed-time record's."""
+    pt = tuned_design.prescribed_time
+    edited = dataclasses.replace(tuned_design, prescribed_time=dataclasses.replace(
+        pt, rho=pt.rho / 2))
+    driver = open_pt()
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.set("rho", pt.rho / 2)
+    driver.fmu.enterInitializationMode()
+    driver.fmu.exitInitializationMode()
+    assert driver.get("xi", ()) == pytest.approx(xi0_of(edited, 1.0), rel=1e-14)
+    assert xi0_of(edited, 1.0) != pytest.approx(xi0_of(tuned_design, 1.0), rel=1e-3)
 
 
 # -- (b) the prescribed-time property -------------------------------------------------------------

@@ -2,34 +2,40 @@
 rejection of broken solver results, and the design.json contract of build_fmu.py."""
 
 import dataclasses
+import importlib
 import json
 import re
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import fhobs.design.observer
 import numpy as np
 import pytest
 import scipy.linalg
 from designs import edited_design
+from fhobs.build import build_fmus
 from fhobs.core.certificate import (
-    FIGURES,
     augmented_matrices,
     certify,
     certify_filtering,
+    certify_kalman,
     certify_luenberger,
     certify_prescribed_time,
     checked_model,
 )
 from fhobs.core.disturbance import extended_model
 from fhobs.core.gains import PlantModel
+from fhobs.core.runtime import prescribed_xi0
 from fhobs.design.homogenisation import homogenise, observability_index
 from fhobs.design.lmi import LMISolution
 from fhobs.design.observer import augmented_system, design_for_spec, matched_perturbation_residual
-from fhobs.design.spec import spec_from_dict
+from fhobs.design.spec import DEFAULT_OBJECTIVE, spec_from_dict
 from fhobs.errors import CertificateError
+from fhobs.fmu.kinds import KINDS
+from fhobs.native.build import build_native_fmus
 from fhobs.paper import EXAMPLES, published
 
 REPO = Path(__file__).resolve().parents[2]
@@ -79,6 +85,19 @@ def test_paper_gains_are_the_published_ones_and_certified(paper_design):
     assert np.array_equal(paper_design.luenberger.L_lin,
                           np.array(PAPER["linear_observer"]["L_lin"]))
     certify(paper_design)
+
+
+def test_paper_design_reports_how_each_record_was_made(paper_design):
+    """The published gains' report says so (no solver); L_pt, designed by Theorem 1's LMI, has
+    that LMI's objective and solve status; the given L_lin its checks alone."""
+    filtering = paper_design.filtering.certificate
+    assert filtering["objective"] == "published" and "solver_status" not in filtering
+    prescribed_time = paper_design.prescribed_time.certificate
+    assert prescribed_time["objective"] == DEFAULT_OBJECTIVE
+    assert prescribed_time["solver_status"] in ("optimal", "optimal_inaccurate")
+    assert prescribed_time["lmi_margin"] > 0
+    assert prescribed_time["checks"] == certify_prescribed_time(paper_design.prescribed_time)
+    assert set(paper_design.luenberger.certificate) == {"checks"}
 
 
 def test_matched_perturbation_condition_for_pendulum(tuned_design, paper_design):
@@ -223,36 +242,81 @@ def test_random_observable_plants(seed, n, k):
 
 
 CERTIFY = {"filtering": certify_filtering, "prescribed_time": certify_prescribed_time,
-           "luenberger": certify_luenberger}
+           "luenberger": certify_luenberger, "kalman": certify_kalman}
 
 
 @pytest.mark.parametrize(
-    ("path", "edit", "check"),
+    ("path", "edit", "check", "records"),
     [
-        ("filtering.L", lambda g: -g.filtering.L, "lmi_filtering"),
-        ("filtering.L_tilde", lambda g: -g.filtering.L_tilde, "lmi_filtering"),
+        ("filtering.L", lambda g: -g.filtering.L, "lmi_filtering", ("filtering",)),
+        ("filtering.L_tilde", lambda g: -g.filtering.L_tilde, "lmi_filtering", ("filtering",)),
         ("filtering.P_bar", lambda g: g.filtering.P_bar - 2 * np.linalg.norm(g.filtering.P_bar, 2)
-         * np.eye(len(g.filtering.P_bar)), "P_bar_positive"),
-        ("plant.A", lambda g: g.plant.A + np.diag([0, 0, 0.01, 0]), "homogenisation_residual"),
+         * np.eye(len(g.filtering.P_bar)), "P_bar_positive", ("filtering",)),
+        ("plant.A", lambda g: g.plant.A + np.diag([0, 0, 0.01, 0]), "homogenisation_residual",
+         ("filtering", "prescribed_time")),
         ("model.G_d", lambda g: g.model.G_d + 0.01 * np.eye(g.model.n_model)[::-1],
-         "output_homogeneity"),
-        ("prescribed_time.L_pt", lambda g: 0 * g.prescribed_time.L_pt, "lmi_pt"),
-        ("luenberger.L_lin", lambda g: 0 * g.luenberger.L_lin, "hurwitz_luenberger"),
-        ("filtering.gamma", lambda g: 2 * g.filtering.rho + 0.1, "gamma_rho"),
+         "output_homogeneity", ("filtering", "prescribed_time")),
+        ("prescribed_time.L_pt", lambda g: 0 * g.prescribed_time.L_pt, "lmi_pt",
+         ("prescribed_time",)),
+        ("luenberger.L_lin", lambda g: 0 * g.luenberger.L_lin, "hurwitz_luenberger",
+         ("luenberger",)),
+        ("kalman.gain", lambda g: -g.kalman.gain, "schur_kalman", ("kalman",)),
     ],
 )
-def test_certificate_rejects_broken_designs(tuned_design, path, edit, check):
-    """certify of the whole design and the certificate of the record that holds the edited
+def test_certificate_rejects_broken_designs(kalman_design, path, edit, check, records):
+    """certify of the whole design and the certificate of each record that holds the edited
     field (the shared plant and model: every homogeneous record's) name the failed check."""
-    broken = edited_design(tuned_design, path, edit(tuned_design))
+    broken = edited_design(kalman_design, path, edit(kalman_design))
     failing = re.compile(rf"{check} = [-+0-9.e]+ \(required")
     with pytest.raises(CertificateError, match=failing):
         certify(broken)
-    record = path.partition(".")[0]
-    for name in (("filtering", "prescribed_time") if record in ("plant", "model") else (record,)):
-        if check in FIGURES[name](getattr(broken, name)):
-            with pytest.raises(CertificateError, match=failing):
-                CERTIFY[name](getattr(broken, name))
+    for name in records:
+        with pytest.raises(CertificateError, match=failing):
+            CERTIFY[name](getattr(broken, name))
+
+
+def slave_check(kind: str, record) -> None:
+    """The gain check the pythonfmu slave of ``kind`` makes at initialisation, on ``record``
+    as its edited parameters (the prescribed-time slave's xi0 of its default T0 = 1 s)."""
+    slave = getattr(importlib.import_module(f"fhobs.fmu.{kind}"), KINDS[kind].slave)
+    stub = SimpleNamespace(edited_record=lambda: record,
+                           _xi0=lambda nu, rho: prescribed_xi0(1.0, nu, rho))
+    slave._check_gains(stub)
+
+
+@pytest.mark.parametrize(
+    ("path", "edit", "kinds", "words"),
+    [
+        ("filtering.gamma", lambda g: -1.0, ("observer",), "gamma = -1.0 must be > 0"),
+        ("filtering.gamma", lambda g: 0.0, ("observer",), "gamma = 0.0 must be > 0"),
+        ("filtering.rho", lambda g: g.filtering.gamma / 2, ("observer",), "must be > gamma/2"),
+        ("model.nu", lambda g: -0.9, ("observer", "prescribed_time"), "nu = -0.9 is outside"),
+        ("model.nu", lambda g: 0.1, ("observer", "prescribed_time"), "nu = 0.1 is outside"),
+        ("prescribed_time.rho", lambda g: -1.0, ("prescribed_time",), "rho = -1.0 must be > 0"),
+        ("prescribed_time.L_pt", lambda g: -g.prescribed_time.L_pt, ("prescribed_time",),
+         "lmi_pt"),
+        ("filtering.L", lambda g: -g.filtering.L, ("observer",), "lmi_filtering"),
+        ("luenberger.L_lin", lambda g: 0 * g.luenberger.L_lin, ("luenberger",),
+         "hurwitz_luenberger"),
+        ("kalman.gain", lambda g: -g.kalman.gain, ("kalman",), "schur_kalman"),
+    ],
+)
+def test_what_an_fmu_refuses_certify_and_the_builds_refuse(kalman_design, tmp_path, path, edit,
+                                                          kinds, words):
+    """Whatever a slave refuses at initialisation (its tuning ranges, a broken gain) certify
+    refuses too, and so do both builds before building anything: a native FMU, which does not
+    check its design again, never runs a model that skipped its certificate."""
+    broken = edited_design(kalman_design, path, edit(kalman_design))
+    for kind in kinds:
+        with pytest.raises(CertificateError, match=re.escape(words)):
+            slave_check(kind, KINDS[kind].runs(broken))
+    with pytest.raises(CertificateError, match=re.escape(words)):
+        certify(broken)
+    with pytest.raises(CertificateError, match=re.escape(words)):
+        build_native_fmus(broken, tmp_path / "native")
+    with pytest.raises(CertificateError, match=re.escape(words)):
+        build_fmus(broken, tmp_path / "pythonfmu", status_wrapper=False, kernel=False)
+    assert not any(tmp_path.iterdir())
 
 
 def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):

@@ -4,12 +4,14 @@ the quantities the paper defines, checked against formulas written here."""
 
 import math
 
+import fhobs.fmu.kinds
 import numpy as np
 import pytest
+from fhobs.core.gains import ESTIMATORS
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
-from fhobs.fmu.kinds import KINDS
+from fhobs.fmu.kinds import KINDS, LABELS
 from fhobs.fmu.slave_base import output_reads
 
 from tests.designs import random_design
@@ -73,3 +75,12 @@ def test_plant_outputs_are_y_then_x():
     values = _flat_outputs("plant", plant, {"y": design.plant.k, "x": design.plant.n})
     x = np.arange(1.0, design.plant.n + 1)
     assert values == [*(design.plant.C @ x), *x]
+
+
+def test_the_labels_are_one_per_estimator_record():
+    """LABELS (FMU kind -> the harness's label) has one kind per estimator record of the design
+    (fhobs.core.gains.ESTIMATORS), each label its own; the kinds module has no second
+    ESTIMATORS of another meaning."""
+    assert sorted(KINDS[kind].record for kind in LABELS) == sorted(ESTIMATORS)
+    assert all(LABELS.values()) and len(set(LABELS.values())) == len(LABELS)
+    assert not hasattr(fhobs.fmu.kinds, "ESTIMATORS")

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from fhobs.core.certificate import (
     certify_filtering,
+    certify_kalman,
     certify_luenberger,
     certify_prescribed_time,
 )
@@ -26,7 +27,7 @@ ESTIMATOR_FIELDS = {
     "prescribed_time": {"rho", "L_pt", "P_pt", "certificate"},
     "luenberger": {"L_lin", "certificate"},
     "kalman": {"disturbance_order", "sample_time", "measurement_std", "process_intensity",
-               "gain", "covariance", "tuning"},
+               "gain", "covariance", "tuning", "certificate"},
 }
 
 
@@ -110,13 +111,16 @@ def test_a_record_of_another_plant_is_refused(kalman_design):
         dataclasses.replace(kalman_design, filtering=filtering)
 
 
-def test_each_certificate_report_holds_its_own_records_figures(tuned_design):
-    """The report's checks are the figures each record's own certificate gives, and only
-    those: the filtering observer's have no Theorem 1 figure and the other way round."""
-    for record, certify in ((tuned_design.filtering, certify_filtering),
-                            (tuned_design.prescribed_time, certify_prescribed_time),
-                            (tuned_design.luenberger, certify_luenberger)):
-        assert record.certificate["checks"] == certify(record)
-    assert "lmi_pt" not in tuned_design.filtering.certificate["checks"]
-    assert "lmi_filtering" not in tuned_design.prescribed_time.certificate["checks"]
-    assert set(tuned_design.luenberger.certificate["checks"]) == {"hurwitz_luenberger"}
+def test_each_certificate_report_holds_its_own_records_figures(kalman_design):
+    """Every estimator record has its certificate report, whose checks are the figures the
+    record's own certificate gives, and only those: the filtering observer's have no Theorem 1
+    figure and the other way round."""
+    for name, certify in (("filtering", certify_filtering),
+                          ("prescribed_time", certify_prescribed_time),
+                          ("luenberger", certify_luenberger), ("kalman", certify_kalman)):
+        record = getattr(kalman_design, name)
+        assert record.certificate["checks"] == certify(record), name
+    assert "lmi_pt" not in kalman_design.filtering.certificate["checks"]
+    assert "lmi_filtering" not in kalman_design.prescribed_time.certificate["checks"]
+    assert set(kalman_design.luenberger.certificate["checks"]) == {"hurwitz_luenberger"}
+    assert set(kalman_design.kalman.certificate["checks"]) == {"schur_kalman"}

@@ -2,11 +2,14 @@
 
 numpy-only: it also runs inside the FMU, on parameters a user may have edited.
 
-Each estimator's record is certified by itself (the FMU that runs it checks it):
-:func:`certify_filtering` (the homogeneity figures, ``gamma_rho`` and Theorem 2's),
-:func:`certify_prescribed_time` (the homogeneity figures and Theorem 1's),
-:func:`certify_luenberger` and :func:`certify_kalman`; :func:`certify` checks every record of
-a design at once. Every check yields one number, compared with one bound:
+Each estimator's record is certified by itself (the FMU that runs it checks it, and nothing
+else of the design): :func:`certify_filtering` (nu, gamma and rho in Theorem 2's ranges, the
+homogeneity figures and Theorem 2's), :func:`certify_prescribed_time` (nu and rho in range, the
+homogeneity figures and Theorem 1's), :func:`certify_luenberger` and :func:`certify_kalman`
+(:data:`CERTIFIERS`); :func:`certify` runs them all on a design, so that it refuses whatever
+an FMU would. Before its figures, a homogeneous record's tuning must be in range
+(:func:`tuning_problem`) and its Lyapunov matrix symmetric (:func:`check_symmetry`). Every
+figure is one number, compared with one bound:
 
 ============================  ===========================================================  =======
 check                         value                                                        pass if
@@ -15,7 +18,6 @@ check                         value                                             
 ``output_homogeneity``        ||C G_d - (1 + nu) C|| / ||C||                               <= tol
 ``nilpotency``                ||A0^n_tilde|| / ||A0||^n_tilde                                <= tol
 ``dilation_anti_hurwitz``     min Re eig(G_d)                                              > 0
-``gamma_rho``                 rho - gamma / 2                                              > 0
 ``P_bar_positive``            lambda_min(P_bar) / lambda_max(P_bar)                        > r
 ``P_bar_monotone``            lambda_min(P^-1/2 sym(P_bar bar_G) P^-1/2)                   > m + r
 ``lmi_filtering``             lambda_max(P^-1/2 sym(P_bar (H + rho bar_G)) P^-1/2)         < -m - r
@@ -299,10 +301,9 @@ def lmi_values(
 
 
 def filtering_values(filtering: FilteringGains) -> dict[str, float]:
-    """The filtering observer's figures of the module docstring's table (homogeneity,
-    ``gamma_rho``, the Theorem 2 LMI), without judging them."""
+    """The filtering observer's figures of the module docstring's table (homogeneity, the
+    Theorem 2 LMI), without judging them."""
     values = homogeneity_values(filtering)
-    values["gamma_rho"] = filtering.rho - filtering.gamma / 2
     A_model, _ = _homogeneous_model(filtering)
     d = balancing_scale(A_model)
     d_bar = np.concatenate([np.ones(filtering.plant.k), d])
@@ -353,9 +354,9 @@ def certify_filtering(
     filtering: FilteringGains, tolerance: float = DEFAULT_TOLERANCE,
     margin: float = CERTIFICATE_MARGIN,
 ) -> dict[str, float]:
-    """The filtering observer's certificate (``observer.fmu`` checks it, with
-    :func:`check_tuning`, on its edited parameters): P_bar symmetric, then
-    :func:`filtering_values` judged.
+    """The filtering observer's certificate (``observer.fmu`` checks it on its edited
+    parameters): nu, gamma and rho in Theorem 2's ranges (:func:`tuning_problem`, the spec
+    loader's rules), P_bar symmetric, then :func:`filtering_values` judged.
 
     Parameters and Raises as for :func:`certify`; returns the figures checked.
 
@@ -370,7 +371,12 @@ def certify_filtering(
     Traceback (most recent call last):
     ...
     fhobs.core.errors.CertificateError: ...lmi_filtering...
+    >>> certify_filtering(dataclasses.replace(filtering, gamma=-5.0))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
     """
+    _check_tuning(filtering, filtering.gamma)
     check_symmetry(P_bar=filtering.P_bar)
     return _judged(filtering_values(filtering), tolerance, margin)
 
@@ -397,17 +403,21 @@ def certify_prescribed_time(
     ...
     fhobs.core.errors.CertificateError: ...lmi_pt...
     """
-    model = prescribed_time.model
-    problem = tuning_problem(model.nu, prescribed_time.rho, None, model.n_tilde)
-    if problem:
-        raise CertificateError(problem)
+    _check_tuning(prescribed_time, None)
     check_symmetry(P_pt=prescribed_time.P_pt)
     return _judged(prescribed_time_values(prescribed_time), tolerance, margin)
 
 
-def certify_luenberger(luenberger: LuenbergerGains) -> dict[str, float]:
+def certify_luenberger(
+    luenberger: LuenbergerGains, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
+) -> dict[str, float]:
     """The Luenberger baseline's certificate: ``A + L_lin C`` Hurwitz (``luenberger.fmu``'s
     check of edited parameters).
+
+    Parameters and Raises as for :func:`certify` (the signature of every certificate of
+    :data:`CERTIFIERS`; no figure of this one depends on ``tolerance`` or ``margin``);
+    returns the figures checked.
 
     Examples
     --------
@@ -420,22 +430,32 @@ def certify_luenberger(luenberger: LuenbergerGains) -> dict[str, float]:
     ...
     fhobs.core.errors.CertificateError: ... hurwitz_luenberger = 1.000e+00 (required < 0)
     """
-    return _judged(luenberger_values(luenberger), DEFAULT_TOLERANCE, CERTIFICATE_MARGIN)
+    return _judged(luenberger_values(luenberger), tolerance, margin)
 
 
-def certify_kalman(kalman: KalmanGains) -> dict[str, float]:
+def certify_kalman(
+    kalman: KalmanGains, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
+) -> dict[str, float]:
     """The Kalman filter's certificate: its error map ``Phi (I - M C)`` Schur stable
     (``kalman.fmu``'s check of edited parameters).
 
+    Parameters and Raises as for :func:`certify_luenberger`; returns the figures checked.
+
     Examples
     --------
+    >>> import dataclasses
     >>> from fhobs.core.gains import KalmanGains, PlantModel
     >>> plant = PlantModel(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)))
     >>> kalman = KalmanGains(plant, 0, 0.1, np.ones(1), 1.0, np.array([[0.5]]), np.eye(1))
     >>> certify_kalman(kalman)
     {'schur_kalman': 0.5}
+    >>> certify_kalman(dataclasses.replace(kalman, gain=np.array([[-1.5]])))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: ... schur_kalman = 2.500e+00 (required < 1)
     """
-    return _judged(kalman_values(kalman), DEFAULT_TOLERANCE, CERTIFICATE_MARGIN)
+    return _judged(kalman_values(kalman), tolerance, margin)
 
 
 def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: int,
@@ -465,23 +485,12 @@ def tuning_problem(nu: float, rho: float | None, gamma: float | None, n_tilde: i
     return ""
 
 
-def check_tuning(filtering: FilteringGains) -> None:
-    """Raise CertificateError if :func:`tuning_problem` finds the filtering observer's nu,
-    gamma or rho outside Theorem 2's ranges (the spec loader's rules).
-
-    Examples
-    --------
-    >>> import dataclasses
-    >>> from fhobs.design.observer import paper_gains
-    >>> filtering = paper_gains().filtering
-    >>> check_tuning(filtering)
-    >>> check_tuning(dataclasses.replace(filtering, gamma=-5.0))
-    Traceback (most recent call last):
-    ...
-    fhobs.core.errors.CertificateError: gamma = -5.0 must be > 0 (the xi equation's gain)
-    """
-    model = filtering.model
-    problem = tuning_problem(model.nu, filtering.rho, filtering.gamma, model.n_tilde)
+def _check_tuning(record: FilteringGains | PrescribedTimeGains, gamma: float | None) -> None:
+    """Raise :class:`CertificateError` if :func:`tuning_problem` finds the homogeneous
+    record's nu and rho, or ``gamma`` (the filtering observer's; None: not used), outside
+    Theorem 2's ranges."""
+    model = record.model
+    problem = tuning_problem(model.nu, record.rho, gamma, model.n_tilde)
     if problem:
         raise CertificateError(problem)
 
@@ -514,7 +523,7 @@ def _violations(
             ok, need = value < 1.0, "< 1"
         elif name.endswith("_positive"):
             ok, need = value > 1e-14, "> 1e-14"
-        else:  # dilation_anti_hurwitz, gamma_rho
+        else:  # dilation_anti_hurwitz
             ok, need = value > 0.0, "> 0"
         if not (ok and np.isfinite(value)):
             bad.append((name, value, need))
@@ -529,9 +538,10 @@ def _rounding_key(name: str) -> str:
     return name.rsplit("_", 1)[0] + "_rounding"
 
 
-FIGURES = {"filtering": filtering_values, "prescribed_time": prescribed_time_values,
-           "luenberger": luenberger_values, "kalman": kalman_values}
-"""Each estimator record's figures, by the design's attribute that holds it."""
+CERTIFIERS = {"filtering": certify_filtering, "prescribed_time": certify_prescribed_time,
+              "luenberger": certify_luenberger, "kalman": certify_kalman}
+"""Each estimator record's certificate (the check its FMU makes), by the design's attribute
+that holds it."""
 
 
 def certify_parts(
@@ -541,17 +551,39 @@ def certify_parts(
     """:func:`certify`, with the figures of each estimator record apart (the design's
     attribute -> its figures; the homogeneity figures in both homogeneous observers').
 
+    Each record present is certified by its own certificate (:data:`CERTIFIERS`), all of them
+    before judging: the error names every record that fails and, after its name, what its
+    certificate found (every failed figure, or its out-of-range tuning or asymmetric Lyapunov
+    matrix); its ``lmi_margin_needed`` is the largest any record needs.
+
     Examples
     --------
+    >>> import dataclasses
     >>> from fhobs.design.observer import design_observer
-    >>> parts = certify_parts(design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0))
+    >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+    >>> parts = certify_parts(design)
     >>> sorted(parts), sorted(parts["luenberger"])
     (['filtering', 'luenberger', 'prescribed_time'], ['hurwitz_luenberger'])
+    >>> filtering = dataclasses.replace(design.filtering, gamma=-1.0)
+    >>> luenberger = dataclasses.replace(design.luenberger, L_lin=-design.luenberger.L_lin)
+    >>> certify_parts(dataclasses.replace(design, filtering=filtering, luenberger=luenberger))
+    Traceback (most recent call last):
+    ...
+    fhobs.core.errors.CertificateError: filtering: gamma = -1.0 must be > 0 ...; luenberger: ...
     """
-    check_symmetry(P_bar=design.filtering.P_bar, P_pt=design.prescribed_time.P_pt)
-    parts = {name: figures(getattr(design, name)) for name, figures in FIGURES.items()
-             if getattr(design, name) is not None}
-    _judge(_merged(parts), tolerance, margin)
+    parts: dict[str, dict[str, float]] = {}
+    failures: list[tuple[str, CertificateError]] = []
+    for name, certifier in CERTIFIERS.items():
+        record = getattr(design, name)
+        if record is None:
+            continue
+        try:
+            parts[name] = certifier(record, tolerance, margin)
+        except CertificateError as err:
+            failures.append((name, err))
+    if failures:
+        raise CertificateError("; ".join(f"{name}: {err}" for name, err in failures),
+                               max(err.lmi_margin_needed for _, err in failures))
     return parts
 
 
@@ -559,8 +591,9 @@ def certify(
     design: ObserverDesign, tolerance: float = DEFAULT_TOLERANCE,
     margin: float = CERTIFICATE_MARGIN,
 ) -> dict[str, float]:
-    """Check every estimator of a design and return their figures; raise if any is out of
-    bounds (one error naming every failed check of every estimator).
+    """Check every estimator record of a design with its own certificate (what the FMU that
+    runs it checks at initialisation) and return their figures; raise if any fails (one error
+    naming every failed check of every record, :func:`certify_parts`).
 
     Parameters
     ----------
@@ -580,9 +613,10 @@ def certify(
     Raises
     ------
     CertificateError
-        Naming every failed check with its value and bound; first, naming the entry of a
-        Lyapunov matrix (P_bar, P_pt) that is not symmetric to round-off
-        (:func:`symmetry_problem`).
+        Naming each failing record and what its certificate found: every failed check with
+        its value and bound, or, before any figure, its nu, gamma or rho out of range
+        (:func:`tuning_problem`) or the entry of its Lyapunov matrix (P_bar, P_pt) that is not
+        symmetric to round-off (:func:`symmetry_problem`).
 
     Examples
     --------

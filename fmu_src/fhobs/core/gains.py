@@ -324,6 +324,9 @@ class KalmanGains(_Record):
         (N x N) steady-state a-priori error covariance P (one step ahead).
     tuning : str
         How ``process_intensity`` was chosen (free text, for the record).
+    certificate : dict
+        ``checks`` (:func:`fhobs.core.certificate.certify_kalman`'s figures: ``schur_kalman``);
+        the gain solves a Riccati equation, no LMI: no objective, margin or solver status.
     """
 
     plant: PlantModel
@@ -334,6 +337,7 @@ class KalmanGains(_Record):
     gain: np.ndarray
     covariance: np.ndarray
     tuning: str = ""
+    certificate: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

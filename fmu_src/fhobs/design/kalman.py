@@ -37,6 +37,7 @@ import dataclasses
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
+from ..core.certificate import certify_kalman
 from ..core.disturbance import (
     describe_direction,
     model_perturbation_matrix,
@@ -152,7 +153,8 @@ def design_kalman(
     Returns
     -------
     KalmanGains
-        On ``plant``.
+        On ``plant``, its ``certificate`` holding the figures of
+        :func:`fhobs.core.certificate.certify_kalman`.
 
     Raises
     ------
@@ -198,8 +200,9 @@ def design_kalman(
         P, gain, note = _regularised_filter(A_model, C_model, G, noise, R, sample_time, order,
                                             E.shape[1], A.shape[0], label, failure)
         tuning = f"{tuning}; {note}" if tuning else note
-    return KalmanGains(plant, order, float(sample_time), std, float(process_intensity), gain, P,
-                       tuning)
+    kalman = KalmanGains(plant, order, float(sample_time), std, float(process_intensity), gain,
+                         P, tuning)
+    return dataclasses.replace(kalman, certificate={"checks": certify_kalman(kalman)})
 
 
 def steady_state_filter(

@@ -409,9 +409,10 @@ def _design_at_margin(
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
     d_bar = np.concatenate([np.ones(k), d])
     L_lin, luenberger_status = _luenberger_gain(spec, decay, objective, margin)
-    solver_status = {"filtering": filtering.status, "prescribed_time": pt.status}
-    if luenberger_status is not None:
-        solver_status["luenberger"] = luenberger_status
+    solver_status = {"filtering": filtering.status, "prescribed_time": pt.status,
+                     "luenberger": luenberger_status}
+    made = {name: {"objective": objective, "lmi_margin": margin, "solver_status": status}
+            for name, status in solver_status.items() if status is not None}
     plant = PlantModel(spec.A, spec.B, spec.C, spec.E)
     model = HomogeneousModel(
         spec.disturbance_order, hom.n_tilde, spec.nu, G0=diagonal_similarity(hom.G0, 1.0 / d),
@@ -426,7 +427,7 @@ def _design_at_margin(
                                             P_pt=diagonal_congruence(pt.P, 1.0 / d)),
         luenberger=LuenbergerGains(plant, L_lin),
     )
-    return _certified(design, objective, margin, solver_status)
+    return _certified(design, made)
 
 
 def _max_certified_rho(
@@ -453,12 +454,13 @@ def _max_certified_rho(
     return float(lo), P
 
 
-def _certified(design: ObserverDesign, objective: str, margin: float,
-               solver_status: dict[str, str]) -> ObserverDesign:
-    """Run the numpy certificate on a candidate and give each estimator's record its report:
-    its checked figures, the objective and margin of the LMIs behind it and each solve's
-    status (``"optimal_inaccurate"`` ones are kept when they pass the certificate, which is
-    the judge); none but the figures for a given (not designed) L_lin."""
+def _certified(design: ObserverDesign, made: dict[str, dict[str, Any]]) -> ObserverDesign:
+    """Run the numpy certificate on a candidate and give each homogeneous or Luenberger record
+    its report: its checked figures and ``made[name]``, how its gain was made (the objective
+    and margin of the LMI behind it and that solve's status: ``"optimal_inaccurate"`` ones are
+    kept when they pass the certificate, which is the judge; or ``"published"`` gains'
+    objective and the margin of their P); none but the figures for a record not in ``made``
+    (a given L_lin)."""
     parts = certify_parts(design)
     plant, model = design.plant, design.model
     E = plant.E
@@ -466,12 +468,7 @@ def _certified(design: ObserverDesign, objective: str, margin: float,
         E = model_perturbation_matrix(E.shape[0], E.shape[1], model.disturbance_order)
 
     def report(name: str) -> dict[str, Any]:
-        designed = {"objective": objective, "lmi_margin": margin}
-        if name in solver_status:
-            designed["solver_status"] = solver_status[name]
-        elif name == "luenberger":
-            designed = {}
-        return {"checks": parts[name]} | designed
+        return {"checks": parts[name]} | made.get(name, {})
 
     residual = None if E is None else matched_perturbation_residual(model.G_d, E, model.n_tilde)
     return replace(
@@ -490,7 +487,9 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverDesign:
     published values to the printed digits, which the tests check) because the printed,
     rounded values satisfy the identities only to about 1e-5. P_bar and P_pt are found by
     :func:`fhobs.design.lmi.certify_gain_lmi` for the published gains; L_pt is designed (the paper
-    publishes none).
+    publishes none). Each record's ``certificate`` says how it was made: ``"published"`` for
+    the filtering gains, Theorem 1's LMI (objective, margin, solver status) for L_pt, the
+    figures alone for the given L_lin.
 
     Parameters
     ----------
@@ -506,8 +505,8 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverDesign:
     >>> design = paper_gains()
     >>> design.plant.n, design.plant.k, design.filtering.L.shape
     (4, 2, (4, 2))
-    >>> design.filtering.certificate["lmi_margin"] > 0
-    True
+    >>> design.filtering.certificate["objective"], design.prescribed_time.certificate["objective"]
+    ('published', 'min_cond')
     """
     ref = json.loads(Path(reference).read_text())
     plant, published = ref["plant"], ref["design"]
@@ -527,4 +526,7 @@ def paper_gains(reference: str | Path = PAPER_REFERENCE) -> ObserverDesign:
     bar_L = np.vstack([L_tilde, L])
     P_bar = certify_gain_lmi(bar_A0 + bar_L @ bar_C, bar_G, spec.rho)
     published_filtering = replace(filtering, L_tilde=L_tilde, L=L, P_bar=P_bar)
-    return _certified(replace(tuned, filtering=published_filtering), "published", LMI_MARGIN, {})
+    made = {name: {key: value for key, value in getattr(tuned, name).certificate.items()
+                   if key != "checks"} for name in ("prescribed_time", "luenberger")}
+    made["filtering"] = {"objective": "published", "lmi_margin": LMI_MARGIN}
+    return _certified(replace(tuned, filtering=published_filtering), made)

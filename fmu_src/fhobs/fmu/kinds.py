@@ -406,5 +406,6 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
 """Every FMU kind, by name: the estimators in the order of the harness's tables, then
 the plant."""
 
-ESTIMATORS = {name: kind.label for name, kind in KINDS.items() if kind.label}
-"""FMU kind -> the estimator's label in the harness's figures."""
+LABELS = {name: kind.label for name, kind in KINDS.items() if kind.label}
+"""FMU kind -> the estimator's label in the harness's figures (the kinds that run an estimator
+record)."""

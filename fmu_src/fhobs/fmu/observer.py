@@ -6,7 +6,7 @@ build-unique name.
 
 from __future__ import annotations
 
-from ..core.certificate import certify_filtering, check_tuning
+from ..core.certificate import certify_filtering
 from ..core.runtime import FilteringObserver
 from .kinds import KINDS
 from .slave_base import ObserverSlave
@@ -18,9 +18,7 @@ class FhobsObserver(ObserverSlave):
     kind = KINDS["observer"]
 
     def _check_gains(self) -> None:
-        filtering = self.edited_record()
-        check_tuning(filtering)
-        certify_filtering(filtering)
+        certify_filtering(self.edited_record())
 
     def _make_model(self) -> FilteringObserver:
         return FilteringObserver(

@@ -157,6 +157,10 @@ def build_native_fmus(
 
     Raises
     ------
+    CertificateError
+        Before anything else, if the design fails :func:`fhobs.core.certificate.certify`
+        (every record's certificate, the checks its pythonfmu FMU makes at initialisation:
+        the native FMUs compile the design in and do not check it again).
     BuildError
         Without a C compiler or the compiled kernel, for a design the native
         observer cannot run (no eigen path of its injection flow; the prescribed-time
@@ -170,6 +174,7 @@ def build_native_fmus(
     >>> build_native_fmus(design, Path("out"), steps=[1e-3], kinds=["observer"])  # doctest: +SKIP
     {'observer': PosixPath('out/observer.fmu')}
     """
+    certify(design)  # first: the native FMUs do not check their design again
     if kinds is None:
         kinds = tuple(kind for kind in default_kinds(design) if kind != "prescribed_time"
                       or PrescribedTimeObserver(design.prescribed_time).eigen)
@@ -182,7 +187,6 @@ def build_native_fmus(
     if compiler is None or sys.platform != "linux" or kernel.library() is None:
         raise BuildError("native FMUs need Linux, a C compiler (cc or gcc) on PATH and the "
                          "compiled step kernel (FHOBS_NO_KERNEL unset)")
-    certify(design)
     steps = tuple(float(dt) for dt in (steps or ()))
     for dt in steps:
         if not (np.isfinite(dt) and dt > 0.0):
