@@ -491,6 +491,7 @@ def test_pareto_picture_labels_only_a_readable_number_of_points(tmp_path, monkey
 
 
 # -- the main job's seeds ---------------------------------------------------------------------
+@pytest.mark.slow  # the whole main job in a subprocess (5-8 s)
 def test_main_jobs_seed_figures_are_the_sweeps_rows(tmp_path):
     """``python -m harness paper`` (our design) runs its noisy seeds on the sweep engine: each
     seed's figures in its summary.json equal, bit for bit, the row of that seed of the bundled
