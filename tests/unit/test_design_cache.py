@@ -98,3 +98,13 @@ def test_every_input_of_the_noise_tuning_is_part_of_its_key(cache_home, monkeypa
     assert len(searches) == len(changes)
     again = tuning.design_for_noise(*PLANT, [[0], [1]], **base)
     assert again.cached and len(searches) == len(changes)
+
+
+def test_a_file_others_may_write_is_not_read(cache_home):
+    calls = []
+    cached("test", 1, counted(2.0, calls), certify)
+    (path,) = cache_home.glob("test_*.pickle")
+    path.chmod(0o666)
+    result, hit = cached("test", 1, counted(2.0, calls), certify)
+    assert not hit and calls == [2.0, 2.0] and result.filtering.rho == 2.0
+    assert path.stat().st_mode & 0o022 == 0  # replaced by a private file

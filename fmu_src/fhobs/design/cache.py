@@ -4,13 +4,15 @@ source code, the numerical libraries' versions), in ``$XDG_CACHE_HOME/fhobs/desi
 checked again when it is read.
 
 The cache holds pickles written by this package in the user's private cache folder (the one
-the compiled kernel is loaded from). A file that cannot be read, or whose result fails its
-check, is computed again and replaced; deleting the folder only costs the next call its time.
+the compiled kernel is loaded from); a file is read only if it belongs to the user and no one
+else may write it. A file that cannot be read, or whose result fails its check, is computed
+again and replaced; deleting the folder only costs the next call its time.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import pickle
 from collections.abc import Callable
 from functools import cache
@@ -68,6 +70,7 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     """
     path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
     try:
+        _check_private(path)
         result = pickle.loads(path.read_bytes())
         check(result)
         return result, True
@@ -76,6 +79,14 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     result = compute()
     _write(path, pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
     return result, False
+
+
+def _check_private(path: Path) -> None:
+    """OSError unless ``path`` belongs to this user and no one else may write it: a pickle is
+    read only from where this user alone could have put it."""
+    info = path.stat()
+    if info.st_uid != os.getuid() or info.st_mode & 0o022:
+        raise PermissionError(f"{path} is not private to this user: not read")
 
 
 def _key(inputs: Any) -> str:
