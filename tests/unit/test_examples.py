@@ -14,7 +14,10 @@ PUBLIC_MODULES = (
     "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
     "fhobs.fmu.kinds", "fhobs.core.gains",
     "harness.figures", "harness.zoo", "harness.cli",
-    pytest.param("fhobs.design.tuning", marks=pytest.mark.slow),  # runs a tuning search (~15 s)
+    # a tuning search (~15 s) of the spec of the command-line tests of --tune-noise: with them
+    # on one worker, one search and then the user's cache
+    pytest.param("fhobs.design.tuning",
+                 marks=[pytest.mark.slow, pytest.mark.xdist_group("noise_tuning")]),
 )
 
 

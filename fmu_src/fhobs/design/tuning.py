@@ -276,7 +276,7 @@ def design_for_noise(
     >>> result = design_for_noise(
     ...     [[0, 1], [0, 0]], [[0], [1]], [[1, 0]], [[0], [1]],
     ...     measurement_std=[1e-3], sample_time=1e-2,
-    ...     disturbance={"shape": "step", "size": 0.2, "start": 0.5}, refine=0)
+    ...     disturbance={"shape": "step", "size": 0.2, "start": 0.5})
     >>> result.design.model.disturbance_order, result.design.kalman is not None
     (1, True)
     >>> result.predicted.noisy_rms > 0 and result.window
