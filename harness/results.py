@@ -30,6 +30,9 @@ import numpy as np
 from harness.master import CoSimResult
 from harness.system import Evaluation
 
+FIGURE_PREFIXES = ("error_at_", "max_error_", "rms_error_", "time_to_", "peak", "floor")
+"""The figures of :func:`error_figures`, by the start of their names (module docstring)."""
+
 
 def time_key(t: float) -> str:
     """``1.5 -> "1_5"``, ``3.0 -> "3"``."""

@@ -103,8 +103,6 @@ RUN_AXES = ("base", "seed", "step", "stop_time")
 """Axes that are not spec entries or start values."""
 DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
 STATUS_OK, STATUS_FAILED = "ok", "failed"
-FIGURE_PREFIXES = ("error_at_", "max_error_", "rms_error_", "time_to_", "peak", "floor")
-"""The figures of :func:`harness.results.error_figures`, by the start of their names."""
 PARETO_LABELS = 12
 """The Pareto picture labels an estimator's points when it has at most this many (more
 labels would cover each other and the picture)."""
@@ -1071,11 +1069,9 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
         row["steps"] = result.steps
         for estimator, figures in error_figures(result, system.evaluation).items():
             row |= {f"{estimator}.{name}": value for name, value in figures.items()}
-    except MasterError as err:
-        if err.interrupted is not None:
-            raise  # SIGINT or SIGTERM in this process (run_in_process): the caller stops
-        row |= {"status": STATUS_FAILED, "reason": one_paragraph(err)}
     except Exception as err:  # noqa: BLE001 - a failed point is a row, the sweep goes on
+        if isinstance(err, MasterError) and err.interrupted is not None:
+            raise  # SIGINT or SIGTERM in this process (run_in_process): the caller stops
         row |= {"status": STATUS_FAILED, "reason": one_paragraph(err)}
     row |= {"wall_time_s": time.perf_counter() - clock, "started_at": started,
             "finished_at": time.time(), "worker": _worker_name(), "pid": os.getpid()}
@@ -1410,6 +1406,8 @@ def figure_columns(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
     >>> figure_columns([{"homogeneous.rms_error_1_3": 1e-3, "linear.rms_error_1_3": 2e-3}])
     {'rms_error_1_3': ['homogeneous', 'linear']}
     """
+    from harness.results import FIGURE_PREFIXES
+
     out: dict[str, list[str]] = {}
     for column in dict.fromkeys(k for row in rows for k in row):
         estimator, dot, figure = column.partition(".")

@@ -296,7 +296,7 @@ def design_for_noise(
                  dict(fixed or {}), float(rejection), int(noise_draws), int(seed), int(refine))
     result, hit = cached("noise_tuning", (dataclasses.replace(spec, source=""), arguments),
                          lambda: _search(spec, *arguments), _certified)
-    return dataclasses.replace(result, cached=hit)
+    return dataclasses.replace(result, cached=True) if hit else result
 
 
 def _certified(result: NoiseDesign) -> None:
