@@ -1,12 +1,14 @@
-"""The master's step in C (``step_loop.c``), compiled on first use with the system C compiler.
+"""The harness's loops in C, compiled on first use with the system C compiler: the master's step
+(``step_loop.c``) and the in-process reference loop (``reference_loop.c``).
 
-:func:`step_library` returns the loaded library, or None when it cannot be had (no ``cc`` or
-``gcc``, not Linux, a failed compilation, ``FHOBS_HARNESS_PYTHON_LOOP`` set): the master then
-makes the same calls from Python (and gathers the inputs with the same sums, so both loops give
-the same results bit for bit). The library is cached in the user's cache directory
-(``$XDG_CACHE_HOME/fhobs`` or ``~/.cache/fhobs``; a private temporary directory if that is not
-writable) under a name derived from the source, and loaded with ``ctypes.PyDLL`` so that the GIL
-stays held during a step (as for the master's own ctypes calls).
+:func:`step_library` and :func:`reference_library` return the loaded library, or None when it
+cannot be had (no ``cc`` or ``gcc``, not Linux, a failed compilation,
+``FHOBS_HARNESS_PYTHON_LOOP`` set): the master then makes the same calls from Python (and
+gathers the inputs with the same sums, so both loops give the same results bit for bit), the
+reference loop steps its models from Python. The libraries are cached in the user's cache
+directory (``$XDG_CACHE_HOME/fhobs`` or ``~/.cache/fhobs``; a private temporary directory if that
+is not writable) under a name derived from the source, and loaded with ``ctypes.PyDLL`` so that
+the GIL stays held during a call (as for the master's own ctypes calls).
 """
 
 from __future__ import annotations
@@ -15,11 +17,15 @@ import ctypes
 import functools
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-from fhobs.core.kernel import cached_library
+from fhobs.core.kernel import HEADER as KERNEL_HEADER
+from fhobs.core.kernel import StepperHandle, cached_library
 
 SOURCE = Path(__file__).resolve().parent / "step_loop.c"
+REFERENCE_SOURCE = SOURCE.with_name("reference_loop.c")
+FLAGS = ("-shared", "-fPIC", "-O2", "-ffp-contract=off")
 DISABLE_ENV = "FHOBS_HARNESS_PYTHON_LOOP"
 CALLS = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
 
@@ -57,17 +63,57 @@ def step_library() -> ctypes.CDLL | None:
     """The compiled step_loop.c (``harness_run``), or None (see the module docstring)."""
     if os.environ.get(DISABLE_ENV) or sys.platform != "linux":
         return None
-    flags = ("-shared", "-fPIC", "-O2", "-ffp-contract=off")
-    return cached_library(SOURCE, "harness_step", flags, (), _open)
+    return cached_library(SOURCE, "harness_step", FLAGS, (), _opener("harness_run"))
 
 
-def _open(path: Path) -> ctypes.CDLL | None:
-    """Load the library and type ``harness_run``."""
-    try:
-        lib = ctypes.PyDLL(str(path))
-        step = lib.harness_run
-    except (OSError, AttributeError):
+class ReferenceLoop(ctypes.Structure):
+    """``ReferenceLoop`` of reference_loop.c: sizes, matrices, eta and q, the models."""
+
+    _fields_ = [
+        ("n_steps", ctypes.c_long),
+        ("n", ctypes.c_int),
+        ("k", ctypes.c_int),
+        ("m", ctypes.c_int),
+        ("r", ctypes.c_int),
+        ("feedback_state", ctypes.c_int),
+        ("C", ctypes.c_void_p),
+        ("K", ctypes.c_void_p),
+        ("eta", ctypes.c_void_p),
+        ("q", ctypes.c_void_p),
+        ("plant", ctypes.POINTER(StepperHandle)),
+        ("observer", ctypes.POINTER(StepperHandle)),
+        ("others", ctypes.POINTER(StepperHandle)),
+        ("n_others", ctypes.c_int),
+    ]
+
+
+class ReferenceRecord(ctypes.Structure):
+    """``ReferenceRecord`` of reference_loop.c: where the loop writes the trajectories."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in ("x", "observer", "others", "y", "u")]
+
+
+@functools.cache
+def reference_library() -> ctypes.CDLL | None:
+    """The compiled reference_loop.c (``reference_run``), or None (see the module docstring)."""
+    if os.environ.get(DISABLE_ENV) or sys.platform != "linux":
         return None
-    step.restype = ctypes.c_int
-    step.argtypes = None
-    return lib
+    flags = (*FLAGS, f"-I{KERNEL_HEADER.parent}")
+    return cached_library(REFERENCE_SOURCE, "harness_reference", flags, (),
+                          _opener("reference_run"), depends=(KERNEL_HEADER,))
+
+
+def _opener(function: str) -> Callable[[Path], ctypes.CDLL | None]:
+    """The loader of a library whose entry point is ``function`` (returning int)."""
+
+    def load(path: Path) -> ctypes.CDLL | None:
+        try:
+            lib = ctypes.PyDLL(str(path))
+            entry = getattr(lib, function)
+        except (OSError, AttributeError):
+            return None
+        entry.restype = ctypes.c_int
+        entry.argtypes = None
+        return lib
+
+    return load

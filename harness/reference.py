@@ -10,19 +10,24 @@ through the homogeneous observer only, so the data (x, y, u) are the same for ev
 the others run open-loop on the recorded (y, u) (:func:`replay` runs any further estimator on
 them). Other plants (the zoo of ``examples/``) run the
 same loop with their own ``K`` and ``x0``, optionally with the feedback on the true state.
+With the compiled kernel the loop runs in C (``reference_loop.c``), else from Python.
 """
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
 from fhobs.core.gains import ObserverDesign
 from fhobs.core.kalman_filter import KalmanObserver
-from fhobs.core.plant import LTIPlant
+from fhobs.core.kernel import StepperHandle
+from fhobs.core.plant import LTIPlant, noise_samples
 from fhobs.core.runtime import SCHEMES, FilteringObserver, LuenbergerObserver
 from fhobs.core.validation import check_step_size
 from fhobs.paper import H_PAPER, K_PAPER, PAPER_SCENARIOS, X0_PAPER
+
+from harness.native import ReferenceLoop, ReferenceRecord, reference_library
 
 FEEDBACKS = ("estimate", "state")
 
@@ -129,7 +134,10 @@ def simulate(
         observer's error then does not act on the plant).
     kernel : bool
         Step the plant and the estimators in the compiled kernel when it is available
-        (:mod:`fhobs.core.kernel`); False: the numpy runtime only.
+        (:mod:`fhobs.core.kernel`), the loop itself in C when it is compiled
+        (``reference_loop.c``, :func:`harness.native.reference_library`: the same steps in the
+        same order, about 20 times faster; the Kalman filter then replayed on the recorded
+        (y, u)); False: the numpy runtime only, stepped from Python.
 
     Returns
     -------
@@ -160,17 +168,43 @@ def simulate(
     if design.kalman is not None:
         others.append(KalmanObserver(design.kalman, kernel=kernel))
     n_steps = int(round(t_end / dt))
-    n, n_model, k = model.n, design.model.n_model, model.k
-    x = np.empty((n_steps + 1, n))
-    obs_state = np.empty((n_steps + 1, n_model + k + 1))  # [z, psi, xi] of the filtering observer
-    estimates = np.empty((len(others), n_steps + 1, n))
-    ys, us = np.empty((n_steps, k)), np.empty((n_steps, model.m))
     t = np.arange(n_steps + 1) * dt
     q = np.repeat(spec.q_amplitude * np.sin(spec.q_frequency * t)[:, None], E.shape[1], axis=1)
     K = np.asarray(K, dtype=float)
     if K.shape != (model.m, model.n) or not np.all(np.isfinite(K)):
         raise ValueError(f"K must be a finite {model.m} x {model.n} matrix (inputs x states) for "
                          f"this plant; got shape {K.shape}")
+    loop = _loop_in_c if _runs_in_c(kernel, plant, obs, others) else _loop_in_python
+    x, obs_state, estimates, ys, us = loop(plant, obs, others, K, q, n_steps, dt, feedback)
+    n, n_model, k = model.n, design.model.n_model, model.k
+    psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
+    sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
+    return SimulationResult(t=t, x=x, z=obs_state[:, :n],
+                            z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
+                            q_hat=obs_state[:, n:n_model],
+                            z_kalman=estimates[1] if design.kalman is not None else None,
+                            y=ys, u=us)
+
+
+Trajectories = tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]
+"""x, the filtering observer's states [z, psi, xi], the other estimators' estimates, y, u."""
+
+
+def _runs_in_c(kernel: bool, plant: LTIPlant, obs: FilteringObserver, others: list) -> bool:
+    """Whether :func:`simulate`'s loop runs in C: the kernel asked for, the loop compiled, the
+    plant and the observers in the loop compiled (the Kalman filter is replayed after it)."""
+    return (kernel and reference_library() is not None and plant.compiled and obs.compiled
+            and all(other.compiled for other in others if not isinstance(other, KalmanObserver)))
+
+
+def _loop_in_python(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndarray,
+                    q: np.ndarray, n_steps: int, dt: float, feedback: str) -> Trajectories:
+    """The loop of :func:`simulate`, a step of every model per communication step."""
+    n, size = plant.A.shape[0], obs.get_state().size
+    x = np.empty((n_steps + 1, n))
+    obs_state = np.empty((n_steps + 1, size))
+    estimates = np.empty((len(others), n_steps + 1, n))
+    ys, us = np.empty((n_steps, plant.C.shape[0])), np.empty((n_steps, K.shape[0]))
     # with K checked the loop computes y, u and q itself (finite, of the right sizes): the
     # models' advance, their step without the argument checks; a non-finite result still raises
     for step in range(n_steps + 1):
@@ -185,13 +219,41 @@ def simulate(
         obs.advance(y, u, dt)
         for other in others:
             other.advance(y, u, dt)
-    psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
-    sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
-    return SimulationResult(t=t, x=x, z=obs_state[:, :n],
-                            z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
-                            q_hat=obs_state[:, n:n_model],
-                            z_kalman=estimates[1] if design.kalman is not None else None,
-                            y=ys, u=us)
+    return x, obs_state, list(estimates), ys, us
+
+
+def _loop_in_c(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndarray,
+               q: np.ndarray, n_steps: int, dt: float, feedback: str) -> Trajectories:
+    """The loop of :func:`simulate` in ``reference_loop.c`` (one call: the models' kernel steps,
+    y and u computed in C); a Kalman filter among ``others`` replayed on the recorded (y, u)."""
+    n, k, m = plant.A.shape[0], plant.C.shape[0], K.shape[0]
+    in_loop = [other for other in others if not isinstance(other, KalmanObserver)]
+    handles = [model.kernel_handle(dt) for model in (plant, obs, *in_loop)]
+    others_handles = (StepperHandle * max(len(in_loop), 1))(*handles[2:])
+    C = np.ascontiguousarray(plant.C, dtype=float)
+    K = np.ascontiguousarray(K)
+    eta = noise_samples(plant.seed, n_steps, plant.noise_amplitude, k)
+    q = np.ascontiguousarray(q[:n_steps])
+    x = np.empty((n_steps + 1, n))
+    obs_state = np.empty((n_steps + 1, handles[1].size))
+    estimates = np.empty((len(in_loop), n_steps + 1, n))
+    ys, us = np.empty((n_steps, k)), np.empty((n_steps, m))
+    loop = ReferenceLoop(n_steps, n, k, m, q.shape[1], int(feedback == "state"),
+                         *(array.ctypes.data for array in (C, K, eta, q)),
+                         ctypes.pointer(handles[0]), ctypes.pointer(handles[1]),
+                         others_handles, len(in_loop))
+    record = ReferenceRecord(*(array.ctypes.data for array in (x, obs_state, estimates, ys, us)))
+    sides, failed = (ctypes.c_int * (len(in_loop) + 2))(), (ctypes.c_long * 2)()
+    if reference_library().reference_run(ctypes.byref(loop), ctypes.byref(record), sides,
+                                         failed):
+        model = ("plant", "filtering observer", *(type(o).__name__ for o in in_loop))
+        raise ValueError(f"the {model[failed[0]]}'s state became non-finite at step "
+                         f"{failed[1]}")
+    result = x, obs_state, list(estimates), ys, us
+    for position, other in enumerate(others):
+        if isinstance(other, KalmanObserver):
+            result[2].insert(position, _replay_records(other, ys, us, dt))
+    return result
 
 
 def replay(observer, result: SimulationResult) -> np.ndarray:
@@ -214,12 +276,16 @@ def replay(observer, result: SimulationResult) -> np.ndarray:
     >>> result = simulate(design, "perturbed_noisy")            # doctest: +SKIP
     >>> z = replay(KalmanObserver(design.kalman), result)       # doctest: +SKIP
     """
-    dt = float(result.t[1] - result.t[0])
-    out = np.empty((result.t.size, result.x.shape[1]))
-    for step in range(result.t.size):
+    return _replay_records(observer, result.y, result.u, float(result.t[1] - result.t[0]))
+
+
+def _replay_records(observer, ys: np.ndarray, us: np.ndarray, dt: float) -> np.ndarray:
+    """:func:`replay` on the inputs ``ys``, ``us`` held over steps of size dt."""
+    out = np.empty((len(ys) + 1, observer.x_hat.size))
+    for step in range(len(ys) + 1):
         out[step] = observer.x_hat
-        if step < len(result.y):
-            observer.step(result.y[step], result.u[step], dt)
+        if step < len(ys):
+            observer.step(ys[step], us[step], dt)
     return out
 
 

@@ -44,6 +44,18 @@ typedef struct {
     const double *inputs;
 } Call;
 
+/* A model's stepper (fhobs.core.kernel.StepperHandle) as a loop in C drives it: a step calls
+ * step(calls[side]), which reads the state in buffers[side] and the two inputs held in inputs
+ * (one after the other) and writes buffers[1 - side], the state after the step; size is the
+ * number of state entries in a buffer. */
+typedef struct {
+    int (*step)(const Call *call);
+    const Call *calls[2];
+    double *buffers[2];
+    double *inputs;
+    int size;
+} StepperHandle;
+
 /* ---------------------------------------------------------------------------------------- */
 /* Plans (fhobs.core.kernel's Structures, field by field)                                   */
 

@@ -332,6 +332,15 @@ class Call(ctypes.Structure):
                 ("inputs", ctypes.c_void_p)]
 
 
+class StepperHandle(ctypes.Structure):
+    """``StepperHandle`` of kernel.h: a model's stepper as a loop in C drives it (step function,
+    its two calls, the two state buffers, the input buffer, the state's size)."""
+
+    _fields_ = [("step", ctypes.c_void_p), ("calls", ctypes.c_void_p * 2),
+                ("buffers", ctypes.c_void_p * 2), ("inputs", ctypes.c_void_p),
+                ("size", ctypes.c_int)]
+
+
 class Stepper:
     """Two state buffers, an input buffer and the per-step-size plans of one model.
 
@@ -395,6 +404,28 @@ class Stepper:
             self._make_plan(dt)
         plan, arrays, _ = self._kept[dt]
         return plan, arrays
+
+    def handle(self, dt: float, *state: np.ndarray) -> StepperHandle:
+        """The stepper for a loop in C that makes its steps of size dt (``StepperHandle``): the
+        plan of dt made as :meth:`run` makes it (ValueError if the model refuses the step
+        size), the arrays of ``state`` copied into buffer 0, where the loop's first step reads
+        them. Valid while this stepper lives; the loop's steps do not change :attr:`state`.
+
+        Examples
+        --------
+        A plant's stepper, for a loop in C that steps the plant from its state x::
+
+            handle = stepper.handle(dt, x)      # x in buffers[0]: the first step is side 0
+        """
+        if dt not in self._calls:
+            self._make_plan(dt)
+        for view, array in zip(self._views[0], state, strict=True):
+            view[...] = array
+        calls = [call.value for call in self._calls[dt]]
+        buffers = [buffer.ctypes.data for buffer in self._buffers]
+        return StepperHandle(ctypes.cast(self._function, ctypes.c_void_p).value, tuple(calls),
+                             tuple(buffers), self._input_buffer.ctypes.data,
+                             self._buffers[0].size)
 
     def run(self, dt: float, first: np.ndarray, last: np.ndarray, a: np.ndarray,
             b: np.ndarray) -> int:

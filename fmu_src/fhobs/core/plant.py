@@ -42,6 +42,22 @@ def uniform_noise(seed: int, k: int, amplitude: float, size: int) -> np.ndarray:
     return amplitude * draws[index]
 
 
+def noise_samples(seed: int, count: int, amplitude: float, size: int) -> np.ndarray:
+    """The noise samples ``eta_0 .. eta_{count - 1}`` (rows), each as :func:`uniform_noise`
+    gives it.
+
+    Examples
+    --------
+    >>> eta = noise_samples(3, 2000, 1e-3, 2)
+    >>> eta.shape, bool(np.array_equal(eta[1500], uniform_noise(3, 1500, 1e-3, 2)))
+    ((2000, 2), True)
+    """
+    if amplitude == 0.0:
+        return np.zeros((count, size))
+    blocks = [_noise_block(int(seed), block, size) for block in range(-(-count // NOISE_BLOCK))]
+    return amplitude * np.concatenate(blocks or [np.zeros((0, size))])[:count]
+
+
 _BLOCK_CACHE: dict[tuple[int, int, int], np.ndarray] = {}
 
 
@@ -177,6 +193,14 @@ class LTIPlant:
     def compiled(self) -> bool:
         """Whether the step runs in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
+
+    def kernel_handle(self, dt: float) -> compiled.StepperHandle:
+        """The compiled step of size dt for a loop in C, from the current state
+        (:meth:`fhobs.core.kernel.Stepper.handle`; ValueError if the plant is not
+        :attr:`compiled`). The loop's steps do not change this plant."""
+        if self._stepper is None:
+            raise ValueError("the plant does not step in the compiled kernel")
+        return self._stepper.handle(dt, self._x)
 
     def _kernel_plan(self, dt: float) -> None:
         """Register the kernel's plan for dt (the ZOH matrices)."""

@@ -240,6 +240,14 @@ class _Observer:
         """Whether the step runs in the compiled kernel (:mod:`fhobs.core.kernel`)."""
         return self._stepper is not None
 
+    def kernel_handle(self, dt: float) -> compiled.StepperHandle:
+        """The compiled step of size dt for a loop in C, from the current state ``[z, aux]``
+        (:meth:`fhobs.core.kernel.Stepper.handle`; ValueError if the observer is not
+        :attr:`compiled` or refuses dt). The loop's steps do not change this observer."""
+        if self._stepper is None:
+            raise ValueError(f"the {self.scheme} step does not run in the compiled kernel")
+        return self._stepper.handle(dt, self._z, self._aux)
+
     def _use_kernel(self, split_function: str) -> None:
         """Make the step run in the kernel (the split step in ``split_function``, the euler
         substeps in ``fhobs_euler_step``) when the library is there (call at the end of a
