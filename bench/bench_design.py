@@ -4,7 +4,9 @@ Prints a table: homogenisation time, full design time at a given rho (homogenisa
 LMIs + numpy certificate; the random plants at rho = 1.5, gamma = 2.75, the pendulum at its
 spec's), and the design time when the design chooses rho for the default settling time (one
 design and one settling-time prediction per rung of the rho ladder), best of ``--repeat`` runs,
-imports excluded. Targets: pendulum < 0.3 s, n = 50 < 10 s (at a given rho).
+imports excluded, all without the design cache (``FHOBS_NO_DESIGN_CACHE``); and the time of the
+given-rho design read from the user's cache (a design made before: read and certified again).
+Targets: pendulum < 0.3 s, n = 50 < 10 s (at a given rho).
 
 Run: ``python bench/bench_design.py [--repeat 3]``.
 """
@@ -12,10 +14,12 @@ Run: ``python bench/bench_design.py [--repeat 3]``.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 import tomllib
 
 import numpy as np
+from fhobs.design.cache import DISABLE_ENV
 from fhobs.design.homogenisation import homogenise
 from fhobs.design.observer import design_for_spec
 from fhobs.design.spec import spec_from_dict
@@ -54,15 +58,19 @@ def main() -> None:
         for n, k in ((10, 3), (20, 4), (50, 10)) for data in [random_plant(n, k, seed=9)]
     ]
     print(f"{'plant':<14} {'n':>3} {'k':>3} {'n~':>3} {'homogenise s':>13} {'design s':>9} "
-          f"{'auto rho s':>11}")
+          f"{'auto rho s':>11} {'cached s':>9}")
     for name, given, auto in cases:
         spec, spec_auto = spec_from_dict(given, name), spec_from_dict(auto, name)
+        os.environ[DISABLE_ENV] = "1"
         t_hom = best_time(lambda s=spec: homogenise(s.A, s.C, s.nu), args.repeat)
         t_design = best_time(lambda s=spec: design_for_spec(s), args.repeat)
         t_auto = best_time(lambda s=spec_auto: design_for_spec(s), 1)
+        del os.environ[DISABLE_ENV]
+        design_for_spec(spec)  # into the cache, if it was not there
+        t_cached = best_time(lambda s=spec: design_for_spec(s), args.repeat)
         n, k = spec.A.shape[0], spec.C.shape[0]
         print(f"{name:<14} {n:>3} {k:>3} {spec.n_tilde:>3} {t_hom:>13.3f} {t_design:>9.3f} "
-              f"{t_auto:>11.2f}")
+              f"{t_auto:>11.2f} {t_cached:>9.3f}")
 
 
 if __name__ == "__main__":

@@ -320,6 +320,7 @@ def test_what_an_fmu_refuses_certify_and_the_builds_refuse(kalman_design, tmp_pa
 
 
 def test_design_rejects_a_broken_solver_result(monkeypatch, pendulum_spec):
+    monkeypatch.setenv("FHOBS_NO_DESIGN_CACHE", "1")  # the solver runs, the cache aside
     real = fhobs.design.observer.solve_gain_lmi
 
     def corrupted(*args, **kwargs):

@@ -108,3 +108,81 @@ def test_a_file_others_may_write_is_not_read(cache_home):
     result, hit = cached("test", 1, counted(2.0, calls), certify)
     assert not hit and calls == [2.0, 2.0] and result.filtering.rho == 2.0
     assert path.stat().st_mode & 0o022 == 0  # replaced by a private file
+
+
+def counting_designs(monkeypatch) -> list:
+    """The spec of every design :func:`design_for_spec` computes (not read from the cache)."""
+    from fhobs.design import observer
+
+    computed, real = [], observer._designed
+
+    def designed(spec, *arguments):
+        computed.append(spec)
+        return real(spec, *arguments)
+
+    monkeypatch.setattr(observer, "_designed", designed)
+    return computed
+
+
+def test_every_input_of_a_design_is_part_of_its_key(cache_home, monkeypatch):
+    """design_for_spec: the same spec (from another source) is read from the cache, equal to a
+    design made afresh; a change of any one input designs again."""
+    import dataclasses
+
+    from fhobs.design.observer import design_for_spec
+    from fhobs.design.spec import plant_spec, spec_from_dict
+
+    computed = counting_designs(monkeypatch)
+    spec = plant_spec(*PLANT, rho=2.0)
+    first = design_for_spec(spec)
+    again = design_for_spec(dataclasses.replace(spec, source="another file"))
+    assert len(computed) == 1 and again is not first
+    monkeypatch.setenv("FHOBS_NO_DESIGN_CACHE", "1")
+    fresh = design_for_spec(spec)
+    monkeypatch.delenv("FHOBS_NO_DESIGN_CACHE")
+    assert len(computed) == 2
+    for record, gain in (("filtering", "L"), ("prescribed_time", "L_pt"),
+                         ("luenberger", "L_lin")):
+        read, made = getattr(again, record), getattr(fresh, record)
+        assert np.array_equal(getattr(read, gain), getattr(made, gain)), record
+        assert read.certificate == made.certificate, record
+    base = {"A": PLANT[0], "B": PLANT[1], "C": PLANT[2], "observer": {"rho": 2.0}}
+    variants = [({"observer": {"rho": 3.0}}, {}), ({"observer": {"rho": 2.0, "gamma": 3.0}}, {}),
+                ({"A": [[0, 1], [-1, 0]]}, {}),
+                ({"observer": {"rho": 2.0, "filter_scale": 1.5}}, {}),
+                ({"observer": {"rho": 2.0, "state_scale": 2.0}}, {}),
+                ({"E": [[0], [1]]}, {}),
+                ({"E": [[0], [1]],
+                  "noise": {"measurement_amplitude": [1e-3], "sample_time": 1e-2,
+                            "process_intensity": 1e-2}}, {}),
+                ({}, {"objective": "min_gain"}), ({}, {"margin": 2e-2}),
+                ({}, {"filter_scale": 1.5})]
+    for change, arguments in variants:
+        design_for_spec(spec_from_dict(base | change, source="variant"), **arguments)
+    assert len(computed) == 2 + len(variants)
+
+
+def test_without_the_cache_nothing_is_read_or_written(cache_home, monkeypatch):
+    from fhobs.design.observer import design_for_spec
+    from fhobs.design.spec import plant_spec
+
+    monkeypatch.setenv("FHOBS_NO_DESIGN_CACHE", "1")
+    computed = counting_designs(monkeypatch)
+    for _ in range(2):
+        design_for_spec(plant_spec(*PLANT, rho=2.0))
+    assert len(computed) == 2 and not cache_home.exists()
+
+
+def test_the_folder_keeps_the_newest_files(cache_home, monkeypatch):
+    import os
+
+    from fhobs.design import cache
+
+    monkeypatch.setattr(cache, "KEPT", 3)
+    for key in range(5):
+        cached("test", key, lambda key=key: key, check=int)
+        for path in cache_home.glob("*.pickle"):  # every earlier file older by a second
+            os.utime(path, (path.stat().st_mtime - 1, path.stat().st_mtime - 1))
+    assert len(list(cache_home.glob("*.pickle"))) == 3
+    assert [cached("test", key, lambda: -1, check=int)[1] for key in (2, 3, 4)] == [True] * 3
+    assert cached("test", 0, lambda: -1, check=int) == (-1, False)

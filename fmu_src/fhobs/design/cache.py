@@ -1,12 +1,15 @@
-"""The user's cache of long design computations (the noise tuning's search): a result is kept
-under a hash of everything it is made of (its inputs, the design layer's and the runtime's
-source code, the numerical libraries' versions), in ``$XDG_CACHE_HOME/fhobs/designs``, and
-checked again when it is read.
+"""The user's cache of design computations (every design of a spec, the noise tuning's search):
+a result is kept under a hash of everything it is made of (its inputs, the design layer's and
+the runtime's source code, the numerical libraries' versions), in
+``$XDG_CACHE_HOME/fhobs/designs``, and checked again when it is read (a design is certified
+again: a cached design never skips its certificate).
 
 The cache holds pickles written by this package in the user's private cache folder (the one
 the compiled kernel is loaded from); a file is read only if it belongs to the user and no one
 else may write it. A file that cannot be read, or whose result fails its check, is computed
-again and replaced; deleting the folder only costs the next call its time.
+again and replaced; deleting the folder only costs the next call its time. The folder keeps
+the newest :data:`KEPT` files. With the environment variable ``FHOBS_NO_DESIGN_CACHE`` set
+(non-empty) every result is computed, nothing read or written.
 """
 
 from __future__ import annotations
@@ -28,6 +31,10 @@ T = TypeVar("T")
 LIBRARIES = ("fhobs", "numpy", "scipy", "cvxpy", "clarabel")
 """The packages whose version is part of every key: fhobs itself (an install without sources
 still keys by its version) and the libraries whose numbers make the results."""
+DISABLE_ENV = "FHOBS_NO_DESIGN_CACHE"
+"""Set (non-empty): compute every result, read and write no file."""
+KEPT = 2000
+"""Files the folder keeps (the newest; a design's file is a few KB)."""
 UNREADABLE = (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError,
               TypeError, ValueError, IndexError, CertificateError)
 """What reading a stale, partial or foreign cache file raises, and a result failing its check
@@ -68,6 +75,8 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     >>> _ = os.environ.pop("XDG_CACHE_HOME") if saved is None else os.environ.update(
     ...     XDG_CACHE_HOME=saved)
     """
+    if os.environ.get(DISABLE_ENV):
+        return compute(), False
     path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
     try:
         _check_private(path)
@@ -116,11 +125,23 @@ def _code_digest() -> bytes:
 
 
 def _write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` (whole or not at all); a cache that cannot be written is only
-    a slower next call."""
+    """Write ``data`` to ``path`` (whole or not at all), then drop the oldest files beyond
+    :data:`KEPT`; a cache that cannot be written is only a slower next call."""
     try:
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         with replaced_atomically(path) as partial:
             partial.write_bytes(data)
+        files = list(path.parent.glob("*.pickle"))
+        if len(files) > KEPT:
+            for old in sorted(files, key=_modified)[:len(files) - KEPT]:
+                old.unlink(missing_ok=True)
     except OSError:
         pass
+
+
+def _modified(path: Path) -> float:
+    """Modification time of ``path`` (0 for a file another process has just removed)."""
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return 0.0

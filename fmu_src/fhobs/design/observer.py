@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ..core.certificate import certify_parts
+from ..core.certificate import certify, certify_parts
 from ..core.disturbance import extended_model, model_perturbation_matrix
 from ..core.gains import (
     FilteringGains,
@@ -52,6 +52,7 @@ from ..core.gains import (
 from ..core.linalg import diagonal_congruence, diagonal_similarity
 from ..errors import CertificateError, LMIError, SpecError
 from ..paper import PAPER_REFERENCE
+from .cache import cached
 from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .kalman import with_kalman
 from .limits import check_design_limits
@@ -259,6 +260,10 @@ def design_for_spec(
     observer (with its prescribed-time and Luenberger companions) and, with a ``[noise]``
     table, the Kalman filter baseline; what ``build_fmu.py`` and ``harness plant`` build.
 
+    A design of equal inputs made before with the same code and libraries is read from the
+    user's cache (:mod:`fhobs.design.cache`) and certified again; ``FHOBS_NO_DESIGN_CACHE=1``
+    designs afresh.
+
     Parameters
     ----------
     spec : PlantSpec
@@ -305,8 +310,24 @@ def design_for_spec(
     (3.0, True)
     """
     check_design_limits(spec)
+    design, _ = cached("design", (replace(spec, source=""), objective, margin, filter_scale),
+                       lambda: _designed(spec, objective, margin, filter_scale),
+                       _certified_design)
+    return design
+
+
+def _designed(spec: PlantSpec, objective: str | None, margin: float,
+              filter_scale: float | None) -> ObserverDesign:
+    """:func:`design_for_spec` computed (no cache)."""
     design = _observer_for_spec(spec, objective, margin, filter_scale)
     return design if spec.noise is None else with_kalman(design, spec.noise)
+
+
+def _certified_design(design: ObserverDesign) -> None:
+    """Raise CertificateError unless ``design`` is a design whose every record certifies."""
+    if not isinstance(design, ObserverDesign):
+        raise CertificateError(f"not an observer design: {type(design).__name__}")
+    certify(design)
 
 
 def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
