@@ -29,7 +29,7 @@ pytestmark = [
 ROOT = Path(__file__).resolve().parents[2]
 STOP_TIME = 200.0
 """Far longer than the time the test lets the run go on."""
-RUNNING = 3.0
+RUNNING = 1.5
 """Seconds the run goes on after its output folder appeared (FMUs instantiated, stepping)."""
 EVERY = 200
 """results.csv holds every 200th row (and the last): a native run makes a million rows."""
