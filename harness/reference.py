@@ -186,6 +186,8 @@ def simulate(
                             y=ys, u=us)
 
 
+C_CHUNK = 100_000
+"""Steps per call of the C loop (about 0.2 s on the pendulum)."""
 Trajectories = tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]
 """x, the filtering observer's states [z, psi, xi], the other estimators' estimates, y, u."""
 
@@ -224,8 +226,10 @@ def _loop_in_python(plant: LTIPlant, obs: FilteringObserver, others: list, K: np
 
 def _loop_in_c(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndarray,
                q: np.ndarray, n_steps: int, dt: float, feedback: str) -> Trajectories:
-    """The loop of :func:`simulate` in ``reference_loop.c`` (one call: the models' kernel steps,
-    y and u computed in C); a Kalman filter among ``others`` replayed on the recorded (y, u)."""
+    """The loop of :func:`simulate` in ``reference_loop.c`` (the models' kernel steps, y and u
+    computed in C, in calls of :data:`C_CHUNK` steps); a Kalman filter among ``others``
+    replayed on the recorded (y, u). The models are :func:`simulate`'s, new: the noise starts
+    at step 0."""
     n, k, m = plant.A.shape[0], plant.C.shape[0], K.shape[0]
     in_loop = [other for other in others if not isinstance(other, KalmanObserver)]
     handles = [model.kernel_handle(dt) for model in (plant, obs, *in_loop)]
@@ -244,11 +248,14 @@ def _loop_in_c(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndar
                          others_handles, len(in_loop))
     record = ReferenceRecord(*(array.ctypes.data for array in (x, obs_state, estimates, ys, us)))
     sides, failed = (ctypes.c_int * (len(in_loop) + 2))(), (ctypes.c_long * 2)()
-    if reference_library().reference_run(ctypes.byref(loop), ctypes.byref(record), sides,
-                                         failed):
-        model = ("plant", "filtering observer", *(type(o).__name__ for o in in_loop))
-        raise ValueError(f"the {model[failed[0]]}'s state became non-finite at step "
-                         f"{failed[1]}")
+    run = reference_library().reference_run
+    for k_from in range(0, max(n_steps, 1), C_CHUNK):  # Ctrl-C is seen between chunks
+        k_to = min(k_from + C_CHUNK, n_steps)
+        if run(ctypes.byref(loop), ctypes.byref(record), sides, ctypes.c_long(k_from),
+               ctypes.c_long(k_to), failed):
+            model = ("plant", "filtering observer", *(type(o).__name__ for o in in_loop))
+            raise ValueError(f"the {model[failed[0]]}'s state became non-finite at step "
+                             f"{failed[1]}")
     result = x, obs_state, list(estimates), ys, us
     for position, other in enumerate(others):
         if isinstance(other, KalmanObserver):

@@ -55,18 +55,17 @@ static int failure(int status, long model, long step, long failed[2])
     return status;
 }
 
-/* Runs the loop, recording into rec; sides: scratch of n_others + 2 entries (the buffer each
- * model's state is in). Returns 0, or the step function's status of the first failing step:
- * failed[0] = the model (0 plant, 1 filtering observer, 2 + i the other observer i),
- * failed[1] = the step index k. */
+/* Runs the loop's steps k_from .. k_to - 1, recording the states at t_k_from .. t_k_to (and
+ * y, u of the steps) into rec; sides (n_others + 2 entries, zeros before the first call) holds
+ * the buffer each model's state is in, from one call to the next. Returns 0, or the step
+ * function's status of the first failing step: failed[0] = the model (0 plant, 1 filtering
+ * observer, 2 + i the other observer i), failed[1] = the step index k. */
 int reference_run(const ReferenceLoop *loop, const ReferenceRecord *rec, int *sides,
-                  long failed[2])
+                  long k_from, long k_to, long failed[2])
 {
     const int n = loop->n, k = loop->k, m = loop->m, r = loop->r;
     const long n_rows = loop->n_steps + 1;
-    for (int i = 0; i < loop->n_others + 2; i++)
-        sides[i] = 0;
-    for (long step = 0;; step++) {
+    for (long step = k_from;; step++) {
         const double *x = loop->plant->buffers[sides[0]];
         const double *z = loop->observer->buffers[sides[1]];
         memcpy(rec->x + step * n, x, sizeof(double) * (size_t)n);
@@ -75,7 +74,7 @@ int reference_run(const ReferenceLoop *loop, const ReferenceRecord *rec, int *si
         for (int i = 0; i < loop->n_others; i++)
             memcpy(rec->others + ((long)i * n_rows + step) * n,
                    loop->others[i].buffers[sides[2 + i]], sizeof(double) * (size_t)n);
-        if (step == loop->n_steps)
+        if (step == k_to)
             return 0;
         double *y = rec->y + step * k, *u = rec->u + step * m;
         matvec(loop->C, x, k, n, y);

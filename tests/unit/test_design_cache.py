@@ -173,16 +173,32 @@ def test_without_the_cache_nothing_is_read_or_written(cache_home, monkeypatch):
     assert len(computed) == 2 and not cache_home.exists()
 
 
-def test_the_folder_keeps_the_newest_files(cache_home, monkeypatch):
+def test_the_folder_keeps_the_most_recently_used_files(cache_home, monkeypatch):
     import os
 
     from fhobs.design import cache
 
     monkeypatch.setattr(cache, "KEPT", 3)
-    for key in range(5):
+    for key in range(3):
         cached("test", key, lambda key=key: key, check=int)
         for path in cache_home.glob("*.pickle"):  # every earlier file older by a second
             os.utime(path, (path.stat().st_mtime - 1, path.stat().st_mtime - 1))
-    assert len(list(cache_home.glob("*.pickle"))) == 3
-    assert [cached("test", key, lambda: -1, check=int)[1] for key in (2, 3, 4)] == [True] * 3
-    assert cached("test", 0, lambda: -1, check=int) == (-1, False)
+    assert cached("test", 0, lambda: -1, check=int) == (0, True)  # the oldest, used again
+    cached("test", 3, lambda: 3, check=int)
+    assert len(list(cache_home.iterdir())) == 3
+    assert [cached("test", key, lambda: -1, check=int)[1] for key in (0, 2, 3)] == [True] * 3
+    assert cached("test", 1, lambda: -1, check=int) == (-1, False)
+
+
+def test_a_cache_folder_that_cannot_be_made_only_costs_time(tmp_path, monkeypatch):
+    """XDG_CACHE_HOME a file: no cache folder at all; every design is computed."""
+    from fhobs.design.observer import design_for_spec
+    from fhobs.design.spec import plant_spec
+
+    blocker = tmp_path / "a file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    computed = counting_designs(monkeypatch)
+    for _ in range(2):
+        assert design_for_spec(plant_spec(*PLANT, rho=2.0)).filtering.rho == 2.0
+    assert len(computed) == 2

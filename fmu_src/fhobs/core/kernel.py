@@ -409,7 +409,9 @@ class Stepper:
         """The stepper for a loop in C that makes its steps of size dt (``StepperHandle``): the
         plan of dt made as :meth:`run` makes it (ValueError if the model refuses the step
         size), the arrays of ``state`` copied into buffer 0, where the loop's first step reads
-        them. Valid while this stepper lives; the loop's steps do not change :attr:`state`.
+        them. Valid while this stepper lives and plans no other step size. The loop's steps
+        write both buffers: the model's own state arrays must not be views of them (the
+        models' ``kernel_handle`` detaches them first).
 
         Examples
         --------

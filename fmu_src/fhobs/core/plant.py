@@ -197,9 +197,11 @@ class LTIPlant:
     def kernel_handle(self, dt: float) -> compiled.StepperHandle:
         """The compiled step of size dt for a loop in C, from the current state
         (:meth:`fhobs.core.kernel.Stepper.handle`; ValueError if the plant is not
-        :attr:`compiled`). The loop's steps do not change this plant."""
+        :attr:`compiled`). The plant keeps its state and its step count (its state detached
+        from the buffers the loop writes): the loop's steps do not advance it."""
         if self._stepper is None:
             raise ValueError("the plant does not step in the compiled kernel")
+        self._x = self._x.copy()
         return self._stepper.handle(dt, self._x)
 
     def _kernel_plan(self, dt: float) -> None:

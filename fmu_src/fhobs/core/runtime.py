@@ -243,9 +243,11 @@ class _Observer:
     def kernel_handle(self, dt: float) -> compiled.StepperHandle:
         """The compiled step of size dt for a loop in C, from the current state ``[z, aux]``
         (:meth:`fhobs.core.kernel.Stepper.handle`; ValueError if the observer is not
-        :attr:`compiled` or refuses dt). The loop's steps do not change this observer."""
+        :attr:`compiled` or refuses dt). The observer keeps its state (detached from the
+        buffers the loop writes): the loop's steps do not advance it."""
         if self._stepper is None:
             raise ValueError(f"the {self.scheme} step does not run in the compiled kernel")
+        self._z, self._aux = self._z.copy(), self._aux.copy()
         return self._stepper.handle(dt, self._z, self._aux)
 
     def _use_kernel(self, split_function: str) -> None:

@@ -8,8 +8,8 @@ The cache holds pickles written by this package in the user's private cache fold
 the compiled kernel is loaded from); a file is read only if it belongs to the user and no one
 else may write it. A file that cannot be read, or whose result fails its check, is computed
 again and replaced; deleting the folder only costs the next call its time. The folder keeps
-the newest :data:`KEPT` files. With the environment variable ``FHOBS_NO_DESIGN_CACHE`` set
-(non-empty) every result is computed, nothing read or written.
+the :data:`KEPT` most recently used files. With the environment variable
+``FHOBS_NO_DESIGN_CACHE`` set (non-empty) every result is computed, nothing read or written.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, TypeVar
 
-from ..core.kernel import cache_dir, replaced_atomically
+from ..core.kernel import cache_dir, library, replaced_atomically
 from ..errors import CertificateError
 
 T = TypeVar("T")
@@ -34,7 +34,7 @@ still keys by its version) and the libraries whose numbers make the results."""
 DISABLE_ENV = "FHOBS_NO_DESIGN_CACHE"
 """Set (non-empty): compute every result, read and write no file."""
 KEPT = 2000
-"""Files the folder keeps (the newest; a design's file is a few KB)."""
+"""Files the folder keeps (the most recently used; a design's file is a few KB)."""
 UNREADABLE = (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError,
               TypeError, ValueError, IndexError, CertificateError)
 """What reading a stale, partial or foreign cache file raises, and a result failing its check
@@ -77,16 +77,20 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
     """
     if os.environ.get(DISABLE_ENV):
         return compute(), False
-    path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
+    try:
+        path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
+    except OSError:  # no cache folder to be had: computed every time
+        return compute(), False
     try:
         _check_private(path)
         result = pickle.loads(path.read_bytes())
         check(result)
+        os.utime(path)  # recently used: the last to be dropped
         return result, True
     except UNREADABLE:
         pass  # no file, a stale or partial one, or a result that fails its check
     result = compute()
-    _write(path, pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+    _write(path, result)
     return result, False
 
 
@@ -99,8 +103,11 @@ def _check_private(path: Path) -> None:
 
 
 def _key(inputs: Any) -> str:
-    """Hash of ``inputs``, the code and the libraries' versions."""
+    """Hash of ``inputs``, the code, the libraries' versions and whether the runtime steps in
+    the compiled kernel (the settling-time search runs it; its results differ from numpy's
+    by round-off)."""
     digest = hashlib.sha256(_code_digest())
+    digest.update(b"kernel" if library() is not None else b"numpy")
     digest.update(pickle.dumps(inputs, protocol=4))
     return digest.hexdigest()[:24]
 
@@ -124,18 +131,20 @@ def _code_digest() -> bytes:
     return digest.digest()
 
 
-def _write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` (whole or not at all), then drop the oldest files beyond
-    :data:`KEPT`; a cache that cannot be written is only a slower next call."""
+def _write(path: Path, result: Any) -> None:
+    """Pickle ``result`` into ``path`` (whole or not at all), then drop the least recently
+    used files beyond :data:`KEPT` (a partial file a killed process left among them); a cache
+    that cannot be written is only a slower next call."""
     try:
+        data = pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         with replaced_atomically(path) as partial:
             partial.write_bytes(data)
-        files = list(path.parent.glob("*.pickle"))
+        files = list(path.parent.iterdir())
         if len(files) > KEPT:
             for old in sorted(files, key=_modified)[:len(files) - KEPT]:
                 old.unlink(missing_ok=True)
-    except OSError:
+    except (OSError, pickle.PicklingError, TypeError, AttributeError):
         pass
 
 
