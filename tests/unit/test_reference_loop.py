@@ -12,16 +12,19 @@ to a loop in C keeps its state."""
 from __future__ import annotations
 
 import ctypes
+import subprocess
 
 import numpy as np
 import pytest
 from designs import random_design, zoo_design
+from fhobs.core.kernel import HEADER as KERNEL_HEADER
+from fhobs.core.kernel import StepperHandle
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver
 from fhobs.design.feedback import state_feedback
 
 from harness import reference
-from harness.native import reference_library
+from harness.native import REFERENCE_SOURCE, ReferenceLoop, ReferenceRecord, reference_library
 
 pytestmark = pytest.mark.skipif(reference_library() is None,
                                 reason="the reference loop is compiled with cc on linux")
@@ -134,3 +137,27 @@ def test_a_model_handed_to_a_loop_in_c_keeps_its_state(paper_design):
         for model in (handed, twin):
             advance[name](model)
         assert np.array_equal(state[name](handed), state[name](twin)), name
+
+
+def test_the_ctypes_structures_have_the_c_layout(tmp_path):
+    """StepperHandle (kernel.h), ReferenceLoop and ReferenceRecord (reference_loop.c): every
+    field at the offset the C compiler gives it, and the same sizes."""
+    structures = {"StepperHandle": StepperHandle, "ReferenceLoop": ReferenceLoop,
+                  "ReferenceRecord": ReferenceRecord}
+    lines = [f'#include "{REFERENCE_SOURCE}"', "#include <stdio.h>", "int main(void) {"]
+    for name, structure in structures.items():
+        lines.append(f'printf("{name} %zu\\n", sizeof({name}));')
+        lines += [f'printf("{name}.{field} %zu\\n", offsetof({name}, {field}));'
+                  for field, _ in structure._fields_]
+    program, binary = tmp_path / "layout.c", tmp_path / "layout"
+    program.write_text("\n".join([*lines, "return 0;", "}"]) + "\n")
+    subprocess.run(["cc", f"-I{KERNEL_HEADER.parent}", "-o", str(binary), str(program)],
+                   check=True, capture_output=True)
+    printed = dict(line.split() for line in subprocess.run(
+        [str(binary)], check=True, capture_output=True, text=True).stdout.splitlines())
+    expected = {}
+    for name, structure in structures.items():
+        expected[name] = str(ctypes.sizeof(structure))
+        expected |= {f"{name}.{field}": str(getattr(structure, field).offset)
+                     for field, _ in structure._fields_}
+    assert printed == expected
