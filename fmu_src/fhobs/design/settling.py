@@ -90,10 +90,12 @@ def error_response(filtering: FilteringGains, state_scale: np.ndarray,
     plant = filtering.plant
     y, u = np.zeros(plant.k), np.zeros(plant.m)
     worst_time, worst_peak = 0.0, 1.0
+    observer = FilteringObserver(filtering, h=dt)  # one observer: its plan of dt made once
+    start = observer.get_state()
     for e0 in initial_errors(state_scale):
-        z0 = np.zeros(filtering.model.n_model)
-        z0[:plant.n] = -e0
-        observer = FilteringObserver(filtering, h=dt, z0=z0)
+        state = start.copy()
+        state[:plant.n] = -e0
+        observer.set_state(state)
         size = float(np.linalg.norm(e0))
         last_above = 0
         for step in range(1, steps + 1):
