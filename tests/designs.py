@@ -12,6 +12,7 @@ import numpy as np
 from fhobs.core.gains import ESTIMATORS, SHARED, ObserverDesign
 from fhobs.design.observer import design_for_spec
 from fhobs.design.spec import spec_from_dict
+from fhobs.fmu.kinds import edited_record
 
 from harness.zoo import load_zoo_spec, zoo_spec_paths
 
@@ -44,9 +45,9 @@ def edited_design(design: ObserverDesign, path: str, value: Any) -> ObserverDesi
     ``"plant.A"``, ``"model.G_d"``) replaced by ``value``; an edited plant or model replaces the
     design's in every estimator record that holds it (they share it)."""
     head, _, field = path.partition(".")
-    new = dataclasses.replace(getattr(design, head), **{field: value})
+    new = edited_record(getattr(design, head), {field: value})
     if head not in SHARED:
         return dataclasses.replace(design, **{head: new})
-    records = {name: dataclasses.replace(getattr(design, name), **{head: new})
+    records = {name: edited_record(getattr(design, name), {head: new})
                for name in ESTIMATORS if hasattr(getattr(design, name), head)}
     return dataclasses.replace(design, **{head: new}, **records)
