@@ -295,6 +295,11 @@ class LuenbergerGains(_Record):
     L_lin: np.ndarray
     certificate: dict[str, Any] = field(default_factory=dict)
 
+    @cached_property
+    def model_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, C)``: the observer runs on the plant's model."""
+        return self.plant.A, self.plant.B, self.plant.C
+
 
 @dataclass(frozen=True)
 class KalmanGains(_Record):
@@ -338,6 +343,12 @@ class KalmanGains(_Record):
     covariance: np.ndarray
     tuning: str = ""
     certificate: dict[str, Any] = field(default_factory=dict)
+
+    @cached_property
+    def model_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A_model, B_model, C_model)`` the filter runs on:
+        ``plant.extended_model(disturbance_order)``."""
+        return self.plant.extended_model(self.disturbance_order)
 
 
 @dataclass(frozen=True)

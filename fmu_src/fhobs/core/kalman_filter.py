@@ -122,7 +122,7 @@ class KalmanObserver:
         plant = kalman.plant
         self.kalman = kalman
         self.sample_time = check_step_size(kalman.sample_time)
-        A, B, C = plant.extended_model(kalman.disturbance_order)
+        A, B, C = kalman.model_matrices
         size = A.shape[0]
         if kalman.gain.shape != (size, plant.k):
             raise ValueError(f"Kalman gain has shape {kalman.gain.shape}, expected "

@@ -860,8 +860,7 @@ class LuenbergerObserver(_Observer):
     def __init__(self, luenberger: LuenbergerGains, h: float = DEFAULT_H,
                  scheme: str = SCHEMES[0], z0: np.ndarray | None = None,
                  kernel: bool = True) -> None:
-        plant = luenberger.plant
-        super().__init__(luenberger, h, scheme, z0, luenberger.L_lin, (plant.A, plant.B, plant.C))
+        super().__init__(luenberger, h, scheme, z0, luenberger.L_lin, luenberger.model_matrices)
         self._aux = np.zeros(0)
         if kernel:
             self._use_kernel("fhobs_luenberger_step")

@@ -8,8 +8,6 @@ samples. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.certificate import certify_kalman
 from ..core.kalman_filter import KalmanObserver
 from .kinds import KINDS
@@ -27,10 +25,6 @@ class FhobsKalman(ObserverSlave):
 
     def _check_gains(self) -> None:
         certify_kalman(self.edited_record())
-
-    def _model_matrix(self) -> np.ndarray:
-        kalman = self.edited_record()
-        return kalman.plant.extended_model(kalman.disturbance_order)[0]
 
     def _make_model(self) -> KalmanObserver:
         return KalmanObserver(self.edited_record(), z0=self._padded_z0())

@@ -6,8 +6,6 @@ dz/dt = A z + B u + L_lin (C z - y). Shipped in the FMU by :mod:`fhobs.build` li
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.certificate import certify_luenberger
 from ..core.runtime import LuenbergerObserver
 from .kinds import KINDS
@@ -21,9 +19,6 @@ class FhobsLuenberger(ObserverSlave):
 
     def _check_gains(self) -> None:
         certify_luenberger(self.edited_record())
-
-    def _model_matrix(self) -> np.ndarray:
-        return self.edited_record().plant.A
 
     def _make_model(self) -> LuenbergerObserver:
         return LuenbergerObserver(

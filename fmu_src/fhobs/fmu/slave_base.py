@@ -502,8 +502,8 @@ class ObserverSlave(FhobsSlave):
         return zoh_problem(self._model_matrix(), step_size, "the observer's model")
 
     def _model_matrix(self) -> np.ndarray:
-        """The state matrix of the model the (edited) observer runs on: the homogeneous
-        observers' (their record's ``model_matrices``); the others override it."""
+        """The state matrix of the model the (edited) observer runs on (its record's
+        ``model_matrices``)."""
         return self.edited_record().model_matrices[0]
 
     def _padded_z0(self) -> np.ndarray:
