@@ -57,7 +57,7 @@ from .gains import (
     PlantModel,
     PrescribedTimeGains,
 )
-from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity, expm
+from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity, expm, spectral_radius
 
 DEFAULT_TOLERANCE = 1e-7
 CERTIFICATE_MARGIN = 1e-6
@@ -346,8 +346,7 @@ def kalman_values(kalman: KalmanGains) -> dict[str, float]:
     (< 1: Schur stable), Phi the exact ZOH of its model over Ts (from :func:`checked_model`)."""
     A, C = checked_model(kalman.plant, kalman.disturbance_order)
     Phi = expm(kalman.sample_time * A)
-    return {"schur_kalman":
-            float(np.max(np.abs(np.linalg.eigvals(Phi - Phi @ kalman.gain @ C))))}
+    return {"schur_kalman": spectral_radius(Phi - Phi @ kalman.gain @ C)}
 
 
 def certify_filtering(

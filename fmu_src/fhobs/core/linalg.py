@@ -24,6 +24,17 @@ COND_LIMIT = 1e8
 """Eigenvector condition number above which :class:`ExpmFamily` falls back to :func:`expm`."""
 
 
+def spectral_radius(F: np.ndarray) -> float:
+    """Spectral radius of a square matrix.
+
+    Examples
+    --------
+    >>> spectral_radius(np.array([[0.0, 2.0], [-0.5, 0.0]]))
+    1.0
+    """
+    return float(np.max(np.abs(np.linalg.eigvals(F))))
+
+
 def expm(M: np.ndarray) -> np.ndarray:
     """Matrix exponential by Pade(13) scaling and squaring (Higham 2005), numpy only.
 

@@ -78,7 +78,7 @@ from . import kernel as compiled
 from .dilation import Dilation
 from .gains import FilteringGains, LuenbergerGains, PrescribedTimeGains
 from .injection import InjectionFlow
-from .linalg import PHI1_SERIES, ZOH_CACHE_SIZE, ExpmFamily, zoh_blocks
+from .linalg import PHI1_SERIES, ZOH_CACHE_SIZE, ExpmFamily, spectral_radius, zoh_blocks
 from .validation import all_finite, as_finite_vector, check_step_size, floating_point_failure
 
 
@@ -135,11 +135,6 @@ def signed_power_decay(w: float, gamma: float, p: float, h: float) -> float:
     """Exact flow over h of ``dw/dt = -gamma floor(w)^p`` with 0 < p < 1 (reaches 0, stays 0)."""
     q = 1.0 - p
     return math.copysign(max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q), w) if w else 0.0
-
-
-def spectral_radius(F: np.ndarray) -> float:
-    """Spectral radius of a square matrix."""
-    return float(np.max(np.abs(np.linalg.eigvals(F))))
 
 
 Gains = FilteringGains | PrescribedTimeGains | LuenbergerGains

@@ -44,6 +44,7 @@ from ..core.disturbance import (
     model_state_names,
 )
 from ..core.gains import KalmanGains, ObserverDesign, PlantModel
+from ..core.linalg import spectral_radius
 from ..errors import KalmanDesignError
 from .homogenisation import unobservable_directions
 from .spec import NoiseSpec
@@ -264,7 +265,7 @@ def steady_state_filter(
             f"{residual:.2e}, smallest eigenvalue of P / max |P| = {smallest:.2e} (required "
             f"<= {RICCATI_TOLERANCE:g} and >= -{RICCATI_TOLERANCE:g}); the intensity is too "
             "far from the measurement noise for double precision")
-    radius = float(np.max(np.abs(np.linalg.eigvals(Phi - Phi @ gain @ C_model))))
+    radius = spectral_radius(Phi - Phi @ gain @ C_model)
     return P, gain, radius
 
 
