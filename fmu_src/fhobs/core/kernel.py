@@ -419,8 +419,7 @@ class Stepper:
 
             handle = stepper.handle(dt, x)      # x in buffers[0]: the first step is side 0
         """
-        if dt not in self._calls:
-            self._make_plan(dt)
+        self.plan(dt)
         for view, array in zip(self._views[0], state, strict=True):
             view[...] = array
         calls = [call.value for call in self._calls[dt]]
