@@ -136,8 +136,8 @@ def simulate(
         Step the plant and the estimators in the compiled kernel when it is available
         (:mod:`fhobs.core.kernel`), the loop itself in C when it is compiled
         (``reference_loop.c``, :func:`harness.native.reference_library`: the same steps in the
-        same order, about 20 times faster; the Kalman filter then replayed on the recorded
-        (y, u)); False: the numpy runtime only, stepped from Python.
+        same order, about 20 times faster); False: the numpy runtime only, stepped from
+        Python. The Kalman filter, open loop, is replayed on the recorded (y, u) either way.
 
     Returns
     -------
@@ -165,8 +165,6 @@ def simulate(
     obs = FilteringObserver(design.filtering, h=h, scheme=scheme, tau_max=tau_max,
                             kernel=kernel)
     others = [LuenbergerObserver(design.luenberger, h=h, scheme=scheme, kernel=kernel)]
-    if design.kalman is not None:
-        others.append(KalmanObserver(design.kalman, kernel=kernel))
     n_steps = int(round(t_end / dt))
     t = np.arange(n_steps + 1) * dt
     q = np.repeat(spec.q_amplitude * np.sin(spec.q_frequency * t)[:, None], E.shape[1], axis=1)
@@ -176,27 +174,28 @@ def simulate(
                          f"this plant; got shape {K.shape}")
     loop = _loop_in_c if _runs_in_c(kernel, plant, obs, others) else _loop_in_python
     x, obs_state, estimates, ys, us = loop(plant, obs, others, K, q, n_steps, dt, feedback)
+    z_kalman = None if design.kalman is None else _replay_records(
+        KalmanObserver(design.kalman, kernel=kernel), ys, us, dt)
     n, n_model, k = model.n, design.model.n_model, model.k
     psi, xi = obs_state[:, n_model:n_model + k], obs_state[:, -1]
     sigma = np.sqrt(np.maximum(np.maximum(xi, 0.5 * np.sum(psi**2, axis=1)), 0.0))
     return SimulationResult(t=t, x=x, z=obs_state[:, :n],
                             z_lin=estimates[0], psi=psi, xi=xi, sigma=sigma,
                             q_hat=obs_state[:, n:n_model],
-                            z_kalman=estimates[1] if design.kalman is not None else None,
-                            y=ys, u=us)
+                            z_kalman=z_kalman, y=ys, u=us)
 
 
 C_CHUNK = 100_000
 """Steps per call of the C loop (about 0.2 s on the pendulum)."""
 Trajectories = tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]
-"""x, the filtering observer's states [z, psi, xi], the other estimators' estimates, y, u."""
+"""x, the filtering observer's states [z, psi, xi], the other observers' estimates, y, u."""
 
 
 def _runs_in_c(kernel: bool, plant: LTIPlant, obs: FilteringObserver, others: list) -> bool:
     """Whether :func:`simulate`'s loop runs in C: the kernel asked for, the loop compiled, the
-    plant and the observers in the loop compiled (the Kalman filter is replayed after it)."""
+    plant and the observers compiled."""
     return (kernel and reference_library() is not None and plant.compiled and obs.compiled
-            and all(other.compiled for other in others if not isinstance(other, KalmanObserver)))
+            and all(other.compiled for other in others))
 
 
 def _loop_in_python(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndarray,
@@ -227,40 +226,34 @@ def _loop_in_python(plant: LTIPlant, obs: FilteringObserver, others: list, K: np
 def _loop_in_c(plant: LTIPlant, obs: FilteringObserver, others: list, K: np.ndarray,
                q: np.ndarray, n_steps: int, dt: float, feedback: str) -> Trajectories:
     """The loop of :func:`simulate` in ``reference_loop.c`` (the models' kernel steps, y and u
-    computed in C, in calls of :data:`C_CHUNK` steps); a Kalman filter among ``others``
-    replayed on the recorded (y, u). The models are :func:`simulate`'s, new: the noise starts
-    at step 0."""
+    computed in C, in calls of :data:`C_CHUNK` steps). The models are :func:`simulate`'s, new:
+    the noise starts at step 0."""
     n, k, m = plant.A.shape[0], plant.C.shape[0], K.shape[0]
-    in_loop = [other for other in others if not isinstance(other, KalmanObserver)]
-    handles = [model.kernel_handle(dt) for model in (plant, obs, *in_loop)]
-    others_handles = (StepperHandle * max(len(in_loop), 1))(*handles[2:])
+    handles = [model.kernel_handle(dt) for model in (plant, obs, *others)]
+    others_handles = (StepperHandle * len(others))(*handles[2:])
     C = np.ascontiguousarray(plant.C, dtype=float)
     K = np.ascontiguousarray(K)
     eta = noise_samples(plant.seed, n_steps, plant.noise_amplitude, k)
     q = np.ascontiguousarray(q[:n_steps])
     x = np.empty((n_steps + 1, n))
     obs_state = np.empty((n_steps + 1, handles[1].size))
-    estimates = np.empty((len(in_loop), n_steps + 1, n))
+    estimates = np.empty((len(others), n_steps + 1, n))
     ys, us = np.empty((n_steps, k)), np.empty((n_steps, m))
     loop = ReferenceLoop(n_steps, n, k, m, q.shape[1], int(feedback == "state"),
                          *(array.ctypes.data for array in (C, K, eta, q)),
                          ctypes.pointer(handles[0]), ctypes.pointer(handles[1]),
-                         others_handles, len(in_loop))
+                         others_handles, len(others))
     record = ReferenceRecord(*(array.ctypes.data for array in (x, obs_state, estimates, ys, us)))
-    sides, failed = (ctypes.c_int * (len(in_loop) + 2))(), (ctypes.c_long * 2)()
+    sides, failed = (ctypes.c_int * (len(others) + 2))(), (ctypes.c_long * 2)()
     run = reference_library().reference_run
     for k_from in range(0, max(n_steps, 1), C_CHUNK):  # Ctrl-C is seen between chunks
         k_to = min(k_from + C_CHUNK, n_steps)
         if run(ctypes.byref(loop), ctypes.byref(record), sides, ctypes.c_long(k_from),
                ctypes.c_long(k_to), failed):
-            model = ("plant", "filtering observer", *(type(o).__name__ for o in in_loop))
+            model = ("plant", "filtering observer", *(type(o).__name__ for o in others))
             raise ValueError(f"the {model[failed[0]]}'s state became non-finite at step "
                              f"{failed[1]}")
-    result = x, obs_state, list(estimates), ys, us
-    for position, other in enumerate(others):
-        if isinstance(other, KalmanObserver):
-            result[2].insert(position, _replay_records(other, ys, us, dt))
-    return result
+    return x, obs_state, list(estimates), ys, us
 
 
 def replay(observer, result: SimulationResult) -> np.ndarray:
