@@ -944,7 +944,7 @@ def fmu_bundle(sweep: Sweep, design: Any, fmu_dir: Path) -> dict[str, dict[str, 
                      for kind in kinds}
             key = design_key(job)
             bundles[group] = {"design_key": key, "design": design, "files": files,
-                              "tag": fmu_tag(key, job["fmus"], {"kinds": kinds}),
+                              "tag": fmu_tag(key, job["fmus"], build_options(job, None)),
                               "build_s": 0.0}
     return bundles
 
