@@ -14,9 +14,12 @@ figure is one number, compared with one bound:
 ============================  ===========================================================  =======
 check                         value                                                        pass if
 ============================  ===========================================================  =======
-``homogenisation_residual``   ||A0 G_d - (G_d + nu I) A0|| / (||A0|| ||G_d||)               <= tol
+``homogenisation_residual``   ||(A0 G_d - (G_d + nu I) A0) Pi|| / (||A0 Pi|| ||G_d||)       <= tol
 ``output_homogeneity``        ||C G_d - (1 + nu) C|| / ||C||                               <= tol
-``nilpotency``                ||A0^n_tilde|| / ||A0||^n_tilde                                <= tol
+``nilpotency``                ||A0^n_tilde Pi|| / ||A0 Pi||^n_tilde                          <= tol
+``partition_residual``        Pi a projector, (I - Pi) A0 Pi = 0, G_d Pi = Pi G_d,           <= tol
+                              (G_d - (1 + nu) I)(I - Pi) = 0 (:func:`partition_residual`)
+``injection_partition``       ||(I - Pi) L|| / ||L|| (``_pt``: of L_pt)                       <= tol
 ``dilation_anti_hurwitz``     min Re eig(G_d)                                              > 0
 ``P_bar_positive``            lambda_min(P_bar) / lambda_max(P_bar)                        > r
 ``P_bar_monotone``            lambda_min(P^-1/2 sym(P_bar bar_G) P^-1/2)                   > m + r
@@ -27,6 +30,11 @@ check                         value                                             
 ``schur_kalman``              max |eig(Phi (I - M C))|, Phi = expm(Ts A_model)             < 1
 ============================  ===========================================================  =======
 
+Pi is the model's ``slow_projector``: the identity when the whole model is homogenised (the
+figures are then the paper's identities), else the projector onto the homogenised part along
+the fast stable modes the observers keep by their model (:mod:`fhobs.design.partial`; why this
+is enough: docs/theory.md). Those modes' stability, with a decay faster than rho (1 + nu), is
+part of the LMI figures, which are always of the whole model.
 The figures are computed in balanced coordinates ``x = diag(d) x_b`` (d powers of two from
 :func:`fhobs.core.linalg.balancing_scale` of the model matrix): an exact similarity (congruence for
 P), so every value is that of the original coordinates, with a rounding error that stays small
@@ -213,29 +221,70 @@ def check_symmetry(**matrices: np.ndarray) -> None:
 
 
 def homogeneity_values(record: HomogeneousGains) -> dict[str, float]:
-    """The four homogeneity figures of the table in the module docstring (in balanced
-    coordinates, :func:`fhobs.core.linalg.balancing_scale` of the model matrix), of a
-    homogeneous observer's record."""
+    """The homogeneity figures of the table in the module docstring (in balanced coordinates,
+    :func:`fhobs.core.linalg.balancing_scale` of the model matrix), of a homogeneous
+    observer's record: on the range of the model's ``slow_projector`` Pi (the whole model when
+    Pi = I), with the partition's own figure."""
     A_model, C_model = _homogeneous_model(record)
     model = record.model
     d = balancing_scale(A_model)
     A0 = diagonal_similarity(A_model + model.L0 @ C_model, d)
     G_d = diagonal_similarity(model.G_d, d)
+    Pi = diagonal_similarity(model.slow_projector, d)
     C, nu = C_model * d, model.nu
     eye = np.eye(A0.shape[0])
-    a0_norm = max(np.linalg.norm(A0), 1e-300)
+    A0_slow = A0 @ Pi
+    a0_norm = max(np.linalg.norm(A0_slow), 1e-300)
     return {
         "homogenisation_residual": float(
-            np.linalg.norm(A0 @ G_d - (G_d + nu * eye) @ A0) / (a0_norm * np.linalg.norm(G_d))
+            np.linalg.norm((A0 @ G_d - (G_d + nu * eye) @ A0) @ Pi)
+            / (a0_norm * np.linalg.norm(G_d))
         ),
         "output_homogeneity": float(
             np.linalg.norm(C @ G_d - (1.0 + nu) * C) / max(np.linalg.norm(C), 1e-300)
         ),
         "nilpotency": float(
-            np.linalg.norm(np.linalg.matrix_power(A0, model.n_tilde)) / a0_norm**model.n_tilde
+            np.linalg.norm(np.linalg.matrix_power(A0, model.n_tilde) @ Pi)
+            / a0_norm**model.n_tilde
         ),
+        "partition_residual": partition_residual(A0, G_d, Pi, nu),
         "dilation_anti_hurwitz": float(np.min(np.linalg.eigvals(G_d).real)),
     }
+
+
+def partition_residual(A0: np.ndarray, G_d: np.ndarray, Pi: np.ndarray, nu: float) -> float:
+    """How far Pi is from splitting the model as the partial homogenisation needs (0 for
+    Pi = I): Pi a projector, its range invariant under A0, G_d commuting with Pi and equal to
+    (1 + nu) I on its kernel; the largest of the four relative residuals.
+
+    Examples
+    --------
+    >>> A0 = np.array([[0.0, 1.0], [0.0, -50.0]])
+    >>> partition_residual(A0, np.eye(2), np.eye(2), -0.5)
+    0.0
+    >>> partition_residual(A0, np.eye(2), np.diag([0.0, 1.0]), -0.5) > 0.1
+    True
+    """
+    eye = np.eye(Pi.shape[0])
+    rest = eye - Pi
+    norm = max(np.linalg.norm(Pi), 1.0)
+    return float(max(
+        np.linalg.norm(Pi @ Pi - Pi) / norm,
+        np.linalg.norm(rest @ A0 @ Pi) / (max(np.linalg.norm(A0), 1e-300) * norm),
+        np.linalg.norm(G_d @ Pi - Pi @ G_d) / (np.linalg.norm(G_d) * norm),
+        np.linalg.norm((G_d - (1.0 + nu) * eye) @ rest) / (np.linalg.norm(G_d) * norm),
+    ))
+
+
+def injection_partition(record: HomogeneousGains, gain: np.ndarray) -> float:
+    """||(I - Pi) gain|| / ||gain|| in balanced coordinates: the part of a homogeneous
+    observer's gain that would act on the fast modes kept by the model (0 required: their
+    error is then autonomous)."""
+    d = balancing_scale(_homogeneous_model(record)[0])
+    Pi = diagonal_similarity(record.model.slow_projector, d)
+    scaled = gain / d[:, None]
+    rest = np.eye(Pi.shape[0]) - Pi
+    return float(np.linalg.norm(rest @ scaled) / max(np.linalg.norm(scaled), 1e-300))
 
 
 def lmi_values(
@@ -312,6 +361,7 @@ def filtering_values(filtering: FilteringGains) -> dict[str, float]:
     values |= lmi_values(diagonal_congruence(filtering.P_bar, d_bar),
                          diagonal_similarity(bar_A0 + bar_L @ bar_C, d_bar),
                          diagonal_similarity(bar_G, d_bar), filtering.rho, "filtering")
+    values["injection_partition"] = injection_partition(filtering, filtering.L)
     return values
 
 
@@ -331,7 +381,9 @@ def prescribed_time_lmi_values(prescribed_time: PrescribedTimeGains) -> dict[str
 
 def prescribed_time_values(prescribed_time: PrescribedTimeGains) -> dict[str, float]:
     """The prescribed-time observer's figures: homogeneity and the Theorem 1 LMI."""
-    return homogeneity_values(prescribed_time) | prescribed_time_lmi_values(prescribed_time)
+    return (homogeneity_values(prescribed_time) | prescribed_time_lmi_values(prescribed_time)
+            | {"injection_partition_pt": injection_partition(prescribed_time,
+                                                             prescribed_time.L_pt)})
 
 
 def luenberger_values(luenberger: LuenbergerGains) -> dict[str, float]:
@@ -508,7 +560,8 @@ def _violations(
             matrix = _rounding_key(name).removesuffix("_rounding")
             bad.append((name, value, f"not computable: {matrix} is not positive definite"))
             continue
-        if name in ("homogenisation_residual", "output_homogeneity", "nilpotency"):
+        if name in ("homogenisation_residual", "output_homogeneity", "nilpotency",
+                    "partition_residual") or name.startswith("injection_partition"):
             ok, need = value <= tolerance, f"<= {tolerance:g}"
         elif name.startswith("lmi_"):
             bound = margin + rounding

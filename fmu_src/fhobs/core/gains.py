@@ -185,6 +185,12 @@ class HomogeneousModel(_Record):
         Homogeneity degree.
     G0, L0, G_d : numpy.ndarray
         Homogenisation solution, gain (N x k) and dilation generator (N x N) of Theorem 2.
+    slow_projector : numpy.ndarray
+        Pi_s (N x N), the projector onto the homogenised part of the model along the fast
+        stable modes that the observers keep by the model (:mod:`fhobs.design.partial`); the
+        identity (the default, also for a ``design.json`` without it) when the whole model is
+        homogenised. ``n_tilde`` is then the observability index of the homogenised part, and
+        A0 is homogeneous, and nilpotent, on the range of Pi_s only.
     """
 
     disturbance_order: int
@@ -193,6 +199,16 @@ class HomogeneousModel(_Record):
     G0: np.ndarray
     L0: np.ndarray
     G_d: np.ndarray
+    slow_projector: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.slow_projector is None:
+            object.__setattr__(self, "slow_projector", np.eye(self.G_d.shape[0]))
+
+    @property
+    def partial(self) -> bool:
+        """Whether fast stable modes are kept by the model (Pi_s is not the identity)."""
+        return not np.array_equal(self.slow_projector, np.eye(self.G_d.shape[0]))
 
     @property
     def n_model(self) -> int:

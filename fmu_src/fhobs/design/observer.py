@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -53,7 +53,7 @@ from ..core.linalg import diagonal_congruence, diagonal_similarity
 from ..errors import CertificateError, LMIError, SpecError
 from ..paper import PAPER_REFERENCE
 from .cache import cached
-from .homogenisation import Homogenisation, dilation_basis, homogenise
+from .homogenisation import Homogenisation, dilation_basis, homogenise, observability_index
 from .kalman import with_kalman
 from .limits import check_design_limits
 from .lmi import (
@@ -61,6 +61,13 @@ from .lmi import (
     certify_gain_lmi,
     chain_basis,
     solve_gain_lmi,
+)
+from .partial import (
+    LMI_SLACK,
+    completed_lyapunov,
+    embedded_generator,
+    fast_mode_cut,
+    split_modes,
 )
 from .settling import ErrorResponse, error_response
 from .spec import (
@@ -408,47 +415,96 @@ def _design_at_margin(
     The homogeneous observers are designed in balanced coordinates ``x = D x_b`` (D diagonal,
     powers of two, from ``scipy.linalg.matrix_balance`` of the observer's model: exact in
     floating point) and mapped back; for a plant whose entries span many decades this keeps
-    the eigenvectors of G_d and the LMI well conditioned.
+    the eigenvectors of G_d and the LMI well conditioned. Fast stable modes are kept by the
+    model and the rest homogenised (:mod:`fhobs.design.partial`) when the spec's
+    ``fast_mode_rate`` finds some.
     """
     A_model, _, C_model = extended_model(spec.A, spec.B, spec.C, spec.E, spec.disturbance_order)
     d = _balancing(A_model)
     A_b, C_b = diagonal_similarity(A_model, d), C_model * d[None, :]
-    hom = homogenise(A_b, C_b, spec.nu)
     n, k = A_model.shape[0], spec.C.shape[0]
-    A0, levels = _chain_levels(A_b, C_b, spec.nu, hom)
-    bar_A0, bar_G, bar_C = augmented_system(A0, C_b, hom.G_d)
-    filtering = solve_gain_lmi(
-        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C_b), objective, margin
-    )
-    G_pt = hom.G_d - spec.nu * np.eye(n)
-    pt = solve_gain_lmi(A0, G_pt, C_b, spec.rho, chain_basis(A0, levels), objective, margin)
-    bar_L, P_bar, rho = filtering.gain, filtering.P, spec.rho
-    scale = getattr(spec, "filter_scale", 1.0) if filter_scale is None else filter_scale
-    if scale != 1.0:
-        bar_L = np.vstack([scale * bar_L[:k], bar_L[k:]])
-        rho, P_bar = _max_certified_rho(bar_A0 + bar_L @ bar_C, bar_G, spec, margin)
+    split = split_modes(A_b, fast_mode_cut(spec.fast_mode_rate, spec.settling_time, spec.rho,
+                                           spec.nu))
+    basis = np.eye(n) if split is None else split.slow
+    nu = spec.nu
+    if split is not None and nu == -1.0 / (spec.n_tilde + 1):  # HOSM: of the homogenised part
+        nu = -1.0 / (observability_index(split.T[:split.n_slow, :split.n_slow],
+                                         C_b @ basis)[0] + 1)
+    part = _homogeneous_part(A_b if split is None else split.T[:split.n_slow, :split.n_slow],
+                             C_b @ basis, replace(spec, nu=nu), objective, margin, filter_scale)
+    hom, bar_L, P_bar, rho, L_pt, P_pt, _ = part
+    G_d, G_pt = hom.G_d, hom.G_d - nu * np.eye(hom.G_d.shape[0])
+    if split is not None:
+        rho = rho / LMI_SLACK
+        G_d = embedded_generator(split, hom.G_d, nu)
+        G_pt = G_d - nu * np.eye(n)
+        bar_L = np.vstack([bar_L[:k], basis @ bar_L[k:]])
+        L_pt = basis @ L_pt
+        A0 = A_b + basis @ hom.L0 @ C_b
+        bar_A0, bar_G, bar_C = augmented_system(A0, C_b, G_d)
+        P_bar = completed_lyapunov(bar_A0 + bar_L @ bar_C, bar_G, P_bar, rho,
+                                   scipy.linalg.block_diag(np.eye(k), split.Q))
+        P_pt = completed_lyapunov(A0 + L_pt @ C_b, G_pt, P_pt, rho, split.Q)
+    L0 = basis @ hom.L0
+    bar_A0, _, bar_C = augmented_system(A_b + L0 @ C_b, C_b, G_d)
     decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
     d_bar = np.concatenate([np.ones(k), d])
     L_lin, luenberger_status = _luenberger_gain(spec, decay, objective, margin)
-    solver_status = {"filtering": filtering.status, "prescribed_time": pt.status,
-                     "luenberger": luenberger_status}
     made = {name: {"objective": objective, "lmi_margin": margin, "solver_status": status}
-            for name, status in solver_status.items() if status is not None}
+            for name, status in (*part.statuses, ("luenberger", luenberger_status))
+            if status is not None}
     plant = PlantModel(spec.A, spec.B, spec.C, spec.E)
     model = HomogeneousModel(
-        spec.disturbance_order, hom.n_tilde, spec.nu, G0=diagonal_similarity(hom.G0, 1.0 / d),
-        L0=hom.L0 * d[:, None], G_d=diagonal_similarity(hom.G_d, 1.0 / d),
+        spec.disturbance_order, hom.n_tilde, nu,
+        G0=diagonal_similarity((G_d - np.eye(n)) / nu - np.eye(n), 1.0 / d),
+        L0=L0 * d[:, None], G_d=diagonal_similarity(G_d, 1.0 / d),
+        slow_projector=diagonal_similarity(basis @ basis.T, 1.0 / d),
     )
     design = ObserverDesign(
         plant, model,
         filtering=FilteringGains(plant, model, rho, spec.gamma, L_tilde=bar_L[:k],
                                  L=bar_L[k:] * d[:, None],
                                  P_bar=diagonal_congruence(P_bar, 1.0 / d_bar)),
-        prescribed_time=PrescribedTimeGains(plant, model, rho, L_pt=pt.gain * d[:, None],
-                                            P_pt=diagonal_congruence(pt.P, 1.0 / d)),
+        prescribed_time=PrescribedTimeGains(plant, model, rho, L_pt=L_pt * d[:, None],
+                                            P_pt=diagonal_congruence(P_pt, 1.0 / d)),
         luenberger=LuenbergerGains(plant, L_lin),
     )
     return _certified(design, made)
+
+
+class _HomogeneousPart(NamedTuple):
+    """The homogeneous observers' design of one (A, C) pair (the model, or its homogenised
+    part), before any embedding."""
+
+    hom: Homogenisation
+    bar_L: np.ndarray
+    P_bar: np.ndarray
+    rho: float
+    L_pt: np.ndarray
+    P_pt: np.ndarray
+    statuses: tuple[tuple[str, str | None], ...]
+
+
+def _homogeneous_part(A: np.ndarray, C: np.ndarray, spec: PlantSpec, objective: str,
+                      margin: float, filter_scale: float | None) -> _HomogeneousPart:
+    """Homogenisation of (A, C), Theorem 2's LMI (with the fast output filter of
+    ``filter_scale``) and Theorem 1's, at ``spec.nu`` and ``spec.rho``."""
+    n, k = A.shape[0], C.shape[0]
+    hom = homogenise(A, C, spec.nu)
+    A0, levels = _chain_levels(A, C, spec.nu, hom)
+    bar_A0, bar_G, bar_C = augmented_system(A0, C, hom.G_d)
+    filtering = solve_gain_lmi(
+        bar_A0, bar_G, bar_C, spec.rho, chain_basis(A0, levels, C), objective, margin
+    )
+    G_pt = hom.G_d - spec.nu * np.eye(n)
+    pt = solve_gain_lmi(A0, G_pt, C, spec.rho, chain_basis(A0, levels), objective, margin)
+    bar_L, P_bar, rho = filtering.gain, filtering.P, spec.rho
+    scale = getattr(spec, "filter_scale", 1.0) if filter_scale is None else filter_scale
+    if scale != 1.0:
+        bar_L = np.vstack([scale * bar_L[:k], bar_L[k:]])
+        rho, P_bar = _max_certified_rho(bar_A0 + bar_L @ bar_C, bar_G, spec, margin)
+    return _HomogeneousPart(hom, bar_L, P_bar, rho, pt.gain, pt.P,
+                            (("filtering", filtering.status), ("prescribed_time", pt.status)))
 
 
 def _max_certified_rho(

@@ -21,6 +21,9 @@ Format::
     default 1
     disturbance_order = 0     # >= 0: model q as a polynomial of degree order-1 (needs E), see
                               # fhobs.core.disturbance; default 0 (no disturbance model)
+    fast_mode_rate = 25.0     # 1/s: stable modes decaying faster than this (and than
+                              # 2 rho (1 + nu)) are kept by the model, not homogenised
+                              # (fhobs.design.partial); default 50 / settling_time; inf: none
 
     [noise]                   # optional table: the Kalman filter baseline (fhobs.design.kalman);
     needs E
@@ -76,7 +79,7 @@ DEFAULT_OBJECTIVE = "min_cond"
 TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise", "disturbance", "mismatch")
 OBSERVER_KEYS = (
     "nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order", "settling_time",
-    "state_scale",
+    "state_scale", "fast_mode_rate",
 )
 NOISE_KEYS = ("measurement_std", "measurement_amplitude", "sample_time", "process_intensity",
               "disturbance_order")
@@ -224,6 +227,9 @@ class PlantSpec:
         The ``[disturbance]`` table (the q that ``harness plant`` feeds the plant), if given.
     mismatch : MismatchSpec or None
         The ``[mismatch]`` table (the plant FMU's perturbed A, B in ``harness plant``), if given.
+    fast_mode_rate : float or None
+        Decay rate (1/s) beyond which a stable mode is kept by the observers' model rather than
+        homogenised (:mod:`fhobs.design.partial`); None: ``50 / settling_time``; inf: none.
     """
 
     A: np.ndarray
@@ -244,6 +250,7 @@ class PlantSpec:
     noise: NoiseSpec | None = None
     disturbance: DisturbanceSpec | None = None
     mismatch: MismatchSpec | None = None
+    fast_mode_rate: float | None = None
 
 
 def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> PlantSpec:
@@ -369,6 +376,7 @@ def plant_spec(
     state_scale: Any = 1.0,
     filter_scale: float = 1.0,
     objective: str = DEFAULT_OBJECTIVE,
+    fast_mode_rate: float | None = None,
     source: str = "design_observer",
     prefix: str = "",
 ) -> PlantSpec:
@@ -384,6 +392,9 @@ def plant_spec(
         A given Luenberger baseline gain (n x k).
     disturbance_order, nu, rho, gamma, settling_time, state_scale, filter_scale, objective
         The tuning (:func:`fhobs.design.observer.design_observer`; ``nu`` None: -1/(n_tilde + 1)).
+    fast_mode_rate : float, optional
+        Stable modes decaying faster (1/s) are kept by the model (:mod:`fhobs.design.partial`);
+        None: ``50 / settling_time``; ``math.inf``: every mode is homogenised.
     source : str
         Name used in error messages (the file, or the calling function).
     prefix : str
@@ -445,9 +456,17 @@ def plant_spec(
     filter_scale = _scalar(filter_scale, prefix + "filter_scale", source)
     if filter_scale < 1.0:
         raise SpecError(f"{source}: {prefix}filter_scale = {filter_scale!r} must be >= 1")
+    if fast_mode_rate is not None:
+        label = prefix + "fast_mode_rate"
+        if isinstance(fast_mode_rate, bool) or not isinstance(fast_mode_rate, (int, float)):
+            raise SpecError(f"{source}: {label} = {fast_mode_rate!r} must be a number (1/s)")
+        fast_mode_rate = float(fast_mode_rate)
+        if not fast_mode_rate > 0.0:
+            raise SpecError(f"{source}: {label} = {fast_mode_rate!r} must be > 0 (1/s; inf "
+                            "homogenises every mode)")
     return PlantSpec(
         A, B, C, E, L_lin, nu, rho, gamma, n_tilde, objective, source, filter_scale, order,
-        settling_time, state_scale, None,
+        settling_time, state_scale, None, fast_mode_rate=fast_mode_rate,
     )
 
 
