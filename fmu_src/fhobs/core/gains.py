@@ -440,3 +440,55 @@ ESTIMATORS = ("filtering", "prescribed_time", "luenberger", "kalman")
 _RECORDS: dict[str, type[_Record]] = {cls.__name__: cls for cls in (
     PlantModel, HomogeneousModel, FilteringGains, PrescribedTimeGains, LuenbergerGains,
     KalmanGains, ObserverDesign)}
+
+
+@dataclass(frozen=True)
+class SupervisedGains(_Record):
+    """The supervised observer (:mod:`fhobs.core.supervisor`): the filtering observer and a
+    Kalman filter of the same extended model, and the innovation test that picks one of them.
+
+    Attributes
+    ----------
+    plant : PlantModel
+    model : HomogeneousModel
+    filtering : FilteringGains
+        The filtering homogeneous observer (Theorem 2), never reset.
+    kalman : KalmanGains
+        A steady-state Kalman filter with ``kalman.disturbance_order`` equal to
+        ``model.disturbance_order``: its state maps one to one onto the filtering observer's z.
+    window : float
+        Length, in filter samples, of the exponential window of the statistic (its weight is
+        ``1 / window``; at least 1).
+    lower, upper : float
+        The Kalman estimate is left when the statistic falls below ``lower`` or rises above
+        ``upper`` (the band of the false-alarm probability ``false_alarm``).
+    lower_return, upper_return : float
+        The Kalman estimate is taken again once the statistic is inside
+        ``(lower_return, upper_return)``, within ``(lower, upper)`` (the hysteresis).
+    dwell_time : float
+        Least time (s) the homogeneous estimate is output before the Kalman estimate is taken
+        again.
+    false_alarm : float
+        Probability per sample, for data the Kalman filter's model explains, that the
+        statistic leaves ``(lower, upper)`` (Gaussian innovations; what the thresholds were set
+        for).
+    certificate : dict
+        ``checks``: the figures of both parts' certificates and of the thresholds
+        (:func:`fhobs.core.supervisor.certify_supervised`).
+    """
+
+    plant: PlantModel
+    model: HomogeneousModel
+    filtering: FilteringGains
+    kalman: KalmanGains
+    window: float
+    lower: float
+    upper: float
+    lower_return: float
+    upper_return: float
+    dwell_time: float
+    false_alarm: float
+    certificate: dict[str, Any] = field(default_factory=dict)
+
+
+_RECORDS[SupervisedGains.__name__] = SupervisedGains

@@ -1,0 +1,155 @@
+"""Design of the supervised observer (:mod:`fhobs.core.supervisor`): the Kalman filter of the
+homogeneous model and the thresholds of the innovation test.
+
+Kalman filter. The steady-state filter (:func:`fhobs.design.kalman.design_kalman`) of
+``plant.extended_model(model.disturbance_order)``, the homogeneous observer's own model, so
+that the handover maps z onto z; sample time, measurement std and process intensity from the
+spec's ``[noise]`` table. The design's ``kalman`` is reused when it is of that order; otherwise
+the table's intensity is used with the homogeneous model's order.
+
+Thresholds. The statistic is the exponentially weighted mean, of weight ``a = 1 / window``,
+of the normalised innovation squared; under the Kalman filter's model with Gaussian
+innovations it is approximately ``g chi2(dof)``, ``g = a / (2 - a)``, ``dof = k (2 - a) / a``
+(mean k and variance ``2 k a / (2 - a)`` matched; exact for ``window = 1``). The leave band
+``(lower, upper)`` holds it with probability ``1 - false_alarm`` per sample (``false_alarm / 2``
+on each side) and the return band with probability ``1 - RETURN_PROBABILITY``. Uniform noise,
+the pendulum's, has lighter tails than the Gaussian, so the false-alarm rate on it is lower
+still. ``dwell_time`` defaults to ``DWELL_WINDOWS`` windows of the statistic.
+
+Defaults (measured by ``bench/bench_supervisor.py``): ``WINDOW = 200`` samples (10 ms at the
+pendulum's Ts = 5e-5 s), ``FALSE_ALARM = 1e-9`` per sample (a false alarm every 1e9 samples at
+most, about 14 h of the pendulum's 20 kHz filter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..core.gains import ObserverDesign, SupervisedGains
+from ..core.supervisor import certify_supervised
+from ..errors import SpecError
+from .kalman import design_kalman
+from .observer import design_for_spec
+from .spec import NoiseSpec, PlantSpec
+
+WINDOW = 200.0
+"""Default length of the statistic's exponential window, in Kalman samples."""
+FALSE_ALARM = 1e-9
+"""Default probability per sample that consistent data leave the band (lower, upper)."""
+RETURN_PROBABILITY = 0.05
+"""Probability per sample that consistent data are outside the return band."""
+DWELL_WINDOWS = 2.0
+"""Default dwell time in H, in windows of the statistic (``window * Ts`` each)."""
+
+
+def statistic_band(k: int, window: float, probability: float) -> tuple[float, float]:
+    """The band that the statistic (k outputs, exponential window of ``window`` samples) leaves
+    with ``probability`` per sample when the Kalman filter's model explains the data
+    (``probability / 2`` below it, as much above; module docstring).
+
+    Examples
+    --------
+    With a window of one sample the statistic is the chi-square of k degrees of freedom:
+
+    >>> lower, upper = statistic_band(2, 1.0, 0.1)
+    >>> round(lower, 6), round(upper, 6)
+    (0.102587, 5.991465)
+    """
+    a = 1.0 / window
+    scale, dof = a / (2.0 - a), k * (2.0 - a) / a
+    return (float(scale * chi2.ppf(0.5 * probability, dof)),
+            float(scale * chi2.isf(0.5 * probability, dof)))
+
+
+def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float = WINDOW,
+                      false_alarm: float = FALSE_ALARM,
+                      dwell_time: float | None = None) -> SupervisedGains:
+    """The supervised observer of a design and a ``[noise]`` table.
+
+    Parameters
+    ----------
+    design : ObserverDesign
+        The homogeneous design (its ``filtering`` record is run as it is).
+    noise : fhobs.design.spec.NoiseSpec
+        The validated ``[noise]`` table: sample time, measurement std, process intensity.
+    window : float
+        Length of the statistic's exponential window in samples (>= 1).
+    false_alarm : float
+        Probability per sample of leaving the Kalman estimate on consistent data, in
+        ``(0, RETURN_PROBABILITY)``.
+    dwell_time : float or None
+        Least time in H (s); None: ``DWELL_WINDOWS * window * Ts``.
+
+    Returns
+    -------
+    SupervisedGains
+        Certified (:func:`fhobs.core.supervisor.certify_supervised`; its figures in
+        ``certificate["checks"]``).
+
+    Raises
+    ------
+    KalmanDesignError
+        If the Kalman filter of the homogeneous model cannot be designed.
+    SpecError
+        If ``window`` is below one sample or ``false_alarm`` outside
+        ``(0, RETURN_PROBABILITY)``.
+    CertificateError
+        If a threshold is out of range (a dwell time <= 0) or a part fails its certificate.
+
+    Examples
+    --------
+    >>> from fhobs.design.spec import load_spec
+    >>> from fhobs.design.observer import design_for_spec
+    >>> from fhobs.paper import PENDULUM_SPEC
+    >>> spec = load_spec(PENDULUM_SPEC)
+    >>> record = design_supervised(design_for_spec(spec), spec.noise)
+    >>> record.lower < record.lower_return < 2 < record.upper_return < record.upper
+    True
+    """
+    order = design.model.disturbance_order
+    kalman = design.kalman
+    if kalman is None or kalman.disturbance_order != order:
+        kalman = design_kalman(
+            design.plant, order, noise.measurement_std, noise.process_intensity,
+            noise.sample_time, f"the [noise] table's process_intensity at the homogeneous "
+                               f"model's disturbance order {order}")
+    if not (np.isfinite(window) and window >= 1.0):
+        raise SpecError(f"window = {window!r} must be a finite number of at least one sample")
+    if not 0.0 < false_alarm < RETURN_PROBABILITY:
+        raise SpecError(f"false_alarm = {false_alarm!r} must be in (0, {RETURN_PROBABILITY:g}): "
+                        "a probability per sample, below the return band's")
+    k = design.plant.k
+    lower, upper = statistic_band(k, window, false_alarm)
+    lower_return, upper_return = statistic_band(k, window, RETURN_PROBABILITY)
+    if dwell_time is None:
+        dwell_time = DWELL_WINDOWS * window * kalman.sample_time
+    record = SupervisedGains(design.plant, design.model, design.filtering, kalman,
+                             float(window), lower, upper, lower_return, upper_return,
+                             float(dwell_time), float(false_alarm))
+    return dataclasses.replace(record, certificate={"checks": certify_supervised(record)})
+
+
+def supervised_for_spec(spec: PlantSpec) -> SupervisedGains:
+    """The supervised observer of a spec with a ``[noise]`` table: the spec's design
+    (:func:`fhobs.design.observer.design_for_spec`) and :func:`design_supervised`.
+
+    Raises
+    ------
+    SpecError
+        If the spec has no ``[noise]`` table.
+
+    Examples
+    --------
+    >>> from fhobs.design.spec import load_spec
+    >>> from fhobs.paper import PENDULUM_SPEC
+    >>> supervised_for_spec(load_spec(PENDULUM_SPEC)).kalman.disturbance_order
+    1
+    """
+    if spec.noise is None:
+        raise SpecError(f"{spec.source}: the supervised observer needs the [noise] table "
+                        "(the Kalman filter's measurement noise, sample time and process "
+                        "intensity)")
+    return design_supervised(design_for_spec(spec), spec.noise)

@@ -1,0 +1,263 @@
+"""The supervised observer: its Kalman part against python-control, its thresholds against a
+Monte Carlo of the statistic, its output against the homogeneous observer and a Kalman filter
+written out here, each run alone, and the switching rule's claims (no false alarm on data the
+Kalman filter's model explains, dwell and handover, noise-free convergence to round-off)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg as sl
+from fhobs.core.errors import CertificateError
+from fhobs.core.gains import SupervisedGains
+from fhobs.core.runtime import FilteringObserver
+from fhobs.core.supervisor import (
+    MODE_HOMOGENEOUS,
+    MODE_KALMAN,
+    SupervisedObserver,
+    certify_supervised,
+)
+from fhobs.design.kalman import van_loan
+from fhobs.design.observer import design_for_spec
+from fhobs.design.supervised import design_supervised, statistic_band
+from fhobs.errors import SpecError
+from reference_math import zoh
+from scipy.signal import lfilter
+
+from harness.reference import simulate
+
+NOISY_SEEDS = range(5)
+
+
+@pytest.fixture(scope="module")
+def design(pendulum_spec):
+    """examples/pendulum.toml's design with the Kalman filter of its [noise] table."""
+    return design_for_spec(pendulum_spec)
+
+
+@pytest.fixture(scope="module")
+def record(design, pendulum_spec) -> SupervisedGains:
+    return design_supervised(design, pendulum_spec.noise)
+
+
+def run(record, ys, us, dt):
+    """The supervised observer on (y, u) held over steps dt: at every t_k its output z, mode,
+    statistic and both estimators' z."""
+    obs = SupervisedObserver(record)
+    rows = {"z": [], "mode": [], "statistic": [], "kalman": [], "homogeneous": []}
+    for step in range(len(ys) + 1):
+        rows["z"].append(obs.z)
+        rows["mode"].append(obs.mode)
+        rows["statistic"].append(obs.statistic)
+        rows["kalman"].append(obs.kalman.z)
+        rows["homogeneous"].append(obs.homogeneous.z)
+        if step < len(ys):
+            obs.step(ys[step], us[step], dt)
+    return {name: np.array(value) for name, value in rows.items()}
+
+
+@pytest.fixture(scope="module")
+def noisy(design, record):
+    """The paper's noisy perturbed loop, seeds 0..4: each simulation and the supervised
+    observer replayed on its (y, u)."""
+    out = []
+    for seed in NOISY_SEEDS:
+        result = simulate(design, "perturbed_noisy", seed=seed)
+        out.append((result, run(record, result.y, result.u, result.t[1])))
+    return out
+
+
+def rms(values):
+    return float(np.sqrt(np.mean(values**2)))
+
+
+# -- design ------------------------------------------------------------------------------------
+def test_kalman_part_is_the_dlqe_filter_of_the_homogeneous_model(record, pendulum_spec):
+    A, _, C = record.filtering.model_matrices
+    G = np.zeros((A.shape[0], 1))
+    G[-1, 0] = 1.0  # the white noise drives dq/dt (disturbance order 1)
+    noise = pendulum_spec.noise
+    Phi, Qd = van_loan(A, noise.process_intensity * G @ G.T, noise.sample_time)
+    R = np.diag(noise.measurement_std**2)
+    L, P, _ = control.dlqe(Phi, np.eye(A.shape[0]), C, Qd, R)
+    kalman = record.kalman
+    assert kalman.disturbance_order == record.model.disturbance_order == 1
+    np.testing.assert_allclose(Phi @ kalman.gain, L, rtol=1e-8, atol=1e-12 * np.abs(L).max())
+    np.testing.assert_allclose(kalman.covariance, P, rtol=1e-8, atol=1e-12 * np.abs(P).max())
+    assert record.lower < record.lower_return < 2 < record.upper_return < record.upper
+
+
+def test_statistic_band_matches_a_monte_carlo_of_the_statistic():
+    """Gaussian innovations: the normalised innovation squared is chi-square with k degrees
+    of freedom; its exponential mean leaves each side of the band about as often as asked."""
+    k, window, probability = 2, 50.0, 0.02
+    rng = np.random.default_rng(7)
+    nis = np.sum(rng.standard_normal((2_000_000, k))**2, axis=1)
+    a = 1.0 / window
+    statistic = lfilter([a], [1.0, a - 1.0], nis, zi=[(1.0 - a) * k])[0][10_000:]
+    lower, upper = statistic_band(k, window, probability)
+    for fraction in (np.mean(statistic < lower), np.mean(statistic > upper)):
+        assert 0.6 * probability / 2 < fraction < 1.5 * probability / 2
+
+
+def test_record_round_trips_and_certificate_names_the_field(record):
+    back = SupervisedGains.from_dict(json.loads(json.dumps(record.to_dict())),
+                                     plant=record.plant, model=record.model)
+    assert back.kalman.plant is record.plant and back.filtering.model is record.model
+    np.testing.assert_array_equal(back.kalman.gain, record.kalman.gain)
+    assert certify_supervised(back) == record.certificate["checks"]
+    for change, words in (({"upper": record.upper_return}, "upper = "),
+                          ({"lower_return": 2.5}, "mean k"),
+                          ({"dwell_time": 0.0}, "dwell_time"), ({"window": 0.5}, "window"),
+                          ({"kalman": dataclasses.replace(record.kalman, gain=-record.kalman.gain)},
+                           "schur_kalman")):
+        with pytest.raises(CertificateError, match=words):
+            certify_supervised(dataclasses.replace(record, **change))
+
+
+def test_design_refuses_a_false_alarm_rate_out_of_range_and_a_spec_without_noise(
+        design, pendulum_spec):
+    from fhobs.design.supervised import supervised_for_spec
+
+    for bad, words in (({"false_alarm": 0.5}, "false_alarm = 0.5"), ({"window": 0.0}, "window")):
+        with pytest.raises(SpecError, match=words):
+            design_supervised(design, pendulum_spec.noise, **bad)
+    with pytest.raises(SpecError, match=r"\[noise\]"):
+        supervised_for_spec(dataclasses.replace(pendulum_spec, noise=None))
+
+
+# -- the paper's scenarios ---------------------------------------------------------------------
+def test_noise_free_output_is_the_homogeneous_observer_and_reaches_round_off(design, record):
+    """No noise, no disturbance: the statistic falls below the band, the output never leaves
+    the homogeneous observer run alone, which reaches round-off."""
+    result = simulate(design, "nominal")
+    out = run(record, result.y, result.u, result.t[1])
+    alone = FilteringObserver(design.filtering)
+    for step, (y, u) in enumerate(zip(result.y, result.u, strict=True)):
+        np.testing.assert_allclose(out["z"][step], alone.z, rtol=0, atol=1e-12)
+        alone.step(y, u, result.t[1])
+    assert np.all(out["mode"] == MODE_HOMOGENEOUS)
+    error = np.linalg.norm(result.x - out["z"][:, :4], axis=1)
+    assert error[result.window(2.5, 3.0)].max() < 1e-9 * error[0]
+    assert out["statistic"][-1] < record.lower
+
+
+def test_perturbed_noise_free_rejects_the_disturbance(design, record):
+    result = simulate(design, "perturbed")
+    out = run(record, result.y, result.u, result.t[1])
+    window = result.window(1.0, 3.0)
+    error = np.linalg.norm(result.x - out["z"][:, :4], axis=1)[window]
+    kalman = result.error_kalman[window]
+    assert error.max() <= 1e-6 and kalman.max() >= 100 * error.max()
+    np.testing.assert_allclose(error, result.error[window], rtol=1e-9, atol=1e-15)
+
+
+def test_noisy_rms_is_within_5_percent_of_the_kalman_filter(noisy):
+    ours, kalman, homogeneous = (np.mean([rms(getattr(r, name)[r.window(1.0, 3.0)])
+                                          for r, _ in noisy])
+                                 for name in ("t", "error_kalman", "error"))
+    ours = np.mean([rms(np.linalg.norm(r.x - out["z"][:, :4], axis=1)[r.window(1.0, 3.0)])
+                    for r, out in noisy])
+    assert ours <= 1.05 * kalman and ours < homogeneous
+
+
+def test_kalman_mode_is_the_filter_written_out_from_the_handover(noisy, record):
+    """After its one switch to K (the transient over) the output is a Kalman filter written out
+    here with scipy, started at the handover from the homogeneous estimate."""
+    result, out = noisy[0]
+    switches = np.flatnonzero(np.diff(out["mode"]))
+    assert len(switches) == 1 and out["mode"][-1] == MODE_KALMAN
+    start = switches[0] + 1
+    np.testing.assert_allclose(out["z"][start], out["homogeneous"][start], rtol=0, atol=0)
+    A, B, C = record.kalman.model_matrices
+    dt = float(result.t[1])
+    Phi, Gamma = zoh(A, B, dt)
+    M = record.kalman.gain
+    z, rows = out["homogeneous"][start], []
+    for y, u in zip(result.y[start:], result.u[start:], strict=True):
+        rows.append(z)
+        z = Phi @ (z + M @ (y - C @ z)) + Gamma @ u
+    rows.append(z)
+    expected = np.array(rows)
+    np.testing.assert_allclose(out["z"][start:], expected, rtol=0,
+                               atol=1e-9 * np.abs(expected).max())
+
+
+# -- the switching rule ------------------------------------------------------------------------
+def at_rest(record, seed, amplitude, n_steps):
+    """The pendulum at rest (x = 0, u = 0) measured with uniform noise of the ``amplitude`` of
+    each step (a number or one per step): data the Kalman filter's model explains for the
+    [noise] table's amplitude."""
+    rng = np.random.default_rng(seed)
+    half_width = np.broadcast_to(np.asarray(amplitude, dtype=float), (n_steps,))[:, None]
+    ys = half_width * rng.uniform(-1.0, 1.0, (n_steps, record.plant.k))
+    return run(record, ys, np.zeros((n_steps, record.plant.m)), record.kalman.sample_time)
+
+
+def test_no_false_alarm_on_data_the_kalman_model_explains(record):
+    """4 seeds of 1 s (80000 samples): at the documented 1e-9 per sample, 8e-5 false alarms
+    are expected; the output goes to K after the dwell and stays there."""
+    amplitude = float(np.sqrt(3.0) * record.kalman.measurement_std[0])
+    for seed in range(4):
+        out = at_rest(record, seed, amplitude, 20_000)
+        switches = np.flatnonzero(np.diff(out["mode"]))
+        assert len(switches) == 1 and out["mode"][-1] == MODE_KALMAN
+        assert switches[0] * record.kalman.sample_time < 5 * record.dwell_time
+
+
+def test_dwell_and_hysteresis_bound_the_switches(record):
+    """Noise 1.6 times the table's in bursts of random lengths (50 to 1000 samples, seeded)
+    between stretches of the table's noise: every H period lasts the dwell time, the switches
+    to K are at most 1 + T / dwell_time, and each hands the homogeneous estimate over."""
+    Ts = record.kalman.sample_time
+    rng = np.random.default_rng(5)
+    lengths = rng.integers(50, 1000, 60)
+    nominal = float(np.sqrt(3.0) * record.kalman.measurement_std[0])
+    amplitude = np.concatenate([np.full(n, nominal * (1.6 if i % 2 else 1.0))
+                                for i, n in enumerate(lengths)])
+    out = at_rest(record, 11, amplitude, amplitude.size)
+    mode = out["mode"]
+    to_kalman = np.flatnonzero((mode[1:] == MODE_KALMAN) & (mode[:-1] == MODE_HOMOGENEOUS)) + 1
+    to_homogeneous = np.flatnonzero((mode[1:] == MODE_HOMOGENEOUS)
+                                    & (mode[:-1] == MODE_KALMAN)) + 1
+    assert len(to_kalman) >= 3 and len(to_homogeneous) >= 3
+    assert len(to_kalman) <= 1 + len(mode) * Ts / record.dwell_time
+    for step in to_kalman:
+        entered = max([0, *to_homogeneous[to_homogeneous < step]])
+        assert (step - entered) * Ts >= record.dwell_time * (1 - 1e-9)
+        np.testing.assert_array_equal(out["kalman"][step], out["homogeneous"][step])
+        np.testing.assert_array_equal(out["z"][step], out["homogeneous"][step])
+
+
+# -- interface ---------------------------------------------------------------------------------
+def test_state_round_trip_replays_and_bad_steps_leave_the_state(record):
+    rng = np.random.default_rng(3)
+    Ts = record.kalman.sample_time
+    ys, us = rng.normal(0, 1e-3, (600, 2)), rng.normal(0, 1e-2, (600, 1))
+    obs = SupervisedObserver(record)
+    for y, u in zip(ys[:300], us[:300], strict=True):
+        obs.step(y, u, 2 * Ts)
+    state = obs.get_state()
+    first = [obs.step(y, u, Ts) or obs.get_state() for y, u in zip(ys[300:], us[300:],
+                                                                   strict=True)]
+    obs.set_state(state)
+    again = [obs.step(y, u, Ts) or obs.get_state() for y, u in zip(ys[300:], us[300:],
+                                                                   strict=True)]
+    np.testing.assert_array_equal(np.array(first), np.array(again))
+    before = obs.get_state()
+    for bad, words in (((ys[0], us[0], 1.5 * Ts), "multiple"), (([np.nan, 0.0], us[0], Ts), "y"),
+                       ((ys[0], us[0], -Ts), "step size")):
+        with pytest.raises(ValueError, match=words):
+            obs.step(*bad)
+        np.testing.assert_array_equal(obs.get_state(), before)
+    with pytest.raises(ValueError, match="mode"):
+        obs.set_state(np.append(before[:-2], [0.5, 0.0]))
+    np.testing.assert_array_equal(obs.get_state(), before)
+    diagnostics = obs.diagnostics()
+    assert diagnostics["mode"] in (MODE_KALMAN, MODE_HOMOGENEOUS)
+    np.testing.assert_array_equal(diagnostics["z"], obs.z)
+    assert sl.norm(obs.x_hat - obs.z[:record.plant.n]) == 0
