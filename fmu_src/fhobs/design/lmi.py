@@ -59,19 +59,21 @@ Objectives (``OBJECTIVES``), functions of P_t and Y~ measured in the basis T:
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 
 from ..errors import LMIError
 from ..extras import require
 from .spec import OBJECTIVES
 
 cp = require("cvxpy", "design")
-require("clarabel", "design")
+clarabel = require("clarabel", "design")
 
 GAIN_STAGE_KAPPA = 10.0
 LMI_MARGIN = 1e-2
@@ -84,6 +86,9 @@ CHAIN_COND_LIMIT = 1e12
 # A relative duality gap of 1e-7 on kappa (or ||Y~||) is plenty; at Clarabel's default 1e-8 some
 # reduced LMIs stop one step short with status "optimal_inaccurate".
 SOLVER_OPTIONS = {"tol_gap_rel": 1e-7}
+CLARABEL_STATUS = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate"}
+"""Clarabel's statuses that give a solution, and the status reported for each (cvxpy's
+names); any other is an LMIError."""
 
 
 @dataclass(frozen=True)
@@ -320,46 +325,197 @@ def _solve_chains(
 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], float, str]:
     """The reduced LMI: one block p_s, y_s per chain size s, with the margins of its decay and
     monotonicity inequalities; returns p, y, the solve time and the status (:func:`_worse` of
-    the stages')."""
-    kappa = cp.Variable()
-    p = {s: cp.Variable((s, s), symmetric=True) for s in blocks}
-    y = {s: cp.Variable((s, 1)) for s in blocks}
-    constraints = []
-    for s, (h, g) in blocks.items():
-        e1 = np.eye(1, s)
-        constraints += [
-            _sym(p[s] @ (h + rho * g) + y[s] @ e1) << -decay_margin * p[s],
-            _sym(p[s] @ g) >> monotone_margin * p[s],
-            p[s] >> np.eye(s),
-        ]
-    bounds = [p[s] << kappa * np.eye(s) for s in blocks]
-    solve_time, status = _solve(cp.Problem(cp.Minimize(kappa), constraints + bounds), rho,
-                                "min_cond")
+    the stages').
+
+    Clarabel is called directly on the conic programs of :class:`_ChainProgram` (no modelling
+    layer to canonicalise them at every rho).
+    """
+    program = _ChainProgram(blocks, rho, decay_margin, monotone_margin)
+    x, solve_time, status = _solve(program.min_cond(), rho, "min_cond")
     if objective == "min_gain":
-        limit = GAIN_STAGE_KAPPA * kappa.value
-        t = cp.Variable()
-        constraints += [p[s] << limit * np.eye(s) for s in blocks]
-        constraints += [cp.norm(y[s]) <= t for s in blocks]
-        stage_time, stage_status = _solve(cp.Problem(cp.Minimize(t), constraints), rho, objective)
+        x, stage_time, stage_status = _solve(program.min_gain(GAIN_STAGE_KAPPA * x[0]), rho,
+                                             objective)
         solve_time, status = solve_time + stage_time, _worse(status, stage_status)
-    return (
-        {s: 0.5 * (v.value + v.value.T) for s, v in p.items()},
-        {s: v.value for s, v in y.items()},
-        solve_time,
-        status,
-    )
+    p, y = program.blocks_of(x)
+    return p, y, solve_time, status
+
+
+@functools.lru_cache(maxsize=32)
+def _symmetric_basis(s: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """The unknowns of a symmetric s x s matrix and Clarabel's vector of one.
+
+    Returns ``(E, index, w)``: ``E[k]`` the symmetric matrix of the k-th unknown (ones at the
+    k-th entry of the upper triangle, row by row, and its mirror), and ``svec(M) = w *
+    M[index]``, Clarabel's ``PSDTriangleConeT`` vector (the upper triangle column by column,
+    ``w`` 1 on the diagonal and sqrt(2) off it, so that ``svec(M) . svec(N) = trace(M N)``).
+    """
+    rows, cols = np.triu_indices(s)
+    E = np.zeros((len(rows), s, s))
+    E[np.arange(len(rows)), rows, cols] = 1.0
+    E[np.arange(len(rows)), cols, rows] = 1.0
+    lower_cols, lower_rows = np.tril_indices(s)
+    return E, (lower_rows, lower_cols), np.where(lower_rows == lower_cols, 1.0, np.sqrt(2.0))
+
+
+def _svec(M: np.ndarray) -> np.ndarray:
+    """Clarabel's vector of the symmetric matrix M (of each matrix of a stack, the last axis)."""
+    _, index, w = _symmetric_basis(M.shape[-1])
+    return (w * M[..., index[0], index[1]]).T
+
+
+def _sym_map(M: np.ndarray) -> np.ndarray:
+    """The matrix of ``p -> svec(sym(p M))`` on the unknowns of p (:func:`_symmetric_basis`)."""
+    EM = _symmetric_basis(M.shape[0])[0] @ M
+    return _svec(0.5 * (EM + EM.transpose(0, 2, 1)))
+
+
+def _head_map(s: int) -> np.ndarray:
+    """The matrix of ``y -> svec(sym(y e1))``, y in R^s, e1 the first row of I_s."""
+    Y = np.zeros((s, s, s))
+    Y[np.arange(s), np.arange(s), 0] = 1.0
+    return _svec(0.5 * (Y + Y.transpose(0, 2, 1)))
+
+
+Cone = tuple[np.ndarray, np.ndarray, object]
+"""A constraint ``J x + F0`` in a cone: ``(J, F0, clarabel cone)``."""
+
+
+class _ChainProgram:
+    """The reduced LMI of :func:`_solve_chains` as Clarabel's conic programs.
+
+    Per chain size s, with ``M = h + rho g``, ``p_s`` symmetric and ``y_s`` in R^s:
+
+    - decay: ``-(sym(p_s M) + sym(y_s e1) + decay_margin p_s)`` PSD;
+    - monotonicity: ``sym(p_s g) - monotone_margin p_s`` PSD;
+    - ``p_s - I`` PSD;
+    - ``min_cond``: ``kappa I - p_s`` PSD, minimise kappa;
+    - ``min_gain``: ``limit I - p_s`` PSD, ``(r_s, y_s)`` in the second-order cone and
+      ``t - r_s >= 0``, minimise t.
+
+    The unknowns ``x``: the objective's variable (kappa or t), then per chain size the entries
+    of p_s's upper triangle row by row and y_s, then (min_gain) the r_s. Each constraint is an
+    affine map ``F(x) = J x + F0`` into its cone, handed to Clarabel as ``A = -J``, ``b = F0``
+    (``A x + s = b``, s in the cone), the cones grouped by kind (non-negative, second-order,
+    PSD). This is, entry for entry and in the same order, the program cvxpy canonicalises the
+    same LMI to, so Clarabel takes the same steps.
+    """
+
+    def __init__(self, blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float,
+                 decay_margin: float, monotone_margin: float) -> None:
+        self.offsets: dict[int, int] = {}  # s -> offset of p_s's unknowns in x; y_s follows
+        self.size = 1
+        for s in blocks:
+            self.offsets[s] = self.size
+            self.size += s * (s + 1) // 2 + s
+        self.lmis: list[Cone] = []
+        with np.errstate(all="ignore"):  # non-finite data are refused by _solve
+            self._add_lmis(blocks, rho, decay_margin, monotone_margin)
+
+    def _add_lmis(self, blocks: dict[int, tuple[np.ndarray, np.ndarray]], rho: float,
+                  decay_margin: float, monotone_margin: float) -> None:
+        """The decay, monotonicity and ``p_s >= I`` constraints of every chain size."""
+        for s, (h, g) in blocks.items():
+            W = _svec(_symmetric_basis(s)[0])  # p_s -> svec(p_s)
+            zero = np.zeros(len(W))
+            self.lmis += [
+                (self._place(s, -(_sym_map(h + rho * g) + decay_margin * W), -_head_map(s)),
+                 zero, clarabel.PSDTriangleConeT(s)),
+                (self._place(s, _sym_map(g) - monotone_margin * W), zero,
+                 clarabel.PSDTriangleConeT(s)),
+                (self._place(s, W), -_svec(np.eye(s)), clarabel.PSDTriangleConeT(s)),
+            ]
+
+    def _place(self, s: int, J_p: np.ndarray, J_y: np.ndarray | None = None,
+               width: int | None = None) -> np.ndarray:
+        """J with the columns of p_s (and y_s) in their places, zero elsewhere."""
+        J = np.zeros((J_p.shape[0], width or self.size))
+        start = self.offsets[s]
+        J[:, start:start + J_p.shape[1]] = J_p
+        if J_y is not None:
+            J[:, start + J_p.shape[1]:start + J_p.shape[1] + s] = J_y
+        return J
+
+    def _bounds(self, width: int) -> list[Cone]:
+        """``-p_s`` (to be bounded by the objective's ``kappa I`` or a constant ``limit I``)."""
+        return [(self._place(s, -_svec(_symmetric_basis(s)[0]), width=width),
+                 np.zeros(s * (s + 1) // 2), clarabel.PSDTriangleConeT(s)) for s in self.offsets]
+
+    def min_cond(self) -> tuple[np.ndarray, list[Cone]]:
+        """``(q, constraints)`` of the min_cond stage, x[0] = kappa."""
+        bounds = self._bounds(self.size)
+        for (J, _, _), s in zip(bounds, self.offsets, strict=True):
+            J[:, 0] = _svec(np.eye(s))
+        return np.eye(1, self.size)[0], self.lmis + bounds
+
+    def min_gain(self, limit: float) -> tuple[np.ndarray, list[Cone]]:
+        """``(q, constraints)`` of the min_gain stage, x[0] = t, ``p_s <= limit I``."""
+        width = self.size + len(self.offsets)
+        widen = [(np.hstack([J, np.zeros((len(J), len(self.offsets)))]), F0, cone)
+                 for J, F0, cone in self.lmis]
+        bounds = [(J, limit * _svec(np.eye(s)), cone)
+                  for (J, _, cone), s in zip(self._bounds(width), self.offsets, strict=True)]
+        epigraphs = np.zeros((len(self.offsets), width))
+        epigraphs[:, 0] = 1.0
+        epigraphs[:, self.size:] = -np.eye(len(self.offsets))
+        norms = []
+        for i, s in enumerate(self.offsets):
+            J = np.zeros((1 + s, width))
+            J[0, self.size + i] = 1.0
+            J[1:, self.offsets[s] + s * (s + 1) // 2:][:, :s] = np.eye(s)
+            norms.append((J, np.zeros(1 + s), clarabel.SecondOrderConeT(1 + s)))
+        return (np.eye(1, width)[0],
+                [(epigraphs, np.zeros(len(self.offsets)),
+                  clarabel.NonnegativeConeT(len(self.offsets)))] + norms + widen + bounds)
+
+    def blocks_of(self, x: np.ndarray) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+        """p_s (symmetric) and y_s (s x 1) of a solution x."""
+        p, y = {}, {}
+        for s, start in self.offsets.items():
+            m = s * (s + 1) // 2
+            p[s] = np.einsum("k,kij->ij", x[start:start + m], _symmetric_basis(s)[0])
+            y[s] = x[start + m:start + m + s].reshape(s, 1)
+        return p, y
+
+
+def _solve(program: tuple[np.ndarray, list[Cone]], rho: float, objective: str
+           ) -> tuple[np.ndarray, float, str]:
+    """Solve ``min q^T x`` s.t. ``J x + F0`` in each cone with Clarabel; return x, the solve
+    time and the status (:data:`CLARABEL_STATUS`), or raise LMIError.
+
+    An ``optimal_inaccurate`` result is kept and reported: the numpy certificate, not the
+    solver's status, decides whether it is used.
+    """
+    q, constraints = program
+    J = np.vstack([c[0] for c in constraints])
+    F0 = np.concatenate([c[1] for c in constraints])
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(F0))):
+        raise LMIError(f"the LMI's data are not finite (rho = {rho}, objective {objective})")
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    for name, value in SOLVER_OPTIONS.items():
+        setattr(settings, name, value)
+    solver = clarabel.DefaultSolver(scipy.sparse.csc_matrix((len(q), len(q))), q,
+                                    scipy.sparse.csc_matrix(-J), F0,
+                                    [c[2] for c in constraints], settings)
+    solution = solver.solve()
+    status = CLARABEL_STATUS.get(str(solution.status))
+    if status is None:
+        raise LMIError(f"LMI solver status {solution.status} (rho = {rho}, objective {objective})")
+    return np.asarray(solution.x), float(solution.solve_time), status
+
+
+def _worse(first: str, second: str) -> str:
+    """The less accurate of two accepted statuses (``optimal`` or ``optimal_inaccurate``)."""
+    return "optimal" if first == second == "optimal" else "optimal_inaccurate"
 
 
 def _sym(M: cp.Expression) -> cp.Expression:
     return 0.5 * (M + M.T)
 
 
-def _solve(problem: cp.Problem, rho: float, objective: str) -> tuple[float, str]:
-    """Solve with Clarabel; return the solve time and cvxpy's status, or raise LMIError.
-
-    An ``optimal_inaccurate`` result is kept (cvxpy's warning about it is silenced) and its
-    status reported: the numpy certificate, not the solver's status, decides whether it is used.
-    """
+def _solve_problem(problem: cp.Problem, rho: float, objective: str) -> None:
+    """Solve a cvxpy problem with Clarabel, or raise LMIError (an ``optimal_inaccurate``
+    result is kept: the numpy certificate decides)."""
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Solution may be inaccurate")
@@ -370,12 +526,6 @@ def _solve(problem: cp.Problem, rho: float, objective: str) -> tuple[float, str]
         raise LMIError(
             f"LMI solver status {problem.status!r} (rho = {rho}, objective {objective})"
         )
-    return float(problem.solver_stats.solve_time or 0.0), str(problem.status)
-
-
-def _worse(first: str, second: str) -> str:
-    """The less accurate of two accepted statuses (``optimal`` or ``optimal_inaccurate``)."""
-    return cp.OPTIMAL if first == second == cp.OPTIMAL else cp.OPTIMAL_INACCURATE
 
 
 def certify_gain_lmi(
@@ -415,5 +565,6 @@ def certify_gain_lmi(
         P >> np.eye(N),
         P << kappa * np.eye(N),
     ]
-    _solve(cp.Problem(cp.Minimize(kappa), constraints), rho, "certificate of a given gain")
+    _solve_problem(cp.Problem(cp.Minimize(kappa), constraints), rho,
+                   "certificate of a given gain")
     return 0.5 * (P.value + P.value.T)
