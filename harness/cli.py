@@ -438,8 +438,9 @@ DESIGN_LABELS = {"spec": "ours", "paper": "paper"}
 
 def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, ObserverDesign]:
     """The spec of ``path`` and its design, as build_fmu.py makes it (the design limits
-    checked first, by the design; what the design achieved printed); with ``tune_noise`` as
-    ``build_fmu.py --tune-noise`` (:func:`fhobs.design.tuning.design_for_noise_spec`).
+    checked first, by the design; what the design achieved printed, and a poor design beside
+    the Kalman filter said, :func:`fhobs.design.tuning.poor_design_lines`); with ``tune_noise``
+    as ``build_fmu.py --tune-noise`` (:func:`fhobs.design.tuning.design_for_noise_spec`).
 
     Returns
     -------
@@ -448,17 +449,16 @@ def design_spec_file(path: Path, tune_noise: bool = False) -> tuple[PlantSpec, O
     from fhobs.cli import design_summary
     from fhobs.design.observer import design_for_spec
     from fhobs.design.spec import load_spec
+    from fhobs.design.tuning import design_for_noise_spec, poor_design_lines
 
     spec = load_spec(path)
     lines: list[str] = []
     if tune_noise:
-        from fhobs.design.tuning import design_for_noise_spec
-
         tuned = design_for_noise_spec(spec, "--tune-noise")
         design, lines = tuned.design, tuned.summary()
     else:
         design = design_for_spec(spec)
-    for line in design_summary(design) + lines:
+    for line in design_summary(design) + lines + poor_design_lines(spec, design):
         print(line)
     return spec, design
 

@@ -220,14 +220,14 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         from .design.observer import design_for_spec  # the design extra: imported when used
+        from .design.tuning import design_for_noise_spec, poor_design_lines
 
         if args.tune_noise:
-            from .design.tuning import design_for_noise_spec
-
             tuned = design_for_noise_spec(spec)
             design, tuning_lines = tuned.design, tuned.summary()
         else:
             design, tuning_lines = design_for_spec(spec, args.objective), []
+        tuning_lines += poor_design_lines(spec, design)
     except (LMIError, CertificateError, KalmanDesignError) as exc:
         print(f"error: design failed for {args.spec}: {exc}", file=sys.stderr)
         return 2

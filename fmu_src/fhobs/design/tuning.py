@@ -26,7 +26,13 @@ Selection. The Kalman filter is tuned first: its process intensity is the one of
 are predicted, and the chosen design is the one with the least predicted noisy RMS among those
 whose noise-free error is at least ``rejection`` times below the Kalman filter's (the
 homogeneous observer's strength: it rejects a matched disturbance exactly). If none is, the
-candidate with the least noise-free error is chosen and ``met`` is False.
+candidate with the least noise-free error is chosen and ``met`` is False. Either way a
+candidate is chosen only if it converges, in the noise-free replay and in every noisy one (and
+again once designed with its keys): finite throughout, the RMS of its error over the window's
+last quarter at least :data:`DECAY` times below its initial error and not growing
+(:data:`GROWTH`); the next in the order is tried otherwise, and LMIError says when none
+converges. :func:`poor_design_lines` compares a design with its Kalman filter by the same
+prediction.
 
 Candidates. Relative to the automatic design of the plant
 (:func:`fhobs.design.observer.design_for_spec`
@@ -104,6 +110,26 @@ NOISE_DRAWS = 3
 """Default number of noise draws of the prediction."""
 TUNED_KEYS = ("nu", "rho", "gamma", "filter_scale", "objective")
 """The ``[observer]`` keys the tuning chooses (unless fixed)."""
+DECAY = 10.0
+"""A candidate converges only if the RMS of its error over the last quarter of the window, in
+the noise-free replay and in every noisy one, is at least this many times below its initial
+error."""
+GROWTH = 4.0
+"""... and at most this many times the RMS over the quarter before (checked where that RMS is
+above :data:`SETTLED` times the initial error and the disturbance has started by then)."""
+SETTLED = 1e-3
+"""The settled error, relative to the initial one (the settling time's criterion)."""
+SELECTIONS = {
+    True: "the least predicted noisy RMS among the candidates that meet the rejection and "
+          "converge",
+    False: "no candidate meets the rejection: the strongest rejection among the candidates "
+           "that converge",
+}
+"""The rule that chose the design (design.json's ``noise_tuning['selection']``), by whether
+a candidate met the rejection."""
+POOR_RATIO = 2.0
+"""The homogeneous design is called poor when its predicted noisy RMS or peaking is more than
+this many times the Kalman filter's."""
 
 
 @dataclass(frozen=True)
@@ -120,12 +146,20 @@ class ErrorPrediction:
         Max of ``||x - x_hat||`` with the disturbance and no noise.
     noise_free_rms : float
         RMS of ``||x - x_hat||`` with the disturbance and no noise.
+    peaking : float
+        Max of ``||x - x_hat||`` over the whole noise-free replay over its initial value.
+    final_ratio : float
+        RMS of ``||x - x_hat||`` over the last quarter of the window over its initial value,
+        the largest of the noise-free and the noisy replays (a converging design's is at most
+        ``1 / DECAY``).
     """
 
     noisy_rms: float
     noisy_rms_draws: tuple[float, ...]
     noise_free_max: float
     noise_free_rms: float
+    peaking: float = math.nan
+    final_ratio: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -153,7 +187,8 @@ class NoiseDesign:
         filter's.
     candidates : tuple of dict
         Every candidate: its parameters, ``noise_free_max``, ``noisy_rms`` (absent when it was
-        not run under noise: it missed the rejection bound) or ``failed`` (the reason).
+        not run under noise: it missed the rejection bound and another was chosen) or
+        ``failed`` (the reason: not certified, not run, or not converging).
     seconds : float
         Wall time of the search.
     cached : bool
@@ -183,10 +218,11 @@ class NoiseDesign:
         return self.kalman.noise_free_max / max(self.predicted.noise_free_max, 1e-300)
 
     def summary(self) -> list[str]:
-        """The lines a command prints: the chosen keys, both predictions, the ratios."""
+        """The lines a command prints: the chosen keys, both predictions, the ratios, and a
+        warning line when no candidate met the rejection asked for."""
         p, k = self.predicted, self.kalman
         keys = ", ".join(f"{key} = {_short(value)}" for key, value in self.parameters.items())
-        return [
+        lines = [
             f"noise tuning: {keys} (certified rho {self.design.filtering.rho:.4g}); "
             f"{len(self.candidates)} candidates in {self.seconds:.1f} s"
             + (" (from the cache)" if self.cached else ""),
@@ -194,8 +230,16 @@ class NoiseDesign:
             f"{p.noisy_rms:.3e}, noise-free max {p.noise_free_max:.3e}; Kalman filter "
             f"(intensity {self.kalman_intensity:.3g}) noisy RMS {k.noisy_rms:.3e}, noise-free max "
             f"{k.noise_free_max:.3e}; ratio {self.ratio:.3f} in noise, {self.rejection:.3g}x "
-            "rejection" + ("" if self.met else " (below the rejection asked for)"),
+            "rejection",
         ]
+        if not self.met:
+            asked = (self.design.noise_tuning or {}).get("rejection_requested", REJECTION)
+            lines.append(
+                f"warning: no certified candidate rejects the disturbance {asked:g}x better than "
+                f"the Kalman filter and converges; this is the converging candidate of the "
+                f"strongest rejection ({self.rejection:.3g}x; its error over the window's last "
+                f"quarter is {p.final_ratio:.2g} of the initial one)")
+        return lines
 
 
 def design_for_noise(
@@ -394,21 +438,96 @@ def predict_error(design: ObserverDesign, *, measurement_std: ArrayLike, sample_
     >>> bool(p.noise_free_max < 1e-6 < p.noisy_rms)
     True
     """
-    plant = design.plant
-    spec = _validated_spec(plant.A, plant.B, plant.C, plant.E, measurement_std, sample_time,
-                           disturbance, design.model.disturbance_order, settling_time,
-                           state_scale, None, None)
     if estimator not in ("homogeneous", "kalman") or (estimator == "kalman"
                                                        and design.kalman is None):
         raise SpecError(f"predict_error: estimator = {estimator!r} must be 'homogeneous' or "
                         "'kalman' (the latter with design.kalman)")
-    data = _Scenario(spec, np.asarray(measurement_std, dtype=float).ravel(),
-                     float(sample_time), int(noise_draws), int(seed))
+    data = _design_scenario(design, measurement_std, sample_time, disturbance, settling_time,
+                            state_scale, noise_draws, seed)
     record = design.kalman if estimator == "kalman" else design.filtering
-    prediction = data.predict(record, estimator)
+    prediction = data.predict(record, estimator, checked=False)
     if isinstance(prediction, str):
         raise ValueError(prediction)
     return prediction
+
+
+def poor_design_lines(spec: PlantSpec, design: ObserverDesign, seed: int = 0) -> list[str]:
+    """One warning line when the spec has a ``[noise]`` table and its homogeneous design is
+    predicted to do more than :data:`POOR_RATIO` times worse than its Kalman filter, in noisy
+    RMS or in peaking (:class:`ErrorPrediction`); no line otherwise.
+
+    The predictions are the noise tuning's when the design has them (``design.noise_tuning``),
+    else one of each estimator on one noise draw of ``seed`` (the module docstring's, with the
+    spec's ``[disturbance]``, or none).
+
+    Parameters
+    ----------
+    spec : PlantSpec
+        The spec the design was made for.
+    design : ObserverDesign
+        Its design (with the Kalman filter of its ``[noise]`` table).
+    seed : int
+        Seed of the noise draw.
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> import fhobs
+    >>> from fhobs.design.observer import design_for_spec
+    >>> from fhobs.design.spec import load_spec
+    >>> spec = load_spec(Path(fhobs.__file__).parent / "examples" / "pendulum.toml")
+    >>> poor_design_lines(spec, design_for_spec(spec))
+    []
+    """
+    if spec.noise is None or design.kalman is None:
+        return []
+    tuning = design.noise_tuning
+    if tuning:
+        window = tuning["window"]
+        ours: tuple[float, float] | str = (tuning["predicted_noisy_rms"],
+                                           tuning["predicted_peaking"])
+        kalman = (tuning["kalman_predicted_noisy_rms"], tuning["kalman_predicted_peaking"])
+    else:
+        disturbance = spec.disturbance or DisturbanceSpec("step", np.zeros(spec.E.shape[1]))
+        try:
+            data = _design_scenario(design, spec.noise.measurement_std, spec.noise.sample_time,
+                                    disturbance, spec.settling_time, spec.state_scale, 1, seed)
+        except SpecError as err:
+            return [f"note: the design was not compared with the Kalman filter: {err}"]
+        window = data.window
+        made = [data.predict(record, name, checked=False)
+                for record, name in ((design.filtering, "homogeneous"),
+                                     (design.kalman, "kalman"))]
+        if isinstance(made[1], str):
+            return [f"note: the design was not compared with the Kalman filter: {made[1]}"]
+        ours = made[0] if isinstance(made[0], str) else (made[0].noisy_rms, made[0].peaking)
+        kalman = (made[1].noisy_rms, made[1].peaking)
+    where = f"the [noise] table's noise over [{window[0]:g}, {window[1]:g}] s"
+    advice = "the Kalman filter (kalman.fmu) is the estimator for this spec's measurements"
+    if isinstance(ours, str):
+        return [f"warning: the homogeneous observer fails under {where} ({ours}); {advice}"]
+    ratios = [a / b for a, b in zip(ours, kalman, strict=True)]
+    if max(ratios) <= POOR_RATIO:
+        return []
+    return [f"warning: poor design for {where}: homogeneous noisy RMS {ours[0]:.3e}, peaking "
+            f"{ours[1]:.3g}x against the Kalman filter's {kalman[0]:.3e}, {kalman[1]:.3g}x "
+            f"({ratios[0]:.3g} and {ratios[1]:.3g} times, more than {POOR_RATIO:g}); {advice}"]
+
+
+def _design_scenario(design: ObserverDesign, measurement_std: Any, sample_time: Any,
+                     disturbance: Any, settling_time: Any, state_scale: Any, noise_draws: int,
+                     seed: int) -> _Scenario:
+    """The prediction's data for the plant of ``design`` (SpecError naming a bad argument)."""
+    plant = design.plant
+    spec = _validated_spec(plant.A, plant.B, plant.C, plant.E, measurement_std, sample_time,
+                           disturbance, design.model.disturbance_order, settling_time,
+                           state_scale, None, None)
+    return _Scenario(spec, np.asarray(measurement_std, dtype=float).ravel(),
+                     float(sample_time), int(noise_draws), int(seed))
 
 
 # -- validation ------------------------------------------------------------------------------
@@ -517,7 +636,11 @@ Estimator = FilteringGains | KalmanGains
 
 
 class _Scenario:
-    """The recorded plant data (noise-free, then each noise draw) and the replays."""
+    """The recorded plant data (noise-free, then each noise draw) and the replays.
+
+    A checked replay is one of a candidate: besides running and staying finite, its error must
+    converge (:data:`DECAY`, :data:`GROWTH`); the Kalman filter's and the comparison's replays
+    are not checked (their figures are what is asked for)."""
 
     def __init__(self, spec: PlantSpec, std: np.ndarray, step: float, draws: int,
                  seed: int) -> None:
@@ -539,57 +662,92 @@ class _Scenario:
             clean + np.random.default_rng([seed, draw]).uniform(-1.0, 1.0, clean.shape)
             * (math.sqrt(3.0) * std) for draw in range(draws)]
         t = np.arange(steps + 1) * step
-        tol = 1e-9 * max(1.0, self.window[1])
-        self.mask = (t >= self.window[0] - tol) & (t <= self.window[1] + tol)
+        t0, t1 = self.window
+        tol, quarter = 1e-9 * max(1.0, t1), (t1 - t0) / 4.0
+        self.mask = (t >= t0 - tol) & (t <= t1 + tol)
+        self.final = t >= t1 - quarter - tol
+        self.before = (t >= t1 - 2.0 * quarter - tol) & ~self.final
+        self.growth_checked = spec.disturbance.start <= t1 - 2.0 * quarter + tol
 
     def _errors(self, estimator: Any, y: np.ndarray) -> np.ndarray:
-        """``||x - x_hat||`` in the window of one replay."""
+        """``||x - x_hat||`` over the whole replay."""
         out = np.empty_like(self.x)
         out[0] = estimator.x_hat
         advance, u, step = estimator.advance, self.u, self.step
         for i in range(len(y)):
             advance(y[i], u[i], step)
             out[i + 1] = estimator.x_hat
-        return np.linalg.norm(self.x - out, axis=1)[self.mask]
+        return np.linalg.norm(self.x - out, axis=1)
 
     def _make(self, record: Estimator) -> Any:
         if isinstance(record, KalmanGains):
             return KalmanObserver(record)
         return FilteringObserver(record, h=self.step)
 
-    def noise_free(self, record: Estimator, estimator: str) -> tuple[float, float] | str:
-        """(max, RMS) without noise, or the reason of a failed replay; ``record``: the
-        estimator's (a filtering observer's or a Kalman filter's), ``estimator`` its name."""
-        try:
-            e = self._errors(self._make(record), self.y[0])
-        except ValueError as err:
-            return f"the {estimator} replay failed: {err}"
-        if not np.all(np.isfinite(e)):
-            return f"the {estimator} replay diverged"
-        return float(np.max(e)), float(np.sqrt(np.mean(e**2)))
+    def rms(self, e: np.ndarray, where: np.ndarray | None = None) -> float:
+        """RMS of a replay's error over the window (or over ``where``)."""
+        return float(np.sqrt(np.mean(e[self.mask if where is None else where] ** 2)))
 
-    def noisy(self, record: Estimator, estimator: str,
-              draws: int | None = None) -> tuple[float, ...] | str:
-        """The noisy RMS of each draw (the first ``draws``), or the reason of a failure."""
+    def final_ratio(self, e: np.ndarray) -> float:
+        """RMS over the window's last quarter over the initial error."""
+        return self.rms(e, self.final) / max(float(e[0]), 1e-300)
+
+    def convergence_problem(self, e: np.ndarray) -> str | None:
+        """Why a finite replay's error ``e`` does not converge, or None."""
+        a, b = self.window[1] - (self.window[1] - self.window[0]) / 4.0, self.window[1]
+        ratio = self.final_ratio(e)
+        if ratio * DECAY > 1.0:
+            return (f"does not converge: its error over [{a:g}, {b:g}] s is {ratio:.3g} of its "
+                    f"initial error (at most 1/{DECAY:g})")
+        final, before = self.rms(e, self.final), self.rms(e, self.before)
+        if self.growth_checked and final > GROWTH * max(before, SETTLED * float(e[0])):
+            return (f"does not converge: its error grows {final / before:.3g}x from the quarter "
+                    f"of the window before [{a:g}, {b:g}] s to it")
+        return None
+
+    def replay(self, record: Estimator, estimator: str, y: np.ndarray,
+               checked: bool, where: str = "") -> np.ndarray | str:
+        """``||x - x_hat||`` of ``record`` (the estimator named ``estimator``) replayed on
+        ``y``, or the reason it failed (``where`` names the data in it)."""
+        try:
+            e = self._errors(self._make(record), y)
+        except ValueError as err:
+            return f"the {estimator} replay{where} failed: {err}"
+        if not np.all(np.isfinite(e)):
+            return f"the {estimator} replay{where} diverged"
+        problem = self.convergence_problem(e) if checked else None
+        return f"the {estimator} replay{where} {problem}" if problem else e
+
+    def noise_free(self, record: Estimator, estimator: str,
+                   checked: bool = True) -> np.ndarray | str:
+        """The error without noise, or the reason of a failed replay."""
+        return self.replay(record, estimator, self.y[0], checked)
+
+    def noisy(self, record: Estimator, estimator: str, draws: int | None = None,
+              checked: bool = True) -> list[np.ndarray] | str:
+        """The error of each noise draw (the first ``draws``), or the reason of a failure."""
         out = []
         for y in self.y[1:] if draws is None else self.y[1:1 + draws]:
-            try:
-                e = self._errors(self._make(record), y)
-            except ValueError as err:
-                return f"the {estimator} replay failed under noise: {err}"
-            if not np.all(np.isfinite(e)):
-                return f"the {estimator} replay diverged under noise"
-            out.append(float(np.sqrt(np.mean(e**2))))
-        return tuple(out)
+            e = self.replay(record, estimator, y, checked, " under noise")
+            if isinstance(e, str):
+                return e
+            out.append(e)
+        return out
 
-    def predict(self, record: Estimator, estimator: str) -> ErrorPrediction | str:
-        clean = self.noise_free(record, estimator)
+    def predict(self, record: Estimator, estimator: str,
+                checked: bool = True) -> ErrorPrediction | str:
+        """The prediction of ``record``, or the reason of a failed replay."""
+        clean = self.noise_free(record, estimator, checked)
         if isinstance(clean, str):
             return clean
-        noisy = self.noisy(record, estimator)
+        noisy = self.noisy(record, estimator, checked=checked)
         if isinstance(noisy, str):
             return noisy
-        return ErrorPrediction(float(np.mean(noisy)), noisy, *clean)
+        draws = tuple(self.rms(e) for e in noisy)
+        return ErrorPrediction(
+            float(np.mean(draws)), draws, float(np.max(clean[self.mask])), self.rms(clean),
+            float(np.max(clean)) / max(float(clean[0]), 1e-300),
+            max(self.final_ratio(e) for e in [clean, *noisy]))
 
 
 # -- search ----------------------------------------------------------------------------------
@@ -614,9 +772,9 @@ def _tuned_kalman(
     for j in range(KALMAN_DECADES[0], KALMAN_DECADES[1] + 1):
         made = attempt(float(j))
         if made is not None:
-            rms = data.noisy(made[1], "kalman", draws=1)
-            if not isinstance(rms, str):
-                coarse.append((rms[0], float(j)))
+            noisy = data.noisy(made[1], "kalman", draws=1, checked=False)
+            if not isinstance(noisy, str):
+                coarse.append((data.rms(noisy[0]), float(j)))
     if not coarse:
         raise KalmanDesignError("design_for_noise: no process intensity of 1e-12..1e12 gives a "
                                 "stable Kalman filter that runs on the predicted data")
@@ -626,7 +784,7 @@ def _tuned_kalman(
         made = attempt(exponent)
         if made is None:
             continue
-        prediction = data.predict(made[1], "kalman")
+        prediction = data.predict(made[1], "kalman", checked=False)
         if not isinstance(prediction, str) and (best is None
                                                 or prediction.noisy_rms < best[0]):
             best = (prediction.noisy_rms, made[0], made[1], prediction)
@@ -658,6 +816,7 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
     kalman_gains, intensity, kalman = _tuned_kalman(spec, data, std, step, kalman_order)
     bound = kalman.noise_free_max / rejection
     candidates: list[dict[str, Any]] = []
+    records: dict[int, FilteringGains] = {}  # the record of each candidate that converges
     designs: dict[tuple, ObserverDesign | str] = {}
 
     seen: set[tuple] = set()
@@ -694,13 +853,11 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
             if isinstance(clean, str):
                 candidates.append(row | {"failed": clean})
                 continue
-            row["noise_free_max"], row["noise_free_rms"] = clean
-            if clean[0] <= bound:
-                noisy = data.noisy(filtering, "homogeneous")
-                if isinstance(noisy, str):
-                    row["failed"] = noisy
-                else:
-                    row["noisy_rms"], row["noisy_rms_draws"] = float(np.mean(noisy)), noisy
+            row["noise_free_max"], row["noise_free_rms"] = float(np.max(clean[data.mask])), \
+                data.rms(clean)
+            records[len(candidates)] = filtering
+            if row["noise_free_max"] <= bound:
+                _run_under_noise(row, filtering, data)
             candidates.append(row)
 
     if spec.filter_scale == 1.0:  # the automatic design as it is (today's default)
@@ -725,28 +882,20 @@ def _search(spec: PlantSpec, std: np.ndarray, step: float, kalman_order: int,
                            for v in (f0, r0, fs0, c0))
             evaluate(_candidate_keys(fixed, nu_hosm, auto.filtering.rho, f, r, fs,
                                      spec.objective), [c])
-    best = _best(candidates)
-    met = best is not None
-    if best is None:  # no candidate meets the rejection bound: the strongest rejection
-        ok = [row for row in candidates if "noise_free_max" in row]
-        if not ok:
-            raise LMIError("design_for_noise: no candidate design is certified and runs: "
-                           + "; ".join(sorted({row["failed"][:120] for row in candidates})))
-        best = min(ok, key=lambda row: row["noise_free_max"])
-    parameters = {key: best[key] for key in TUNED_KEYS}
-    design = _design(spec, parameters)
-    predicted = data.predict(design.filtering, "homogeneous")
-    if isinstance(predicted, str):
-        raise LMIError(f"design_for_noise: the chosen design fails on the data: {predicted}")
+    parameters, design, predicted, met = _chosen(spec, data, candidates, records)
     seconds = time.perf_counter() - start
     tuning = {
         "window": list(data.window), "noise_draws": draws, "seed": seed,
         "rejection_requested": rejection, "met": met,
+        "selection": SELECTIONS[met], "decay_required": DECAY,
         "predicted_noisy_rms": predicted.noisy_rms,
         "predicted_noise_free_max": predicted.noise_free_max,
+        "predicted_peaking": predicted.peaking,
+        "predicted_final_ratio": predicted.final_ratio,
         "kalman_process_intensity": intensity,
         "kalman_predicted_noisy_rms": kalman.noisy_rms,
         "kalman_predicted_noise_free_max": kalman.noise_free_max,
+        "kalman_predicted_peaking": kalman.peaking,
         "candidates": len(candidates),
     }
     design = dataclasses.replace(
@@ -759,3 +908,54 @@ def _best(candidates: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The candidate of the least noisy RMS among those run under noise (they met the bound)."""
     ok = [row for row in candidates if "noisy_rms" in row]
     return min(ok, key=lambda row: row["noisy_rms"]) if ok else None
+
+
+def _run_under_noise(row: dict[str, Any], filtering: FilteringGains, data: _Scenario) -> bool:
+    """Replay a candidate under noise: its ``noisy_rms`` (and per draw) in ``row``, or why it
+    fails or does not converge as ``failed``; whether it converged."""
+    noisy = data.noisy(filtering, "homogeneous")
+    if isinstance(noisy, str):
+        row["failed"] = noisy
+        return False
+    draws = tuple(data.rms(e) for e in noisy)
+    row["noisy_rms"], row["noisy_rms_draws"] = float(np.mean(draws)), draws
+    return True
+
+
+def _chosen(spec: PlantSpec, data: _Scenario, candidates: list[dict[str, Any]],
+            records: dict[int, FilteringGains],
+            ) -> tuple[dict[str, Any], ObserverDesign, ErrorPrediction, bool]:
+    """The chosen candidate's keys, its design (designed again), its prediction and whether it
+    met the rejection: the first in the order of :data:`SELECTIONS` that converges, also when
+    designed again (a candidate that fails is marked ``failed`` in ``candidates``)."""
+    met = sorted((i for i in records if "noisy_rms" in candidates[i]),
+                 key=lambda i: candidates[i]["noisy_rms"])
+    rest = sorted((i for i in records if "noisy_rms" not in candidates[i]
+                   and "failed" not in candidates[i]),
+                  key=lambda i: candidates[i]["noise_free_max"])
+    if not records:
+        raise LMIError("design_for_noise: no candidate design is certified and runs: "
+                       + "; ".join(sorted({row["failed"][:120] for row in candidates})))
+    for i in met + rest:
+        row = candidates[i]
+        if "noisy_rms" not in row and not _run_under_noise(row, records[i], data):
+            continue
+        parameters = {key: row[key] for key in TUNED_KEYS}
+        try:
+            design = _design(spec, parameters)
+        except (LMIError, CertificateError, SpecError) as err:
+            row["failed"] = f"designed again: {type(err).__name__}: {err}"
+            continue
+        predicted = data.predict(design.filtering, "homogeneous")
+        if isinstance(predicted, str):
+            row["failed"] = f"designed again: {predicted}"
+            continue
+        return parameters, design, predicted, i in met
+    strongest = candidates[min(records, key=lambda i: candidates[i]["noise_free_max"])]
+    certified = sum("rho_certified" in row for row in candidates)
+    raise LMIError(
+        f"design_for_noise: none of the {certified} certified candidates converges on the "
+        f"predicted data (with and without noise, its error over the last quarter of the "
+        f"window at least {DECAY:g} times below the initial one); the one of the strongest "
+        f"rejection: {strongest['failed']}; the Kalman filter (kalman.fmu, built without "
+        "--tune-noise) is the estimator for this noise")
