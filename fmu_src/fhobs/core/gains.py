@@ -465,6 +465,9 @@ class SupervisedGains(_Record):
     lower_return, upper_return : float
         The Kalman estimate is taken again once the statistic is inside
         ``(lower_return, upper_return)``, within ``(lower, upper)`` (the hysteresis).
+    ceiling : float
+        The statistic is held at most at ``ceiling`` (> upper): a transient's innovations,
+        many decades above k, then need a few windows, not dozens, to leave its memory.
     dwell_time : float
         Least time (s) the homogeneous estimate is output before the Kalman estimate is taken
         again.
@@ -486,6 +489,7 @@ class SupervisedGains(_Record):
     upper: float
     lower_return: float
     upper_return: float
+    ceiling: float
     dwell_time: float
     false_alarm: float
     certificate: dict[str, Any] = field(default_factory=dict)

@@ -11,7 +11,10 @@ Kalman filter's model explains the data (white measurement noise of covariance R
 noise of its intensity), zero mean and the steady-state covariance ``S = C P C^T + R`` (P the
 a-priori covariance of the record); the normalised innovation squared
 ``e_j = nu_j^T S^-1 nu_j`` then has mean k (the number of outputs) and is white. The statistic
-is its exponentially weighted mean, ``s_j = (1 - a) s_j-1 + a e_j`` with ``a = 1 / window``:
+is its exponentially weighted mean, ``s_j = min((1 - a) s_j-1 + a e_j, ceiling)`` with
+``a = 1 / window`` (the ceiling, above ``upper``, leaves every switch to H as it is and
+shortens the memory of a transient's innovations, many decades above k, from dozens of
+windows to about one); without the ceiling it has
 mean k, variance ``2 k a / (2 - a)`` for Gaussian innovations, approximately
 ``a / (2 - a)`` times a chi-square of ``k (2 - a) / a`` degrees of freedom. The design
 (:func:`fhobs.design.supervised.design_supervised`) sets the band ``(lower, upper)`` so that
@@ -102,14 +105,15 @@ def innovation_covariance(kalman: KalmanGains) -> np.ndarray:
 def threshold_problems(supervised: SupervisedGains) -> list[str]:
     """What is out of range in the supervisor's own fields (empty if nothing): the Kalman
     filter of the homogeneous model, the window, the ordered bands around the statistic's mean
-    k, the dwell time and the false-alarm probability.
+    k and the ceiling above them, the dwell time and the false-alarm probability.
 
     Examples
     --------
     >>> from types import SimpleNamespace as NS
     >>> record = NS(plant=NS(k=2), model=NS(disturbance_order=1),
     ...             kalman=NS(disturbance_order=1), window=200.0, lower=1.4, lower_return=1.7,
-    ...             upper_return=2.3, upper=2.7, dwell_time=0.02, false_alarm=1e-9)
+    ...             upper_return=2.3, upper=2.7, ceiling=5.4, dwell_time=0.02,
+    ...             false_alarm=1e-9)
     >>> threshold_problems(record)
     []
     >>> threshold_problems(NS(**{**vars(record), "upper": 2.2}))
@@ -122,8 +126,8 @@ def threshold_problems(supervised: SupervisedGains) -> list[str]:
                         f"equal the homogeneous model's {supervised.model.disturbance_order} "
                         "(the handover maps one state onto the other)")
     values = {name: float(getattr(supervised, name)) for name in
-              ("window", "lower", "lower_return", "upper_return", "upper", "dwell_time",
-               "false_alarm")}
+              ("window", "lower", "lower_return", "upper_return", "upper", "ceiling",
+               "dwell_time", "false_alarm")}
     bad = [name for name, value in values.items() if not math.isfinite(value)]
     problems += [f"{name} = {values[name]!r} must be finite" for name in bad]
     if bad:
@@ -134,7 +138,8 @@ def threshold_problems(supervised: SupervisedGains) -> list[str]:
         problems.append(f"lower = {values['lower']!r} must be >= 0")
     for name, below, reason in (("lower_return", "lower", "(the hysteresis)"),
                                 ("upper_return", "lower_return", ""),
-                                ("upper", "upper_return", "(the hysteresis)")):
+                                ("upper", "upper_return", "(the hysteresis)"),
+                                ("ceiling", "upper", "")):
         if not values[name] > values[below]:
             problems.append(f"{name} = {values[name]!r} must exceed {below} = "
                             f"{values[below]!r} {reason}".rstrip())
@@ -307,13 +312,13 @@ class SupervisedObserver:
         multiple of Ts and a non-finite result still raise ValueError, the state unchanged."""
         n_cycles = sample_count(dt, self.sample_time)
         before = self.homogeneous.get_state(), self.kalman.get_state()
-        statistic = self._statistic
+        statistic, ceiling = self._statistic, self.supervised.ceiling
         try:
             self.homogeneous.advance(y, u, dt)
             for _ in range(n_cycles):
                 innovation = y - self._C @ self.kalman.z
                 nis = float(innovation @ self._S_inv @ innovation)
-                statistic += self._weight * (nis - statistic)
+                statistic = min(statistic + self._weight * (nis - statistic), ceiling)
                 self.kalman.advance(y, u, self.sample_time)
             if not math.isfinite(statistic):
                 raise ValueError("the innovation statistic is not finite")
