@@ -73,7 +73,8 @@ def test_design_json_holds_the_plant_and_the_model_once(kalman_design, settled_d
     data = kalman_design.to_dict()
     assert set(data) == {"plant", "model", *ESTIMATORS, "settling_tuning", "noise_tuning"}
     assert set(data["plant"]) == {"A", "B", "C", "E"}
-    assert set(data["model"]) == {"disturbance_order", "n_tilde", "nu", "G0", "L0", "G_d"}
+    assert set(data["model"]) == {"disturbance_order", "n_tilde", "nu", "G0", "L0", "G_d",
+                                  "slow_projector"}
     for name, fields in ESTIMATOR_FIELDS.items():
         assert set(data[name]) == fields, name
     assert data["plant"]["A"] == kalman_design.plant.A.tolist()

@@ -78,10 +78,13 @@ from .spec import (
     spec_from_dict,
 )
 
-RHO_LADDER = (1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0)
-"""Values of rho tried, in this order, when the spec leaves rho to the design."""
-LADDER_PATIENCE = 3
-"""The climb stops after this many consecutive rungs that fail or are no faster."""
+RHO_START = 1.5
+RHO_GROWTH = 2.0**0.5
+RHO_MAX = 1e4
+"""The automatic choice of rho climbs ``RHO_START * RHO_GROWTH**j`` up to ``RHO_MAX``."""
+CLIMB_PATIENCE = 4
+"""Once a rung has certified, the climb stops after this many rungs in a row that fail or are
+no faster than the best one."""
 MAX_PEAKING = 1e3
 """Largest predicted ``|e(t)| / |e(0)|`` that the automatic choice of rho accepts."""
 MARGIN_ATTEMPTS = 4
@@ -193,7 +196,8 @@ def design_observer(
         Homogeneity degree in [-1/(n_tilde+1), 0); default -1/(n_tilde+1).
     rho, gamma : float, optional
         LMI decay parameter and xi-equation gain (0 < gamma < 2 rho); default: the smallest
-        rho of ``RHO_LADDER`` that meets ``settling_time``, gamma = rho.
+        rho of the automatic climb (``RHO_START * RHO_GROWTH**j``) that meets
+        ``settling_time``, gamma = rho.
     settling_time : float
         Seconds for an initial error of the size of ``state_scale`` to fall to 1e-3 of itself
         (used when rho is not given).
@@ -362,27 +366,29 @@ def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
 def _design_for_settling_time(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
 ) -> ObserverDesign:
-    """The design at the smallest rho of ``RHO_LADDER`` whose predicted settling time
-    (:func:`fhobs.design.settling.error_response` from errors of the size of ``spec.state_scale``)
-    meets ``spec.settling_time`` with a peaking of at most ``MAX_PEAKING``; gamma is the
-    spec's, or rho. If no rung does (peaking grows with rho on long observability chains, and
-    large rho is not certified on some plants), the fastest rung within that peaking, else the
-    fastest rung; the design's ``settling_tuning`` says whether the request was met."""
+    """The design at the smallest rho of the climb ``RHO_START * RHO_GROWTH**j`` whose predicted
+    settling time (:func:`fhobs.design.settling.error_response` from errors of the size of
+    ``spec.state_scale``) meets ``spec.settling_time`` with a peaking of at most
+    ``MAX_PEAKING``; gamma is the spec's, or rho. A rho that does not certify is passed over,
+    not an end: the climb goes on up to ``RHO_MAX``, and stops early only after
+    ``CLIMB_PATIENCE`` rungs in a row, once one has certified, that fail or are no faster than
+    the best. If no rung
+    meets the request, the fastest within that peaking, else the fastest; the design's
+    ``settling_tuning`` says whether the request was met."""
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
     candidates: list[tuple[ObserverDesign, ErrorResponse]] = []
-    last_error: Exception | None = None
-    stalled = 0  # consecutive rungs that failed or were no faster than the best so far
-    for rho in RHO_LADDER:
+    failures: list[tuple[float, Exception]] = []
+    stalled = 0  # consecutive certified rungs no faster than the best so far
+    for rho in _rho_climb(spec):
         gamma = rho if spec.gamma is None else spec.gamma
-        if rho <= gamma / 2:
-            continue
-        if stalled >= LADDER_PATIENCE:
-            break
         try:
             design = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
                                         filter_scale)
         except (LMIError, CertificateError) as exc:
-            last_error, stalled = exc, stalled + 1
+            failures.append((rho, exc))
+            stalled += bool(candidates)
+            if stalled >= CLIMB_PATIENCE:
+                break
             continue
         response = error_response(design.filtering, scale, spec.settling_time)
         best = min((c[1].settling_time for c in candidates), default=np.inf)
@@ -390,8 +396,10 @@ def _design_for_settling_time(
         candidates.append((design, response))
         if response.peaking <= MAX_PEAKING and response.settling_time <= spec.settling_time:
             break
+        if stalled >= CLIMB_PATIENCE:
+            break
     if not candidates:
-        raise LMIError(f"no rho of {RHO_LADDER} gives a certified design: {last_error}")
+        raise LMIError(_no_design_message(spec, failures))
     bounded = [c for c in candidates if c[1].peaking <= MAX_PEAKING
                and np.isfinite(c[1].settling_time)]
     design, response = min(bounded or candidates,
@@ -405,6 +413,26 @@ def _design_for_settling_time(
                     and response.peaking <= MAX_PEAKING),
     }
     return replace(design, settling_tuning=tuning)
+
+
+def _rho_climb(spec: PlantSpec) -> list[float]:
+    """The rho values the automatic choice tries, in order (those above gamma / 2 when the
+    spec fixes gamma)."""
+    count = int(np.floor(np.log(RHO_MAX / RHO_START) / np.log(RHO_GROWTH))) + 1
+    rhos = [float(RHO_START * RHO_GROWTH**j) for j in range(count)]
+    return [rho for rho in rhos if spec.gamma is None or rho > spec.gamma / 2]
+
+
+def _no_design_message(spec: PlantSpec, failures: list[tuple[float, Exception]]) -> str:
+    """The failure of the automatic choice of rho, in the user's terms."""
+    tried = (f"rho from {failures[0][0]:.3g} to {failures[-1][0]:.3g} ({len(failures)} "
+             f"values)" if failures else "no rho (gamma / 2 is above the largest rho tried)")
+    reasons = sorted({type(exc).__name__ + ": " + str(exc) for _, exc in failures[-2:]})
+    return (f"no certified design for a settling time of {spec.settling_time:g} s: tried "
+            f"{tried}, none certified (last: {'; '.join(reasons)}). What to change: a longer "
+            f"[observer] settling_time, state_scale nearer the states' sizes, a lower "
+            f"fast_mode_rate (keep more fast stable modes by the model), or rho and gamma "
+            f"given by hand")
 
 
 def _design_at_margin(

@@ -13,7 +13,7 @@ Format::
     settling_time = 2.0       # seconds for an initial error of the size of state_scale to fall
                               # to 1e-3 of itself; default 2 (used when rho is not given)
     state_scale = [1, 1]      # typical size of each state (or one number for all); default 1
-    rho = 1.5                 # LMI decay parameter; default: the smallest rho of RHO_LADDER
+    rho = 1.5                 # LMI decay parameter; default: the smallest rho of the climb
                               # that meets settling_time (fhobs.design.observer)
     gamma = 2.75              # xi-equation gain, 0 < gamma < 2 rho; default: rho
     objective = "min_cond"    # LMI objective, see fhobs.design.spec.OBJECTIVES

@@ -295,16 +295,24 @@ Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its de
 
 def _estimator(name: str, number: int, slave: str, description: str, label: str, record: str,
                gains: tuple[Variable, ...], outputs: tuple[str, ...],
-               timing: tuple[Variable, ...] = TIMING) -> Kind:
-    """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat."""
-    variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *ESTIMATOR_SIGNALS, INPUT_BOUND)
+               timing: tuple[Variable, ...] = TIMING,
+               appended: tuple[Variable, ...] = ()) -> Kind:
+    """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat, then
+    ``appended`` (variables added after the others, so that no value reference moves)."""
+    variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *ESTIMATOR_SIGNALS, INPUT_BOUND,
+                 *appended)
     return Kind(name, number, slave, description, label, record, variables, outputs)
 
 
 # N below: states of the observer's model (n, or n + r q-states with a disturbance model)
 _HOMOGENISATION = (
-    Variable("L0", "design", "homogenisation gain, A0 = A_model + L0 C_model nilpotent (N x k)",
-             field="model.L0"),
+    Variable("L0", "design", "homogenisation gain, A0 = A_model + L0 C_model nilpotent on the "
+             "range of slow_projector (N x k)", field="model.L0"),
+)
+_SLOW_PROJECTOR = (
+    Variable("slow_projector", "design", "projector onto the homogenised part of the model, "
+             "along the fast stable modes kept by the model; I when all is homogenised (N x N)",
+             field="model.slow_projector"),
 )
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (
     _estimator(
@@ -332,6 +340,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
+        appended=_SLOW_PROJECTOR,
     ),
     _estimator(
         "prescribed_time", 5, "FhobsPrescribedTime",
@@ -353,6 +362,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "xi"),
+        appended=_SLOW_PROJECTOR,
     ),
     _estimator(
         "luenberger", 2, "FhobsLuenberger",
