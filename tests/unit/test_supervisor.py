@@ -60,15 +60,11 @@ def run(record, ys, us, dt):
     return {name: np.array(value) for name, value in rows.items()}
 
 
-@pytest.fixture(scope="module")
-def noisy(design, record):
-    """The paper's noisy perturbed loop, seeds 0..4: each simulation and the supervised
-    observer replayed on its (y, u)."""
-    out = []
-    for seed in NOISY_SEEDS:
-        result = simulate(design, "perturbed_noisy", seed=seed)
-        out.append((result, run(record, result.y, result.u, result.t[1])))
-    return out
+def noisy_run(design, record, seed):
+    """The paper's noisy perturbed loop of a seed and the supervised observer replayed on its
+    (y, u)."""
+    result = simulate(design, "perturbed_noisy", seed=seed)
+    return result, run(record, result.y, result.u, result.t[1])
 
 
 def rms(values):
@@ -139,9 +135,12 @@ def test_noise_free_output_is_the_homogeneous_observer_and_reaches_round_off(des
     result = simulate(design, "nominal")
     out = run(record, result.y, result.u, result.t[1])
     alone = FilteringObserver(design.filtering)
-    for step, (y, u) in enumerate(zip(result.y, result.u, strict=True)):
-        np.testing.assert_allclose(out["homogeneous"][step], alone.z, rtol=0, atol=1e-12)
+    rows = []
+    for y, u in zip(result.y, result.u, strict=True):
+        rows.append(alone.z)
         alone.step(y, u, result.t[1])
+    rows.append(alone.z)
+    np.testing.assert_allclose(out["homogeneous"], np.array(rows), rtol=0, atol=1e-12)
     settled = result.window(1.0, 3.0)
     assert np.all(out["mode"][settled] == MODE_HOMOGENEOUS)
     np.testing.assert_array_equal(out["z"][settled], out["homogeneous"][settled])
@@ -160,19 +159,25 @@ def test_perturbed_noise_free_rejects_the_disturbance(design, record):
     np.testing.assert_allclose(error, result.error[window], rtol=1e-9, atol=1e-15)
 
 
-def test_noisy_rms_is_within_5_percent_of_the_kalman_filter(noisy):
-    ours, kalman, homogeneous = (np.mean([rms(getattr(r, name)[r.window(1.0, 3.0)])
-                                          for r, _ in noisy])
-                                 for name in ("t", "error_kalman", "error"))
+@pytest.mark.slow
+def test_noisy_rms_is_within_5_percent_of_the_kalman_filter(design, record):
+    """The target: the mean over the seeds 0..4 of the RMS over [1, 3] s."""
+    noisy = [noisy_run(design, record, seed) for seed in NOISY_SEEDS]
+    kalman, homogeneous = (np.mean([rms(getattr(r, name)[r.window(1.0, 3.0)])
+                                    for r, _ in noisy]) for name in ("error_kalman", "error"))
     ours = np.mean([rms(np.linalg.norm(r.x - out["z"][:, :4], axis=1)[r.window(1.0, 3.0)])
                     for r, out in noisy])
     assert ours <= 1.05 * kalman and ours < homogeneous
 
 
-def test_kalman_mode_is_the_filter_written_out_from_the_handover(noisy, record):
+def test_kalman_mode_is_the_filter_written_out_from_the_handover(design, record):
     """After its one switch to K (the transient over) the output is a Kalman filter written out
-    here with scipy, started at the handover from the homogeneous estimate."""
-    result, out = noisy[0]
+    here with scipy, started at the handover from the homogeneous estimate; the noisy RMS over
+    [1, 3] s is within 5 % of the Kalman filter run alone (seed 0)."""
+    result, out = noisy_run(design, record, 0)
+    window = result.window(1.0, 3.0)
+    ours = rms(np.linalg.norm(result.x - out["z"][:, :4], axis=1)[window])
+    assert ours <= 1.05 * rms(result.error_kalman[window])
     switches = np.flatnonzero(np.diff(out["mode"]))
     assert len(switches) == 1 and out["mode"][-1] == MODE_KALMAN
     start = switches[0] + 1
