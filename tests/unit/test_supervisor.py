@@ -242,6 +242,25 @@ def test_dwell_and_hysteresis_bound_the_switches(record):
         np.testing.assert_array_equal(out["z"][step], out["homogeneous"][step])
 
 
+def test_no_handover_while_the_homogeneous_observer_is_in_its_transient(record):
+    """The Kalman filter at the truth, the homogeneous observer 0.05 rad off: the Kalman
+    innovations are consistent, the output returns to K after the dwell and the Kalman filter
+    keeps its own estimate (the homogeneous one, still off, is not handed over)."""
+    Ts, k = record.kalman.sample_time, record.plant.k
+    rng = np.random.default_rng(2)
+    amplitude = float(np.sqrt(3.0) * record.kalman.measurement_std[0])
+    obs = SupervisedObserver(record)
+    state = obs.homogeneous.get_state()
+    state[0] = 0.05
+    obs.homogeneous.set_state(state)
+    steps = int(round(2 * record.dwell_time / Ts))
+    for y in rng.uniform(-amplitude, amplitude, (steps, k)):
+        obs.step(y, np.zeros(record.plant.m), Ts)
+    assert obs.mode == MODE_KALMAN and obs.homogeneous_statistic > record.upper_return
+    assert np.abs(obs.x_hat).max() < 10 * amplitude
+    assert abs(obs.homogeneous.z[0] - obs.z[0]) > 10 * amplitude
+
+
 # -- interface ---------------------------------------------------------------------------------
 def test_state_round_trip_replays_and_bad_steps_leave_the_state(record):
     rng = np.random.default_rng(3)
