@@ -295,10 +295,15 @@ def dilation_basis(G_d: np.ndarray, nu: float, n_tilde: int) -> np.ndarray:
         If the eigenspaces do not add up to n (G_d not diagonalisable).
     """
     n = G_d.shape[0]
+    weights = 1.0 + nu + nu * np.arange(n_tilde)
+    nearest = np.argmin(np.abs(np.linalg.eigvals(G_d)[:, None] - weights[None, :]), axis=1)
     columns = []
-    for j in range(n_tilde):
-        _, s, vt = np.linalg.svd(G_d - (1.0 + nu + j * nu) * np.eye(n))
+    for j, weight in enumerate(weights):
+        _, s, vt = np.linalg.svd(G_d - weight * np.eye(n))
         rank = int(np.sum(s > RANK_RTOL * max(s[0], 1.0) * 10.0))
+        # a G_d of large norm leaves singular values above the rank threshold's reach: the
+        # eigenspace's dimension is then the number of eigenvalues nearest to its weight
+        rank = max(rank, n - int(np.sum(nearest == j)))
         columns.append(vt[rank:].T)
     V = np.hstack(columns)
     if V.shape[1] != n or np.linalg.cond(V) > 1e12:

@@ -81,7 +81,9 @@ from .spec import (
 RHO_START = 1.5
 RHO_GROWTH = 2.0**0.5
 RHO_MAX = 1e4
-"""The automatic choice of rho climbs ``RHO_START * RHO_GROWTH**j`` up to ``RHO_MAX``."""
+"""The automatic choice of rho climbs ``rho_0 * RHO_GROWTH**j`` up to ``RHO_MAX``, from
+``rho_0 = RHO_START * DEFAULT_SETTLING_TIME / settling_time`` (a slower request starts lower:
+the homogeneous observer's time scale is about 1 / rho)."""
 CLIMB_PATIENCE = 4
 """Once a rung has certified, the climb stops after this many rungs in a row that fail or are
 no faster than the best one."""
@@ -366,14 +368,13 @@ def _observer_for_spec(spec: PlantSpec, objective: str | None, margin: float,
 def _design_for_settling_time(
     spec: PlantSpec, objective: str, margin: float, filter_scale: float | None
 ) -> ObserverDesign:
-    """The design at the smallest rho of the climb ``RHO_START * RHO_GROWTH**j`` whose predicted
+    """The design at the smallest rho of the climb (:data:`RHO_START`) whose predicted
     settling time (:func:`fhobs.design.settling.error_response` from errors of the size of
     ``spec.state_scale``) meets ``spec.settling_time`` with a peaking of at most
     ``MAX_PEAKING``; gamma is the spec's, or rho. A rho that does not certify is passed over,
     not an end: the climb goes on up to ``RHO_MAX``, and stops early only after
-    ``CLIMB_PATIENCE`` rungs in a row, once one has certified, that fail or are no faster than
-    the best. If no rung
-    meets the request, the fastest within that peaking, else the fastest; the design's
+    ``CLIMB_PATIENCE`` rungs in a row, once one has certified, that fail or make no progress
+    (:func:`_progress`). If no rung meets the request, :func:`_fallback` chooses; the design's
     ``settling_tuning`` says whether the request was met."""
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
     candidates: list[tuple[ObserverDesign, ErrorResponse]] = []
@@ -391,8 +392,8 @@ def _design_for_settling_time(
                 break
             continue
         response = error_response(design.filtering, scale, spec.settling_time)
-        best = min((c[1].settling_time for c in candidates), default=np.inf)
-        stalled = stalled + 1 if candidates and not response.settling_time < best else 0
+        best = min((_progress(c[1]) for c in candidates), default=(np.inf, np.inf))
+        stalled = stalled + 1 if candidates and not _progress(response) < best else 0
         candidates.append((design, response))
         if response.peaking <= MAX_PEAKING and response.settling_time <= spec.settling_time:
             break
@@ -400,10 +401,7 @@ def _design_for_settling_time(
             break
     if not candidates:
         raise LMIError(_no_design_message(spec, failures))
-    bounded = [c for c in candidates if c[1].peaking <= MAX_PEAKING
-               and np.isfinite(c[1].settling_time)]
-    design, response = min(bounded or candidates,
-                           key=lambda c: (c[1].settling_time, c[1].peaking))
+    design, response = _fallback(candidates, spec.settling_time)
     tuning = {
         "settling_time_requested": spec.settling_time,
         "settling_time_predicted": response.settling_time,
@@ -415,11 +413,37 @@ def _design_for_settling_time(
     return replace(design, settling_tuning=tuning)
 
 
+def _fallback(candidates: list[tuple[ObserverDesign, ErrorResponse]],
+              settling_time: float) -> tuple[ObserverDesign, ErrorResponse]:
+    """The climb's choice when no rung met the request (else its last rung): the fastest
+    rung within the peaking limit; else, of those meeting the settling time, the one that
+    peaks least; else the fastest."""
+    design, response = candidates[-1]
+    if response.peaking <= MAX_PEAKING and response.settling_time <= settling_time:
+        return design, response
+    bounded = [c for c in candidates if c[1].peaking <= MAX_PEAKING
+               and np.isfinite(c[1].settling_time)]
+    if bounded:
+        return min(bounded, key=lambda c: (c[1].settling_time, c[1].peaking))
+    in_time = [c for c in candidates if c[1].settling_time <= settling_time]
+    if in_time:
+        return min(in_time, key=lambda c: c[1].peaking)
+    return min(candidates, key=lambda c: (c[1].settling_time, c[1].peaking))
+
+
+def _progress(response: ErrorResponse) -> tuple[float, float]:
+    """How far a rung of the climb got: its settling time, then (for errors that have not
+    settled within the prediction's horizon) the error left at its end, to 10 %."""
+    final = 0.0 if response.final <= 0.0 else float(np.round(np.log(response.final) / 0.1))
+    return response.settling_time, final
+
+
 def _rho_climb(spec: PlantSpec) -> list[float]:
     """The rho values the automatic choice tries, in order (those above gamma / 2 when the
     spec fixes gamma)."""
-    count = int(np.floor(np.log(RHO_MAX / RHO_START) / np.log(RHO_GROWTH))) + 1
-    rhos = [float(RHO_START * RHO_GROWTH**j) for j in range(count)]
+    start = RHO_START * DEFAULT_SETTLING_TIME / spec.settling_time
+    count = int(np.floor(np.log(RHO_MAX / start) / np.log(RHO_GROWTH))) + 1
+    rhos = [float(start * RHO_GROWTH**j) for j in range(count)]
     return [rho for rho in rhos if spec.gamma is None or rho > spec.gamma / 2]
 
 
