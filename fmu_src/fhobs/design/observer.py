@@ -53,7 +53,7 @@ from ..core.linalg import diagonal_congruence, diagonal_similarity
 from ..errors import CertificateError, LMIError, SpecError
 from ..paper import PAPER_REFERENCE
 from .cache import cached
-from .homogenisation import Homogenisation, dilation_basis, homogenise, observability_index
+from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .kalman import with_kalman
 from .limits import check_design_limits
 from .lmi import (
@@ -479,11 +479,8 @@ def _design_at_margin(
                                            spec.nu))
     basis = np.eye(n) if split is None else split.slow
     nu = spec.nu
-    if split is not None and nu == -1.0 / (spec.n_tilde + 1):  # HOSM: of the homogenised part
-        nu = -1.0 / (observability_index(split.T[:split.n_slow, :split.n_slow],
-                                         C_b @ basis)[0] + 1)
     part = _homogeneous_part(A_b if split is None else split.T[:split.n_slow, :split.n_slow],
-                             C_b @ basis, replace(spec, nu=nu), objective, margin, filter_scale)
+                             C_b @ basis, spec, objective, margin, filter_scale)
     hom, bar_L, P_bar, rho, L_pt, P_pt, _ = part
     G_d, G_pt = hom.G_d, hom.G_d - nu * np.eye(hom.G_d.shape[0])
     if split is not None:
