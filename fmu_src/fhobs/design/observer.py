@@ -77,6 +77,7 @@ from .spec import (
     plant_spec,
     spec_from_dict,
 )
+from .supervised import with_supervised
 
 RHO_START = 1.5
 RHO_GROWTH = 2.0**0.5
@@ -177,6 +178,7 @@ def design_observer(
     filter_scale: float = 1.0,
     objective: str = DEFAULT_OBJECTIVE,
     margin: float = LMI_MARGIN,
+    fast_mode_rate: float | None = None,
 ) -> ObserverDesign:
     """Design and certify the filtering homogeneous observer of ``dx/dt = A x + B u + E q``,
     ``y = C x``.
@@ -211,6 +213,10 @@ def design_observer(
         LMI objective (:data:`fhobs.design.spec.OBJECTIVES`).
     margin : float
         Margin imposed on the strict LMI inequalities.
+    fast_mode_rate : float, optional
+        Stable modes decaying faster than this (1/s; and than ``2 rho (1 + nu)``) are kept by
+        the model, the rest homogenised (:mod:`fhobs.design.partial`); default
+        ``50 / settling_time``; ``math.inf`` homogenises every mode, as in the paper.
 
     Returns
     -------
@@ -242,7 +248,7 @@ def design_observer(
     spec = plant_spec(
         A, B, C, E=E, L_lin=L_lin, disturbance_order=disturbance_order, nu=nu, rho=rho,
         gamma=gamma, settling_time=settling_time, state_scale=state_scale,
-        filter_scale=filter_scale, objective=objective,
+        filter_scale=filter_scale, objective=objective, fast_mode_rate=fast_mode_rate,
     )
     return design_for_spec(spec, margin=margin)
 
@@ -293,7 +299,9 @@ def design_for_spec(
     -------
     ObserverDesign
         Each estimator's record with its ``certificate`` holding its checked figures,
-        ``kalman`` the Kalman filter of the spec's ``[noise]`` table (None without one).
+        ``kalman`` the Kalman filter of the spec's ``[noise]`` table and ``supervised`` its
+        supervised observer (:func:`fhobs.design.supervised.with_supervised`; both None
+        without the table).
 
     Raises
     ------
@@ -310,8 +318,9 @@ def design_for_spec(
         with cond(P) and the gains, so a margin that is too thin for a plant with large
         entries is widened rather than reported as a failure).
     fhobs.errors.KalmanDesignError
-        If the ``[noise]`` table's Kalman filter cannot be designed
-        (:func:`fhobs.design.kalman.with_kalman`).
+        If the ``[noise]`` table's Kalman filter, or that of the homogeneous model for the
+        supervised observer, cannot be designed (:func:`fhobs.design.kalman.with_kalman`,
+        :func:`fhobs.design.supervised.with_supervised`).
 
     Examples
     --------
@@ -333,7 +342,9 @@ def _designed(spec: PlantSpec, objective: str | None, margin: float,
               filter_scale: float | None) -> ObserverDesign:
     """:func:`design_for_spec` computed (no cache)."""
     design = _observer_for_spec(spec, objective, margin, filter_scale)
-    return design if spec.noise is None else with_kalman(design, spec.noise)
+    if spec.noise is None:
+        return design
+    return with_supervised(with_kalman(design, spec.noise), spec.noise)
 
 
 def _certified_design(design: ObserverDesign) -> None:
