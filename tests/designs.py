@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,14 @@ ZOO = zoo_spec_paths()
 def zoo_design(name: str) -> ObserverDesign:
     """The bundled example's design with every tuning parameter at its default."""
     return design_for_spec(load_zoo_spec(ZOO[name]))
+
+
+@functools.cache
+def whole_model_design(name: str) -> ObserverDesign:
+    """The bundled example's default design with every mode homogenised (no fast stable mode
+    kept by the model: ``fast_mode_rate = inf``), as in the paper."""
+    spec = load_zoo_spec(ZOO[name])
+    return design_for_spec(dataclasses.replace(spec, fast_mode_rate=math.inf))
 
 
 @functools.cache

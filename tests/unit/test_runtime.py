@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 import scipy.linalg as sl
-from designs import zoo_design
+from designs import whole_model_design, zoo_design
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import (
     AMPLIFICATION_LIMIT,
@@ -145,33 +145,6 @@ def test_scheme_converges_to_fine_step_reference(request, design, scheme):
         errors.append(np.linalg.norm(zpsi - ref) / np.linalg.norm(ref))
     assert errors[1] < 2e-3
     assert 1.6 < errors[0] / errors[1] < 2.5
-
-
-def test_luenberger_split_is_the_closed_form_sampled_error(paper_design):
-    """e_k = (expm(h A) + int_0^h expm(tA) dt L_lin C)^k e_0 exactly, whatever u does, and it
-    approaches the continuous expm(t (A + L_lin C)) e_0 as h -> 0."""
-    g, h, steps = paper_design, 1e-3, 500
-    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, x0=X0_PAPER)
-    obs = LuenbergerObserver(g.luenberger, h=h)
-    for k in range(steps):
-        u = [0.3 * np.sin(7.0 * k * h)]
-        y = plant.y
-        plant.step(u, None, h)
-        obs.step(y, u, h)
-    assert np.allclose(obs.z - plant.x, sampled_error(g, h, steps), rtol=1e-8, atol=1e-10)
-    e_cont = sl.expm(steps * h * (g.plant.A + g.luenberger.L_lin @ g.plant.C)) @ -X0_PAPER
-    gaps = [np.linalg.norm(sampled_error(g, hh, round(steps * h / hh)) - e_cont)
-            for hh in (h, h / 10)]
-    assert gaps[0] < 0.1 * np.linalg.norm(e_cont) and 8.0 < gaps[0] / gaps[1] < 12.0
-
-
-def sampled_error(g, h, steps):
-    """(expm(h A) + int_0^h expm(t A) dt L_lin C)^steps e_0 with e_0 = -x0 (scipy)."""
-    aug = np.zeros((2 * g.plant.n, 2 * g.plant.n))
-    aug[:g.plant.n, :g.plant.n], aug[:g.plant.n, g.plant.n:] = g.plant.A, np.eye(g.plant.n)
-    Gamma = sl.expm(h * aug)[:g.plant.n, g.plant.n:]
-    F = sl.expm(h * g.plant.A) + Gamma @ g.luenberger.L_lin @ g.plant.C
-    return np.linalg.matrix_power(F, steps) @ -X0_PAPER
 
 
 def test_luenberger_euler_is_explicit_euler(paper_design):
@@ -324,9 +297,10 @@ def test_unknown_scheme_is_rejected(paper_design):
 
 
 def test_step_without_a_contractive_gain_level_is_refused():
-    """maglev (unstable mode +44 rad/s) at dt = 0.1: no gain level makes the sampled observer
-    contract; the step says so (ValueError, state unchanged) instead of diverging silently."""
-    obs = FilteringObserver(zoo_design("maglev").filtering, psi0=[0.1], xi0=0.3)
+    """maglev (unstable mode +44 rad/s), every mode homogenised, at dt = 0.1: no gain level
+    makes the sampled observer contract; the step says so (ValueError, state unchanged) instead
+    of diverging silently."""
+    obs = FilteringObserver(whole_model_design("maglev").filtering, psi0=[0.1], xi0=0.3)
     saved = obs.get_state()
     with pytest.raises(ValueError, match="no gain level makes the split step of size 0.1"):
         obs.step([0.01], [0.0], 0.1)
@@ -334,9 +308,10 @@ def test_step_without_a_contractive_gain_level_is_refused():
 
 
 def test_ceiling_where_small_gains_do_not_contract():
-    """maglev at dt = 1e-3: the dilated map (scipy construction) does not contract for the
-    smallest taus, so the level gets a ceiling; at the ceiling and the floor it contracts."""
-    g = zoo_design("maglev")
+    """maglev, every mode homogenised, at dt = 1e-3: the dilated map (scipy construction) does
+    not contract for the smallest taus, so the level gets a ceiling; at the ceiling and the
+    floor it contracts."""
+    g = whole_model_design("maglev")
     dt = 1e-3
     obs = FilteringObserver(g.filtering, h=dt)
     floor, ceiling = obs._floor(dt), obs._ceiling(dt)
