@@ -24,13 +24,10 @@ from fhobs.design.spec import load_spec
 from fhobs.paper import EXAMPLES
 
 STIFF = EXAMPLES / "stiff"
-LUENBERGER_DEFECT = (
-    "the design's Luenberger baseline homogenises the whole plant (observer._luenberger_gain) "
-    "and dilation_basis miscounts the eigenvectors of its ill-scaled G_d")
 EXPECTED_FAILURES = {
-    "two_mass_drive": LUENBERGER_DEFECT,
-    "thermal_bath": LUENBERGER_DEFECT,
-    "aircraft_longitudinal": "the design's peaking exceeds 1e3 (4.5e7), the settling time is "
+    "aircraft_longitudinal": "5 s is not reachable within a peaking of 1e3 (the phugoid's "
+                             "states seen through the pitch angle): the design takes the "
+                             "fastest within the limit, about 10 s, and says the request is "
                              "not met",
 }
 Q_BAND = 0.01
@@ -62,6 +59,17 @@ def test_stiff_example_designs_with_defaults(name):
     assert tuning["settling_time_predicted"] <= spec.settling_time
     # the fast stable modes are kept by the model: the homogenised part is smaller than it
     assert np.trace(design.model.slow_projector) < design.model.G_d.shape[0] - 0.5
+
+
+@pytest.mark.slow
+def test_unreachable_settling_time_is_reported_not_forced():
+    """The aircraft's 5 s would take a peaking above 1e3: the design keeps to the limit, with
+    a finite predicted settling time, and its settling_tuning says the request is not met."""
+    spec = load_spec(STIFF / "aircraft_longitudinal.toml")
+    tuning = design_for_spec(spec).settling_tuning
+    assert not tuning["met"]
+    assert tuning["peaking"] <= tuning["peaking_limit"]
+    assert spec.settling_time < tuning["settling_time_predicted"] < np.inf
 
 
 def closed_loop(spec, design):
