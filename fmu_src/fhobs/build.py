@@ -1,5 +1,6 @@
 """Build ``observer.fmu``, ``luenberger.fmu``, ``prescribed_time.fmu``, ``plant.fmu`` and, when
-the design has a Kalman filter, ``kalman.fmu`` from an :class:`ObserverDesign`.
+the design has the ``[noise]`` table's records, ``kalman.fmu`` and ``supervised.fmu`` from an
+:class:`ObserverDesign`.
 
 Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
 
@@ -85,7 +86,8 @@ def build_fmus(
         Created if missing; the FMUs are written as ``<kind>.fmu``.
     kinds : iterable of str, optional
         Among :data:`fhobs.fmu.kinds.KINDS`: observer, luenberger, plant, kalman,
-        prescribed_time. Default: all, ``kalman`` only when ``design.kalman`` is set.
+        supervised, prescribed_time. Default: all whose record the design has
+        (:func:`default_kinds`).
     status_wrapper : bool, optional
         Put the ``fmi2Error`` wrapper in front of pythonfmu's linux64 binary. Default: when
         a C compiler is found. True without a compiler raises :class:`BuildError`.
@@ -158,8 +160,8 @@ def build_fmus(
 
 
 def default_kinds(design: ObserverDesign) -> tuple[str, ...]:
-    """The kinds built by default: every kind of :data:`~fhobs.fmu.kinds.KINDS`, ``kalman``
-    only when the design has a Kalman filter.
+    """The kinds built by default: every kind of :data:`~fhobs.fmu.kinds.KINDS` whose record
+    the design has (``kalman`` and ``supervised`` only with the ``[noise]`` table's records).
 
     Examples
     --------
@@ -167,7 +169,8 @@ def default_kinds(design: ObserverDesign) -> tuple[str, ...]:
     >>> default_kinds(paper_gains())
     ('observer', 'prescribed_time', 'luenberger', 'plant')
     """
-    return tuple(kind for kind in KINDS if kind != "kalman" or design.kalman is not None)
+    return tuple(name for name, kind in KINDS.items()
+                 if getattr(design, kind.record) is not None)
 
 
 def fmu_options(
@@ -230,9 +233,11 @@ def fmu_options(
     >>> fmu_options(paper_gains(), ["observer"], z0=[1, 0, 0, 0])["z0"]
     [1.0, 0.0, 0.0, 0.0]
     """
-    if "kalman" in kinds and design.kalman is None:
-        raise ValueError("kalman.fmu needs a design with a Kalman filter (design.kalman is None; "
-                         "give the spec a [noise] table)")
+    for kind in kinds:
+        record = KINDS[kind].record
+        if getattr(design, record) is None:
+            raise ValueError(f"{kind}.fmu needs a design with a {record} record (design.{record} "
+                             "is None; give the spec a [noise] table)")
     if "prescribed_time" in kinds:
         # ValueError naming T0 if it gives no xi0
         prescribed_xi0(T0, design.model.nu, design.prescribed_time.rho)

@@ -5,7 +5,8 @@ numpy-only: it also runs inside the FMU, on parameters a user may have edited.
 Each estimator's record is certified by itself (the FMU that runs it checks it, and nothing
 else of the design): :func:`certify_filtering` (nu, gamma and rho in Theorem 2's ranges, the
 homogeneity figures and Theorem 2's), :func:`certify_prescribed_time` (nu and rho in range, the
-homogeneity figures and Theorem 1's), :func:`certify_luenberger` and :func:`certify_kalman`
+homogeneity figures and Theorem 1's), :func:`certify_luenberger`, :func:`certify_kalman` and
+:func:`certify_supervised` (its thresholds, then its two parts' certificates)
 (:data:`CERTIFIERS`); :func:`certify` runs them all on a design, so that it refuses whatever
 an FMU would. Before its figures, a homogeneous record's tuning must be in range
 (:func:`tuning_problem`) and its Lyapunov matrix symmetric (:func:`check_symmetry`). Every
@@ -53,6 +54,8 @@ rounding could explain. Before any figure, P_bar and P_pt must be symmetric to r
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import CertificateError
@@ -64,6 +67,7 @@ from .gains import (
     ObserverDesign,
     PlantModel,
     PrescribedTimeGains,
+    SupervisedGains,
 )
 from .linalg import balancing_scale, diagonal_congruence, diagonal_similarity, expm, spectral_radius
 
@@ -589,8 +593,120 @@ def _rounding_key(name: str) -> str:
     return name.rsplit("_", 1)[0] + "_rounding"
 
 
+def innovation_covariance(kalman: KalmanGains) -> np.ndarray:
+    """The steady-state covariance ``S = C P C^T + R`` of the Kalman filter's innovation.
+
+    Examples
+    --------
+    >>> from fhobs.core.gains import KalmanGains, PlantModel
+    >>> plant = PlantModel(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)))
+    >>> kalman = KalmanGains(plant, 0, 1.0, np.ones(1), 1.0, np.array([[0.6]]), 1.5 * np.eye(1))
+    >>> innovation_covariance(kalman).tolist()
+    [[2.5]]
+    """
+    C = kalman.model_matrices[2]
+    S = C @ kalman.covariance @ C.T + np.diag(kalman.measurement_std**2)
+    return 0.5 * (S + S.T)
+
+
+def threshold_problems(supervised: SupervisedGains) -> list[str]:
+    """What is out of range in the supervisor's own fields (empty if nothing): the Kalman
+    filter of the homogeneous model, the window, the ordered bands around the statistic's mean
+    k and the ceiling above them, the dwell time and the false-alarm probability.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> record = NS(plant=NS(k=2), model=NS(disturbance_order=1),
+    ...             kalman=NS(disturbance_order=1), window=200.0, lower=1.4, lower_return=1.7,
+    ...             upper_return=2.3, upper=2.7, ceiling=5.4, dwell_time=0.02,
+    ...             false_alarm=1e-9)
+    >>> threshold_problems(record)
+    []
+    >>> threshold_problems(NS(**{**vars(record), "upper": 2.2}))
+    ['upper = 2.2 must exceed upper_return = 2.3 (the hysteresis)']
+    """
+    k = supervised.plant.k
+    problems = []
+    if supervised.kalman.disturbance_order != supervised.model.disturbance_order:
+        problems.append(f"kalman.disturbance_order = {supervised.kalman.disturbance_order} must "
+                        f"equal the homogeneous model's {supervised.model.disturbance_order} "
+                        "(the handover maps one state onto the other)")
+    values = {name: float(getattr(supervised, name)) for name in
+              ("window", "lower", "lower_return", "upper_return", "upper", "ceiling",
+               "dwell_time", "false_alarm")}
+    bad = [name for name, value in values.items() if not math.isfinite(value)]
+    problems += [f"{name} = {values[name]!r} must be finite" for name in bad]
+    if bad:
+        return problems
+    if values["window"] < 1.0:
+        problems.append(f"window = {values['window']!r} must be at least 1 sample")
+    if values["lower"] < 0.0:
+        problems.append(f"lower = {values['lower']!r} must be >= 0")
+    for name, below, reason in (("lower_return", "lower", "(the hysteresis)"),
+                                ("upper_return", "lower_return", ""),
+                                ("upper", "upper_return", "(the hysteresis)"),
+                                ("ceiling", "upper", "")):
+        if not values[name] > values[below]:
+            problems.append(f"{name} = {values[name]!r} must exceed {below} = "
+                            f"{values[below]!r} {reason}".rstrip())
+    if not values["lower_return"] < k < values["upper_return"]:
+        problems.append(f"the return band ({values['lower_return']!r}, "
+                        f"{values['upper_return']!r}) must hold the statistic's mean k = {k}")
+    if not values["dwell_time"] > 0.0:
+        problems.append(f"dwell_time = {values['dwell_time']!r} must be > 0 s")
+    if not 0.0 < values["false_alarm"] < 1.0:
+        problems.append(f"false_alarm = {values['false_alarm']!r} must be in (0, 1)")
+    return problems
+
+
+def certify_supervised(
+    supervised: SupervisedGains, tolerance: float = DEFAULT_TOLERANCE,
+    margin: float = CERTIFICATE_MARGIN,
+) -> dict[str, float]:
+    """The supervised observer's certificate: its thresholds in range
+    (:func:`threshold_problems`), the innovation covariance S positive definite, then the
+    filtering record's (:func:`fhobs.core.certificate.certify_filtering`) and the Kalman
+    record's (:func:`fhobs.core.certificate.certify_kalman`) certificates.
+
+    Returns
+    -------
+    dict
+        Both parts' figures and ``innovation_covariance_positive``
+        (``lambda_min(S) / lambda_max(S)``).
+
+    Raises
+    ------
+    CertificateError
+        Naming every field out of range, or the part's failed checks.
+
+    Examples
+    --------
+    >>> from fhobs.design.supervised import supervised_for_spec
+    >>> from fhobs.design.spec import load_spec
+    >>> from fhobs.paper import PENDULUM_SPEC
+    >>> record = supervised_for_spec(load_spec(PENDULUM_SPEC))
+    >>> figures = certify_supervised(record)
+    >>> figures["schur_kalman"] < 1 and figures["lmi_filtering"] < 0
+    True
+    """
+    problems = threshold_problems(supervised)
+    if problems:
+        raise CertificateError("the supervised observer's thresholds are out of range: "
+                               + "; ".join(problems))
+    eigenvalues = np.linalg.eigvalsh(innovation_covariance(supervised.kalman))
+    positive = float(eigenvalues[0] / eigenvalues[-1]) if eigenvalues[-1] > 0 else -1.0
+    if not positive > 1e-14:
+        raise CertificateError(f"the Kalman filter's innovation covariance S = C P C^T + R is "
+                               f"not positive definite (lambda_min / lambda_max = {positive:.3e})")
+    figures = certify_filtering(supervised.filtering, tolerance, margin)
+    figures |= certify_kalman(supervised.kalman, tolerance, margin)
+    return figures | {"innovation_covariance_positive": positive}
+
+
 CERTIFIERS = {"filtering": certify_filtering, "prescribed_time": certify_prescribed_time,
-              "luenberger": certify_luenberger, "kalman": certify_kalman}
+              "luenberger": certify_luenberger, "kalman": certify_kalman,
+              "supervised": certify_supervised}
 """Each estimator record's certificate (the check its FMU makes), by the design's attribute
 that holds it."""
 

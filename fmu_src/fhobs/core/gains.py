@@ -34,6 +34,9 @@ Notation (Ping, Zimenko, Polyakov, Efimov, "Filtering homogeneous observer for M
 - ``kalman``: optional :class:`KalmanGains`, the steady-state discrete Kalman filter baseline
   (designed by :func:`fhobs.design.kalman.design_kalman`, run by :mod:`fhobs.core.kalman_filter`);
   its disturbance model is its own (``kalman.disturbance_order``), on the same plant.
+- ``supervised``: optional :class:`SupervisedGains`, the supervised observer of the ``[noise]``
+  table (:mod:`fhobs.core.supervisor`): the filtering record and a Kalman filter of the
+  homogeneous model, written whole in design.json (its own copies of both).
 
 Examples
 --------
@@ -368,81 +371,6 @@ class KalmanGains(_Record):
 
 
 @dataclass(frozen=True)
-class ObserverDesign(_Record):
-    """One design: the plant, the homogeneous model and every estimator's record, which hold
-    the same plant and model objects.
-
-    Attributes
-    ----------
-    plant : PlantModel
-    model : HomogeneousModel
-    filtering : FilteringGains
-    prescribed_time : PrescribedTimeGains
-    luenberger : LuenbergerGains
-    kalman : KalmanGains or None
-        The Kalman filter baseline of the spec's ``[noise]`` table.
-    settling_tuning : dict or None
-        When rho was chosen for the settling time: ``settling_time_requested``,
-        ``settling_time_predicted``, ``peaking``, ``peaking_limit``, ``met``.
-    noise_tuning : dict or None
-        When the design was tuned for noise (:func:`fhobs.design.tuning.design_for_noise`):
-        its predictions, window and intensity.
-
-    Raises
-    ------
-    ValueError
-        If an estimator record does not hold the design's plant or model object.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> from fhobs.design.observer import paper_gains
-    >>> design = paper_gains()
-    >>> back = ObserverDesign.load_json(design.save_json(Path(tempfile.mkdtemp()) / "d.json"))
-    >>> back.filtering.plant is back.plant and back.prescribed_time.model is back.model
-    True
-    >>> bool(np.array_equal(back.filtering.L, design.filtering.L))
-    True
-    """
-
-    plant: PlantModel
-    model: HomogeneousModel
-    filtering: FilteringGains
-    prescribed_time: PrescribedTimeGains
-    luenberger: LuenbergerGains
-    kalman: KalmanGains | None = None
-    settling_tuning: dict[str, Any] | None = None
-    noise_tuning: dict[str, Any] | None = None
-
-    _writes_shared: ClassVar[bool] = True
-
-    def __post_init__(self) -> None:
-        for name in ESTIMATORS:
-            record = getattr(self, name)
-            for shared in SHARED:
-                if hasattr(record, shared) and getattr(record, shared) is not getattr(self, shared):
-                    raise ValueError(f"design.{name}.{shared} is not the design's {shared}")
-
-    def save_json(self, path: str | Path) -> Path:
-        """Write the design as JSON to ``path`` and return the path."""
-        path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=1))
-        return path
-
-    @classmethod
-    def load_json(cls, path: str | Path) -> ObserverDesign:
-        """Read a design written by :meth:`save_json`."""
-        return cls.from_dict(json.loads(Path(path).read_text()))
-
-
-ESTIMATORS = ("filtering", "prescribed_time", "luenberger", "kalman")
-"""The estimator records of an :class:`ObserverDesign`, by attribute."""
-_RECORDS: dict[str, type[_Record]] = {cls.__name__: cls for cls in (
-    PlantModel, HomogeneousModel, FilteringGains, PrescribedTimeGains, LuenbergerGains,
-    KalmanGains, ObserverDesign)}
-
-
-@dataclass(frozen=True)
 class SupervisedGains(_Record):
     """The supervised observer (:mod:`fhobs.core.supervisor`): the filtering observer and a
     Kalman filter of the same extended model, and the innovation test that picks one of them.
@@ -477,7 +405,7 @@ class SupervisedGains(_Record):
         for).
     certificate : dict
         ``checks``: the figures of both parts' certificates and of the thresholds
-        (:func:`fhobs.core.supervisor.certify_supervised`).
+        (:func:`fhobs.core.certificate.certify_supervised`).
     """
 
     plant: PlantModel
@@ -494,5 +422,88 @@ class SupervisedGains(_Record):
     false_alarm: float
     certificate: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def model_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A_model, B_model, C_model)``: both parts run on the homogeneous model (the
+        filtering record's)."""
+        return self.filtering.model_matrices
 
-_RECORDS[SupervisedGains.__name__] = SupervisedGains
+
+@dataclass(frozen=True)
+class ObserverDesign(_Record):
+    """One design: the plant, the homogeneous model and every estimator's record, which hold
+    the same plant and model objects.
+
+    Attributes
+    ----------
+    plant : PlantModel
+    model : HomogeneousModel
+    filtering : FilteringGains
+    prescribed_time : PrescribedTimeGains
+    luenberger : LuenbergerGains
+    kalman : KalmanGains or None
+        The Kalman filter baseline of the spec's ``[noise]`` table.
+    settling_tuning : dict or None
+        When rho was chosen for the settling time: ``settling_time_requested``,
+        ``settling_time_predicted``, ``peaking``, ``peaking_limit``, ``met``.
+    noise_tuning : dict or None
+        When the design was tuned for noise (:func:`fhobs.design.tuning.design_for_noise`):
+        its predictions, window and intensity.
+    supervised : SupervisedGains or None
+        The supervised observer of the spec's ``[noise]`` table (the filtering observer and
+        a Kalman filter of its model, :mod:`fhobs.core.supervisor`); None without the table
+        (and in a ``design.json`` written without it).
+
+    Raises
+    ------
+    ValueError
+        If an estimator record does not hold the design's plant or model object.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from fhobs.design.observer import paper_gains
+    >>> design = paper_gains()
+    >>> back = ObserverDesign.load_json(design.save_json(Path(tempfile.mkdtemp()) / "d.json"))
+    >>> back.filtering.plant is back.plant and back.prescribed_time.model is back.model
+    True
+    >>> bool(np.array_equal(back.filtering.L, design.filtering.L))
+    True
+    """
+
+    plant: PlantModel
+    model: HomogeneousModel
+    filtering: FilteringGains
+    prescribed_time: PrescribedTimeGains
+    luenberger: LuenbergerGains
+    kalman: KalmanGains | None = None
+    settling_tuning: dict[str, Any] | None = None
+    noise_tuning: dict[str, Any] | None = None
+    supervised: SupervisedGains | None = None
+
+    _writes_shared: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        for name in ESTIMATORS:
+            record = getattr(self, name)
+            for shared in SHARED:
+                if hasattr(record, shared) and getattr(record, shared) is not getattr(self, shared):
+                    raise ValueError(f"design.{name}.{shared} is not the design's {shared}")
+
+    def save_json(self, path: str | Path) -> Path:
+        """Write the design as JSON to ``path`` and return the path."""
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1))
+        return path
+
+    @classmethod
+    def load_json(cls, path: str | Path) -> ObserverDesign:
+        """Read a design written by :meth:`save_json`."""
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+ESTIMATORS = ("filtering", "prescribed_time", "luenberger", "kalman", "supervised")
+"""The estimator records of an :class:`ObserverDesign`, by attribute."""
+_RECORDS: dict[str, type[_Record]] = {cls.__name__: cls for cls in (
+    PlantModel, HomogeneousModel, FilteringGains, PrescribedTimeGains, LuenbergerGains,
+    KalmanGains, SupervisedGains, ObserverDesign)}

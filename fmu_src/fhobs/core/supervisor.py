@@ -76,14 +76,11 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from .certificate import CERTIFICATE_MARGIN, DEFAULT_TOLERANCE, certify_filtering, certify_kalman
-from .errors import CertificateError
-from .gains import KalmanGains, SupervisedGains
-from .kalman_filter import SAMPLE_SLACK, KalmanObserver
+from .certificate import innovation_covariance, threshold_problems
+from .gains import SupervisedGains
+from .kalman_filter import MAX_CYCLES, SAMPLE_SLACK, KalmanObserver
 from .runtime import DEFAULT_H, SCHEMES, FilteringObserver
 from .validation import all_finite, as_finite_vector, check_step_size
 
@@ -93,117 +90,9 @@ MODE_HOMOGENEOUS = 1
 """Mode H: the output is the homogeneous observer's estimate."""
 DWELL_SLACK = 1e-9
 """Relative slack of the dwell-time comparison (time accumulated in steps of dt)."""
-
-
-def innovation_covariance(kalman: KalmanGains) -> np.ndarray:
-    """The steady-state covariance ``S = C P C^T + R`` of the Kalman filter's innovation.
-
-    Examples
-    --------
-    >>> from fhobs.core.gains import PlantModel
-    >>> plant = PlantModel(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)))
-    >>> kalman = KalmanGains(plant, 0, 1.0, np.ones(1), 1.0, np.array([[0.6]]), 1.5 * np.eye(1))
-    >>> innovation_covariance(kalman).tolist()
-    [[2.5]]
-    """
-    C = kalman.model_matrices[2]
-    S = C @ kalman.covariance @ C.T + np.diag(kalman.measurement_std**2)
-    return 0.5 * (S + S.T)
-
-
-def threshold_problems(supervised: SupervisedGains) -> list[str]:
-    """What is out of range in the supervisor's own fields (empty if nothing): the Kalman
-    filter of the homogeneous model, the window, the ordered bands around the statistic's mean
-    k and the ceiling above them, the dwell time and the false-alarm probability.
-
-    Examples
-    --------
-    >>> from types import SimpleNamespace as NS
-    >>> record = NS(plant=NS(k=2), model=NS(disturbance_order=1),
-    ...             kalman=NS(disturbance_order=1), window=200.0, lower=1.4, lower_return=1.7,
-    ...             upper_return=2.3, upper=2.7, ceiling=5.4, dwell_time=0.02,
-    ...             false_alarm=1e-9)
-    >>> threshold_problems(record)
-    []
-    >>> threshold_problems(NS(**{**vars(record), "upper": 2.2}))
-    ['upper = 2.2 must exceed upper_return = 2.3 (the hysteresis)']
-    """
-    k = supervised.plant.k
-    problems = []
-    if supervised.kalman.disturbance_order != supervised.model.disturbance_order:
-        problems.append(f"kalman.disturbance_order = {supervised.kalman.disturbance_order} must "
-                        f"equal the homogeneous model's {supervised.model.disturbance_order} "
-                        "(the handover maps one state onto the other)")
-    values = {name: float(getattr(supervised, name)) for name in
-              ("window", "lower", "lower_return", "upper_return", "upper", "ceiling",
-               "dwell_time", "false_alarm")}
-    bad = [name for name, value in values.items() if not math.isfinite(value)]
-    problems += [f"{name} = {values[name]!r} must be finite" for name in bad]
-    if bad:
-        return problems
-    if values["window"] < 1.0:
-        problems.append(f"window = {values['window']!r} must be at least 1 sample")
-    if values["lower"] < 0.0:
-        problems.append(f"lower = {values['lower']!r} must be >= 0")
-    for name, below, reason in (("lower_return", "lower", "(the hysteresis)"),
-                                ("upper_return", "lower_return", ""),
-                                ("upper", "upper_return", "(the hysteresis)"),
-                                ("ceiling", "upper", "")):
-        if not values[name] > values[below]:
-            problems.append(f"{name} = {values[name]!r} must exceed {below} = "
-                            f"{values[below]!r} {reason}".rstrip())
-    if not values["lower_return"] < k < values["upper_return"]:
-        problems.append(f"the return band ({values['lower_return']!r}, "
-                        f"{values['upper_return']!r}) must hold the statistic's mean k = {k}")
-    if not values["dwell_time"] > 0.0:
-        problems.append(f"dwell_time = {values['dwell_time']!r} must be > 0 s")
-    if not 0.0 < values["false_alarm"] < 1.0:
-        problems.append(f"false_alarm = {values['false_alarm']!r} must be in (0, 1)")
-    return problems
-
-
-def certify_supervised(
-    supervised: SupervisedGains, tolerance: float = DEFAULT_TOLERANCE,
-    margin: float = CERTIFICATE_MARGIN,
-) -> dict[str, float]:
-    """The supervised observer's certificate: its thresholds in range
-    (:func:`threshold_problems`), the innovation covariance S positive definite, then the
-    filtering record's (:func:`fhobs.core.certificate.certify_filtering`) and the Kalman
-    record's (:func:`fhobs.core.certificate.certify_kalman`) certificates.
-
-    Returns
-    -------
-    dict
-        Both parts' figures and ``innovation_covariance_positive``
-        (``lambda_min(S) / lambda_max(S)``).
-
-    Raises
-    ------
-    CertificateError
-        Naming every field out of range, or the part's failed checks.
-
-    Examples
-    --------
-    >>> from fhobs.design.supervised import supervised_for_spec
-    >>> from fhobs.design.spec import load_spec
-    >>> from fhobs.paper import PENDULUM_SPEC
-    >>> record = supervised_for_spec(load_spec(PENDULUM_SPEC))
-    >>> figures = certify_supervised(record)
-    >>> figures["schur_kalman"] < 1 and figures["lmi_filtering"] < 0
-    True
-    """
-    problems = threshold_problems(supervised)
-    if problems:
-        raise CertificateError("the supervised observer's thresholds are out of range: "
-                               + "; ".join(problems))
-    eigenvalues = np.linalg.eigvalsh(innovation_covariance(supervised.kalman))
-    positive = float(eigenvalues[0] / eigenvalues[-1]) if eigenvalues[-1] > 0 else -1.0
-    if not positive > 1e-14:
-        raise CertificateError(f"the Kalman filter's innovation covariance S = C P C^T + R is "
-                               f"not positive definite (lambda_min / lambda_max = {positive:.3e})")
-    figures = certify_filtering(supervised.filtering, tolerance, margin)
-    figures |= certify_kalman(supervised.kalman, tolerance, margin)
-    return figures | {"innovation_covariance_positive": positive}
+HEAD_SIZE = 4
+"""The supervisor's own entries at the start of the state: statistic, mode, homogeneous
+statistic, time in the return band."""
 
 
 def sample_count(dt: float, sample_time: float) -> int:
@@ -212,7 +101,8 @@ def sample_count(dt: float, sample_time: float) -> int:
     Raises
     ------
     ValueError
-        If dt is not a whole multiple of Ts (within ``SAMPLE_SLACK`` Ts).
+        If dt is not a whole multiple of Ts (within ``SAMPLE_SLACK`` Ts) or holds more than
+        ``MAX_CYCLES`` samples.
 
     Examples
     --------
@@ -223,6 +113,9 @@ def sample_count(dt: float, sample_time: float) -> int:
     if n < 1 or abs(dt - n * sample_time) > SAMPLE_SLACK * sample_time:
         raise ValueError(f"the step size {dt!r} is not a whole multiple of the Kalman sample "
                          f"time Ts = {sample_time!r}; state left unchanged")
+    if n > MAX_CYCLES:
+        raise ValueError(f"the step size {dt!r} holds {n} samples of Ts = {sample_time!r}, "
+                         f"more than {MAX_CYCLES}; state left unchanged")
     return n
 
 
@@ -367,11 +260,13 @@ class SupervisedObserver:
 
     # -- state ----------------------------------------------------------------------------
     def get_state(self) -> np.ndarray:
-        """The full internal state (a copy): the homogeneous observer's, the Kalman filter's,
-        then the two statistics, the mode and the time the statistic has been inside the return
-        band in H."""
-        return np.concatenate((self.homogeneous.get_state(), self.kalman.get_state(),
-                               self._statistics, [float(self._mode), self._time_consistent]))
+        """The full internal state (a copy): the statistic and the mode (the outputs that are
+        state, first), the homogeneous observer's statistic and the time the statistic has
+        been inside the return band in H, then the homogeneous observer's state and the Kalman
+        filter's."""
+        head = (self._statistics[0], float(self._mode), self._statistics[1],
+                self._time_consistent)
+        return np.concatenate((head, self.homogeneous.get_state(), self.kalman.get_state()))
 
     def set_state(self, arr: np.ndarray) -> None:
         """Restore a state from :meth:`get_state` exactly.
@@ -383,16 +278,18 @@ class SupervisedObserver:
             time, a mode other than 0 or 1); the state is then left unchanged.
         """
         sizes = (self.homogeneous.get_state().size, self.kalman.get_state().size)
-        arr = as_finite_vector(arr, sum(sizes) + 4, "supervised observer state")
-        statistics, (mode, time_consistent) = arr[-4:-2].copy(), arr[-2:].tolist()
+        arr = as_finite_vector(arr, HEAD_SIZE + sum(sizes), "supervised observer state")
+        kalman_statistic, mode, homogeneous_statistic, time_consistent = arr[:HEAD_SIZE].tolist()
+        statistics = np.array([kalman_statistic, homogeneous_statistic])
         if min(*statistics, time_consistent) < 0.0 or mode not in (MODE_KALMAN, MODE_HOMOGENEOUS):
             raise ValueError(f"supervised observer state: the statistics {statistics.tolist()} "
                              f"and the time in band {time_consistent!r} must be >= 0 and the "
                              f"mode 0 or 1, got {mode!r}")
+        parts = arr[HEAD_SIZE:HEAD_SIZE + sizes[0]], arr[HEAD_SIZE + sizes[0]:]
         homogeneous_before = self.homogeneous.get_state()
-        self.homogeneous.set_state(arr[:sizes[0]])
+        self.homogeneous.set_state(parts[0])
         try:
-            self.kalman.set_state(arr[sizes[0]:sizes[0] + sizes[1]])
+            self.kalman.set_state(parts[1])
         except ValueError:
             self.homogeneous.set_state(homogeneous_before)
             raise

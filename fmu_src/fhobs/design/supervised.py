@@ -30,11 +30,10 @@ import dataclasses
 import numpy as np
 from scipy.stats import chi2
 
+from ..core.certificate import certify_supervised
 from ..core.gains import ObserverDesign, SupervisedGains
-from ..core.supervisor import certify_supervised
 from ..errors import SpecError
 from .kalman import design_kalman
-from .observer import design_for_spec
 from .spec import NoiseSpec, PlantSpec
 
 WINDOW = 50.0
@@ -90,7 +89,7 @@ def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float
     Returns
     -------
     SupervisedGains
-        Certified (:func:`fhobs.core.supervisor.certify_supervised`; its figures in
+        Certified (:func:`fhobs.core.certificate.certify_supervised`; its figures in
         ``certificate["checks"]``).
 
     Raises
@@ -136,9 +135,35 @@ def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float
     return dataclasses.replace(record, certificate={"checks": certify_supervised(record)})
 
 
+def with_supervised(design: ObserverDesign, noise: NoiseSpec) -> ObserverDesign:
+    """``design`` with the supervised observer of the ``[noise]`` table attached (its
+    ``supervised`` record, :func:`design_supervised` with the defaults); after
+    :func:`fhobs.design.kalman.with_kalman`, whose filter it reuses when it is of the
+    homogeneous model's order.
+
+    Raises
+    ------
+    KalmanDesignError, CertificateError
+        As :func:`design_supervised`.
+
+    Examples
+    --------
+    >>> from fhobs.design.kalman import with_kalman
+    >>> from fhobs.design.observer import paper_gains
+    >>> from fhobs.design.spec import load_spec
+    >>> from fhobs.paper import PENDULUM_SPEC
+    >>> noise = load_spec(PENDULUM_SPEC).noise
+    >>> design = with_supervised(with_kalman(paper_gains(), noise), noise)
+    >>> design.supervised.kalman is design.kalman
+    True
+    """
+    return dataclasses.replace(design, supervised=design_supervised(design, noise))
+
+
 def supervised_for_spec(spec: PlantSpec) -> SupervisedGains:
-    """The supervised observer of a spec with a ``[noise]`` table: the spec's design
-    (:func:`fhobs.design.observer.design_for_spec`) and :func:`design_supervised`.
+    """The supervised observer of a spec with a ``[noise]`` table: the ``supervised`` record
+    of the spec's design (:func:`fhobs.design.observer.design_for_spec`, which attaches it by
+    :func:`with_supervised`).
 
     Raises
     ------
@@ -152,8 +177,10 @@ def supervised_for_spec(spec: PlantSpec) -> SupervisedGains:
     >>> supervised_for_spec(load_spec(PENDULUM_SPEC)).kalman.disturbance_order
     1
     """
+    from .observer import design_for_spec  # observer imports this module: its function here
+
     if spec.noise is None:
         raise SpecError(f"{spec.source}: the supervised observer needs the [noise] table "
                         "(the Kalman filter's measurement noise, sample time and process "
                         "intensity)")
-    return design_supervised(design_for_spec(spec), spec.noise)
+    return design_for_spec(spec).supervised

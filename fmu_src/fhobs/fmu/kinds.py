@@ -1,6 +1,7 @@
 """The FMU kinds, each declared once: its variables, its output layout, its code in the native FMUs.
 
-A kind (``observer``, ``luenberger``, ``prescribed_time``, ``kalman``, ``plant``) is one
+A kind (``observer``, ``luenberger``, ``prescribed_time``, ``kalman``, ``supervised``,
+``plant``) is one
 :class:`Kind`: the variables of its FMU in value-reference order, each with its role and where
 its start value comes from. Everything else is derived from it:
 
@@ -15,7 +16,7 @@ its start value comes from. Everything else is derived from it:
 - the harness labels an estimator's figures with :attr:`Kind.label`.
 
 Each kind runs one record of the design (:attr:`Kind.record`: ``filtering``,
-``prescribed_time``, ``luenberger``, ``kalman`` or ``plant``, an attribute of
+``prescribed_time``, ``luenberger``, ``kalman``, ``supervised`` or ``plant``, an attribute of
 :class:`fhobs.core.gains.ObserverDesign`); its variables' shapes, start values and field paths
 are of that record.
 
@@ -45,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.gains import ObserverDesign
+from ..core.gains import SHARED, ObserverDesign
 from ..core.plant import PLANT_SCHEMES
 from ..core.runtime import SCHEMES
 
@@ -233,7 +234,9 @@ def record_field(record: Any, path: str) -> Any:
 def edited_record(record: Any, values: Mapping[str, Any]) -> Any:
     """``record`` with the fields of ``values`` (``{path: value}`` as :attr:`Variable.field`)
     replaced: a new record (with new nested records where a path goes into one), ``record``
-    unchanged.
+    unchanged. An edited plant or model of ``record`` (:data:`fhobs.core.gains.SHARED`) is
+    also the plant or model of the records it holds (they share them: the supervised
+    record's filtering and Kalman parts, a design's estimators).
 
     Examples
     --------
@@ -242,6 +245,9 @@ def edited_record(record: Any, values: Mapping[str, Any]) -> Any:
     >>> edited = edited_record(filtering, {"rho": 3.0, "model.nu": -0.2})
     >>> edited.rho, edited.model.nu, round(filtering.model.nu, 4)
     (3.0, -0.2, -0.3333)
+    >>> design = paper_gains()
+    >>> edited_record(design, {"model.nu": -0.2}).prescribed_time.model.nu
+    -0.2
     """
     changes: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
@@ -253,6 +259,12 @@ def edited_record(record: Any, values: Mapping[str, Any]) -> Any:
             changes[head] = value
     for head, inner in nested.items():
         changes[head] = edited_record(getattr(record, head), inner)
+    shared = {name: changes[name] for name in SHARED if name in changes}
+    for f in dataclasses.fields(record):
+        part = changes.get(f.name, getattr(record, f.name))
+        held = {name: value for name, value in shared.items() if hasattr(part, name)}
+        if f.name not in SHARED and held and dataclasses.is_dataclass(part):
+            changes[f.name] = dataclasses.replace(part, **held)
     return dataclasses.replace(record, **changes)
 
 
@@ -296,10 +308,12 @@ Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its de
 def _estimator(name: str, number: int, slave: str, description: str, label: str, record: str,
                gains: tuple[Variable, ...], outputs: tuple[str, ...],
                timing: tuple[Variable, ...] = TIMING,
-               appended: tuple[Variable, ...] = ()) -> Kind:
-    """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat, then
-    ``appended`` (variables added after the others, so that no value reference moves)."""
-    variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *ESTIMATOR_SIGNALS, INPUT_BOUND,
+               appended: tuple[Variable, ...] = (),
+               signals: tuple[Variable, ...] = ESTIMATOR_SIGNALS) -> Kind:
+    """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat (the
+    ``signals``), then ``appended`` (variables added after the others, so that no value
+    reference moves)."""
+    variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *signals, INPUT_BOUND,
                  *appended)
     return Kind(name, number, slave, description, label, record, variables, outputs)
 
@@ -383,6 +397,62 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         timing=(Variable("Ts", "design", "sample time of the filter (s): one cycle per sample "
                          "instant inside a step", field="sample_time"),),
         outputs=("x_hat", "q_hat"),
+    ),
+    _estimator(
+        "supervised", 6, "FhobsSupervised",
+        "Supervised observer: the filtering homogeneous observer (Theorem 2) and a Kalman "
+        "filter of its model; an innovation test with hysteresis and dwell picks the output, "
+        "the homogeneous estimate handed over to the Kalman filter", "supervised", "supervised",
+        gains=(
+            *_HOMOGENISATION,
+            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)",
+                     field="model.G_d"),
+            Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
+                     field="filtering.L_tilde"),
+            Variable("L", "design", "gain of the estimate z (N x k)", field="filtering.L"),
+            Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
+                     field="filtering.P_bar"),
+            Variable("nu", "design", "homogeneity degree", field="model.nu"),
+            Variable("gamma", "design", "gain of the xi equation", field="filtering.gamma"),
+            Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field="filtering.rho"),
+            *_SLOW_PROJECTOR,
+            Variable("kalman_gain", "design", "the Kalman filter's measurement-update gain "
+                     "M = P C^T (C P C^T + R)^-1 (N x k)", field="kalman.gain"),
+            Variable("kalman_covariance", "design", "the Kalman filter's a-priori error "
+                     "covariance P (N x N): the innovation covariance S = C P C^T + R",
+                     field="kalman.covariance"),
+            Variable("measurement_std", "design", "standard deviation of the measurement "
+                     "noise per output (R = diag(measurement_std^2))",
+                     field="kalman.measurement_std"),
+            Variable("Ts", "design", "sample time of the Kalman filter (s); the communication "
+                     "step must be a whole multiple of it", field="kalman.sample_time"),
+            Variable("window", "design", "length of the statistic's exponential window "
+                     "(samples)", field="window"),
+            Variable("lower", "design", "the Kalman estimate is left below this statistic",
+                     field="lower"),
+            Variable("upper", "design", "the Kalman estimate is left above this statistic",
+                     field="upper"),
+            Variable("lower_return", "design", "lower end of the return band",
+                     field="lower_return"),
+            Variable("upper_return", "design", "upper end of the return band; also the "
+                     "homogeneous statistic's bound for the handover", field="upper_return"),
+            Variable("ceiling", "design", "the statistic is held at most at this value",
+                     field="ceiling"),
+            Variable("dwell_time", "design", "least time (s) the homogeneous estimate is "
+                     "output before the Kalman estimate is taken again", field="dwell_time"),
+            Variable("false_alarm", "design", "probability per sample of leaving the Kalman "
+                     "estimate on data its model explains (what the band was set for)",
+                     field="false_alarm"),
+            Variable("statistic", "output", "exponentially weighted mean of the Kalman "
+                     "filter's normalised innovation squared", shape=lambda r: ()),
+            Variable("mode", "output", "the estimate output: 0 = Kalman filter, "
+                     "1 = homogeneous observer", shape=lambda r: ()),
+            dataclasses.replace(Q_HAT, source="q_hat"),
+        ),
+        outputs=("statistic", "mode", "x_hat", "q_hat"),
+        signals=(*ESTIMATOR_SIGNALS[:2],
+                 dataclasses.replace(ESTIMATOR_SIGNALS[2], source="x_hat",
+                                     description="state estimate of the mode's estimator")),
     ),
     Kind(
         "plant", 3, "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",

@@ -1,7 +1,7 @@
 """Build native FMUs: FMI 2.0 co-simulation FMUs of compiled C, no Python at run time.
 
 Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.fmu``,
-``prescribed_time.fmu``) has the interface of the pythonfmu FMU of the same kind
+``supervised.fmu``, ``prescribed_time.fmu``) has the interface of the pythonfmu FMU of the same kind
 (:mod:`fhobs.build`): both are written from the kind's declaration
 (:mod:`fhobs.fmu.kinds`), so they have the same variable names, value references,
 causalities, variabilities and start values (exact: hexadecimal in the C data). Its binary
@@ -62,10 +62,11 @@ import numpy as np
 from ..build import cache_copy, default_kinds, fmu_options
 from ..core import kernel
 from ..core.certificate import certify
-from ..core.gains import ObserverDesign, PlantModel
+from ..core.gains import ObserverDesign, PlantModel, SupervisedGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
 from ..core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from ..core.supervisor import HEAD_SIZE, SupervisedObserver, sample_count
 from ..errors import BuildError
 from ..fmu import call_rules
 from ..fmu.kinds import KINDS, Kind
@@ -97,6 +98,10 @@ SHARED_UNITS = ("kernel.c", "planner.c", "gain_levels.c", "noise.c")
 GENERATED_HEADERS = ("model_data.h", "model.h")
 """The headers with the design of one FMU (``model.h`` includes ``model_data.h``)."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+SUPERVISOR_THRESHOLDS = ("ceiling", "lower", "upper", "lower_return", "upper_return",
+                         "dwell_time")
+"""The supervised observer's fields compiled in as ``SUPERVISOR_<NAME>``, beside its model's
+C, S^-1 and weight."""
 SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
 COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=c99")
@@ -221,6 +226,8 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
         observer = KalmanObserver(record)
         return {"kalman": captured_plan(observer, 1.0),  # one cycle; doStep sets the count
                 "Ts": float(record.sample_time)}
+    if kind == "supervised":
+        return _supervised_data(record, steps, h)
     if kind == "plant":
         model = LTIPlant(record.A, record.B, record.C, E=record.E)
     else:
@@ -247,6 +254,26 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
     else:
         euler = cls(record, h=h, scheme="euler")
         data["euler"] = captured_plan(euler, h) if euler.compiled else None
+    return data
+
+
+def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
+                     h: float) -> dict[str, Any]:
+    """The supervised observer's data: its filtering observer's (:func:`_native_data`), its
+    Kalman filter's one-cycle plan and Ts, and the statistic's data from the numpy runtime's
+    model (``supervisor``: C of the model, S^-1, the weight and the thresholds). Each step size
+    of ``steps`` must also be a whole number of samples Ts (:class:`BuildError` otherwise)."""
+    model = SupervisedObserver(record, h=h)
+    for dt in steps:
+        try:
+            sample_count(dt, model.sample_time)
+        except ValueError as err:
+            raise BuildError(f"--native-step {dt!r}: {err}") from err
+    data = _native_data("observer", record.filtering, steps, h)
+    data.update(kalman=captured_plan(model.kalman, 1.0), Ts=float(model.sample_time))
+    data["supervisor"] = {
+        "C": model._C, "S_inv": model._S_inv, "weight": model._weight,
+        **{name: float(getattr(record, name)) for name in SUPERVISOR_THRESHOLDS}}
     return data
 
 
@@ -351,16 +378,23 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
             f'{c_number(var["start"])}}},' for var in variables]
     table = ["static const FhobsVariable VARIABLES[FHOBS_N_VARIABLES] = {", *rows, "};"]
     body = []
-    if kind == "kalman":
+    if kind in ("kalman", "supervised"):
         body.append(f"static const LinearPlan KALMAN_PLAN = "
                     f"{_plan_initializer(data['kalman'], arrays)};")
         body.append(f"static const double KALMAN_TS = {c_number(data['Ts'])};")
-    else:
+    if kind == "supervised":
+        for name, value in data["supervisor"].items():
+            if isinstance(value, np.ndarray):
+                body.append(f"#define SUPERVISOR_{name.upper()} {arrays.name(value)}")
+            else:
+                body.append(f"static const double SUPERVISOR_{name.upper()} = "
+                            f"{c_number(value)};")
+    if kind != "kalman":
         scan = data.get("scan")
         body.append(f"#define FHOBS_ZOH_SIZE {data['top'].shape[1]}")
         body.append(f"#define FHOBS_N_TAU {0 if scan is None else scan['tau_grid'].size}")
         body.append(f"#define ZOH_TOP {arrays.name(data['top'])}")
-        if kind == "observer":
+        if kind in ("observer", "supervised"):
             body.append(f"static const FilterPlan FILTER_BASE = "
                         f"{_plan_initializer(data['base'], arrays)};")
             fields = {**scan, "n_tau": scan["tau_grid"].size}
@@ -469,7 +503,9 @@ def _sizes(kind: str, plant: PlantModel, data: dict[str, Any]) -> dict[str, int]
     n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
     r = 0 if plant.E is None else plant.E.shape[1]
     state = {"observer": n_model + plant.k + 1, "plant": plant.n + 1,
-             "kalman": n_model + 1, "prescribed_time": n_model + 1}.get(kind, n_model)
+             "kalman": n_model + 1, "prescribed_time": n_model + 1,
+             "supervised": HEAD_SIZE + (n_model + plant.k + 1) + (n_model + 1),
+             }.get(kind, n_model)
     return {"n": plant.n, "n_model": n_model, "k": plant.k, "m": plant.m, "r": r,
             "state_size": state}
 
@@ -721,6 +757,13 @@ def _documentation(kind: str, variables: list[dict[str, Any]], data: dict[str, A
         steps = (f"Any communication step: one filter cycle for every sample instant (a "
                  f"multiple of Ts = {data['Ts']!r} from the start) inside the step, the "
                  "estimate held between samples.")
+    elif kind == "supervised":
+        steps = (f"Communication steps that are whole multiples of the Kalman filter's sample "
+                 f"time Ts = {data['Ts']!r} (within 1e-6 Ts; any other step is refused with "
+                 "fmi2Error, the state unchanged): the homogeneous observer's step, its plan "
+                 "computed at the first step of that size, and one Kalman cycle per sample, "
+                 "each adding one innovation to the statistic; the mode is decided once per "
+                 "step.")
     else:
         steps = ("Any positive finite communication step, fixed or variable "
                  "(canHandleVariableCommunicationStepSize). The plan of a step size (the "

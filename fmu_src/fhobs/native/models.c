@@ -49,8 +49,12 @@ static void state_outputs(double *real, const double *state)
     }
 }
 
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER ||             \
-    FHOBS_KIND == FHOBS_KIND_PLANT || FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
+/* The filtering observer's split step runs in this FMU (alone, or in the supervised one). */
+#define FHOBS_FILTERING                                                                        \
+    (FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_SUPERVISED)
+
+#if FHOBS_FILTERING || FHOBS_KIND == FHOBS_KIND_LUENBERGER || FHOBS_KIND == FHOBS_KIND_PLANT ||  \
+    FHOBS_KIND == FHOBS_KIND_PRESCRIBED_TIME
 #define FHOBS_PLAN_SLOTS 8 /* step sizes whose plans an instance keeps */
 #define FHOBS_ZOH_ROWS (FHOBS_N_MODEL * FHOBS_ZOH_SIZE)
 #define FHOBS_PLAN_WORK                                                                        \
@@ -132,11 +136,12 @@ static int initial_z(const double *real, double *state, char *msg, size_t len)
 }
 #endif
 
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER || FHOBS_KIND == FHOBS_KIND_LUENBERGER
+#if FHOBS_FILTERING || FHOBS_KIND == FHOBS_KIND_LUENBERGER
 /* ---------------------------------------------------------------------------------------- */
-/* Observers (filtering homogeneous, Luenberger): split plans per step size, euler plan     */
+/* Observers (filtering homogeneous, Luenberger; the supervised one's homogeneous part):    */
+/* split plans per step size, euler plan                                                    */
 
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+#if FHOBS_FILTERING
 typedef FilterPlan SplitPlan;
 #define SPLIT_STEP fhobs_filter_step
 #else
@@ -148,7 +153,7 @@ struct Work {
     PlanKeys keys;
     SplitPlan split[FHOBS_PLAN_SLOTS];
     double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+#if FHOBS_FILTERING
     double F[FHOBS_PLAN_SLOTS][FHOBS_N_MODEL * FHOBS_N_MODEL];
     cplx factors[FHOBS_PLAN_SLOTS][4 * FHOBS_K]; /* spectral-factor caches of the split plans */
     double last_tau[FHOBS_PLAN_SLOTS];
@@ -163,6 +168,10 @@ struct Work {
     double euler_work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
     cplx euler_cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
 #endif
+#if FHOBS_KIND == FHOBS_KIND_SUPERVISED
+    LinearPlan kalman; /* one cycle of the Kalman filter */
+    double kalman_work[FHOBS_KALMAN_WORK(FHOBS_N_MODEL, FHOBS_K)];
+#endif
 };
 
 void work_init(Work *w)
@@ -172,6 +181,10 @@ void work_init(Work *w)
     w->euler = EULER_PLAN;
     w->euler.work = w->euler_work;
     w->euler.cwork = w->euler_cwork;
+#endif
+#if FHOBS_KIND == FHOBS_KIND_SUPERVISED
+    w->kalman = KALMAN_PLAN;
+    w->kalman.work = w->kalman_work;
 #endif
 }
 
@@ -184,7 +197,7 @@ static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
     SplitPlan *plan = &w->split[i];
     if (!fresh)
         return plan;
-#if FHOBS_KIND == FHOBS_KIND_OBSERVER
+#if FHOBS_FILTERING
     char a[32];
     double best;
     plan->factors = w->factors[i];
@@ -234,7 +247,9 @@ int model_parameters_problem(const double *real, const int *integer, char *msg,
     return 0;
 }
 
-int model_initial_state(const double *real, double *state, char *msg, size_t len)
+/* The observer's initial state: z; the filtering observer's psi and xi (psi0 and xi0, or
+ * zeros in the supervised observer, which has no such parameters). */
+static int observer_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     if (initial_z(real, state, msg, len))
         return 1;
@@ -242,12 +257,16 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     if (read_finite(real, VR_PSI0, FHOBS_K, "psi0", state + FHOBS_N_MODEL, msg, len) ||
         read_finite(real, VR_XI0, 1, "xi0", state + FHOBS_N_MODEL + FHOBS_K, msg, len))
         return 1;
+#elif FHOBS_FILTERING
+    for (int i = 0; i <= FHOBS_K; i++)
+        state[FHOBS_N_MODEL + i] = 0.0;
 #endif
     return 0;
 }
 
-int model_step(Work *w, const double *real, const int *integer, const double *src,
-               double *dst, double dt, char *msg, size_t len)
+/* The observer's step dt from src into dst (its own state), y and u from the variables. */
+static int observer_step(Work *w, const double *real, const int *integer, const double *src,
+                         double *dst, double dt, char *msg, size_t len)
 {
     char a[32], b[32];
     double inputs[FHOBS_K + FHOBS_M];
@@ -291,6 +310,18 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
     return 0;
 }
 
+#if FHOBS_KIND != FHOBS_KIND_SUPERVISED
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    return observer_initial_state(real, state, msg, len);
+}
+
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
+{
+    return observer_step(w, real, integer, src, dst, dt, msg, len);
+}
+
 /* The state outputs; the observer's sigma. */
 void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
@@ -301,6 +332,161 @@ void model_outputs(Work *w, double *real, const int *integer, const double *stat
     real[VR_SIGMA] = sigma_of(state + FHOBS_N_MODEL, FHOBS_K, state[FHOBS_N_MODEL + FHOBS_K]);
 #endif
 }
+#else
+/* ---------------------------------------------------------------------------------------- */
+/* Supervised observer (fhobs.core.supervisor.SupervisedObserver): the filtering observer's */
+/* step and the Kalman filter's cycles on the same y and u, the innovation statistics, the  */
+/* mode and the handover. State: the statistic, the mode, the homogeneous statistic, the    */
+/* time in the return band (SUPERVISOR_HEAD entries), the filtering observer's z, psi, xi,  */
+/* then the Kalman filter's z and its offset to the next sample (0: a step holds whole      */
+/* samples).                                                                                */
+#define SUPERVISOR_HEAD 4 /* fhobs.core.supervisor.HEAD_SIZE */
+#define HOMOGENEOUS_STATE SUPERVISOR_HEAD
+#define KALMAN_STATE (SUPERVISOR_HEAD + FHOBS_N_MODEL + FHOBS_K + 1)
+#define MODE_KALMAN 0.0      /* fhobs.core.supervisor.MODE_KALMAN */
+#define MODE_HOMOGENEOUS 1.0 /* fhobs.core.supervisor.MODE_HOMOGENEOUS */
+#define FHOBS_DWELL_SLACK 1e-9 /* fhobs.core.supervisor.DWELL_SLACK */
+
+int model_initial_state(const double *real, double *state, char *msg, size_t len)
+{
+    if (observer_initial_state(real, state + HOMOGENEOUS_STATE, msg, len))
+        return 1;
+    state[0] = state[2] = (double)FHOBS_K; /* the statistics start at their mean, k */
+    state[1] = MODE_HOMOGENEOUS;
+    state[3] = 0.0;
+    memcpy(state + KALMAN_STATE, state + HOMOGENEOUS_STATE, sizeof(double) * FHOBS_N_MODEL);
+    state[KALMAN_STATE + FHOBS_N_MODEL] = 0.0;
+    return 0;
+}
+
+/* The normalised residual squared e^T S^-1 e of e = y - C z (the innovation of the Kalman
+ * filter's z, the output residual of the homogeneous observer's), in numpy's order. */
+static double normalised_squared(const double *y, const double *z)
+{
+    double e[FHOBS_K], s = 0.0;
+    for (int i = 0; i < FHOBS_K; i++) {
+        double c = 0.0;
+        for (int j = 0; j < FHOBS_N_MODEL; j++)
+            c += SUPERVISOR_C[i * FHOBS_N_MODEL + j] * z[j];
+        e[i] = y[i] - c;
+    }
+    for (int j = 0; j < FHOBS_K; j++) {
+        double t = 0.0;
+        for (int i = 0; i < FHOBS_K; i++)
+            t += e[i] * SUPERVISOR_S_INV[i * FHOBS_K + j];
+        s += t * e[j];
+    }
+    return s;
+}
+
+/* A statistic after one more value: its exponential mean, held at most at the ceiling. */
+static double averaged(double statistic, double value)
+{
+    double next = statistic + SUPERVISOR_WEIGHT * (value - statistic);
+    return next > SUPERVISOR_CEILING ? SUPERVISOR_CEILING : next;
+}
+
+/* fhobs.core.supervisor.sample_count: the Kalman samples n of a step dt = n Ts; 1 with the
+ * message when dt is not a whole multiple of Ts or holds too many. */
+static int sample_count(double dt, double *n, char *msg, size_t len)
+{
+    char a[32], b[32];
+    *n = nearbyint(dt / KALMAN_TS);
+    if (*n < 1.0 || fabs(dt - *n * KALMAN_TS) > FHOBS_SAMPLE_SLACK * KALMAN_TS) {
+        snprintf(msg, len, "the step size %s is not a whole multiple of the Kalman sample time "
+                 "Ts = %s; state left unchanged", fhobs_number(dt, a, sizeof a),
+                 fhobs_number(KALMAN_TS, b, sizeof b));
+        return 1;
+    }
+    if (*n > FHOBS_MAX_CYCLES) {
+        snprintf(msg, len, "the step size %s holds %.0f samples of Ts = %s, more than %d; "
+                 "state left unchanged", fhobs_number(dt, a, sizeof a), *n,
+                 fhobs_number(KALMAN_TS, b, sizeof b), FHOBS_MAX_CYCLES);
+        return 1;
+    }
+    return 0;
+}
+
+/* The mode after a step of dt (SupervisedObserver._decide), the handover into dst's Kalman
+ * state at a switch to it when the homogeneous statistic allows. */
+static void decide(const double *src, double *dst, double dt)
+{
+    double mode = src[1], time = src[3];
+    const double kalman = dst[0], homogeneous = dst[2];
+    if (mode == MODE_KALMAN) {
+        if (!(SUPERVISOR_LOWER <= kalman && kalman <= SUPERVISOR_UPPER)) {
+            mode = MODE_HOMOGENEOUS;
+            time = 0.0;
+        }
+    } else if (!(SUPERVISOR_LOWER_RETURN < kalman && kalman < SUPERVISOR_UPPER_RETURN)) {
+        time = 0.0;
+    } else {
+        time += dt;
+        if (time >= SUPERVISOR_DWELL_TIME * (1.0 - FHOBS_DWELL_SLACK)) {
+            if (homogeneous < SUPERVISOR_UPPER_RETURN) {
+                memcpy(dst + KALMAN_STATE, dst + HOMOGENEOUS_STATE,
+                       sizeof(double) * FHOBS_N_MODEL);
+                dst[KALMAN_STATE + FHOBS_N_MODEL] = 0.0;
+            }
+            mode = MODE_KALMAN;
+        }
+    }
+    dst[1] = mode;
+    dst[3] = time;
+}
+
+/* The homogeneous observer's step, one Kalman cycle per sample with the statistics updated
+ * before each (the homogeneous one with its residual at the step's start), then the mode. */
+int model_step(Work *w, const double *real, const int *integer, const double *src,
+               double *dst, double dt, char *msg, size_t len)
+{
+    double n, inputs[FHOBS_K + FHOBS_M], buffers[2][FHOBS_N_MODEL];
+    if (sample_count(dt, &n, msg, len))
+        return 1;
+    read_vector(real, VR_Y, FHOBS_K, inputs);
+    read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
+    const double residual = normalised_squared(inputs, src + HOMOGENEOUS_STATE);
+    if (observer_step(w, real, integer, src + HOMOGENEOUS_STATE, dst + HOMOGENEOUS_STATE, dt,
+                      msg, len))
+        return 1;
+    double kalman = src[0], homogeneous = src[2];
+    const double *z = src + KALMAN_STATE;
+    for (int c = 0; c < (int)n; c++) {
+        double *out = c == (int)n - 1 ? dst + KALMAN_STATE : buffers[c % 2];
+        kalman = averaged(kalman, normalised_squared(inputs, z));
+        homogeneous = averaged(homogeneous, residual);
+        Call call = {&w->kalman, z, out, inputs};
+        if (fhobs_kalman_step(&call) != FHOBS_OK) {
+            snprintf(msg, len, "the Kalman step diverged (non-finite state); state left "
+                     "unchanged");
+            return 1;
+        }
+        z = out;
+    }
+    if (!(isfinite(kalman) && isfinite(homogeneous))) {
+        snprintf(msg, len, "the innovation statistics are not finite");
+        return 1;
+    }
+    dst[0] = kalman;
+    dst[2] = homogeneous;
+    dst[KALMAN_STATE + FHOBS_N_MODEL] = src[KALMAN_STATE + FHOBS_N_MODEL];
+    decide(src, dst, dt);
+    return 0;
+}
+
+/* The statistic and the mode (state outputs); x_hat and q_hat of the mode's estimator. */
+void model_outputs(Work *w, double *real, const int *integer, const double *state)
+{
+    (void)w;
+    (void)integer;
+    state_outputs(real, state);
+    const double *z = state + (state[1] == MODE_KALMAN ? KALMAN_STATE : HOMOGENEOUS_STATE);
+    memcpy(real + VR_X_HAT, z, sizeof(double) * FHOBS_N);
+#if FHOBS_N_MODEL > FHOBS_N
+    memcpy(real + VR_Q_HAT, z + FHOBS_N, sizeof(double) * (FHOBS_N_MODEL - FHOBS_N));
+#endif
+}
+#endif
 
 #elif FHOBS_KIND == FHOBS_KIND_PLANT
 /* ---------------------------------------------------------------------------------------- */
