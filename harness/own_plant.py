@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fhobs.core.gains import ObserverDesign
+from fhobs.core.gains import ObserverDesign, SupervisedGains
+from fhobs.core.supervisor import sample_count
 from fhobs.design.feedback import state_feedback
 from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 from fhobs.fmu.kinds import LABELS
@@ -59,6 +60,26 @@ FIGURES = ("x_max_transient", "x_rms_transient", "x_max_steady", "x_rms_steady",
 """The plant command's figures per estimator (:func:`plant_figures`), the table's columns."""
 
 
+def whole_samples(step: float, supervised: SupervisedGains) -> bool:
+    """Whether the communication ``step`` is a whole number of the supervised observer's
+    Kalman samples (:func:`fhobs.core.supervisor.sample_count`), as its FMU requires.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> record = NS(kalman=NS(sample_time=5e-5))
+    >>> whole_samples(1e-3, record), whole_samples(1.5e-4, record), whole_samples(1e-4, record)
+    (True, True, True)
+    >>> whole_samples(7.5e-5, record)
+    False
+    """
+    try:
+        sample_count(step, supervised.kalman.sample_time)
+    except ValueError:
+        return False
+    return True
+
+
 def q_hat_kinds(design: ObserverDesign) -> set[str]:
     """The FMU kinds whose FMU has the output ``q_hat`` (a disturbance model).
 
@@ -71,6 +92,8 @@ def q_hat_kinds(design: ObserverDesign) -> set[str]:
     kinds = {"observer", "prescribed_time"} if design.model.disturbance_order >= 1 else set()
     if design.kalman is not None and design.kalman.disturbance_order >= 1:
         kinds.add("kalman")
+    if design.supervised is not None and design.model.disturbance_order >= 1:
+        kinds.add("supervised")
     return kinds
 
 
@@ -121,7 +144,9 @@ def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.nda
         The design the FMUs were built from.
     fmus : dict
         ``{kind: path}`` from :func:`fhobs.build.build_fmus` (``plant``, ``observer``,
-        ``luenberger`` and, with a ``[noise]`` table, ``kalman``).
+        ``luenberger`` and, with a ``[noise]`` table, ``kalman`` and ``supervised``; the
+        supervised one is left out of the loop when ``step`` is not a whole number of its
+        Kalman samples).
     x0 : numpy.ndarray
         The plant's initial state.
     stop_time, step : float
@@ -166,6 +191,8 @@ def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.nda
     observers = dict(LABELS)
     if noise_amplitude > 0.0:  # its gain grows without bound towards T0: noise, amplified
         observers.pop("prescribed_time")
+    if design.supervised is not None and not whole_samples(step, design.supervised):
+        observers.pop("supervised")  # it steps whole samples of its Kalman filter only
     present = {kind: label for kind, label in observers.items() if kind in fmus}
     specs = {"plant": FmuSpec("plant", fmus["plant"], plant_start)}
     specs |= {kind: FmuSpec(kind, fmus[kind]) for kind in present}
