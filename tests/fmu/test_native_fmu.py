@@ -365,7 +365,7 @@ def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_design, tmp_pa
 def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_design, tmp_path):
     with pytest.raises(BuildError, match="no native FMU of kind sampled: native FMUs are built "
                                          "for observer, prescribed_time, luenberger, "
-                                         "kalman, plant"):
+                                         "kalman, supervised, plant"):
         build_native_fmus(tuned_design, tmp_path, kinds=["observer", "sampled"])
     assert not any(tmp_path.iterdir())
 

@@ -11,15 +11,26 @@ from fhobs.core.gains import ESTIMATORS
 from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
 from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.core.supervisor import MODE_HOMOGENEOUS, MODE_KALMAN, SupervisedObserver
+from fhobs.design.spec import NoiseSpec
+from fhobs.design.supervised import design_supervised
 from fhobs.fmu.kinds import KINDS, LABELS
 from fhobs.fmu.slave_base import output_reads
 
 from tests.designs import random_design
 
 
+def _supervised(design):
+    """A supervised record of ``design`` (a [noise] table of std 1e-3, Ts = 1e-3 s)."""
+    noise = NoiseSpec(np.full(design.plant.k, 1e-3), 1e-3, 1.0,
+                      design.model.disturbance_order)
+    return design_supervised(design, noise)
+
+
 def _models(design):
     E = design.plant.B if design.plant.E is None else design.plant.E
     return {
+        "supervised": SupervisedObserver(_supervised(design), h=1e-4),
         "observer": FilteringObserver(design.filtering, h=1e-4),
         "prescribed_time": PrescribedTimeObserver(design.prescribed_time, h=1e-4),
         "luenberger": LuenbergerObserver(design.luenberger, h=1e-4),
@@ -66,6 +77,25 @@ def test_observer_outputs_are_the_papers_quantities():
     z, psi, xi = model.z, model.get_state()[N:N + k], model.get_state()[N + k]
     sigma = math.sqrt(max(xi, float(psi @ psi) / 2))
     assert values == [*z[:n], *z[n:], *psi, xi, sigma]
+
+
+def test_supervised_outputs_are_the_statistic_the_mode_then_the_modes_estimate():
+    """statistic and mode of the state, x_hat and q_hat of the output estimator's z, also in
+    mode K (after the switch of a consistent run)."""
+    design = random_design(5, 3, 2, 1)
+    model = SupervisedObserver(_supervised(design), h=1e-4)
+    n, N = design.plant.n, design.model.n_model
+    rng = np.random.default_rng(5)
+    sizes = {"statistic": 1, "mode": 1, "x_hat": n, "q_hat": N - n}
+    modes = set()
+    for _ in range(400):
+        model.advance(rng.normal(scale=1e-3, size=design.plant.k), np.zeros(design.plant.m),
+                      1e-3)
+        values = _flat_outputs("supervised", model, sizes)
+        estimator = model.kalman if model.mode == MODE_KALMAN else model.homogeneous
+        assert values == [model.statistic, model.mode, *estimator.z]
+        modes.add(model.mode)
+    assert modes == {MODE_KALMAN, MODE_HOMOGENEOUS}
 
 
 def test_plant_outputs_are_y_then_x():

@@ -12,6 +12,7 @@ from fhobs.core.certificate import (
     certify_kalman,
     certify_luenberger,
     certify_prescribed_time,
+    certify_supervised,
 )
 from fhobs.core.gains import (
     ESTIMATORS,
@@ -28,7 +29,18 @@ ESTIMATOR_FIELDS = {
     "luenberger": {"L_lin", "certificate"},
     "kalman": {"disturbance_order", "sample_time", "measurement_std", "process_intensity",
                "gain", "covariance", "tuning", "certificate"},
+    "supervised": {"filtering", "kalman", "window", "lower", "upper", "lower_return",
+                   "upper_return", "ceiling", "dwell_time", "false_alarm", "certificate"},
 }
+
+
+@pytest.fixture(scope="module")
+def noise_design(kalman_design, pendulum_spec) -> ObserverDesign:
+    """The pendulum design with both records of its [noise] table: the Kalman filter and the
+    supervised observer (as design_for_spec attaches them)."""
+    from fhobs.design.supervised import with_supervised
+
+    return with_supervised(kalman_design, pendulum_spec.noise)
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +64,7 @@ def assert_same_record(back, original, path: str) -> None:
             assert a == b, where
 
 
-@pytest.mark.parametrize("name", ["kalman_design", "paper_design", "settled_design"])
+@pytest.mark.parametrize("name", ["noise_design", "paper_design", "settled_design"])
 def test_the_json_round_trip_is_exact(request, tmp_path, name):
     design = request.getfixturevalue(name)
     back = ObserverDesign.load_json(design.save_json(tmp_path / "design.json"))
@@ -60,26 +72,36 @@ def test_the_json_round_trip_is_exact(request, tmp_path, name):
     assert json.dumps(back.to_dict()) == json.dumps(design.to_dict())
 
 
-def test_the_records_share_the_designs_plant_and_model_after_loading(kalman_design, tmp_path):
-    back = ObserverDesign.load_json(kalman_design.save_json(tmp_path / "design.json"))
+def test_the_records_share_the_designs_plant_and_model_after_loading(noise_design, tmp_path):
+    back = ObserverDesign.load_json(noise_design.save_json(tmp_path / "design.json"))
     for name in ESTIMATORS:
         record = getattr(back, name)
         assert record.plant is back.plant
-        if name in ("filtering", "prescribed_time"):
+        if name in ("filtering", "prescribed_time", "supervised"):
             assert record.model is back.model
+    parts = back.supervised.filtering, back.supervised.kalman
+    assert all(part.plant is back.plant for part in parts) and parts[0].model is back.model
 
 
-def test_design_json_holds_the_plant_and_the_model_once(kalman_design, settled_design):
-    data = kalman_design.to_dict()
+def test_a_design_json_without_the_supervised_record_loads(noise_design):
+    """A design.json written before the supervised record existed loads, without it."""
+    data = noise_design.to_dict()
+    del data["supervised"]
+    back = ObserverDesign.from_dict(json.loads(json.dumps(data)))
+    assert back.supervised is None and back.kalman is not None
+
+
+def test_design_json_holds_the_plant_and_the_model_once(noise_design, settled_design):
+    data = noise_design.to_dict()
     assert set(data) == {"plant", "model", *ESTIMATORS, "settling_tuning", "noise_tuning"}
     assert set(data["plant"]) == {"A", "B", "C", "E"}
     assert set(data["model"]) == {"disturbance_order", "n_tilde", "nu", "G0", "L0", "G_d",
                                   "slow_projector"}
     for name, fields in ESTIMATOR_FIELDS.items():
         assert set(data[name]) == fields, name
-    assert data["plant"]["A"] == kalman_design.plant.A.tolist()
-    assert data["model"]["L0"] == kalman_design.model.L0.tolist()
-    assert data["filtering"]["L"] == kalman_design.filtering.L.tolist()
+    assert data["plant"]["A"] == noise_design.plant.A.tolist()
+    assert data["model"]["L0"] == noise_design.model.L0.tolist()
+    assert data["filtering"]["L"] == noise_design.filtering.L.tolist()
     assert data["settling_tuning"] is None
     assert settled_design.to_dict()["settling_tuning"] == settled_design.settling_tuning
     assert settled_design.settling_tuning["settling_time_requested"] == 2.0
@@ -112,16 +134,17 @@ def test_a_record_of_another_plant_is_refused(kalman_design):
         dataclasses.replace(kalman_design, filtering=filtering)
 
 
-def test_each_certificate_report_holds_its_own_records_figures(kalman_design):
+def test_each_certificate_report_holds_its_own_records_figures(noise_design):
     """Every estimator record has its certificate report, whose checks are the figures the
     record's own certificate gives, and only those: the filtering observer's have no Theorem 1
     figure and the other way round."""
     for name, certify in (("filtering", certify_filtering),
                           ("prescribed_time", certify_prescribed_time),
-                          ("luenberger", certify_luenberger), ("kalman", certify_kalman)):
-        record = getattr(kalman_design, name)
+                          ("luenberger", certify_luenberger), ("kalman", certify_kalman),
+                          ("supervised", certify_supervised)):
+        record = getattr(noise_design, name)
         assert record.certificate["checks"] == certify(record), name
-    assert "lmi_pt" not in kalman_design.filtering.certificate["checks"]
-    assert "lmi_filtering" not in kalman_design.prescribed_time.certificate["checks"]
-    assert set(kalman_design.luenberger.certificate["checks"]) == {"hurwitz_luenberger"}
-    assert set(kalman_design.kalman.certificate["checks"]) == {"schur_kalman"}
+    assert "lmi_pt" not in noise_design.filtering.certificate["checks"]
+    assert "lmi_filtering" not in noise_design.prescribed_time.certificate["checks"]
+    assert set(noise_design.luenberger.certificate["checks"]) == {"hurwitz_luenberger"}
+    assert set(noise_design.kalman.certificate["checks"]) == {"schur_kalman"}

@@ -60,7 +60,10 @@ def test_a_feedback_gain_of_another_plant_is_refused(paper_design, K, kernel):
 
 
 def test_jacobi_sequence(paper_design):
-    """simulate() is exactly: y_k, u_k = K z_k, q_k from t_k = k dt; then every block steps."""
+    """simulate() is: y_k, u_k = K z_k, q_k from t_k = k dt; then every block steps. The C loop
+    forms K z with its own sums, numpy's BLAS with others, so the two agree to round-off
+    (1e-12 of the state's size; measured 1e-15), not bit for bit; the sequence the docstring
+    names matters far more (y_k taken after the plant's step: 3e-3)."""
     g, dt, steps = paper_design, 1e-3, 30
     result = simulate(g, "perturbed_noisy", t_end=steps * dt, dt=dt, seed=3)
     q = PAPER_SCENARIOS["perturbed_noisy"]
@@ -72,8 +75,9 @@ def test_jacobi_sequence(paper_design):
         plant.step(u, [q.q_amplitude * np.sin(q.q_frequency * k * dt)], dt)
         obs.step(y, u, dt)
         lin.step(y, u, dt)
-    assert np.array_equal(result.x[-1], plant.x)
-    assert np.array_equal(result.z[-1], obs.z) and np.array_equal(result.z_lin[-1], lin.z)
+    for recorded, stepped in ((result.x[-1], plant.x), (result.z[-1], obs.z),
+                              (result.z_lin[-1], lin.z)):
+        assert np.max(np.abs(recorded - stepped)) <= 1e-12 * np.max(np.abs(stepped))
     assert np.array_equal(result.t, np.arange(steps + 1) * dt)
 
 

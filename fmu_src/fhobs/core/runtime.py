@@ -39,8 +39,13 @@ substeps of size ``<= h``, with one of two schemes:
     gain L0 makes ``expm(dt A) + Gamma_L0 C`` grow slightly (by 1e-7 to 1e-2 per step on the
     bundled plants, most on fast unstable ones), which a weak homogeneous correction does not
     compensate. The level is therefore also ceiled at ``(tau_min / dt)^(1/nu)``, tau_min the
-    start of the contractive run of the grid that holds tau_max, so that large errors meet a
-    contractive gain instead of diverging.
+    end of the run of contractive taus from tau_max towards higher levels, so that large
+    errors meet a contractive gain instead of diverging; the ceiling is never below the floor.
+    That run reads only radii that double precision can decide: at levels the observer uses
+    (at or above the floor) whose dilation is conditioned within ``SCALING_LIMIT``; beyond,
+    the radii of the smallest taus (within 1e-9 of one) are round-off and differ between BLAS
+    kernels, so the run passes them. Where the radius does not depend on the level, tau_max is
+    the largest tau of that plateau (``RADIUS_TIE``).
 
     **Round-off floor.** At a level s the gain amplifies an error of the measured output by
     about ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` into the estimate of the plant's state (the
@@ -104,9 +109,18 @@ TAU_GRID = np.geomspace(1e-7, 3.0, 76)
 ceiling)."""
 CONTRACTION_LIMIT = 1.0 - 1e-9
 """A dilated error map counts as contractive below this spectral radius."""
+RADIUS_TIE = 1e-9
+"""Spectral radii of the tau scan within this of the smallest count as the smallest: where the
+radius does not depend on the level (a mode of the plant that the injection does not move) its
+values differ by round-off only, and the scan takes the largest such tau (the least gain)."""
 AMPLIFICATION_LIMIT = 3e5
 """Largest output-to-estimate amplification ``||C|| ||d(ln s)|| / s^(1+nu)`` of a gain level
 (module docstring): y's round-off of 1e-16 then moves the estimate by about 3e-11 at most."""
+SCALING_LIMIT = 1e8
+"""Largest condition number of the dilation S at a gain level (:meth:`_Observer.error_map`) at
+which the tau scan reads the spectral radius of the dilated error map: beyond it that radius
+carries a rounding error of about ``cond(S) eps`` (1e-9 and more), as large as the distance
+of the radii of the smallest taus from one, and the scan ignores it."""
 CAP_CACHE_SIZE = 16
 """Gain caps are cached per communication step size; the cache is cleared at this many."""
 
@@ -172,6 +186,7 @@ class _Observer:
         self.tau_max: float | None = None
         self._caps: dict[float, tuple[float | None, float, float, float]] = {}
         self._roundoff_level: float | None = None
+        self._trusted_levels: tuple[float, float] | None = None
         self._stepper: compiled.Stepper | None = None
 
     # -- public interface -------------------------------------------------------------------
@@ -378,13 +393,16 @@ class _Observer:
         no ceiling), computed at the first step of that size and cached."""
         plan = self._caps.get(dt)
         if plan is None:
-            tau_min, tau_max = ((None, self.tau_max) if self.tau_max is not None
-                                else self._auto_taus(dt))
             if self._roundoff_level is None:
                 self._roundoff_level = self._amplification_level()
-            inverse_nu = 1.0 / self._nu
-            floor = max((tau_max / dt) ** inverse_nu, self._roundoff_level)
-            ceiling = math.inf if tau_min is None else (tau_min / dt) ** inverse_nu
+                self._trusted_levels = self._scaling_band()
+            if self.tau_max is not None:
+                tau_min, tau_max = None, self.tau_max
+                floor = max((tau_max / dt) ** (1.0 / self._nu), self._roundoff_level)
+            else:
+                tau_min, tau_max, floor = self._auto_taus(dt, self._roundoff_level)
+            ceiling = math.inf if tau_min is None else max((tau_min / dt) ** (1.0 / self._nu),
+                                                           floor)
             if len(self._caps) >= CAP_CACHE_SIZE:
                 self._caps.clear()
             plan = self._caps[dt] = (tau_min, tau_max, floor, ceiling)
@@ -459,21 +477,63 @@ class _Observer:
             return math.inf
         return radius if math.isfinite(radius) else math.inf
 
-    def _auto_taus(self, dt: float) -> tuple[float | None, float]:
-        """``(tau_min, tau_max)`` on ``TAU_GRID``: tau_max minimises the spectral radius of the
-        dilated error map, tau_min is the smallest tau of the contractive run that holds
-        tau_max, None when that run starts at the grid's first tau (module docstring)."""
-        nu = self._nu
-        radii = [self._dilated_radius((tau / dt) ** (1.0 / nu), dt) for tau in TAU_GRID]
-        best = int(np.argmin(radii))
-        if not radii[best] < CONTRACTION_LIMIT:
+    def _scaling_band(self) -> tuple[float, float]:
+        """The gain levels ``(low, high)`` around 1 between which the dilation S of
+        :meth:`error_map` has a condition number of at most ``SCALING_LIMIT`` (bisection in
+        ln s to 1e-3, as :meth:`_amplification_level`): the levels whose dilated radii the tau
+        scan reads (S is the identity at level 1, and its condition grows with |ln s|)."""
+        def trusted(log_s: float) -> bool:
+            with np.errstate(all="ignore"):
+                try:
+                    cond = float(np.linalg.cond(self._error_scaling(math.exp(log_s))))
+                except np.linalg.LinAlgError:
+                    return False
+            return cond <= SCALING_LIMIT
+
+        edges = []
+        for outside in (-700.0, 700.0):
+            inside = 0.0
+            if trusted(outside):
+                edges.append(math.exp(outside))
+                continue
+            while abs(outside - inside) > 1e-3:
+                mid = 0.5 * (inside + outside)
+                inside, outside = (mid, outside) if trusted(mid) else (inside, mid)
+            edges.append(math.exp(inside))
+        return edges[0], edges[1]
+
+    def _auto_taus(self, dt: float, roundoff: float) -> tuple[float | None, float, float]:
+        """``(tau_min, tau_max, floor)`` on ``TAU_GRID`` (module docstring): tau_max minimises
+        the spectral radius of the dilated error map (the largest such tau, ``RADIUS_TIE``),
+        the floor is its level or the round-off
+        floor ``roundoff``, whichever is higher; tau_min is the smallest tau of the run of
+        contractive taus from tau_max towards higher levels, None when that run reaches the
+        grid's first tau. The run reads only the radii it can trust: those of the levels that
+        the observer uses (at or above the floor) and whose dilation is conditioned within
+        ``SCALING_LIMIT`` (:meth:`_scaling_band`); it passes the others (round-off, or not
+        finite), so the ceiling is the highest level that contracts as far as double
+        precision can tell."""
+        inverse_nu = 1.0 / self._nu
+        levels = [(float(tau) / dt) ** inverse_nu for tau in TAU_GRID]
+        radii = [self._dilated_radius(level, dt) for level in levels]
+        smallest = min(radii)
+        if not smallest < CONTRACTION_LIMIT:
             raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
-                             f"(smallest spectral radius {radii[best]:.6g}); use a smaller "
+                             f"(smallest spectral radius {smallest:.6g}); use a smaller "
                              "communication step")
+        best = max(index for index, radius in enumerate(radii)
+                   if radius <= smallest + RADIUS_TIE)
+        floor = max(levels[best], roundoff)
+        low, high = self._trusted_levels
         first = best
-        while first > 0 and radii[first - 1] < CONTRACTION_LIMIT:
-            first -= 1
-        return (None if first == 0 else float(TAU_GRID[first])), float(TAU_GRID[best])
+        for index in range(best - 1, -1, -1):
+            if not (levels[index] >= floor and low <= levels[index] <= high
+                    and math.isfinite(radii[index])):
+                continue
+            if not radii[index] < CONTRACTION_LIMIT:
+                return float(TAU_GRID[first]), float(TAU_GRID[best]), floor
+            first = index
+        return None, float(TAU_GRID[best]), floor
 
 
 class FilteringObserver(_Observer):

@@ -154,7 +154,7 @@ def with_supervised(design: ObserverDesign, noise: NoiseSpec) -> ObserverDesign:
     >>> from fhobs.paper import PENDULUM_SPEC
     >>> noise = load_spec(PENDULUM_SPEC).noise
     >>> design = with_supervised(with_kalman(paper_gains(), noise), noise)
-    >>> design.supervised.kalman is design.kalman
+    >>> design.supervised.kalman.disturbance_order == design.model.disturbance_order
     True
     """
     return dataclasses.replace(design, supervised=design_supervised(design, noise))

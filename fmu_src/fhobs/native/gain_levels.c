@@ -262,29 +262,47 @@ static double dilated_map_radius(double *S, double *map, int N, double *work)
 
 /* The tau scan of _Observer._auto_taus and the floor and ceiling of _step_size_plan for the
  * step size dt: the radius of each tau of the grid at the level (tau / dt)^(1/nu); 0 with
- * *floor_level and *ceiling set, or 1 when no tau contracts (*best: the smallest radius).
- * work: n_tau doubles, then the radius function's. */
+ * *floor_level and *ceiling set, or 1 when no tau contracts (*best: the smallest radius). The
+ * floor is the level of the largest tau whose radius is within scan->tie of the smallest (or
+ * the round-off floor, the higher); the run of contractive taus from the best one towards higher levels reads only the levels at or
+ * above the floor, within the scan's trusted band, whose radius is finite, and passes the
+ * others; the ceiling is the level of its last tau, at least the floor, inf when no tau ends
+ * it. work: 2 n_tau doubles, then the radius function's. */
 static int scan_levels(const LevelScan *scan, double dt, double nu, LevelRadius radius,
                        const void *plan, double *floor_level, double *ceiling, double *best,
                        double *work)
 {
-    double *radii = work, *rest = work + scan->n_tau;
+    double *radii = work, *levels = work + scan->n_tau, *rest = levels + scan->n_tau;
     const double inverse_nu = 1.0 / nu;
     int arg = 0;
     for (int i = 0; i < scan->n_tau; i++) {
-        radii[i] = radius(plan, scan, pow(scan->tau_grid[i] / dt, inverse_nu), rest);
+        levels[i] = pow(scan->tau_grid[i] / dt, inverse_nu);
+        radii[i] = radius(plan, scan, levels[i], rest);
         if (radii[i] < radii[arg])
             arg = i;
     }
     *best = radii[arg];
     if (!(radii[arg] < scan->contraction))
         return 1;
+    for (int i = scan->n_tau - 1; i > arg; i--)
+        if (radii[i] <= *best + scan->tie) { /* the largest tau as small as the smallest */
+            arg = i;
+            break;
+        }
+    const double floor = scan->roundoff > levels[arg] ? scan->roundoff : levels[arg];
     int first = arg;
-    while (first > 0 && radii[first - 1] < scan->contraction)
-        first--;
-    double level = pow(scan->tau_grid[arg] / dt, inverse_nu);
-    *floor_level = scan->roundoff > level ? scan->roundoff : level;
-    *ceiling = first == 0 ? INFINITY : pow(scan->tau_grid[first] / dt, inverse_nu);
+    *floor_level = floor;
+    *ceiling = INFINITY;
+    for (int i = arg - 1; i >= 0; i--) {
+        if (!(levels[i] >= floor && levels[i] >= scan->trusted_low &&
+              levels[i] <= scan->trusted_high && isfinite(radii[i])))
+            continue;
+        if (!(radii[i] < scan->contraction)) {
+            *ceiling = levels[first] > floor ? levels[first] : floor;
+            break;
+        }
+        first = i;
+    }
     return 0;
 }
 

@@ -12,7 +12,7 @@
 /* Scratch doubles needed by plan_filter (model states n, outputs k, inputs m, the ZOH's
  * augmented size z, taus scanned) and, a fortiori, by zoh_rows of size z. */
 #define FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus)                                                 \
-    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + (taus) + 8)
+    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + 2 * (taus) + 8)
 
 /* The tau scan of the filtering observer (fhobs.core.runtime._Observer._auto_taus). */
 typedef struct {
@@ -21,6 +21,9 @@ typedef struct {
     const cplx *Vg_inv;  /* n x n: inverse of the eigenvectors V_g of G_d (FilterPlan.V_g) */
     double roundoff;     /* the round-off floor of the gain level (independent of dt) */
     double contraction;  /* fhobs.core.runtime.CONTRACTION_LIMIT */
+    double tie;          /* fhobs.core.runtime.RADIUS_TIE */
+    double trusted_low;  /* the levels whose dilated radius the scan reads: */
+    double trusted_high; /* _Observer._scaling_band (independent of dt) */
 } LevelScan;
 
 /* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting in numpy's order

@@ -33,7 +33,7 @@ import numpy as np
 from ..core import kernel
 from ..core.dilation import Dilation
 from ..core.linalg import PHI1_SERIES
-from ..core.runtime import CONTRACTION_LIMIT, LEVEL_MISMATCH, TAU_GRID
+from ..core.runtime import CONTRACTION_LIMIT, LEVEL_MISMATCH, RADIUS_TIE, TAU_GRID
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "planner.c"
@@ -47,7 +47,9 @@ class LevelScan(ctypes.Structure):
     """``LevelScan`` of planner.c (complex arrays as interleaved doubles)."""
 
     _fields_ = [("tau_grid", _DOUBLE_P), ("n_tau", ctypes.c_int), ("Vg_inv", _DOUBLE_P),
-                ("roundoff", ctypes.c_double), ("contraction", ctypes.c_double)]
+                ("roundoff", ctypes.c_double), ("contraction", ctypes.c_double),
+                ("tie", ctypes.c_double), ("trusted_low", ctypes.c_double),
+                ("trusted_high", ctypes.c_double)]
 
 
 def design_data(kind: str, model: Any) -> dict[str, Any]:
@@ -89,10 +91,12 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     gains = model.gains
     nu = float(gains.model.nu)
     dilation = Dilation(gains.model.G_d)
+    trusted_low, trusted_high = model._scaling_band()
     scan = {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
             "Vg_inv": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
             "roundoff": float(model._amplification_level()),
-            "contraction": CONTRACTION_LIMIT}
+            "contraction": CONTRACTION_LIMIT, "tie": RADIUS_TIE, "trusted_low": trusted_low,
+            "trusted_high": trusted_high}
     if kind == "prescribed_time":
         data = model.kernel_arrays()
         base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"], "nu": nu,
