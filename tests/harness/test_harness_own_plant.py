@@ -6,6 +6,7 @@ import json
 
 import pytest
 from fhobs.paper import EXAMPLES
+from results_csv import BUILDS_RTOL, column_differences, read_results
 
 from harness.cli import main
 
@@ -98,16 +99,17 @@ def test_a_spec_beyond_the_design_limits_is_refused_before_any_design(tmp_path, 
 @pytest.mark.slow
 def test_own_plant_with_native_fmus_gives_the_same_results(tmp_path, capsys):
     """``harness plant --native`` builds native FMUs for its step into fmus/native and runs
-    them: the same results.csv, bit for bit, as with the pythonfmu FMUs."""
+    them: the same results.csv as with the pythonfmu FMUs, every column to ``BUILDS_RTOL``
+    of its largest magnitude."""
     spec = str(EXAMPLES / "zoo" / "dc_motor.toml")
     for folder, extra in (("python", []), ("native", ["--native"])):
         assert main(["plant", spec, "--out", str(tmp_path / folder), "--stop-time", "1",
                      "--no-plots", *extra]) == 0, capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "native" / "fmus" / "native").glob("*.fmu")) == [
         "luenberger.fmu", "observer.fmu", "plant.fmu", "prescribed_time.fmu"]
-    python, native = ((tmp_path / folder / "results.csv").read_text()
-                      for folder in ("python", "native"))
-    assert python == native and "prescribed_time.x_hat[1]" in native
+    python, native = (tmp_path / folder / "results.csv" for folder in ("python", "native"))
+    assert "prescribed_time.x_hat[1]" in read_results(native)[0]
+    assert column_differences(native, python).max() <= BUILDS_RTOL
 
 
 def test_tune_noise_without_a_disturbance_table_is_one_paragraph(tmp_path, capsys):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from fhobs.core.gains import ObserverDesign
 from fhobs.paper import K_PAPER, X0_PAPER
+from results_csv import BUILDS_RTOL, column_differences
 from third_party import run_fmpy_ssp, run_libcosim
 from vendor_plant import build_vendor_plant
 
@@ -267,8 +268,8 @@ def test_native_and_python_step_loops_are_identical(fmu_dir, block_cache, monkey
 
 def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
     """``harness paper`` builds fmus/native and runs the scenarios with it: the same
-    results.csv, bit for bit, as with ``--pythonfmu`` (the pythonfmu FMUs of the same
-    design)."""
+    results.csv as with ``--pythonfmu`` (the pythonfmu FMUs of the same design), every column
+    to ``BUILDS_RTOL`` of its largest magnitude (C and numpy round differently)."""
     common = ["paper", "--design", "spec", "--stop-time", "0.05", "--no-plots"]
     assert main([*common, "--out", str(tmp_path / "python"), "--pythonfmu"]) == 0
     assert not (tmp_path / "python" / "ours" / "fmus" / "native").exists()
@@ -277,7 +278,7 @@ def test_paper_command_with_native_fmus_gives_the_same_results(tmp_path):
     for scenario in PAPER_SCENARIO_FILES.values():
         python, native = (tmp_path / run / "ours" / scenario / "results.csv"
                           for run in ("python", "native"))
-        assert python.read_text() == native.read_text(), scenario
+        assert column_differences(native, python).max() <= BUILDS_RTOL, scenario
 
 
 def test_paper_command_writes_its_table_with_a_legend(tmp_path, capsys):
