@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import select
 import shutil
 import signal
 import subprocess
@@ -28,11 +29,31 @@ pytestmark = [
 
 ROOT = Path(__file__).resolve().parents[2]
 STOP_TIME = 200.0
-"""Far longer than the time the test lets the run go on."""
-RUNNING = 1.5
-"""Seconds the run goes on after its output folder appeared (FMUs instantiated, stepping)."""
+"""Far longer than any machine takes to reach the signal (4 million steps)."""
 EVERY = 200
 """results.csv holds every 200th row (and the last): a native run makes a million rows."""
+STEPPING = "stepping"
+"""What the child prints on stdout once its first chunk of steps is recorded."""
+CHILD = f"""
+import sys
+from harness import master
+from harness.cli import main
+
+steps = master.Master._steps
+
+def announced_steps(self, *args, **kwargs):
+    steps(self, *args, **kwargs)
+    if not getattr(self, "announced", False):
+        self.announced = True
+        print({STEPPING!r}, flush=True)
+
+master.Master._steps = announced_steps
+sys.exit(main(sys.argv[1:]))
+"""
+"""``python -m harness`` that says when it is stepping: the signal then arrives during the
+run whatever the machine's load, rather than after a guessed delay."""
+MARKER_TIMEOUT = 300.0
+"""Seconds allowed for building, instantiating and the first chunk of steps."""
 
 
 @pytest.fixture(scope="module")
@@ -42,17 +63,32 @@ def fmu_dirs(tmp_path_factory) -> dict[str, Path]:
     return {"pythonfmu": out.parent, "native": out}
 
 
+def wait_for_marker(child: subprocess.Popen) -> None:
+    """Read the child's stdout until it prints ``STEPPING`` (fails if it ends or takes longer
+    than ``MARKER_TIMEOUT``)."""
+    deadline = time.monotonic() + MARKER_TIMEOUT
+    while (remaining := deadline - time.monotonic()) > 0:
+        if select.select([child.stdout], [], [], remaining)[0]:
+            line = child.stdout.readline()
+            assert line, ("the run ended before stepping", child.communicate())
+            if line.strip() == STEPPING:
+                return
+    pytest.fail(f"no step within {MARKER_TIMEOUT} s")
+
+
 def interrupted_run(fmu_dir: Path, out: Path, signum: int) -> subprocess.CompletedProcess:
     """``python -m harness run pendulum_nominal`` sent ``signum`` once it is stepping."""
-    command = [sys.executable, "-m", "harness", "run", "pendulum_nominal", "--fmu-dir",
+    command = [sys.executable, "-c", CHILD, "run", "pendulum_nominal", "--fmu-dir",
                str(fmu_dir), "--out", str(out), "--no-plots", "--stop-time", str(STOP_TIME),
                "--csv-every", str(EVERY)]
     child = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                              text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    deadline = time.monotonic() + 120
-    while not out.exists() and child.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.1)
-    time.sleep(RUNNING)
+    try:
+        wait_for_marker(child)
+    except BaseException:
+        child.kill()
+        child.communicate()
+        raise
     assert child.poll() is None, child.communicate()
     child.send_signal(signum)
     stdout, stderr = child.communicate(timeout=120)
