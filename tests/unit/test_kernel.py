@@ -77,10 +77,7 @@ ULP_FACTOR = 4
 RANDOM_CASES = [(0, 4, 2, 0), (1, 6, 3, 0), (2, 8, 2, 1), (3, 12, 4, 0), (4, 10, 3, 1),
                 (9, 20, 4, 0), (7, 6, 2, 0), (6, 16, 4, 2)]
 """(seed, n, k, disturbance order) of :func:`random_design`."""
-STEP_CASES = [(case, dt) for case in RANDOM_CASES for dt in (5e-5, 1e-3)
-              if (case[0], dt) != (2, 5e-5)]
-"""Seed 2 at dt = 5e-5 is left out: its gain ceiling lies below its floor (8e-20 < 3e-7), the
-level sits at 8e-20 and a one-ulp change of y moves even the numpy run by 12 %."""
+STEP_CASES = [(case, dt) for case in RANDOM_CASES for dt in (5e-5, 1e-3)]
 
 
 FAST_STEP_CASES = {(RANDOM_CASES[0], 5e-5), (RANDOM_CASES[4], 1e-3), (RANDOM_CASES[7], 1e-3)}
