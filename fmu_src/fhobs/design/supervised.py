@@ -31,7 +31,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..core.certificate import certify_supervised
-from ..core.gains import ObserverDesign, SupervisedGains
+from ..core.gains import KalmanGains, ObserverDesign, SupervisedGains
 from ..errors import SpecError
 from .kalman import design_kalman
 from .spec import NoiseSpec, PlantSpec
@@ -114,7 +114,7 @@ def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float
     """
     order = design.model.disturbance_order
     kalman = design.kalman
-    if kalman is None or kalman.disturbance_order != order:
+    if not _kalman_of(kalman, order, noise):
         kalman = design_kalman(
             design.plant, order, noise.measurement_std, noise.process_intensity,
             noise.sample_time, f"the [noise] table's process_intensity at the homogeneous "
@@ -133,6 +133,15 @@ def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float
                              float(window), lower, upper, lower_return, upper_return,
                              CEILING * upper, float(dwell_time), float(false_alarm))
     return dataclasses.replace(record, certificate={"checks": certify_supervised(record)})
+
+
+def _kalman_of(kalman: KalmanGains | None, order: int, noise: NoiseSpec) -> bool:
+    """Whether ``kalman`` is the Kalman filter of the homogeneous model's ``order`` for the
+    ``noise`` table (its sample time, measurement std and process intensity)."""
+    return (kalman is not None and kalman.disturbance_order == order
+            and kalman.sample_time == noise.sample_time
+            and kalman.process_intensity == noise.process_intensity
+            and np.array_equal(kalman.measurement_std, noise.measurement_std))
 
 
 def with_supervised(design: ObserverDesign, noise: NoiseSpec) -> ObserverDesign:

@@ -159,8 +159,6 @@ struct Work {
     double last_tau[FHOBS_PLAN_SLOTS];
     double split_work[FHOBS_FILTER_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* the split plans' scratch */
     cplx split_cwork[FHOBS_FILTER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
-#else
-    double split_work[FHOBS_LUENBERGER_WORK(FHOBS_N_MODEL, FHOBS_K)];
 #endif
     double scratch[FHOBS_PLAN_WORK];
 #if FHOBS_HAS_EULER
@@ -216,7 +214,6 @@ static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
     (void)msg;
     (void)len;
     *plan = LINEAR_BASE;
-    plan->work = w->split_work;
     zoh_rows(ZOH_TOP, FHOBS_N_MODEL, FHOBS_ZOH_SIZE, dt, w->M[i], w->scratch);
     plan->M = w->M[i];
 #endif
@@ -418,12 +415,15 @@ static void decide(const double *src, double *dst, double dt)
             mode = MODE_HOMOGENEOUS;
             time = 0.0;
         }
-    } else if (!(SUPERVISOR_LOWER_RETURN < kalman && kalman < SUPERVISOR_UPPER_RETURN)) {
+    } else if (!(SUPERVISOR_LOWER_RETURN < kalman && kalman < SUPERVISOR_UPPER_RETURN)
+               && !(SUPERVISOR_LOWER_RETURN < homogeneous
+                    && homogeneous < SUPERVISOR_UPPER_RETURN)) {
         time = 0.0;
     } else {
         time += dt;
         if (time >= SUPERVISOR_DWELL_TIME * (1.0 - FHOBS_DWELL_SLACK)) {
-            if (homogeneous < SUPERVISOR_UPPER_RETURN) {
+            if (homogeneous < SUPERVISOR_UPPER_RETURN
+                && !(SUPERVISOR_LOWER_RETURN < kalman && kalman < SUPERVISOR_UPPER_RETURN)) {
                 memcpy(dst + KALMAN_STATE, dst + HOMOGENEOUS_STATE,
                        sizeof(double) * FHOBS_N_MODEL);
                 dst[KALMAN_STATE + FHOBS_N_MODEL] = 0.0;
