@@ -1,7 +1,7 @@
 """build_fmu.py and harness plant say, in one line, when the homogeneous design of a spec with a
 [noise] table is predicted to do more than 2x worse than its Kalman filter, with the figures
 (checked on a loop computed apart from the product's prediction, tests/noise_replay.py) and
-kalman.fmu recommended; the pendulum example gets no such line; --tune-noise on a plant where
+supervised.fmu recommended; the pendulum example gets no such line; --tune-noise on a plant where
 no candidate converges under noise refuses in one line, exit 2."""
 
 import re
@@ -16,11 +16,14 @@ from noise_replay import replay_error, window_rms
 from harness.cli import design_spec_file
 
 # a motor whose current has a pole near -1000 1/s, the angle (three integrations from the
-# input) measured with noise of std 1e-3
+# input) measured with noise of std 1e-3, every mode homogenised (fast_mode_rate = inf, the
+# paper's design: the default keeps the pole by the model and is not poor)
 STIFF_SPEC = """A = [[0, 1, 0], [0, -1, 10], [0, -10, -1000]]
 B = [[0], [0], [1000]]
 C = [[1, 0, 0]]
 E = [[0], [1], [0]]
+[observer]
+fast_mode_rate = inf
 [noise]
 measurement_std = [1e-3]
 sample_time = 1e-3
@@ -34,12 +37,20 @@ def poor_lines(out: str) -> list[str]:
     return [line for line in out.splitlines() if line.startswith("warning: poor design")]
 
 
+def test_the_same_plant_with_its_fast_pole_kept_is_not_poor(tmp_path, capsys):
+    """The default design keeps the -1000 1/s pole by the model: no poor-design line."""
+    spec = tmp_path / "stiff.toml"
+    spec.write_text(STIFF_SPEC.replace("fast_mode_rate = inf\n", ""))
+    assert design_main([str(spec), "--out", str(tmp_path / "out"), "--design-only"]) == 0
+    assert poor_lines(capsys.readouterr().out) == []
+
+
 def test_a_stiff_plant_measured_three_integrations_away_is_called_poor(tmp_path, capsys):
     spec = tmp_path / "stiff.toml"
     spec.write_text(STIFF_SPEC)
     assert design_main([str(spec), "--out", str(tmp_path / "out"), "--design-only"]) == 0
     (line,) = poor_lines(capsys.readouterr().out)
-    assert "kalman.fmu" in line and "over [2, 6] s" in line
+    assert "supervised.fmu" in line and "over [2, 6] s" in line
     ours, _, kalman, _ = (float(v) for v in FIGURES.search(line).groups())
     design = ObserverDesign.load_json(tmp_path / "out" / "design.json")
     measured = {}

@@ -507,7 +507,10 @@ def poor_design_lines(spec: PlantSpec, design: ObserverDesign, seed: int = 0) ->
         ours = made[0] if isinstance(made[0], str) else (made[0].noisy_rms, made[0].peaking)
         kalman = (made[1].noisy_rms, made[1].peaking)
     where = f"the [noise] table's noise over [{window[0]:g}, {window[1]:g}] s"
-    advice = "the Kalman filter (kalman.fmu) is the estimator for this spec's measurements"
+    advice = ("the supervised estimator (supervised.fmu: the Kalman filter in noise, the "
+              "homogeneous observer in transients) is the estimator for this spec's measurements"
+              if design.supervised is not None else
+              "the Kalman filter (kalman.fmu) is the estimator for this spec's measurements")
     if isinstance(ours, str):
         return [f"warning: the homogeneous observer fails under {where} ({ours}); {advice}"]
     ratios = [a / b for a, b in zip(ours, kalman, strict=True)]
