@@ -188,7 +188,6 @@ def test_scratch_sizes_of_kernel_h_are_kernel_py(n, k):
     def size(name: str) -> int:
         return eval(macros[name], {}, {"n": n, "k": k})  # noqa: S307 (arithmetic of n, k)
 
-    assert size("FHOBS_LUENBERGER_WORK") == kernel.luenberger_work_size(n, k)
     assert size("FHOBS_KALMAN_WORK") == kernel.kalman_work_size(n, k)
     assert (size("FHOBS_FILTER_WORK"), size("FHOBS_FILTER_CWORK")) \
         == kernel.filter_work_size(n, k)

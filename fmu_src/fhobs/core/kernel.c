@@ -41,19 +41,13 @@ int fhobs_plant_step(const Call *call)
     return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
 }
 
-/* Luenberger split step: v = C z - y, z+ = M (z, u, v); inputs = (y, u). */
+/* Luenberger split step, the exact hold of the closed loop: z+ = M (z, y, u); inputs = (y, u). */
 int fhobs_luenberger_step(const Call *call)
 {
     const LinearPlan *p = call->plan;
-    const double *src = call->src, *inputs = call->inputs;
-    double *dst = call->dst;
-    double *v = p->work; /* k */
-    const double *y = inputs, *u = inputs + p->k;
-    matvec(p->C, src, p->k, p->n, v);
-    for (int i = 0; i < p->k; i++)
-        v[i] -= y[i];
-    matvec3(p->M, p->n, src, p->n, u, p->m, v, p->k, dst);
-    return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
+    const double *inputs = call->inputs;
+    matvec3(p->M, p->n, call->src, p->n, inputs, p->k, inputs + p->k, p->m, call->dst);
+    return all_finite(call->dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
 }
 
 /* Kalman filter: `cycles` times z <- M (z, y, u); inputs = (y, u). */

@@ -68,10 +68,9 @@ typedef struct {
 
 typedef struct {
     int n, k, m;     /* states, outputs y, inputs u */
-    int cycles;      /* Kalman: filter cycles per communication step */
-    const double *C; /* Luenberger: k x n */
-    const double *M; /* n x (n + m + k) (Luenberger) or n x (n + k + m) (Kalman) */
-    double *work;    /* scratch: FHOBS_LUENBERGER_WORK (Luenberger), FHOBS_KALMAN_WORK (Kalman) */
+    int cycles;      /* Kalman: filter cycles per communication step; Luenberger: 1 */
+    const double *M; /* n x (n + k + m): z+ = M (z, y, u) */
+    double *work;    /* scratch: FHOBS_KALMAN_WORK (Kalman; NULL for the Luenberger step) */
 } LinearPlan;
 
 typedef struct {
@@ -111,7 +110,6 @@ typedef struct {
 
 /* Scratch entries (doubles; CWORK: complex numbers) a plan's work pointers must hold, for a
  * model of n states, k outputs (fhobs.core.kernel's *_work functions). */
-#define FHOBS_LUENBERGER_WORK(n, k) (k)
 #define FHOBS_KALMAN_WORK(n, k) (2 * (n))
 #define FHOBS_FILTER_WORK(n, k) (2 * (n) + 2 * (k) + 1)
 #define FHOBS_FILTER_CWORK(n, k) ((n) + 6 * (k))

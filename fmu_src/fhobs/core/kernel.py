@@ -79,8 +79,7 @@ class LinearPlan(ctypes.Structure):
     """``LinearPlan`` of kernel.c."""
 
     _fields_ = [("n", ctypes.c_int), ("k", ctypes.c_int), ("m", ctypes.c_int),
-                ("cycles", ctypes.c_int), ("C", _DOUBLE_P), ("M", _DOUBLE_P),
-                ("work", _DOUBLE_P)]
+                ("cycles", ctypes.c_int), ("M", _DOUBLE_P), ("work", _DOUBLE_P)]
 
 
 class FilterPlan(ctypes.Structure):
@@ -108,12 +107,6 @@ class EulerPlan(ctypes.Structure):
                 ("A", _DOUBLE_P), ("B", _DOUBLE_P), ("C", _DOUBLE_P), ("L_inj", _DOUBLE_P),
                 ("L_tilde", _DOUBLE_P), ("V_d", _DOUBLE_P), ("inverse_L", _DOUBLE_P),
                 ("g", _DOUBLE_P), ("work", _DOUBLE_P), ("cwork", _DOUBLE_P)]
-
-
-def luenberger_work_size(n: int, k: int) -> int:
-    """Scratch doubles of the Luenberger split step's ``LinearPlan`` (``FHOBS_LUENBERGER_WORK``
-    of kernel.h; n model states, k outputs)."""
-    return k
 
 
 def kalman_work_size(n: int, k: int) -> int:

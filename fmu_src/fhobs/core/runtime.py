@@ -896,10 +896,16 @@ class PrescribedTimeObserver(_Observer):
 class LuenbergerObserver(_Observer):
     """Luenberger baseline ``dz/dt = A z + B u + L_lin (C z - y)``.
 
-    The split scheme is the exact ZOH of the model with the innovation held, i.e. the error
-    obeys ``e_{k+1} = (expm(h A) + Gamma_Llin C) e_k`` exactly; ``euler`` is explicit Euler.
-    The parameters are those of :class:`FilteringObserver`, the record a
-    :class:`~fhobs.core.gains.LuenbergerGains` (the gain is its ``L_lin``).
+    The split scheme is the exact zero-order hold of the closed loop with y and u held over
+    the step: ``z+ = expm(dt A_cl) z + Gamma_y y + Gamma_u u`` with ``A_cl = A + L_lin C``
+    (``Gamma_y`` the hold of ``-L_lin``, ``Gamma_u`` of B; :meth:`closed_loop_map`): the
+    observer's equation solved exactly over the step, so the error's own part decays by
+    ``expm(dt A_cl)`` per step, stable at every step size when A_cl is Hurwitz (what the
+    record's certificate checks); the plant's motion within a step, which the held y does not
+    show, adds an error of order dt times the output's rate. ``euler`` is explicit Euler,
+    which needs h small against the closed loop's fastest mode. The parameters are those of
+    :class:`FilteringObserver`, the record a :class:`~fhobs.core.gains.LuenbergerGains` (the
+    gain is its ``L_lin``).
 
     Examples
     --------
@@ -917,15 +923,51 @@ class LuenbergerObserver(_Observer):
                  kernel: bool = True) -> None:
         super().__init__(luenberger, h, scheme, z0, luenberger.L_lin, luenberger.model_matrices)
         self._aux = np.zeros(0)
+        self._A_cl = self._A + self._L_inj @ self._C
+        self._maps: dict[float, np.ndarray] = {}
         if kernel:
             self._use_kernel("fhobs_luenberger_step")
 
+    @property
+    def zoh_top(self) -> np.ndarray:
+        """The first rows ``[A_cl, -L_lin, B]`` of the augmented matrix whose exponential
+        gives :meth:`closed_loop_map` (what the native planner exponentiates)."""
+        return np.hstack((self._A_cl, -self._L_inj, self._B))
+
+    def closed_loop_map(self, dt: float) -> np.ndarray:
+        """``M = [expm(dt A_cl), Gamma_y, Gamma_u]``, the split step ``z+ = M (z, y, u)`` of
+        the communication step dt: the first rows of ``expm(dt [[A_cl, -L_lin, B], [0, 0,
+        0]])`` (:func:`fhobs.core.linalg.zoh_blocks`), cached per step size.
+
+        Examples
+        --------
+        A scalar plant ``dx/dt = -x + u``, ``y = x``, gain ``L_lin = -1``: ``A_cl = -2``, and
+        with y = u = 1 held the estimate tends to the equilibrium ``(y + u) / 2 = 1``.
+
+        >>> from fhobs.core.gains import LuenbergerGains, PlantModel
+        >>> one = np.ones((1, 1))
+        >>> plant = PlantModel(A=-one, B=one, C=one)
+        >>> obs = LuenbergerObserver(LuenbergerGains(plant=plant, L_lin=-one))
+        >>> M = obs.closed_loop_map(0.5)
+        >>> bool(np.allclose(M, [[np.exp(-1.0), (1 - np.exp(-1.0)) / 2,
+        ...                       (1 - np.exp(-1.0)) / 2]]))
+        True
+        """
+        M = self._maps.get(dt)
+        if M is None:
+            if len(self._maps) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
+                self._maps.clear()
+            M = self._maps[dt] = np.hstack(zoh_blocks(self._A_cl, [-self._L_inj, self._B], dt))
+        return M
+
+    def _run_split(self, z: np.ndarray, aux: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
+                   level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The exact hold of the closed loop over dt (no gain level): ``z+ = M (z, y, u)``."""
+        return self.closed_loop_map(dt).dot(np.concatenate((z, y, u))), aux
+
     def _kernel_plan(self, dt: float) -> None:
-        """The kernel's plan for dt: ``z+ = M (z, u, C z - y)``."""
-        C = np.ascontiguousarray(self._C, dtype=float)
-        M = np.ascontiguousarray(self._prediction(dt).M)
-        work = np.zeros(compiled.luenberger_work_size(self._z.size, self._k))
+        """The kernel's plan for dt: ``z+ = M (z, y, u)``."""
+        M = self.closed_loop_map(dt)
         plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
-                                   C=compiled.pointer(C), M=compiled.pointer(M),
-                                   work=compiled.pointer(work))
-        self._stepper.add_plan(dt, plan, C, M, work)
+                                   M=compiled.pointer(M))
+        self._stepper.add_plan(dt, plan, M)

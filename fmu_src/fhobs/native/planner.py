@@ -68,10 +68,11 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``top``: the first rows ``[A, B, L_inj]`` (plant: ``[A, B, E]``) of the ZOH's
-        augmented matrix; observer and prescribed_time: ``base`` (the plan's fields that do
-        not depend on the step size, as the model's ``_kernel_plan`` sets them) and ``scan``
-        (the :class:`LevelScan` fields); Luenberger: ``base`` (``LinearPlan`` fields).
+        ``top``: the first rows ``[A, B, L_inj]`` (plant: ``[A, B, E]``; Luenberger: its
+        closed loop's ``[A + L_lin C, -L_lin, B]``) of the ZOH's augmented matrix; observer
+        and prescribed_time: ``base`` (the plan's fields that do not depend on the step size,
+        as the model's ``_kernel_plan`` sets them) and ``scan`` (the :class:`LevelScan`
+        fields); Luenberger: ``base`` (``LinearPlan`` fields).
 
     Examples
     --------
@@ -83,11 +84,11 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     """
     if kind == "plant":
         return {"top": np.hstack((model.A, model.B, model.E))}
-    top = np.hstack((model._A, model._B, model._L_inj))
-    C = np.ascontiguousarray(model._C, dtype=float)
     n, k, m = model._z.size, model._k, model._m
     if kind == "luenberger":
-        return {"top": top, "base": {"n": n, "k": k, "m": m, "cycles": 1, "C": C}}
+        return {"top": model.zoh_top, "base": {"n": n, "k": k, "m": m, "cycles": 1}}
+    top = np.hstack((model._A, model._B, model._L_inj))
+    C = np.ascontiguousarray(model._C, dtype=float)
     gains = model.gains
     nu = float(gains.model.nu)
     dilation = Dilation(gains.model.G_d)
