@@ -57,7 +57,14 @@ from harness.own_plant import (
     run_own_plant,
     transient_end,
 )
-from harness.results import summary, write_csv, write_summary
+from harness.results import (
+    DIVERGED,
+    divergence_note,
+    summary,
+    table_label,
+    write_csv,
+    write_summary,
+)
 from harness.system import (
     DescriptionError,
     SystemSpec,
@@ -224,7 +231,8 @@ def run_seeds(
 def mean_summary(each: list[dict[str, Any]], spec: SystemSpec, seeds: list[int] | None,
                  stop_time: float, **run: Any) -> dict[str, Any]:
     """summary.json of one or several seeded runs, each run's figures as
-    :func:`harness.results.summary` gives them: the figures averaged over the seeds."""
+    :func:`harness.results.summary` gives them: the figures averaged over the seeds, an
+    estimator flagged ``diverged`` if it diverged with any seed."""
     out = {
         **run,
         "scenario": spec.name,
@@ -234,7 +242,10 @@ def mean_summary(each: list[dict[str, Any]], spec: SystemSpec, seeds: list[int] 
         "wall_time_s": float(np.mean([s["wall_time_s"] for s in each])),
     }
     for name in spec.evaluation.errors:
-        out[name] = {k: float(np.mean([s[name][k] for s in each])) for k in each[0][name]}
+        out[name] = {k: float(np.mean([s[name][k] for s in each])) for k in each[0][name]
+                     if k != DIVERGED}
+        if any(s[name].get(DIVERGED) for s in each):
+            out[name][DIVERGED] = True
     if seeds is not None:
         out["seeds"] = seeds
         out["per_seed"] = [{name: s[name] for name in spec.evaluation.errors} for s in each]
@@ -706,21 +717,25 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def format_table(summaries: dict[str, dict[str, Any]]) -> str:
-    """Plain-text table: one row per (scenario, error signal), one column per figure."""
+    """Plain-text table: one row per (scenario, error signal), one column per figure; a
+    diverged estimator's row marked and named in a note under the table."""
     rows = []
     for scenario, data in summaries.items():
         for name, figures in data.items():
             if isinstance(figures, dict):
                 rows.append((scenario, name, figures, data["steps"], data["wall_time_s"]))
-    keys = list(dict.fromkeys(k for r in rows for k in r[2]))
+    keys = list(dict.fromkeys(k for r in rows for k in r[2] if k != DIVERGED))
     head = ["scenario", "observer", *keys, "steps", "wall_s"]
     lines = [head] + [
-        [s, n, *(f"{f[k]:.3e}" if k in f else "-" for k in keys), str(st), f"{w:.2f}"]
+        [s, table_label(n, f), *(f"{f[k]:.3e}" if k in f else "-" for k in keys), str(st),
+         f"{w:.2f}"]
         for s, n, f, st, w in rows
     ]
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    note = divergence_note([f"{s} {n}" for s, n, f, _, _ in rows if f.get(DIVERGED)])
     return "\n".join(
-        "  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines
+        ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines]
+        + ([note] if note else [])
     )
 
 

@@ -39,7 +39,17 @@ from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 from fhobs.fmu.kinds import LABELS
 
 from harness.master import CoSimResult, MasterError, run_system
-from harness.results import error_figures, window_mask, write_csv, write_summary
+from harness.results import (
+    DIVERGED,
+    divergence,
+    divergence_note,
+    error_figures,
+    flagged,
+    table_label,
+    window_mask,
+    write_csv,
+    write_summary,
+)
 from harness.system import (
     ConnectionSpec,
     Evaluation,
@@ -359,7 +369,8 @@ def _summary(result: CoSimResult, system: SystemSpec, settled: float, channels: 
              head: dict[str, Any]) -> dict[str, Any]:
     data = {**head, "stop_time": float(result.time[-1]), "steps": result.steps,
             "wall_time_s": result.wall_time_s}
-    generic = error_figures(result, system.evaluation)
+    generic = flagged(error_figures(result, system.evaluation),
+                      divergence(result, system.evaluation))
     for label, figures in plant_figures(result, system, settled, channels).items():
         data[label] = generic[label] | figures
     return data
@@ -371,36 +382,43 @@ def _plots(result: CoSimResult, system: SystemSpec, settled: float, channels: in
 
     q, q_hats = q_signals(result, system, channels)
     errors = system.evaluation.errors
-    paths = [plot_plant_errors(result, errors, q, q_hats, settled, out / "errors.png"),
+    diverged = {label for label, flag in divergence(result, system.evaluation).items() if flag}
+    paths = [plot_plant_errors(result, errors, q, q_hats, settled, out / "errors.png",
+                               diverged),
              plot_state_estimates(result, "plant.x",
                                   {label: est for label, (_, est) in errors.items()},
-                                  out / "states.png", system.name)]
+                                  out / "states.png", system.name, diverged)]
     if channels and (q_hats or DISTURBANCE_BLOCK in system.fmus):
         paths.append(plot_disturbance(result.time, q, q_hats, settled,
-                                      out / "disturbance.png"))
+                                      out / "disturbance.png", diverged))
     return paths
 
 
 def plant_table(data: dict[str, Any]) -> str:
     """The plant command's table: one row per estimator, the columns :data:`FIGURES` ("-" where
-    an estimator has no such figure: no q_hat, or no steady window).
+    an estimator has no such figure: no q_hat, or no steady window); a diverged estimator's
+    row marked and named in a note under the table.
 
     Examples
     --------
     >>> print(plant_table({"steps": 3, "homogeneous": {"x_max_steady": 1e-9},
-    ...                    "linear": {"x_max_steady": 2e-3}}))  # doctest: +NORMALIZE_WHITESPACE
-    estimator    x_max_transient  x_rms_transient  x_max_steady  x_rms_steady  q_max_transient
-      q_rms_transient  q_max_steady  q_rms_steady
-    homogeneous  -                -                1.000e-09     -             -
+    ...                    "linear": {"x_max_steady": 2e40, "diverged": True}}))
+    ... # doctest: +NORMALIZE_WHITESPACE
+    estimator          x_max_transient  x_rms_transient  x_max_steady  x_rms_steady
+      q_max_transient  q_rms_transient  q_max_steady  q_rms_steady
+    homogeneous        -                -                1.000e-09     -             -
       -                -             -
-    linear       -                -                2.000e-03     -             -
+    linear (diverged)  -                -                2.000e+40     -             -
       -                -             -
+    note: linear diverged: its error grew beyond 1e+06 times its initial error
     """
     labels = [label for label, figures in data.items() if isinstance(figures, dict)
               and label in LABELS.values()]
     lines = [["estimator", *FIGURES]] + [
-        [label, *(f"{data[label][k]:.3e}" if k in data[label] else "-" for k in FIGURES)]
+        [table_label(label, data[label]),
+         *(f"{data[label][k]:.3e}" if k in data[label] else "-" for k in FIGURES)]
         for label in labels]
     widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
-    return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
-                     for line in lines)
+    note = divergence_note([label for label in labels if data[label].get(DIVERGED)])
+    return "\n".join(["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
+                      for line in lines] + ([note] if note else []))

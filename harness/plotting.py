@@ -10,18 +10,79 @@
 - The plant command (:mod:`harness.own_plant`) draws its own ``errors.png``
   (:func:`plot_plant_errors`: ``||x - x_hat||`` and ``||q - q_hat||``, the transient shaded) and
   ``disturbance.png`` (:func:`plot_disturbance`: each q channel and its estimates).
+
+A diverged estimator (:func:`harness.results.diverged`) does not set the range of these plots:
+each axis spans the other curves (:func:`kept_range`) and the diverged one is drawn only while
+it lies in that range (:func:`in_view`), its label saying so.
 """
 
 from __future__ import annotations
 
+from collections.abc import Set as AbstractSet
 from pathlib import Path
 
 import numpy as np
 
 from harness.figures import decade_grid, envelope, fixed_margins, new_figure
 from harness.master import CoSimResult
-from harness.results import error_norm
+from harness.results import divergence, error_norm
 from harness.system import SystemSpec
+
+DIVERGED_LABEL = " (diverged, cut off)"
+"""Appended to the label of a diverged estimator's curve."""
+
+
+def kept_range(curves: list[np.ndarray], log: bool = False) -> tuple[float, float] | None:
+    """The y range of the curves kept in view (not diverged), with a margin: a decade each way
+    on a log axis, 5 % of the span on a linear one; None without a finite (on a log axis:
+    positive) value.
+
+    Examples
+    --------
+    >>> kept_range([np.array([0.0, 1.0]), np.array([-1.0, np.inf])])
+    (-1.1, 1.1)
+    >>> kept_range([np.array([1e-3, 1e2])], log=True)
+    (0.0001, 1000.0)
+    """
+    values = np.concatenate([np.ravel(curve) for curve in curves]) if curves else np.empty(0)
+    values = values[np.isfinite(values) & ((values > 0.0) if log else True)]
+    if values.size == 0:
+        return None
+    lo, hi = float(values.min()), float(values.max())
+    if log:
+        return lo / 10.0, hi * 10.0
+    margin = 0.05 * (hi - lo) or 0.05 * max(abs(hi), 1.0)
+    return lo - margin, hi + margin
+
+
+def in_view(ax, curves: dict[str, np.ndarray], diverged: AbstractSet[str],  # noqa: ANN001
+            log: bool = False) -> dict[str, np.ndarray]:
+    """``curves`` (``{label: values}``) as an axis draws them: with a diverged one among them
+    and others to range over, the axis's y range set to the others' (:func:`kept_range`) and
+    the diverged ones drawn only where they lie in it (NaN elsewhere: a growing oscillation
+    does not fill the panel), their labels ending in ``DIVERGED_LABEL``; unchanged otherwise.
+
+    Examples
+    --------
+    >>> from harness.figures import new_figure
+    >>> ax = new_figure(1, 1, (2, 2))[1][0, 0]
+    >>> out = in_view(ax, {"a": np.array([0.0, 1.0]), "b": np.array([0.5, 1e30])}, {"b"})
+    >>> out["b (diverged, cut off)"].tolist()
+    [0.5, nan]
+    >>> [round(float(y), 12) for y in ax.get_ylim()]
+    [-0.05, 1.05]
+    """
+    if not diverged & set(curves):
+        return curves
+    limits = kept_range([values for label, values in curves.items() if label not in diverged],
+                        log)
+    if limits is None:
+        return curves
+    ax.set_ylim(*limits)
+    lo, hi = limits
+    return {label + DIVERGED_LABEL if label in diverged else label:
+            np.where((values >= lo) & (values <= hi), values, np.nan) if label in diverged
+            else values for label, values in curves.items()}
 
 
 def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
@@ -30,12 +91,13 @@ def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
     the system's name) heads each plot, so that plots of different designs or seeds differ."""
     title = spec.name if title is None else title
     errors = spec.evaluation.errors
-    paths = [plot_error_norms(result, spec, out / "errors.png", title)] if errors else []
+    diverged = {name for name, flag in divergence(result, spec.evaluation).items() if flag}
+    paths = [plot_error_norms(result, spec, out / "errors.png", title, diverged)] if errors else []
     references = {reference for reference, _ in errors.values()}
     if len(references) == 1:
         estimates = {name: estimate for name, (_, estimate) in errors.items()}
         paths.append(plot_state_estimates(result, references.pop(), estimates,
-                                          out / "states.png", title))
+                                          out / "states.png", title, diverged))
     if spec.figure is not None:
         paths.append(plot_paper_figure(result, spec, out / "figure.png", title))
     return paths
@@ -55,16 +117,20 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: 
                        subtitle=title)
 
 
-def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str) -> Path:
+def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str,
+                     diverged: AbstractSet[str] = frozenset()) -> Path:
     """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
-    shaded."""
+    shaded; the ``diverged`` ones drawn while in range (:func:`in_view`)."""
     fig, axes = new_figure(1, 1, (7, 4))
     ax = axes[0, 0]
     fixed_margins(fig)
-    for name, (reference, estimate) in spec.evaluation.errors.items():
-        e = error_norm(result, reference, estimate)
-        ax.semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
-                    label=f"{name}: ||{reference} - {estimate}||")
+    curves = {f"{name}: ||{reference} - {estimate}||":
+              np.maximum(error_norm(result, reference, estimate), 1e-16)
+              for name, (reference, estimate) in spec.evaluation.errors.items()}
+    shown = {label for label, name in zip(curves, spec.evaluation.errors, strict=True)
+             if name in diverged}
+    for label, e in in_view(ax, curves, shown, log=True).items():
+        ax.semilogy(*envelope(result.time, e), label=label)
     for i, (a, b) in enumerate(spec.evaluation.windows):
         ax.axvspan(a, b, color="0.9", zorder=0, label="evaluation window" if i == 0 else None)
     ax.set_xlim(result.time[0], result.time[-1])
@@ -78,19 +144,34 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
 
 
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
-                         path: Path, title: str) -> Path:
+                         path: Path, title: str, diverged: AbstractSet[str] = frozenset()) -> Path:
     """``states.png``: one panel per component of ``state`` (named by its variable,
     ``plant.x[1]``...) with the same component of every estimate (``{label: signal}``) over
-    time."""
+    time; the ``diverged`` estimates drawn while in the range of the others (:func:`in_view`).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> t = np.linspace(0.0, 1.0, 11)
+    >>> result = CoSimResult(t, ("p.x[1]", "a.x_hat[1]", "b.x_hat[1]"),
+    ...                      np.column_stack([np.ones(11), 1 - np.exp(-5 * t), 1e9 ** t]), 10, 0.0)
+    >>> path = Path(tempfile.mkdtemp()) / "states.png"
+    >>> plot_state_estimates(result, "p.x", {"a": "a.x_hat", "b": "b.x_hat"}, path, "t",
+    ...                      {"b"}).stat().st_size > 1000
+    True
+    """
     x = result.vector(state)
     n = x.shape[1]
     columns = {label: result.vector(signal) for label, signal in estimates.items()}
     fig, axes = new_figure(n, 1, (7, 1.6 * n + 0.6), sharex=True)
     fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
-        ax.plot(*envelope(result.time, x[:, i]), color="k", lw=2, label=state)
-        for label, estimate in columns.items():
-            ax.plot(*envelope(result.time, estimate[:, i]), lw=1, label=label)
+        drawn = in_view(ax, {state: x[:, i]} | {label: estimate[:, i]
+                                                 for label, estimate in columns.items()},
+                        diverged)
+        ax.plot(*envelope(result.time, drawn.pop(state)), color="k", lw=2, label=state)
+        for label, estimate in drawn.items():
+            ax.plot(*envelope(result.time, estimate), lw=1, label=label)
         ax.set_ylabel(f"{state}[{i + 1}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
@@ -101,10 +182,11 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
 
 
 def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
-                      q_hats: dict[str, np.ndarray], settled: float, path: Path) -> Path:
+                      q_hats: dict[str, np.ndarray], settled: float, path: Path,
+                      diverged: AbstractSet[str] = frozenset()) -> Path:
     """``errors.png`` of the plant command: ``||x - x_hat||`` per estimator (top) and, when an
     estimator has a disturbance model, ``||q - q_hat||`` (bottom), log scale; the transient
-    ``[t0, settled]`` shaded.
+    ``[t0, settled]`` shaded; the ``diverged`` estimators drawn while in range (:func:`in_view`).
 
     Parameters
     ----------
@@ -120,6 +202,8 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
         End of the transient window.
     path : Path
         The PNG to write.
+    diverged : set of str
+        The labels of the estimators that diverged.
 
     Returns
     -------
@@ -142,14 +226,15 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     fig, axes = new_figure(rows, 1, (7, 2.6 * rows + 0.8), sharex=True)
     fixed_margins(fig)
     colours = {label: f"C{i}" for i, label in enumerate(errors)}
-    for label, (reference, estimate) in errors.items():
-        e = error_norm(result, reference, estimate)
-        axes[0, 0].semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
-                            color=colours[label], label=f"{label}: ||x - x_hat||")
-    for label, q_hat in q_hats.items():
-        e = np.linalg.norm(q - q_hat, axis=1)
-        axes[1, 0].semilogy(*envelope(result.time, np.maximum(e, 1e-16)),
-                            color=colours.get(label), label=f"{label}: ||q - q_hat||")
+    panels = [{label: np.maximum(error_norm(result, reference, estimate), 1e-16)
+               for label, (reference, estimate) in errors.items()},
+              {label: np.maximum(np.linalg.norm(q - q_hat, axis=1), 1e-16)
+               for label, q_hat in q_hats.items()}]
+    for ax, curves, what in zip(axes[:, 0], panels, ("x", "q"), strict=False):
+        for label, e in in_view(ax, curves, diverged, log=True).items():
+            name = label.removesuffix(DIVERGED_LABEL)
+            ax.semilogy(*envelope(result.time, e), color=colours.get(name),
+                        label=f"{name}: ||{what} - {what}_hat||{label[len(name):]}")
     for ax, what in zip(axes[:, 0], ("state error", "q error"), strict=False):
         ax.axvspan(result.time[0], settled, color="0.92", zorder=0)
         ax.set_ylabel(what)
@@ -163,9 +248,10 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
 
 
 def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
-                     settled: float, path: Path) -> Path:
+                     settled: float, path: Path, diverged: AbstractSet[str] = frozenset()) -> Path:
     """``disturbance.png``: one panel per q channel with q (the plant's input) and every
-    estimator's ``q_hat`` of it; the transient shaded.
+    estimator's ``q_hat`` of it; the transient shaded; the ``diverged`` estimators drawn while
+    in range (:func:`in_view`).
 
     Parameters
     ----------
@@ -179,6 +265,8 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
         End of the transient window.
     path : Path
         The PNG to write.
+    diverged : set of str
+        The labels of the estimators that diverged.
 
     Returns
     -------
@@ -197,9 +285,12 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     fig, axes = new_figure(r, 1, (7, 1.8 * r + 0.8), sharex=True)
     fixed_margins(fig)
     for i, ax in enumerate(axes[:, 0]):
-        ax.plot(*envelope(time, q[:, i]), color="k", lw=2, label="q")
-        for label, q_hat in q_hats.items():
-            ax.plot(*envelope(time, q_hat[:, i]), lw=1, label=f"{label} q_hat")
+        drawn = in_view(ax, {"q": q[:, i]} | {f"{label} q_hat": q_hat[:, i]
+                                              for label, q_hat in q_hats.items()},
+                        {f"{label} q_hat" for label in diverged})
+        ax.plot(*envelope(time, drawn.pop("q")), color="k", lw=2, label="q")
+        for label, values in drawn.items():
+            ax.plot(*envelope(time, values), lw=1, label=label)
         ax.axvspan(time[0], settled, color="0.92", zorder=0)
         ax.set_ylabel(f"q[{i + 1}]")
         ax.grid(True, alpha=0.3)

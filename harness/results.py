@@ -16,6 +16,11 @@ with the relative error ``r(t) = e(t) / max_t ||ref||`` (over the whole run):
   (inf, or NaN if the error stays 0, for an estimator that starts exact),
 - ``floor`` with ``floor = D``: the max of ``r`` over the last ``D`` seconds of the run, the
   error left at the end (absent if the run is shorter than ``D``; the commands say so).
+
+An estimator whose error is not finite somewhere or grows beyond ``DIVERGENCE_FACTOR`` times
+its initial error ``e(t0)`` has diverged (:func:`diverged`): its summary carries
+``"diverged": true`` (the key is absent otherwise), the tables mark its row
+(:func:`table_label`) and the plots keep it out of the others' range.
 """
 
 from __future__ import annotations
@@ -32,6 +37,10 @@ from harness.system import Evaluation
 
 FIGURE_PREFIXES = ("error_at_", "max_error_", "rms_error_", "time_to_", "peak", "floor")
 """The figures of :func:`error_figures`, by the start of their names (module docstring)."""
+DIVERGENCE_FACTOR = 1e6
+"""An error growing beyond this many times its initial value has diverged."""
+DIVERGED = "diverged"
+"""The summary's flag of a diverged estimator (present, and true, only for those)."""
 
 
 def time_key(t: float) -> str:
@@ -130,14 +139,75 @@ def settling_figures(time: np.ndarray, e: np.ndarray, scale: float,
     return out
 
 
+def diverged(e: np.ndarray) -> bool:
+    """Whether an error signal has diverged: a value that is not finite, or a value beyond
+    ``DIVERGENCE_FACTOR`` times the first (never by growth for an error that starts at 0).
+
+    Examples
+    --------
+    >>> diverged(np.array([1.0, 5e3, 1e-9])), diverged(np.array([1.0, 1e3, 2e6]))
+    (False, True)
+    >>> diverged(np.array([0.0, 1.0])), diverged(np.array([1.0, np.nan]))
+    (False, True)
+    """
+    if not np.isfinite(e).all():
+        return True
+    return bool(e[0] > 0.0 and np.max(e) > DIVERGENCE_FACTOR * e[0])
+
+
+def divergence(result: CoSimResult, evaluation: Evaluation) -> dict[str, bool]:
+    """``{error signal: diverged}`` of the evaluation's error signals (:func:`diverged`)."""
+    return {name: diverged(error_norm(result, reference, estimate))
+            for name, (reference, estimate) in evaluation.errors.items()}
+
+
+def flagged(figures: dict[str, dict[str, Any]],
+            flags: dict[str, bool]) -> dict[str, dict[str, Any]]:
+    """The figures per error signal, those of a diverged one with ``"diverged": true``.
+
+    Examples
+    --------
+    >>> flagged({"a": {"peak": 2.0}, "b": {"peak": 3e9}}, {"a": False, "b": True})
+    {'a': {'peak': 2.0}, 'b': {'peak': 3000000000.0, 'diverged': True}}
+    """
+    return {name: out | ({DIVERGED: True} if flags.get(name) else {})
+            for name, out in figures.items()}
+
+
+def table_label(name: str, figures: dict[str, Any]) -> str:
+    """An estimator's name in a table: marked ``(diverged)`` if its figures say so.
+
+    Examples
+    --------
+    >>> table_label("linear", {"diverged": True}), table_label("homogeneous", {})
+    ('linear (diverged)', 'homogeneous')
+    """
+    return f"{name} ({DIVERGED})" if figures.get(DIVERGED) else name
+
+
+def divergence_note(names: list[str]) -> str | None:
+    """The line under a table whose estimators ``names`` diverged (None for none).
+
+    Examples
+    --------
+    >>> divergence_note(["linear"])
+    'note: linear diverged: its error grew beyond 1e+06 times its initial error'
+    """
+    if not names:
+        return None
+    return (f"note: {', '.join(names)} diverged: its error grew beyond {DIVERGENCE_FACTOR:.0e} "
+            "times its initial error")
+
+
 def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str, Any]:
-    """summary.json content: the figures per error signal and the run's ``steps``, ``wall_time_s``
-    and any extra ``run`` items (scenario name, seed, ...)."""
+    """summary.json content: the figures per error signal (a diverged one flagged,
+    :func:`flagged`) and the run's ``steps``, ``wall_time_s`` and any extra ``run`` items
+    (scenario name, seed, ...)."""
     return {
         **run,
         "steps": result.steps,
         "wall_time_s": result.wall_time_s,
-        **error_figures(result, evaluation),
+        **flagged(error_figures(result, evaluation), divergence(result, evaluation)),
     }
 
 
