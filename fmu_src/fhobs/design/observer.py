@@ -85,6 +85,9 @@ RHO_MAX = 1e4
 """The automatic choice of rho climbs ``rho_0 * RHO_GROWTH**j`` up to ``RHO_MAX``, from
 ``rho_0 = RHO_START * DEFAULT_SETTLING_TIME / settling_time`` (a slower request starts lower:
 the homogeneous observer's time scale is about 1 / rho)."""
+FALLBACK_SLACK = 1.25
+"""When no rho meets the request, rungs settling within this factor of the fastest count as
+fast (:func:`_fallback`)."""
 CLIMB_PATIENCE = 4
 """Once a rung has certified, the climb stops after this many rungs in a row that fail or are
 no faster than the best one."""
@@ -385,34 +388,44 @@ def _design_for_settling_time(
     ``MAX_PEAKING``; gamma is the spec's, or rho. A rho that does not certify is passed over,
     not an end: the climb goes on up to ``RHO_MAX``, and stops early only after
     ``CLIMB_PATIENCE`` rungs in a row, once one has certified, that fail or make no progress
-    (:func:`_progress`). If no rung meets the request, :func:`_fallback` chooses; the design's
-    ``settling_tuning`` says whether the request was met."""
+    (:func:`_progress`). If no rung meets the request, :func:`_fallback` chooses, then the
+    rho halfway down to the rung below is tried too; the design's ``settling_tuning`` says
+    whether the request was met."""
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
-    candidates: list[tuple[ObserverDesign, ErrorResponse]] = []
-    failures: list[tuple[float, Exception]] = []
-    stalled = 0  # consecutive certified rungs no faster than the best so far
-    for rho in _rho_climb(spec):
+
+    def rung(rho: float) -> _Rung:
         gamma = rho if spec.gamma is None else spec.gamma
+        design = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
+                                    filter_scale)
+        return _Rung(rho, design, error_response(design.filtering, scale, spec.settling_time))
+
+    candidates: list[_Rung] = []
+    failures: list[tuple[float, Exception]] = []
+    stalled = 0  # consecutive rungs, once one has certified, that failed or made no progress
+    for rho in _rho_climb(spec):
         try:
-            design = _observer_for_spec(replace(spec, rho=rho, gamma=gamma), objective, margin,
-                                        filter_scale)
+            candidate = rung(rho)
         except (LMIError, CertificateError) as exc:
             failures.append((rho, exc))
             stalled += bool(candidates)
             if stalled >= CLIMB_PATIENCE:
                 break
             continue
-        response = error_response(design.filtering, scale, spec.settling_time)
-        best = min((_progress(c[1]) for c in candidates), default=(np.inf, np.inf))
-        stalled = stalled + 1 if candidates and not _progress(response) < best else 0
-        candidates.append((design, response))
-        if response.peaking <= MAX_PEAKING and response.settling_time <= spec.settling_time:
-            break
-        if stalled >= CLIMB_PATIENCE:
+        best = min((_progress(c.response) for c in candidates), default=(np.inf, np.inf))
+        stalled = stalled + 1 if candidates and not _progress(candidate.response) < best else 0
+        candidates.append(candidate)
+        if _met(candidate.response, spec.settling_time) or stalled >= CLIMB_PATIENCE:
             break
     if not candidates:
         raise LMIError(_no_design_message(spec, failures))
-    design, response = _fallback(candidates, spec.settling_time)
+    chosen = _fallback(candidates, spec.settling_time)
+    if not _met(chosen.response, spec.settling_time) and chosen.rho > candidates[0].rho:
+        try:  # halfway (geometrically) down to the rung below: as fast, with smaller gains?
+            candidates.append(rung(chosen.rho / RHO_GROWTH**0.5))
+            chosen = _fallback(candidates, spec.settling_time)
+        except (LMIError, CertificateError):
+            pass
+    design, response = chosen.design, chosen.response
     tuning = {
         "settling_time_requested": spec.settling_time,
         "settling_time_predicted": response.settling_time,
@@ -424,22 +437,37 @@ def _design_for_settling_time(
     return replace(design, settling_tuning=tuning)
 
 
-def _fallback(candidates: list[tuple[ObserverDesign, ErrorResponse]],
-              settling_time: float) -> tuple[ObserverDesign, ErrorResponse]:
-    """The climb's choice when no rung met the request (else its last rung): the fastest
-    rung within the peaking limit; else, of those meeting the settling time, the one that
-    peaks least; else the fastest."""
-    design, response = candidates[-1]
-    if response.peaking <= MAX_PEAKING and response.settling_time <= settling_time:
-        return design, response
-    bounded = [c for c in candidates if c[1].peaking <= MAX_PEAKING
-               and np.isfinite(c[1].settling_time)]
+class _Rung(NamedTuple):
+    """A rho of the automatic choice, its design and the design's predicted error response."""
+
+    rho: float
+    design: ObserverDesign
+    response: ErrorResponse
+
+
+def _met(response: ErrorResponse, settling_time: float) -> bool:
+    """Whether a predicted response meets the request within the peaking limit."""
+    return response.peaking <= MAX_PEAKING and response.settling_time <= settling_time
+
+
+def _fallback(candidates: list[_Rung], settling_time: float) -> _Rung:
+    """The climb's choice: its last rung if that meets the request; else the rung of least rho
+    among those within the peaking limit that settle within ``FALLBACK_SLACK`` of the fastest
+    of them (a marginally faster design is not worth its larger gains); else, of those meeting
+    the settling time, the one that peaks least; else the fastest."""
+    if _met(candidates[-1].response, settling_time):
+        return candidates[-1]
+    bounded = [c for c in candidates if c.response.peaking <= MAX_PEAKING
+               and np.isfinite(c.response.settling_time)]
     if bounded:
-        return min(bounded, key=lambda c: (c[1].settling_time, c[1].peaking))
-    in_time = [c for c in candidates if c[1].settling_time <= settling_time]
+        fastest = min(c.response.settling_time for c in bounded)
+        return min((c for c in bounded
+                    if c.response.settling_time <= FALLBACK_SLACK * fastest),
+                   key=lambda c: c.rho)
+    in_time = [c for c in candidates if c.response.settling_time <= settling_time]
     if in_time:
-        return min(in_time, key=lambda c: c[1].peaking)
-    return min(candidates, key=lambda c: (c[1].settling_time, c[1].peaking))
+        return min(in_time, key=lambda c: c.response.peaking)
+    return min(candidates, key=lambda c: (c.response.settling_time, c.response.peaking))
 
 
 def _progress(response: ErrorResponse) -> tuple[float, float]:
