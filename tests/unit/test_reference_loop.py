@@ -30,8 +30,11 @@ pytestmark = pytest.mark.skipif(reference_library() is None,
                                 reason="the reference loop is compiled with cc on linux")
 
 FIELDS = ("x", "z", "z_lin", "z_kalman", "psi", "xi", "sigma", "q_hat", "y", "u")
-DATA = ("x", "z_lin", "z_kalman", "y", "u")
-"""The trajectories that do not pass through the filtering observer's amplification."""
+DATA = ("x", "z_lin", "y", "u")
+"""The trajectories that do not pass through the filtering observer's amplification (the
+Kalman filter's, replayed on the recorded (y, u), sums its innovations over the whole run: its
+two loops differ by 1.05e-14 of its size on the paper's nominal loop with AVX-512 kernels, so it
+is held to the filtering observer's 1e-12)."""
 
 
 def c_loop(monkeypatch, *args, **kwargs) -> reference.SimulationResult:
