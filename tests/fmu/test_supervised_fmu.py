@@ -1,8 +1,9 @@
 """supervised.fmu in both builds against the numpy runtime (fhobs.core.supervisor): the
 paper's closed loop (u = K x_hat, the sinusoidal perturbation through E) run three times, the
 plant in process and the estimator either SupervisedObserver in process, the pythonfmu FMU or
-the native FMU, noise-free and with seeded measurement noise; the step sizes the Kalman filter
-refuses; FMU states; edited parameters re-certified."""
+the native FMU, noise-free and with seeded measurement noise (a handover and the Kalman
+filter's time-varying recursion after it); the step sizes the Kalman filter refuses; FMU
+states taken before a handover; edited parameters re-certified."""
 
 from __future__ import annotations
 
@@ -70,9 +71,11 @@ class _InProcess:
 
     def __init__(self, record) -> None:
         self.model = SupervisedObserver(record)
+        self.recursion: list[bool] = []  # after every step: the time-varying recursion on
 
     def step(self, y, u, t, dt):  # noqa: ANN001, ARG002
         self.model.step(y, u, dt)
+        self.recursion.append(self.model.recursion)
 
     def outputs(self, n, q):  # noqa: ANN001
         return (self.model.x_hat, self.model.q_hat, self.model.mode, self.model.statistic)
@@ -132,9 +135,11 @@ def assert_agree(run, reference, what, loose=()):  # noqa: ANN001
 def test_both_builds_run_the_numpy_runtime(design, open_supervised, noise, seed):
     """The closed loop through the pythonfmu and the native FMU agrees with SupervisedObserver
     to 1e-12 of each signal's size (ROUNDOFF_FLOOR_AGREEMENT for two native signals without
-    noise); with noise the output switches to the Kalman estimate at least once (the statistic,
-    the mode logic and the handover are all exercised); the estimate converges."""
-    reference = closed_loop(_InProcess(design.supervised), design, seed, noise)
+    noise); with noise the output switches to the Kalman estimate at least once and the
+    time-varying recursion runs after a handover and ends (the statistic, the mode logic, the
+    handover and the recursion are all exercised); the estimate converges."""
+    in_process = _InProcess(design.supervised)
+    reference = closed_loop(in_process, design, seed, noise)
     for build in ("pythonfmu", "native"):
         loose = ("q_hat", "statistic") if build == "native" and not noise else ()
         assert_agree(closed_loop(_Fmu(open_supervised(build)), design, seed, noise), reference,
@@ -143,6 +148,7 @@ def test_both_builds_run_the_numpy_runtime(design, open_supervised, noise, seed)
     assert modes[0] == MODE_HOMOGENEOUS
     if noise:
         assert np.any(modes == MODE_KALMAN) and np.count_nonzero(np.diff(modes)) >= 1
+        assert any(in_process.recursion) and not in_process.recursion[-1]
     else:  # noise-free: the statistic ends below `lower`, the output on the homogeneous estimate
         assert reference["statistic"][-1] < design.supervised.lower
         assert modes[-1] == MODE_HOMOGENEOUS
@@ -170,9 +176,10 @@ def test_a_step_that_is_not_a_multiple_of_Ts_is_an_error(design, open_supervised
 def test_fmu_state_round_trip(design, open_supervised, build):
     """A state taken in mode H shortly before the switch to K (and its handover), set again,
     also serialized and into a second instance, replays the same outputs bit for bit."""
-    recorded = closed_loop(_InProcess(design.supervised), design, 2, SCENARIO.noise_amplitude)
+    in_process = _InProcess(design.supervised)
+    recorded = closed_loop(in_process, design, 2, SCENARIO.noise_amplitude)
     first_kalman = int(np.argmax(recorded["mode"] == MODE_KALMAN))
-    assert first_kalman > 0
+    assert first_kalman > 0 and in_process.recursion[first_kalman - 1]  # a handover
     dt = SAMPLES_PER_STEP * design.supervised.kalman.sample_time
     driver = _Fmu(open_supervised(build))
     fmu = driver.driver.fmu

@@ -28,9 +28,10 @@ ESTIMATOR_FIELDS = {
     "prescribed_time": {"rho", "L_pt", "P_pt", "certificate"},
     "luenberger": {"L_lin", "certificate"},
     "kalman": {"disturbance_order", "sample_time", "measurement_std", "process_intensity",
-               "gain", "covariance", "tuning", "certificate"},
+               "gain", "covariance", "tuning", "certificate", "process_covariance"},
     "supervised": {"filtering", "kalman", "window", "lower", "upper", "lower_return",
-                   "upper_return", "ceiling", "dwell_time", "false_alarm", "certificate"},
+                   "upper_return", "ceiling", "dwell_time", "false_alarm",
+                   "handover_covariance", "certificate"},
 }
 
 

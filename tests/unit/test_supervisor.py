@@ -1,7 +1,8 @@
 """The supervised observer: its Kalman part against python-control, its thresholds against a
-Monte Carlo of the statistic, its output against the homogeneous observer and a Kalman filter
-written out here, each run alone, and the switching rule's claims (no false alarm on data the
-Kalman filter's model explains, dwell and handover, noise-free convergence to round-off)."""
+Monte Carlo of the statistic, its handover covariance against the homogeneous observer's error
+on noise, its output against the homogeneous observer and a time-varying Kalman filter written
+out here, each run alone, and the switching rule's claims (no false alarm on data the Kalman
+filter's model explains, dwell and handover, noise-free convergence to round-off)."""
 
 from __future__ import annotations
 
@@ -19,11 +20,12 @@ from fhobs.core.runtime import FilteringObserver
 from fhobs.core.supervisor import (
     MODE_HOMOGENEOUS,
     MODE_KALMAN,
+    RECURSION_CYCLES,
     SupervisedObserver,
 )
 from fhobs.design.kalman import van_loan
 from fhobs.design.observer import design_for_spec
-from fhobs.design.supervised import design_supervised, statistic_band
+from fhobs.design.supervised import covariance_floor, design_supervised, statistic_band
 from fhobs.errors import SpecError
 from reference_math import zoh
 from scipy.signal import lfilter
@@ -46,18 +48,73 @@ def record(design, pendulum_spec) -> SupervisedGains:
 
 def run(record, ys, us, dt):
     """The supervised observer on (y, u) held over steps dt: at every t_k its output z, mode,
-    statistic and both estimators' z."""
+    both statistics, whether the time-varying recursion runs and both estimators' z."""
     obs = SupervisedObserver(record)
-    rows = {"z": [], "mode": [], "statistic": [], "kalman": [], "homogeneous": []}
+    rows = {"z": [], "mode": [], "statistic": [], "homogeneous_statistic": [],
+            "recursion": [], "kalman": [], "homogeneous": []}
     for step in range(len(ys) + 1):
         rows["z"].append(obs.z)
         rows["mode"].append(obs.mode)
         rows["statistic"].append(obs.statistic)
+        rows["homogeneous_statistic"].append(obs.homogeneous_statistic)
+        rows["recursion"].append(obs.recursion)
         rows["kalman"].append(obs.kalman.z)
         rows["homogeneous"].append(obs.homogeneous.z)
         if step < len(ys):
             obs.step(ys[step], us[step], dt)
     return {name: np.array(value) for name, value in rows.items()}
+
+
+def process_covariance(record):
+    """Q_d of the record's Kalman filter written out with scipy (Van Loan): the white noise of
+    the table's intensity on dq/dt (disturbance order 1)."""
+    A, _, _ = record.kalman.model_matrices
+    size = A.shape[0]
+    noise = np.zeros((size, size))
+    noise[-1, -1] = record.kalman.process_intensity
+    F = sl.expm(record.kalman.sample_time * np.block([[-A, noise], [np.zeros_like(A), A.T]]))
+    return F[size:, size:].T @ F[:size, size:]
+
+
+def riccati(record, P):
+    """The a-priori covariance one sample after P (the Riccati recursion in its textbook
+    form) and the measurement-update gain at P."""
+    A, B, C = record.kalman.model_matrices
+    Phi, _ = zoh(A, B, record.kalman.sample_time)
+    R = np.diag(record.kalman.measurement_std**2)
+    S = C @ P @ C.T + R
+    gain = P @ C.T @ np.linalg.inv(S)
+    following = (Phi @ P @ Phi.T - Phi @ P @ C.T @ np.linalg.inv(S) @ C @ P @ Phi.T
+                 + process_covariance(record))
+    return following, gain, S
+
+
+def time_varying_filter(record, z, ys, us, statistic):
+    """A Kalman filter written out here from a handover (state z, covariance the record's
+    handover_covariance, statistic its value): the time-varying gain until P is within 1e-9
+    of the steady-state covariance, then the record's fixed gain M; its z (from the handover
+    on) and statistic after every sample, and the sample at which the recursion ended."""
+    A, B, C = record.kalman.model_matrices
+    Phi, Gamma = zoh(A, B, record.kalman.sample_time)
+    steady = record.kalman.covariance
+    P, ended = record.handover_covariance, None
+    rows, statistics = [z], []
+    for j, (y, u) in enumerate(zip(ys, us, strict=True)):
+        innovation = y - C @ z
+        if ended is None:
+            following, gain, S = riccati(record, P)
+        else:
+            following, gain, S = P, record.kalman.gain, C @ steady @ C.T + np.diag(
+                record.kalman.measurement_std**2)
+        nis = innovation @ np.linalg.inv(S) @ innovation
+        statistic = min(statistic + (nis - statistic) / record.window, record.ceiling)
+        z = Phi @ (z + gain @ innovation) + Gamma @ u
+        if ended is None and np.abs(following - steady).max() <= 1e-9 * np.abs(steady).max():
+            ended = j + 1
+        P = following
+        rows.append(z)
+        statistics.append(statistic)
+    return np.array(rows), np.array(statistics), ended
 
 
 def noisy_run(design, record, seed):
@@ -100,16 +157,76 @@ def test_statistic_band_matches_a_monte_carlo_of_the_statistic():
         assert 0.6 * probability / 2 < fraction < 1.5 * probability / 2
 
 
+def test_process_covariance_is_van_loans(record):
+    """The Kalman record's Q_d (the recursion's) is the process noise's covariance over one
+    sample, written out here with scipy."""
+    expected = process_covariance(record)
+    np.testing.assert_allclose(record.kalman.process_covariance, expected, rtol=1e-9,
+                               atol=1e-12 * np.abs(expected).max())
+
+
+def test_handover_covariance_is_the_homogeneous_error_floored_by_the_kalman_one(record):
+    """The homogeneous observer alone on the table's noise (plant at rest; a seed the design
+    does not use), floored by the Kalman filter's steady state P, is the handover covariance
+    within sampling error in every direction (the error is correlated over hundreds of
+    samples: two seeds' estimates of 20000 samples differ by up to 40 % in some direction,
+    measured), the handover covariance is at least P, and the floor leaves a direction."""
+    Ts, k = record.kalman.sample_time, record.plant.k
+    observer = FilteringObserver(record.filtering, h=Ts)
+    half_width = np.sqrt(3.0) * record.kalman.measurement_std
+    ys = half_width * np.random.default_rng(42).uniform(-1.0, 1.0, (25_000, k))
+    errors = []
+    for j, y in enumerate(ys):
+        observer.step(y, np.zeros(record.plant.m), Ts)
+        if j >= 5_000:
+            errors.append(observer.z)
+    sample = np.cov(np.array(errors).T, bias=True)
+    steady, handover = record.kalman.covariance, record.handover_covariance
+    np.testing.assert_array_equal(handover, handover.T)
+    assert np.linalg.eigvalsh(handover - steady)[0] >= -1e-12 * np.abs(handover).max()
+    root = np.linalg.cholesky(covariance_floor(sample, steady))
+    ratios = np.linalg.eigvalsh(np.linalg.solve(root, np.linalg.solve(root, handover).T))
+    assert 0.6 < ratios[0] and ratios[-1] < 1.6
+    assert np.linalg.eigvalsh(sample - steady)[-1] > 0
+
+
+def test_covariance_floor_raises_the_directions_below_the_floor():
+    """Random covariances (seeded): the result is at least both; where the covariance exceeds
+    the floor it is kept, where it is below it the result is the floor."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        root = rng.normal(size=(4, 4))
+        floor = root @ root.T + 0.1 * np.eye(4)
+        assert np.allclose(covariance_floor(4.0 * floor, floor), 4.0 * floor)
+        assert np.allclose(covariance_floor(0.25 * floor, floor), floor)
+        other = rng.normal(size=(4, 4))
+        covariance = other @ other.T
+        raised = covariance_floor(covariance, floor)
+        for below in (covariance, floor):
+            assert np.linalg.eigvalsh(raised - below)[0] >= -1e-10 * np.abs(raised).max()
+
+
 def test_record_round_trips_and_certificate_names_the_field(record):
     back = SupervisedGains.from_dict(json.loads(json.dumps(record.to_dict())),
                                      plant=record.plant, model=record.model)
     assert back.kalman.plant is record.plant and back.filtering.model is record.model
     np.testing.assert_array_equal(back.kalman.gain, record.kalman.gain)
+    np.testing.assert_array_equal(back.handover_covariance, record.handover_covariance)
+    np.testing.assert_array_equal(back.kalman.process_covariance,
+                                  record.kalman.process_covariance)
     assert certify_supervised(back) == record.certificate["checks"]
+    indefinite = record.handover_covariance - 2 * np.abs(record.handover_covariance).max() * \
+        np.eye(record.handover_covariance.shape[0])
     for change, words in (({"upper": record.upper_return}, "upper = "),
                           ({"lower_return": 2.5}, "mean k"),
                           ({"dwell_time": 0.0}, "dwell_time"), ({"window": 0.5}, "window"),
                           ({"ceiling": record.upper}, "ceiling"),
+                          ({"handover_covariance": indefinite},
+                           "handover_covariance must be positive definite"),
+                          ({"handover_covariance": np.eye(2)}, "handover_covariance must be a"),
+                          ({"kalman": dataclasses.replace(record.kalman,
+                                                          process_covariance=None)},
+                           "process_covariance"),
                           ({"kalman": dataclasses.replace(record.kalman, gain=-record.kalman.gain)},
                            "schur_kalman")):
         with pytest.raises(CertificateError, match=words):
@@ -171,9 +288,11 @@ def test_noisy_rms_is_within_5_percent_of_the_kalman_filter(design, record):
 
 
 def test_kalman_mode_is_the_filter_written_out_from_the_handover(design, record):
-    """After its one switch to K (the transient over) the output is a Kalman filter written out
-    here with scipy, started at the handover from the homogeneous estimate; the noisy RMS over
-    [1, 3] s is within 5 % of the Kalman filter run alone (seed 0)."""
+    """After its one switch to K (the transient over: a handover) the output and the statistic
+    are those of a time-varying Kalman filter written out here with scipy, started at the
+    handover from the homogeneous estimate and the handover covariance, back on the fixed gain
+    at the same sample; the noisy RMS over [1, 3] s is within 5 % of the Kalman filter run
+    alone (seed 0)."""
     result, out = noisy_run(design, record, 0)
     window = result.window(1.0, 3.0)
     ours = rms(np.linalg.norm(result.x - out["z"][:, :4], axis=1)[window])
@@ -182,18 +301,55 @@ def test_kalman_mode_is_the_filter_written_out_from_the_handover(design, record)
     assert len(switches) == 1 and out["mode"][-1] == MODE_KALMAN
     start = switches[0] + 1
     np.testing.assert_allclose(out["z"][start], out["homogeneous"][start], rtol=0, atol=0)
-    A, B, C = record.kalman.model_matrices
-    dt = float(result.t[1])
-    Phi, Gamma = zoh(A, B, dt)
-    M = record.kalman.gain
-    z, rows = out["homogeneous"][start], []
-    for y, u in zip(result.y[start:], result.u[start:], strict=True):
-        rows.append(z)
-        z = Phi @ (z + M @ (y - C @ z)) + Gamma @ u
-    rows.append(z)
-    expected = np.array(rows)
+    assert out["recursion"][start] and out["statistic"][start] == \
+        out["homogeneous_statistic"][start]
+    expected, statistics, ended = time_varying_filter(
+        record, out["homogeneous"][start], result.y[start:], result.u[start:],
+        out["statistic"][start])
     np.testing.assert_allclose(out["z"][start:], expected, rtol=0,
                                atol=1e-9 * np.abs(expected).max())
+    np.testing.assert_allclose(out["statistic"][start + 1:], statistics, rtol=1e-9)
+    assert ended is not None and abs(np.argmin(out["recursion"][start:]) - ended) <= 1
+    assert not out["recursion"][-1]
+
+
+def test_recursion_is_the_riccati_recursion_back_to_the_steady_state(record):
+    """A handover forced through the state (mode K, z = 0, the handover covariance, the cycles
+    left at their bound), then the table's noise at rest: the covariance after every sample is
+    the Riccati recursion written out here, the recursion ends where it is within 1e-9 of the
+    steady-state covariance, which is scipy's solution of the Riccati equation, and the filter
+    is then the fixed-gain one."""
+    Ts, k, m = record.kalman.sample_time, record.plant.k, record.plant.m
+    obs = SupervisedObserver(record)
+    state = obs.get_state()
+    size = record.handover_covariance.size
+    state[1] = MODE_KALMAN
+    state[-1 - size:-1] = record.handover_covariance.ravel()
+    state[-1] = RECURSION_CYCLES
+    obs.set_state(state)
+    amplitude = float(np.sqrt(3.0) * record.kalman.measurement_std[0])
+    ys = np.random.default_rng(9).uniform(-amplitude, amplitude, (40_000, k))
+    P, ended = record.handover_covariance, None
+    for j, y in enumerate(ys):
+        obs.step(y, np.zeros(m), Ts)
+        if ended is not None:
+            break
+        P = riccati(record, P)[0]
+        np.testing.assert_allclose(obs.covariance, P, rtol=0, atol=1e-9 * np.abs(P).max())
+        if not obs.recursion:
+            ended = j
+    steady = record.kalman.covariance
+    assert ended is not None and np.abs(P - steady).max() <= 2e-9 * np.abs(steady).max()
+    A, B, C = record.kalman.model_matrices
+    dare = sl.solve_discrete_are(zoh(A, B, Ts)[0].T, C.T, process_covariance(record),
+                                 np.diag(record.kalman.measurement_std**2))
+    np.testing.assert_allclose(steady, dare, rtol=0, atol=1e-8 * np.abs(dare).max())
+    z = obs.kalman.z
+    Phi = zoh(A, B, Ts)[0]
+    for y in ys[-200:]:
+        obs.step(y, np.zeros(m), Ts)
+        z = Phi @ (z + record.kalman.gain @ (y - C @ z))
+    np.testing.assert_allclose(obs.kalman.z, z, rtol=0, atol=1e-12 * np.abs(z).max())
 
 
 # -- the switching rule ------------------------------------------------------------------------
@@ -221,7 +377,9 @@ def test_no_false_alarm_on_data_the_kalman_model_explains(record):
 def test_dwell_and_hysteresis_bound_the_switches(record):
     """Noise 1.6 times the table's in bursts of random lengths (50 to 1000 samples, seeded)
     between stretches of the table's noise: every H period lasts the dwell time, the switches
-    to K are at most 1 + T / dwell_time, and each hands the homogeneous estimate over."""
+    to K are at most 1 + T / dwell_time, and each returns to a Kalman filter whose statistic
+    is back in the return band once a burst is over, which keeps its state (no handover: the
+    recursion does not start)."""
     Ts = record.kalman.sample_time
     rng = np.random.default_rng(5)
     lengths = rng.integers(50, 1000, 60)
@@ -238,8 +396,9 @@ def test_dwell_and_hysteresis_bound_the_switches(record):
     for step in to_kalman:
         entered = max([0, *to_homogeneous[to_homogeneous < step]])
         assert (step - entered) * Ts >= record.dwell_time * (1 - 1e-9)
-        np.testing.assert_array_equal(out["kalman"][step], out["homogeneous"][step])
-        np.testing.assert_array_equal(out["z"][step], out["homogeneous"][step])
+        np.testing.assert_array_equal(out["z"][step], out["kalman"][step])
+        assert record.lower_return < out["statistic"][step] < record.upper_return
+    assert not np.any(out["recursion"])
 
 
 def test_no_handover_while_the_homogeneous_observer_is_in_its_transient(record):
@@ -284,6 +443,8 @@ def test_state_round_trip_replays_and_bad_steps_leave_the_state(record):
         np.testing.assert_array_equal(obs.get_state(), before)
     with pytest.raises(ValueError, match="mode"):
         obs.set_state(np.concatenate((before[:1], [0.5], before[2:])))
+    with pytest.raises(ValueError, match="cycles left"):
+        obs.set_state(np.concatenate((before[:-1], [0.5])))
     np.testing.assert_array_equal(obs.get_state(), before)
     diagnostics = obs.diagnostics()
     assert diagnostics["mode"] in (MODE_KALMAN, MODE_HOMOGENEOUS)

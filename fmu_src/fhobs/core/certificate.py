@@ -660,20 +660,63 @@ def threshold_problems(supervised: SupervisedGains) -> list[str]:
     return problems
 
 
+def covariance_problems(supervised: SupervisedGains) -> list[str]:
+    """What is out of range in the covariances of the handover's time-varying recursion
+    (empty if nothing): the Kalman record's ``process_covariance`` Q_d (N x N, symmetric to
+    round-off, positive semi-definite to round-off) and ``handover_covariance`` (N x N,
+    symmetric to round-off, positive definite).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> record = NS(kalman=NS(covariance=np.eye(2), process_covariance=np.eye(2)),
+    ...             handover_covariance=np.diag([2.0, 1.0]))
+    >>> covariance_problems(record)
+    []
+    >>> covariance_problems(NS(**{**vars(record), "handover_covariance": np.diag([1.0, -1.0])}))
+    ['handover_covariance must be positive definite (lambda_min / lambda_max = -1.000e+00)']
+    """
+    size = supervised.kalman.covariance.shape[0]
+    problems = []
+    for name, matrix, least in (
+            ("kalman.process_covariance", supervised.kalman.process_covariance, -1e-12),
+            ("handover_covariance", supervised.handover_covariance, 1e-14)):
+        if matrix is None or np.shape(matrix) != (size, size):
+            problems.append(f"{name} must be a {size} x {size} matrix, got "
+                            f"{None if matrix is None else np.shape(matrix)}")
+            continue
+        if not np.all(np.isfinite(matrix)) or asymmetric_entries(matrix):
+            problems.append(f"{name} must be finite and symmetric")
+            continue
+        ratio = _eigenvalue_ratio(matrix)
+        if not ratio > least:
+            kind = "positive definite" if least > 0 else "positive semi-definite"
+            problems.append(f"{name} must be {kind} (lambda_min / lambda_max = {ratio:.3e})")
+    return problems
+
+
+def _eigenvalue_ratio(matrix: np.ndarray) -> float:
+    """``lambda_min / lambda_max`` of a symmetric matrix (-1 if its largest is not positive)."""
+    eigenvalues = np.linalg.eigvalsh(sym(matrix))
+    return float(eigenvalues[0] / eigenvalues[-1]) if eigenvalues[-1] > 0 else -1.0
+
+
 def certify_supervised(
     supervised: SupervisedGains, tolerance: float = DEFAULT_TOLERANCE,
     margin: float = CERTIFICATE_MARGIN,
 ) -> dict[str, float]:
     """The supervised observer's certificate: its thresholds in range
-    (:func:`threshold_problems`), the innovation covariance S positive definite, then the
+    (:func:`threshold_problems`), the covariances of the handover's recursion
+    (:func:`covariance_problems`), the innovation covariance S positive definite, then the
     filtering record's (:func:`fhobs.core.certificate.certify_filtering`) and the Kalman
     record's (:func:`fhobs.core.certificate.certify_kalman`) certificates.
 
     Returns
     -------
     dict
-        Both parts' figures and ``innovation_covariance_positive``
-        (``lambda_min(S) / lambda_max(S)``).
+        Both parts' figures, ``innovation_covariance_positive``
+        (``lambda_min(S) / lambda_max(S)``) and ``handover_covariance_positive`` (the same of
+        ``handover_covariance``).
 
     Raises
     ------
@@ -694,14 +737,19 @@ def certify_supervised(
     if problems:
         raise CertificateError("the supervised observer's thresholds are out of range: "
                                + "; ".join(problems))
-    eigenvalues = np.linalg.eigvalsh(innovation_covariance(supervised.kalman))
-    positive = float(eigenvalues[0] / eigenvalues[-1]) if eigenvalues[-1] > 0 else -1.0
+    problems = covariance_problems(supervised)
+    if problems:
+        raise CertificateError("the supervised observer's handover covariances are out of "
+                               "range: " + "; ".join(problems))
+    positive = _eigenvalue_ratio(innovation_covariance(supervised.kalman))
     if not positive > 1e-14:
         raise CertificateError(f"the Kalman filter's innovation covariance S = C P C^T + R is "
                                f"not positive definite (lambda_min / lambda_max = {positive:.3e})")
     figures = certify_filtering(supervised.filtering, tolerance, margin)
     figures |= certify_kalman(supervised.kalman, tolerance, margin)
-    return figures | {"innovation_covariance_positive": positive}
+    return figures | {"innovation_covariance_positive": positive,
+                      "handover_covariance_positive": _eigenvalue_ratio(
+                          supervised.handover_covariance)}
 
 
 CERTIFIERS = {"filtering": certify_filtering, "prescribed_time": certify_prescribed_time,

@@ -351,6 +351,11 @@ class KalmanGains(_Record):
     certificate : dict
         ``checks`` (:func:`fhobs.core.certificate.certify_kalman`'s figures: ``schur_kalman``);
         the gain solves a Riccati equation, no LMI: no objective, margin or solver status.
+    process_covariance : numpy.ndarray or None
+        (N x N) covariance Q_d of the process noise over one sample (Van Loan, with any
+        regularisation the design added): the Riccati equation's ``Q_d``, which the
+        time-varying recursion of the supervised observer's handover needs
+        (:mod:`fhobs.core.supervisor`); None in a record written without it.
     """
 
     plant: PlantModel
@@ -362,6 +367,7 @@ class KalmanGains(_Record):
     covariance: np.ndarray
     tuning: str = ""
     certificate: dict[str, Any] = field(default_factory=dict)
+    process_covariance: np.ndarray | None = None
 
     @cached_property
     def model_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -403,6 +409,11 @@ class SupervisedGains(_Record):
         Probability per sample, for data the Kalman filter's model explains, that the
         statistic leaves ``(lower, upper)`` (Gaussian innovations; what the thresholds were set
         for).
+    handover_covariance : numpy.ndarray
+        (N x N, symmetric positive definite) error covariance of the homogeneous estimate
+        under the ``[noise]`` table's measurement noise, at least the Kalman filter's
+        steady-state ``covariance``: the Kalman filter's covariance at a handover, from which
+        it runs the time-varying recursion back to its steady state.
     certificate : dict
         ``checks``: the figures of both parts' certificates and of the thresholds
         (:func:`fhobs.core.certificate.certify_supervised`).
@@ -420,6 +431,7 @@ class SupervisedGains(_Record):
     ceiling: float
     dwell_time: float
     false_alarm: float
+    handover_covariance: np.ndarray
     certificate: dict[str, Any] = field(default_factory=dict)
 
     @property

@@ -9,7 +9,9 @@ deviation ``measurement_std`` per output (uniform noise of amplitude a: std a / 
 
 Discretisation. Exact for the sample time Ts: ``Phi = expm(Ts A)`` and the process-noise
 covariance ``Qd = int_0^Ts expm(t A) G W G^T expm(t A)^T dt`` by Van Loan's method (one
-exponential of ``[[-A, G W G^T], [0, A^T]] Ts``); ``R = diag(measurement_std^2)``.
+exponential of ``[[-A, G W G^T], [0, A^T]] Ts``), kept in the record as
+``process_covariance`` (the supervised observer's time-varying recursion needs it);
+``R = diag(measurement_std^2)``.
 
 Gain. The a-priori covariance P solves the discrete algebraic Riccati equation
 ``P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd`` (scipy.linalg.solve_discrete_are);
@@ -198,11 +200,11 @@ def design_kalman(
     except KalmanDesignError as err:
         failure = err
     if failure is not None:
-        P, gain, note = _regularised_filter(A_model, C_model, G, noise, R, sample_time, order,
-                                            E.shape[1], A.shape[0], label, failure)
+        P, gain, noise, note = _regularised_filter(A_model, C_model, G, noise, R, sample_time,
+                                                   order, E.shape[1], A.shape[0], label, failure)
         tuning = f"{tuning}; {note}" if tuning else note
     kalman = KalmanGains(plant, order, float(sample_time), std, float(process_intensity), gain,
-                         P, tuning)
+                         P, tuning, process_covariance=van_loan(A_model, noise, sample_time)[1])
     return dataclasses.replace(kalman, certificate={"checks": certify_kalman(kalman)})
 
 
@@ -272,11 +274,12 @@ def steady_state_filter(
 def _regularised_filter(
     A_model: np.ndarray, C_model: np.ndarray, G: np.ndarray, noise: np.ndarray, R: np.ndarray,
     sample_time: float, order: int, p: int, n: int, label: str, failure: KalmanDesignError,
-) -> tuple[np.ndarray, np.ndarray, str]:
-    """The filter with a small process noise on every state (module docstring), and the note
-    that says so; ``failure`` (the unregularised filter's problem) is raised when the noise
-    reaches every state (regularising cannot be the cure) or no regularisation up to the
-    noise's own intensity gives a stable filter."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """The filter with a small process noise on every state (module docstring), the process
+    noise's intensity with it (N x N) and the note that says so; ``failure`` (the
+    unregularised filter's problem) is raised when the noise reaches every state
+    (regularising cannot be the cure) or no regularisation up to the noise's own intensity
+    gives a stable filter."""
     names = model_state_names(n, p, order)
     unreached = unobservable_directions(A_model.T, G.T).T  # the uncontrollable directions
     if not unreached.size:
@@ -286,9 +289,10 @@ def _regularised_filter(
     fraction = REGULARISATION
     while fraction <= 1.0:
         extra = fraction * largest
+        regularised = noise + extra * np.eye(A_model.shape[0])
         try:
-            P, gain, radius = steady_state_filter(
-                A_model, C_model, noise + extra * np.eye(A_model.shape[0]), R, sample_time, label)
+            P, gain, radius = steady_state_filter(A_model, C_model, regularised, R, sample_time,
+                                                  label)
         except KalmanDesignError:
             radius = np.inf
         if radius < 1.0 - RADIUS_MARGIN:
@@ -296,7 +300,7 @@ def _regularised_filter(
                     f"[noise] table puts on a state) added on every state: the table's noise "
                     f"does not reach {missed}, and without it the filter is not asymptotically "
                     f"stable; spectral radius of Phi (I - M C) = {radius:.9g}")
-            return P, gain, note
+            return P, gain, regularised, note
         fraction *= REGULARISATION_GROWTH
     raise KalmanDesignError(
         f"the Kalman filter ({label}) is not asymptotically stable: the [noise] table's process "

@@ -16,6 +16,16 @@ on each side) and the return band with probability ``1 - RETURN_PROBABILITY``. U
 the pendulum's, has lighter tails than the Gaussian, so the false-alarm rate on it is lower
 still. ``dwell_time`` defaults to ``DWELL_WINDOWS`` windows of the statistic.
 
+Handover covariance. At a handover the Kalman filter takes the homogeneous estimate with the
+error covariance of that estimate (``handover_covariance``), from which it runs the
+time-varying recursion back to its steady state (:mod:`fhobs.core.supervisor`). The covariance
+is that of the homogeneous observer run on the ``[noise]`` table's measurement noise alone (the
+plant at rest, uniform noise of the table's std, seed ``HANDOVER_SEED``, one step of Ts per
+sample): the sample covariance of its z over ``HANDOVER_SAMPLES`` samples after
+``HANDOVER_TRANSIENT`` samples of its transient, floored by the Kalman filter's steady-state
+covariance P (in P's whitened coordinates every eigenvalue below 1 raised to 1), so that the
+recursion starts at or above its fixed point and decreases to it.
+
 Defaults (measured by ``bench/bench_supervisor.py``): ``WINDOW = 50`` samples (2.5 ms at the
 pendulum's Ts = 5e-5 s, 50 ms at the zoo's 1e-3 s; 200 samples kept the zoo's step-disturbed
 plants on the homogeneous estimate 0.3 s longer after their transients, twice the Kalman
@@ -31,7 +41,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..core.certificate import certify_supervised
-from ..core.gains import KalmanGains, ObserverDesign, SupervisedGains
+from ..core.gains import FilteringGains, KalmanGains, ObserverDesign, SupervisedGains
+from ..core.runtime import FilteringObserver
 from ..errors import SpecError
 from .kalman import design_kalman
 from .spec import NoiseSpec, PlantSpec
@@ -46,6 +57,12 @@ CEILING = 2.0
 """The statistic's ceiling, in multiples of ``upper``."""
 DWELL_WINDOWS = 2.0
 """Default dwell time in H, in windows of the statistic (``window * Ts`` each)."""
+HANDOVER_SAMPLES = 20_000
+"""Samples of the homogeneous estimate's sample covariance (the handover covariance)."""
+HANDOVER_TRANSIENT = 5_000
+"""Samples of the homogeneous observer's transient left out of that covariance."""
+HANDOVER_SEED = 0
+"""Seed of the measurement noise the handover covariance is estimated on."""
 
 
 def statistic_band(k: int, window: float, probability: float) -> tuple[float, float]:
@@ -65,6 +82,71 @@ def statistic_band(k: int, window: float, probability: float) -> tuple[float, fl
     scale, dof = a / (2.0 - a), k * (2.0 - a) / a
     return (float(scale * chi2.ppf(0.5 * probability, dof)),
             float(scale * chi2.isf(0.5 * probability, dof)))
+
+
+def handover_covariance(filtering: FilteringGains, kalman: KalmanGains, *,
+                        samples: int = HANDOVER_SAMPLES, transient: int = HANDOVER_TRANSIENT,
+                        seed: int = HANDOVER_SEED) -> np.ndarray:
+    """The error covariance of the homogeneous estimate under the Kalman filter's measurement
+    noise, floored by its steady-state covariance (module docstring).
+
+    Parameters
+    ----------
+    filtering : FilteringGains
+        The homogeneous observer, run at the Kalman filter's sample time on noise alone.
+    kalman : KalmanGains
+        The Kalman filter of the same model: its ``measurement_std`` (uniform noise of that
+        std), ``sample_time`` and steady-state ``covariance`` (the floor).
+    samples, transient : int
+        Samples of the sample covariance, and of the transient before them.
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    numpy.ndarray
+        N x N, symmetric, at least ``kalman.covariance`` (positive semi-definite difference).
+
+    Examples
+    --------
+    >>> from fhobs.design.spec import load_spec
+    >>> from fhobs.design.observer import design_for_spec
+    >>> from fhobs.paper import PENDULUM_SPEC
+    >>> design = design_for_spec(load_spec(PENDULUM_SPEC))
+    >>> P_h = handover_covariance(design.filtering, design.kalman, samples=2000, transient=500)
+    >>> bool(np.linalg.eigvalsh(P_h - design.kalman.covariance)[0]
+    ...      >= -1e-12 * np.abs(P_h).max())
+    True
+    """
+    plant = filtering.plant
+    observer = FilteringObserver(filtering, h=kalman.sample_time)
+    half_width = np.sqrt(3.0) * kalman.measurement_std
+    ys = half_width * np.random.default_rng(seed).uniform(-1.0, 1.0,
+                                                          (transient + samples, plant.k))
+    u = np.zeros(plant.m)
+    estimates = np.empty((samples, filtering.model.n_model))
+    for j, y in enumerate(ys):
+        observer.advance(y, u, kalman.sample_time)
+        if j >= transient:
+            estimates[j - transient] = observer.z
+    return covariance_floor(estimates.T @ estimates / samples, kalman.covariance)
+
+
+def covariance_floor(covariance: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """``covariance`` with every direction in which it is below ``floor`` raised to it: in the
+    coordinates where ``floor`` (positive definite) is the identity, its eigenvalues below 1
+    set to 1. The result is symmetric and at least both (positive semi-definite differences).
+
+    Examples
+    --------
+    >>> covariance_floor(np.diag([4.0, 0.25]), np.eye(2)).tolist()
+    [[4.0, 0.0], [0.0, 1.0]]
+    """
+    root = np.linalg.cholesky(0.5 * (floor + floor.T))
+    whitened = np.linalg.solve(root, np.linalg.solve(root, covariance).T)
+    values, vectors = np.linalg.eigh(0.5 * (whitened + whitened.T))
+    raised = root @ vectors @ np.diag(np.maximum(values, 1.0)) @ vectors.T @ root.T
+    return 0.5 * (raised + raised.T)
 
 
 def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float = WINDOW,
@@ -131,7 +213,8 @@ def design_supervised(design: ObserverDesign, noise: NoiseSpec, *, window: float
         dwell_time = DWELL_WINDOWS * window * kalman.sample_time
     record = SupervisedGains(design.plant, design.model, design.filtering, kalman,
                              float(window), lower, upper, lower_return, upper_return,
-                             CEILING * upper, float(dwell_time), float(false_alarm))
+                             CEILING * upper, float(dwell_time), float(false_alarm),
+                             handover_covariance(design.filtering, kalman))
     return dataclasses.replace(record, certificate={"checks": certify_supervised(record)})
 
 

@@ -101,7 +101,7 @@ FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SUPERVISOR_THRESHOLDS = ("ceiling", "lower", "upper", "lower_return", "upper_return",
                          "dwell_time")
 """The supervised observer's fields compiled in as ``SUPERVISOR_<NAME>``, beside its model's
-C, S^-1 and weight."""
+C, both statistics' S^-1, the weight and the time-varying recursion's matrices."""
 SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 """Plan fields that point to per-instance scratch memory (set by each instance)."""
 COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=c99")
@@ -260,9 +260,12 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
 def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
                      h: float) -> dict[str, Any]:
     """The supervised observer's data: its filtering observer's (:func:`_native_data`), its
-    Kalman filter's one-cycle plan and Ts, and the statistic's data from the numpy runtime's
-    model (``supervisor``: C of the model, S^-1, the weight and the thresholds). Each step size
-    of ``steps`` must also be a whole number of samples Ts (:class:`BuildError` otherwise)."""
+    Kalman filter's one-cycle plan and Ts, and the statistics' and the handover's data from
+    the numpy runtime's model (``supervisor``: C of the model, the Kalman filter's and the
+    homogeneous statistic's S^-1, the weight, the thresholds, and for the time-varying
+    recursion Phi, Gamma, R, Q_d, the steady-state and the handover covariances). Each step
+    size of ``steps`` must also be a whole number of samples Ts (:class:`BuildError`
+    otherwise)."""
     model = SupervisedObserver(record, h=h)
     for dt in steps:
         try:
@@ -272,7 +275,10 @@ def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
     data = _native_data("observer", record.filtering, steps, h)
     data.update(kalman=captured_plan(model.kalman, 1.0), Ts=float(model.sample_time))
     data["supervisor"] = {
-        "C": model._C, "S_inv": model._S_inv, "weight": model._weight,
+        "C": model._C, "S_inv": model._S_inv, "S_homogeneous_inv": model._S_homogeneous_inv,
+        "weight": model._weight, "Phi": model._Phi, "Gamma": model._Gamma, "R": model._R,
+        "Q_d": record.kalman.process_covariance, "P_steady": record.kalman.covariance,
+        "P_handover": record.handover_covariance,
         **{name: float(getattr(record, name)) for name in SUPERVISOR_THRESHOLDS}}
     return data
 
@@ -504,7 +510,8 @@ def _sizes(kind: str, plant: PlantModel, data: dict[str, Any]) -> dict[str, int]
     r = 0 if plant.E is None else plant.E.shape[1]
     state = {"observer": n_model + plant.k + 1, "plant": plant.n + 1,
              "kalman": n_model + 1, "prescribed_time": n_model + 1,
-             "supervised": HEAD_SIZE + (n_model + plant.k + 1) + (n_model + 1),
+             "supervised": HEAD_SIZE + (n_model + plant.k + 1) + (n_model + 1)
+                           + n_model * n_model + 1,
              }.get(kind, n_model)
     return {"n": plant.n, "n_model": n_model, "k": plant.k, "m": plant.m, "r": r,
             "state_size": state}
