@@ -192,18 +192,25 @@ def test_handover_covariance_is_the_homogeneous_error_floored_by_the_kalman_one(
 
 def test_covariance_floor_raises_the_directions_below_the_floor():
     """Random covariances (seeded): the result is at least both; where the covariance exceeds
-    the floor it is kept, where it is below it the result is the floor."""
+    the floor it is kept, where it is below it the result is the floor; a state of zero
+    variance in both (bordered on here, scales 1e-6 to 1e6 apart) keeps a zero row and the
+    others are floored as without it."""
     rng = np.random.default_rng(4)
+    scales = np.diag([1e-6, 1.0, 1e3, 1e6])
     for _ in range(20):
-        root = rng.normal(size=(4, 4))
-        floor = root @ root.T + 0.1 * np.eye(4)
-        assert np.allclose(covariance_floor(4.0 * floor, floor), 4.0 * floor)
-        assert np.allclose(covariance_floor(0.25 * floor, floor), floor)
-        other = rng.normal(size=(4, 4))
+        root = scales @ rng.normal(size=(4, 4))
+        floor = root @ root.T + 0.1 * scales**2
+        assert np.allclose(covariance_floor(4.0 * floor, floor), 4.0 * floor, rtol=1e-9, atol=0)
+        assert np.allclose(covariance_floor(0.25 * floor, floor), floor, rtol=1e-9, atol=0)
+        other = scales @ rng.normal(size=(4, 4))
         covariance = other @ other.T
         raised = covariance_floor(covariance, floor)
         for below in (covariance, floor):
-            assert np.linalg.eigvalsh(raised - below)[0] >= -1e-10 * np.abs(raised).max()
+            difference = np.linalg.inv(scales) @ (raised - below) @ np.linalg.inv(scales)
+            assert np.linalg.eigvalsh(difference)[0] >= -1e-9 * np.abs(difference).max()
+        bordered = covariance_floor(*(np.pad(m, ((0, 1), (0, 1))) for m in (covariance, floor)))
+        assert not np.any(bordered[4]) and not np.any(bordered[:, 4])
+        np.testing.assert_allclose(bordered[:4, :4], raised, rtol=1e-9, atol=0)
 
 
 def test_record_round_trips_and_certificate_names_the_field(record):

@@ -664,7 +664,9 @@ def covariance_problems(supervised: SupervisedGains) -> list[str]:
     """What is out of range in the covariances of the handover's time-varying recursion
     (empty if nothing): the Kalman record's ``process_covariance`` Q_d (N x N, symmetric to
     round-off, positive semi-definite to round-off) and ``handover_covariance`` (N x N,
-    symmetric to round-off, positive definite).
+    symmetric to round-off, positive definite on the states of nonzero variance: a state the
+    noise never moves has a zero row and column), judged on their correlation matrices
+    (:func:`correlation_eigenvalue`: stiff models' covariances span many decades).
 
     Examples
     --------
@@ -673,8 +675,9 @@ def covariance_problems(supervised: SupervisedGains) -> list[str]:
     ...             handover_covariance=np.diag([2.0, 1.0]))
     >>> covariance_problems(record)
     []
-    >>> covariance_problems(NS(**{**vars(record), "handover_covariance": np.diag([1.0, -1.0])}))
-    ['handover_covariance must be positive definite (lambda_min / lambda_max = -1.000e+00)']
+    >>> bad = NS(**{**vars(record), "handover_covariance": np.diag([1.0, -1.0])})
+    >>> print(*covariance_problems(bad))
+    handover_covariance must be positive definite (least eigenvalue of its correlation ...)
     """
     size = supervised.kalman.covariance.shape[0]
     problems = []
@@ -688,11 +691,37 @@ def covariance_problems(supervised: SupervisedGains) -> list[str]:
         if not np.all(np.isfinite(matrix)) or asymmetric_entries(matrix):
             problems.append(f"{name} must be finite and symmetric")
             continue
-        ratio = _eigenvalue_ratio(matrix)
-        if not ratio > least:
+        smallest = correlation_eigenvalue(matrix)
+        if not smallest > least:
             kind = "positive definite" if least > 0 else "positive semi-definite"
-            problems.append(f"{name} must be {kind} (lambda_min / lambda_max = {ratio:.3e})")
+            problems.append(f"{name} must be {kind} (least eigenvalue of its correlation "
+                            f"matrix = {smallest:.3e})")
     return problems
+
+
+def correlation_eigenvalue(matrix: np.ndarray) -> float:
+    """The least eigenvalue of a symmetric matrix scaled to its correlation matrix (divided by
+    ``sqrt(|M_ii M_jj|)``) on its support, the rows with a nonzero diagonal entry: scale free,
+    1 for a diagonal positive definite matrix, at most 1 for a positive semi-definite one,
+    negative for an indefinite one (-1 if a row with a zero diagonal entry is not all zero,
+    which no positive semi-definite matrix has; 1 for the zero matrix).
+
+    Examples
+    --------
+    >>> round(correlation_eigenvalue(np.diag([1e-20, 1e20, 0.0])), 12)
+    1.0
+    >>> round(correlation_eigenvalue(np.array([[1.0, 2.0], [2.0, 1.0]])), 12)
+    -1.0
+    """
+    matrix = sym(np.asarray(matrix, dtype=float))
+    support = np.diagonal(matrix) != 0.0
+    if np.any(matrix[~support]):
+        return -1.0
+    if not support.any():
+        return 1.0
+    root = np.sqrt(np.abs(np.diagonal(matrix)[support]))
+    return float(np.linalg.eigvalsh(matrix[np.ix_(support, support)]
+                                    / np.outer(root, root))[0])
 
 
 def _eigenvalue_ratio(matrix: np.ndarray) -> float:
@@ -715,8 +744,9 @@ def certify_supervised(
     -------
     dict
         Both parts' figures, ``innovation_covariance_positive``
-        (``lambda_min(S) / lambda_max(S)``) and ``handover_covariance_positive`` (the same of
-        ``handover_covariance``).
+        (``lambda_min(S) / lambda_max(S)``) and ``handover_covariance_positive`` (the least
+        eigenvalue of ``handover_covariance``'s correlation matrix,
+        :func:`correlation_eigenvalue`).
 
     Raises
     ------
@@ -748,7 +778,7 @@ def certify_supervised(
     figures = certify_filtering(supervised.filtering, tolerance, margin)
     figures |= certify_kalman(supervised.kalman, tolerance, margin)
     return figures | {"innovation_covariance_positive": positive,
-                      "handover_covariance_positive": _eigenvalue_ratio(
+                      "handover_covariance_positive": correlation_eigenvalue(
                           supervised.handover_covariance)}
 
 

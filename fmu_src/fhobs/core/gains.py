@@ -410,8 +410,9 @@ class SupervisedGains(_Record):
         statistic leaves ``(lower, upper)`` (Gaussian innovations; what the thresholds were set
         for).
     handover_covariance : numpy.ndarray
-        (N x N, symmetric positive definite) error covariance of the homogeneous estimate
-        under the ``[noise]`` table's measurement noise, at least the Kalman filter's
+        (N x N, symmetric, positive definite on the states of nonzero variance) error
+        covariance of the homogeneous estimate under the ``[noise]`` table's measurement
+        noise, at least the Kalman filter's
         steady-state ``covariance``: the Kalman filter's covariance at a handover, from which
         it runs the time-varying recursion back to its steady state.
     certificate : dict

@@ -23,8 +23,8 @@ is that of the homogeneous observer run on the ``[noise]`` table's measurement n
 plant at rest, uniform noise of the table's std, seed ``HANDOVER_SEED``, one step of Ts per
 sample): the sample covariance of its z over ``HANDOVER_SAMPLES`` samples after
 ``HANDOVER_TRANSIENT`` samples of its transient, floored by the Kalman filter's steady-state
-covariance P (in P's whitened coordinates every eigenvalue below 1 raised to 1), so that the
-recursion starts at or above its fixed point and decreases to it.
+covariance P (:func:`covariance_floor`: in P's whitened coordinates every eigenvalue below 1
+raised to 1), so that the recursion starts at or above its fixed point.
 
 Defaults (measured by ``bench/bench_supervisor.py``): ``WINDOW = 50`` samples (2.5 ms at the
 pendulum's Ts = 5e-5 s, 50 ms at the zoo's 1e-3 s; 200 samples kept the zoo's step-disturbed
@@ -63,6 +63,9 @@ HANDOVER_TRANSIENT = 5_000
 """Samples of the homogeneous observer's transient left out of that covariance."""
 HANDOVER_SEED = 0
 """Seed of the measurement noise the handover covariance is estimated on."""
+RANGE_TOLERANCE = 1e-14
+"""Eigenvalues of the scaled sum below this fraction of its largest are its null space
+(:func:`covariance_floor`)."""
 
 
 def statistic_band(k: int, window: float, probability: float) -> tuple[float, float]:
@@ -133,19 +136,33 @@ def handover_covariance(filtering: FilteringGains, kalman: KalmanGains, *,
 
 
 def covariance_floor(covariance: np.ndarray, floor: np.ndarray) -> np.ndarray:
-    """``covariance`` with every direction in which it is below ``floor`` raised to it: in the
-    coordinates where ``floor`` (positive definite) is the identity, its eigenvalues below 1
-    set to 1. The result is symmetric and at least both (positive semi-definite differences).
+    """``covariance`` with every direction in which it is below ``floor`` raised to it.
+
+    Both are diagonalised by one congruence: that which makes their sum the identity on its
+    range (after a diagonal scaling that makes the sum's diagonal one, as stiff models'
+    covariances span many decades), then the eigenvectors of ``covariance`` there. In those
+    coordinates the result is the larger of their two diagonals entry by entry, and zero on
+    the sum's null space (directions in which both are zero: a state the noise never moves).
+    With ``floor`` positive definite this is ``covariance`` with its eigenvalues below 1
+    raised to 1 in the coordinates where ``floor`` is the identity. The result is symmetric
+    and at least both (positive semi-definite differences).
 
     Examples
     --------
-    >>> covariance_floor(np.diag([4.0, 0.25]), np.eye(2)).tolist()
-    [[4.0, 0.0], [0.0, 1.0]]
+    >>> covariance_floor(np.diag([4.0, 0.25, 0.0]), np.diag([1.0, 1.0, 0.0])).round(12).tolist()
+    [[4.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]
     """
-    root = np.linalg.cholesky(0.5 * (floor + floor.T))
-    whitened = np.linalg.solve(root, np.linalg.solve(root, covariance).T)
-    values, vectors = np.linalg.eigh(0.5 * (whitened + whitened.T))
-    raised = root @ vectors @ np.diag(np.maximum(values, 1.0)) @ vectors.T @ root.T
+    covariance, floor = 0.5 * (covariance + covariance.T), 0.5 * (floor + floor.T)
+    scale = np.sqrt(np.diag(covariance) + np.diag(floor))
+    scale[scale == 0.0] = 1.0
+    total, vectors = np.linalg.eigh((covariance + floor) / np.outer(scale, scale))
+    kept = total > RANGE_TOLERANCE * total[-1]
+    root = vectors[:, kept] * np.sqrt(total[kept])  # the sum = root root^T on its range
+    inverse = vectors[:, kept].T / np.sqrt(total[kept])[:, None]
+    whitened = inverse @ (covariance / np.outer(scale, scale)) @ inverse.T
+    values, rotation = np.linalg.eigh(0.5 * (whitened + whitened.T))
+    basis = scale[:, None] * (root @ rotation)
+    raised = basis @ np.diag(np.maximum(values, 1.0 - values)) @ basis.T
     return 0.5 * (raised + raised.T)
 
 
