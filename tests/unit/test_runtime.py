@@ -147,6 +147,35 @@ def test_scheme_converges_to_fine_step_reference(request, design, scheme):
     assert 1.6 < errors[0] / errors[1] < 2.5
 
 
+def test_luenberger_split_is_the_closed_form_sampled_error(paper_design):
+    """At a step whose held-innovation error map contracts (this one), e_k = (expm(h A) +
+    int_0^h expm(tA) dt L_lin C)^k e_0 exactly, whatever u does, and it approaches the
+    continuous expm(t (A + L_lin C)) e_0 as h -> 0."""
+    g, h, steps = paper_design, 1e-3, 500
+    plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, x0=X0_PAPER)
+    obs = LuenbergerObserver(g.luenberger, h=h)
+    assert obs.holds_innovation(h)
+    for k in range(steps):
+        u = [0.3 * np.sin(7.0 * k * h)]
+        y = plant.y
+        plant.step(u, None, h)
+        obs.step(y, u, h)
+    assert np.allclose(obs.z - plant.x, sampled_error(g, h, steps), rtol=1e-8, atol=1e-10)
+    e_cont = sl.expm(steps * h * (g.plant.A + g.luenberger.L_lin @ g.plant.C)) @ -X0_PAPER
+    gaps = [np.linalg.norm(sampled_error(g, hh, round(steps * h / hh)) - e_cont)
+            for hh in (h, h / 10)]
+    assert gaps[0] < 0.1 * np.linalg.norm(e_cont) and 8.0 < gaps[0] / gaps[1] < 12.0
+
+
+def sampled_error(g, h, steps):
+    """(expm(h A) + int_0^h expm(t A) dt L_lin C)^steps e_0 with e_0 = -x0 (scipy)."""
+    aug = np.zeros((2 * g.plant.n, 2 * g.plant.n))
+    aug[:g.plant.n, :g.plant.n], aug[:g.plant.n, g.plant.n:] = g.plant.A, np.eye(g.plant.n)
+    Gamma = sl.expm(h * aug)[:g.plant.n, g.plant.n:]
+    F = sl.expm(h * g.plant.A) + Gamma @ g.luenberger.L_lin @ g.plant.C
+    return np.linalg.matrix_power(F, steps) @ -X0_PAPER
+
+
 def test_luenberger_euler_is_explicit_euler(paper_design):
     g, h, steps = paper_design, 1e-4, 300
     plant = LTIPlant(g.plant.A, g.plant.B, g.plant.C, x0=X0_PAPER, scheme="euler")

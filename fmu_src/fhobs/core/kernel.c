@@ -41,7 +41,8 @@ int fhobs_plant_step(const Call *call)
     return all_finite(dst, p->n) ? FHOBS_OK : FHOBS_NONFINITE;
 }
 
-/* Luenberger split step, the exact hold of the closed loop: z+ = M (z, y, u); inputs = (y, u). */
+/* Luenberger split step, the exact hold its plan chose (innovation or y held): z+ = M (z, y, u);
+ * inputs = (y, u). */
 int fhobs_luenberger_step(const Call *call)
 {
     const LinearPlan *p = call->plan;

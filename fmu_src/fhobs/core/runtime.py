@@ -109,6 +109,11 @@ TAU_GRID = np.geomspace(1e-7, 3.0, 76)
 ceiling)."""
 CONTRACTION_LIMIT = 1.0 - 1e-9
 """A dilated error map counts as contractive below this spectral radius."""
+HELD_INNOVATION_LIMIT = 1.0 - 1e-6
+"""The Luenberger observer's split step holds the innovation when its error map
+``expm(dt A) + Gamma_L C`` has a spectral radius below this, else y (the closed loop's hold): a
+margin below 1 far beyond the radius's round-off, so that the numpy runtime and the native
+planner choose alike."""
 RADIUS_TIE = 1e-9
 """Spectral radii of the tau scan within this of the smallest count as the smallest: where the
 radius does not depend on the level (a mode of the plant that the injection does not move) its
@@ -896,22 +901,30 @@ class PrescribedTimeObserver(_Observer):
 class LuenbergerObserver(_Observer):
     """Luenberger baseline ``dz/dt = A z + B u + L_lin (C z - y)``.
 
-    The split scheme is the exact zero-order hold of the closed loop with y and u held over
-    the step: ``z+ = expm(dt A_cl) z + Gamma_y y + Gamma_u u`` with ``A_cl = A + L_lin C``
-    (``Gamma_y`` the hold of ``-L_lin``, ``Gamma_u`` of B; :meth:`closed_loop_map`): the
-    observer's equation solved exactly over the step, so the error's own part decays by
-    ``expm(dt A_cl)`` per step, stable at every step size when A_cl is Hurwitz (what the
-    record's certificate checks); the plant's motion within a step, which the held y does not
-    show, adds an error of order dt times the output's rate. ``euler`` is explicit Euler,
-    which needs h small against the closed loop's fastest mode. The parameters are those of
-    :class:`FilteringObserver`, the record a :class:`~fhobs.core.gains.LuenbergerGains` (the
-    gain is its ``L_lin``).
+    The split scheme's step is ``z+ = M (z, y, u)`` (:meth:`step_map`), one of two exact
+    holds, chosen per step size dt where the plan is made:
+
+    - the held innovation, ``z+ = expm(dt A) z + Gamma_B u + Gamma_L (C z - y)``: the error
+      obeys ``e+ = (expm(dt A) + Gamma_L C) e`` exactly, whatever the plant does, so it falls
+      to round-off; used when that error map's spectral radius is below
+      ``HELD_INNOVATION_LIMIT`` (:meth:`holds_innovation`), which coarse steps on stiff
+      plants fail;
+    - else the closed loop with y held, ``z+ = expm(dt A_cl) z + Gamma_y y + Gamma_u u`` with
+      ``A_cl = A + L_lin C`` (:meth:`closed_loop_map`): stable at every dt when A_cl is
+      Hurwitz (what the record's certificate checks), but the held y lags a moving output,
+      an error of order dt times the output's rate.
+
+    ``euler`` is explicit Euler, which needs h small against the closed loop's fastest mode.
+    The parameters are those of :class:`FilteringObserver`, the record a
+    :class:`~fhobs.core.gains.LuenbergerGains` (the gain is its ``L_lin``).
 
     Examples
     --------
     >>> from fhobs.design.observer import design_observer
     >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
     >>> obs = LuenbergerObserver(design.luenberger, h=1e-3)
+    >>> obs.holds_innovation(1e-2)
+    True
     >>> for _ in range(2000):
     ...     obs.step(y=[1.0], u=[0.0], dt=1e-2)
     >>> bool(np.allclose(obs.x_hat, [1.0, 0.0], atol=1e-6))
@@ -934,10 +947,42 @@ class LuenbergerObserver(_Observer):
         gives :meth:`closed_loop_map` (what the native planner exponentiates)."""
         return np.hstack((self._A_cl, -self._L_inj, self._B))
 
+    def held_innovation_radius(self, dt: float) -> float:
+        """Spectral radius of the held innovation's error map ``expm(dt A) + Gamma_L C`` (inf
+        when the map overflows).
+
+        Examples
+        --------
+        A scalar plant ``dx/dt = -x + u``, ``y = x``, gain ``L_lin = -4``: the map is
+        ``5 exp(-dt) - 4``, of modulus below one for dt < ln(5/3) only.
+
+        >>> from fhobs.core.gains import LuenbergerGains, PlantModel
+        >>> one = np.ones((1, 1))
+        >>> obs = LuenbergerObserver(LuenbergerGains(plant=PlantModel(A=-one, B=one, C=one),
+        ...                                          L_lin=-4.0 * one))
+        >>> [round(obs.held_innovation_radius(dt), 6) for dt in (0.1, 1.0)]
+        [0.524187, 2.160603]
+        """
+        with np.errstate(all="ignore"):  # an overflowing map is not chosen, not an error
+            F = self._prediction(dt).F
+        return spectral_radius(F) if np.isfinite(F).all() else math.inf
+
+    def holds_innovation(self, dt: float) -> bool:
+        """Whether the step of size dt holds the innovation (its error map's spectral radius
+        below ``HELD_INNOVATION_LIMIT``) rather than y."""
+        return self.held_innovation_radius(dt) < HELD_INNOVATION_LIMIT
+
+    def held_innovation_map(self, dt: float) -> np.ndarray:
+        """``[expm(dt A) + Gamma_L C, -Gamma_L, Gamma_B]``: the held innovation's step
+        ``expm(dt A) z + Gamma_B u + Gamma_L (C z - y)`` as ``M (z, y, u)``."""
+        prediction = self._prediction(dt)
+        n = self._z.size
+        return np.hstack((prediction.F, -prediction.Gamma_inj, prediction.M[:, n:n + self._m]))
+
     def closed_loop_map(self, dt: float) -> np.ndarray:
-        """``M = [expm(dt A_cl), Gamma_y, Gamma_u]``, the split step ``z+ = M (z, y, u)`` of
-        the communication step dt: the first rows of ``expm(dt [[A_cl, -L_lin, B], [0, 0,
-        0]])`` (:func:`fhobs.core.linalg.zoh_blocks`), cached per step size.
+        """``[expm(dt A_cl), Gamma_y, Gamma_u]``, the closed loop's hold with y and u held:
+        the first rows of ``expm(dt [[A_cl, -L_lin, B], [0, 0, 0]])``
+        (:func:`fhobs.core.linalg.zoh_blocks`).
 
         Examples
         --------
@@ -953,21 +998,41 @@ class LuenbergerObserver(_Observer):
         ...                       (1 - np.exp(-1.0)) / 2]]))
         True
         """
+        return np.hstack(zoh_blocks(self._A_cl, [-self._L_inj, self._B], dt))
+
+    def step_map(self, dt: float) -> np.ndarray:
+        """``M`` of the split step ``z+ = M (z, y, u)`` of size dt: :meth:`held_innovation_map`
+        where :meth:`holds_innovation`, else :meth:`closed_loop_map`; cached per step size.
+
+        Examples
+        --------
+        The scalar plant of :meth:`held_innovation_radius`:
+
+        >>> from fhobs.core.gains import LuenbergerGains, PlantModel
+        >>> one = np.ones((1, 1))
+        >>> obs = LuenbergerObserver(LuenbergerGains(plant=PlantModel(A=-one, B=one, C=one),
+        ...                                          L_lin=-4.0 * one))
+        >>> bool(np.array_equal(obs.step_map(0.1), obs.held_innovation_map(0.1)))
+        True
+        >>> bool(np.array_equal(obs.step_map(1.0), obs.closed_loop_map(1.0)))
+        True
+        """
         M = self._maps.get(dt)
         if M is None:
             if len(self._maps) >= ZOH_CACHE_SIZE:  # variable steps: keep the cache bounded
                 self._maps.clear()
-            M = self._maps[dt] = np.hstack(zoh_blocks(self._A_cl, [-self._L_inj, self._B], dt))
+            M = self._maps[dt] = (self.held_innovation_map(dt) if self.holds_innovation(dt)
+                                  else self.closed_loop_map(dt))
         return M
 
     def _run_split(self, z: np.ndarray, aux: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
                    level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The exact hold of the closed loop over dt (no gain level): ``z+ = M (z, y, u)``."""
-        return self.closed_loop_map(dt).dot(np.concatenate((z, y, u))), aux
+        """One exact hold over dt (no gain level): ``z+ = M (z, y, u)``."""
+        return self.step_map(dt).dot(np.concatenate((z, y, u))), aux
 
     def _kernel_plan(self, dt: float) -> None:
         """The kernel's plan for dt: ``z+ = M (z, y, u)``."""
-        M = self.closed_loop_map(dt)
+        M = self.step_map(dt)
         plan = compiled.LinearPlan(n=self._z.size, k=self._k, m=self._m, cycles=1,
                                    M=compiled.pointer(M))
         self._stepper.add_plan(dt, plan, M)

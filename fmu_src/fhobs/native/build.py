@@ -415,6 +415,8 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
         elif kind == "luenberger":
             body.append(f"static const LinearPlan LINEAR_BASE = "
                         f"{_plan_initializer(data['base'], arrays)};")
+            body.append(f"static const HeldInnovation HELD_INNOVATION = "
+                        f"{_plan_initializer(data['held'], arrays)};")
         if kind == "plant":
             for name in ("A", "B", "E", "C"):
                 body.append(f"#define PLANT_{name} {arrays.name(data[name])}")

@@ -20,7 +20,7 @@
 
 /* F = Phi + Gamma_inj C: Phi the first n columns of M (n x size), Gamma_inj its last k; the
  * product's entries fused multiply-adds in sequence, as numpy's matrix product. */
-static void carry_matrix(const double *M, const double *C, int n, int size, int k, double *F)
+void carry_matrix(const double *M, const double *C, int n, int size, int k, double *F)
 {
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
@@ -211,7 +211,7 @@ static double hessenberg_radius(double *H, int n)
 
 /* Spectral radius of A (n x n, destroyed), inf if an entry or the result is not finite
  * (the runtime observers' _dilated_radius, fhobs.core.runtime); work: n doubles. */
-static double spectral_radius(double *A, int n, double *work)
+double spectral_radius(double *A, int n, double *work)
 {
     for (size_t i = 0; i < (size_t)n * n; i++)
         if (!isfinite(A[i]))

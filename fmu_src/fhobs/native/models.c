@@ -213,9 +213,7 @@ static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
 #else
     (void)msg;
     (void)len;
-    *plan = LINEAR_BASE;
-    zoh_rows(ZOH_TOP, FHOBS_N_MODEL, FHOBS_ZOH_SIZE, dt, w->M[i], w->scratch);
-    plan->M = w->M[i];
+    plan_luenberger(plan, &LINEAR_BASE, &HELD_INNOVATION, ZOH_TOP, dt, w->M[i], w->scratch);
 #endif
     return plan;
 }

@@ -6,6 +6,7 @@
  *     of expm(h [[A, B_1, ...], [0, 0, ...]]) = [Phi, Gamma_1, ...];
  *   - expm: fhobs.core.linalg.expm (Pade 13, the same squaring count, the same polynomial
  *     evaluation, the solve by LU with partial pivoting, the squarings);
+ *   - the Luenberger observer's choice of hold (plan_luenberger);
  *   - the filtering observer's gain-level floor and ceiling: gain_levels.c.
  *
  * Every function takes its scratch memory from the caller (no variable-length arrays): see
@@ -180,4 +181,37 @@ void zoh_rows(const double *top, int n, int size, double h, double *out, double 
     expm(aug, size, E, E + ss);
     for (size_t i = 0; i < (size_t)n * size; i++)
         out[i] = E[i];
+}
+
+/* The Luenberger observer's plan of dt (planner.h): the held innovation's rows [Phi, Gamma_B,
+ * Gamma_L] into M, F and its radius; then M rearranged row by row into [F, -Gamma_L,
+ * Gamma_B], or overwritten by the closed loop's hold. work: n^2 + 9 size^2 doubles. */
+double plan_luenberger(LinearPlan *plan, const LinearPlan *base, const HeldInnovation *held,
+                       const double *top, double dt, double *M, double *work)
+{
+    const int n = base->n, k = base->k, m = base->m, size = n + k + m;
+    double *F = work, *scratch = F + (size_t)n * n;
+    zoh_rows(held->held_top, n, size, dt, M, scratch);
+    carry_matrix(M, held->C, n, size, k, F);
+    for (size_t i = 0; i < (size_t)n * n; i++)
+        scratch[i] = F[i];
+    double radius = spectral_radius(scratch, n, scratch + (size_t)n * n);
+    if (radius < held->limit) {
+        double *row = scratch;
+        for (int i = 0; i < n; i++) {
+            double *Mi = M + (size_t)i * size;
+            for (int j = 0; j < size; j++)
+                row[j] = Mi[j];
+            for (int j = 0; j < n; j++)
+                Mi[j] = F[(size_t)i * n + j];
+            for (int j = 0; j < k; j++)
+                Mi[n + j] = -row[n + m + j];
+            for (int j = 0; j < m; j++)
+                Mi[n + k + j] = row[n + j];
+        }
+    } else
+        zoh_rows(top, n, size, dt, M, scratch);
+    *plan = *base;
+    plan->M = M;
+    return radius;
 }

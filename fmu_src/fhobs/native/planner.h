@@ -26,6 +26,15 @@ typedef struct {
     double trusted_high; /* _Observer._scaling_band (independent of dt) */
 } LevelScan;
 
+/* The Luenberger observer's held-innovation hold (fhobs.core.runtime.LuenbergerObserver,
+ * held_innovation_map), chosen for a step size whose error map has a spectral radius below
+ * `limit`. */
+typedef struct {
+    const double *held_top; /* n x (n + m + k): [A, B, L_lin], the ZOH's augmented top rows */
+    const double *C;        /* k x n */
+    double limit;           /* fhobs.core.runtime.HELD_INNOVATION_LIMIT */
+} HeldInnovation;
+
 /* Solve A X = B (A n x n, B n x cols, row-major) by LU with partial pivoting in numpy's order
  * of operations; A becomes L and U, B becomes X; 1 when a pivot is exactly zero, else 0. */
 FHOBS_HIDDEN int lu_solve(double *A, double *B, int n, int cols);
@@ -34,6 +43,25 @@ FHOBS_HIDDEN int lu_solve(double *A, double *B, int n, int cols);
  * Gamma_1, ...] (fhobs.core.linalg.zoh_blocks); work: 9 size^2 doubles. */
 FHOBS_HIDDEN void zoh_rows(const double *top, int n, int size, double h, double *out,
                            double *work);
+
+/* F = Phi + Gamma_inj C of a ZOH's rows M = [Phi, ..., Gamma_inj] (n x size, Gamma_inj its
+ * last k columns; C k x n) into F (n x n), in numpy's order (gain_levels.c). */
+FHOBS_HIDDEN void carry_matrix(const double *M, const double *C, int n, int size, int k,
+                               double *F);
+
+/* Spectral radius of A (n x n, destroyed), inf if an entry or the result is not finite;
+ * work: n doubles (gain_levels.c). */
+FHOBS_HIDDEN double spectral_radius(double *A, int n, double *work);
+
+/* The Luenberger observer's plan of the step size dt (fhobs.core.runtime.LuenbergerObserver.
+ * step_map): base's fields and M (the caller's n x (n + k + m) array) of z+ = M (z, y, u),
+ * the held innovation [F, -Gamma_L, Gamma_B] (F = expm(dt A) + Gamma_L C) when F's spectral
+ * radius is below held->limit, else the closed loop's hold, the first rows of expm(dt [[top],
+ * [0]]) with top = [A + L_lin C, -L_lin, B]. Returns F's spectral radius (inf when not
+ * finite). work: FHOBS_PLAN_WORK_SIZE. */
+FHOBS_HIDDEN double plan_luenberger(LinearPlan *plan, const LinearPlan *base,
+                                    const HeldInnovation *held, const double *top, double dt,
+                                    double *M, double *work);
 
 /* The filtering observer's plan of the step size dt (gain_levels.c): base's fields, M and F
  * (the caller's arrays), the gain-level floor and ceiling; plan's factors, last_tau, work and

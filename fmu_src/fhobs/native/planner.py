@@ -33,7 +33,13 @@ import numpy as np
 from ..core import kernel
 from ..core.dilation import Dilation
 from ..core.linalg import PHI1_SERIES
-from ..core.runtime import CONTRACTION_LIMIT, LEVEL_MISMATCH, RADIUS_TIE, TAU_GRID
+from ..core.runtime import (
+    CONTRACTION_LIMIT,
+    HELD_INNOVATION_LIMIT,
+    LEVEL_MISMATCH,
+    RADIUS_TIE,
+    TAU_GRID,
+)
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "planner.c"
@@ -50,6 +56,12 @@ class LevelScan(ctypes.Structure):
                 ("roundoff", ctypes.c_double), ("contraction", ctypes.c_double),
                 ("tie", ctypes.c_double), ("trusted_low", ctypes.c_double),
                 ("trusted_high", ctypes.c_double)]
+
+
+class HeldInnovation(ctypes.Structure):
+    """``HeldInnovation`` of planner.h."""
+
+    _fields_ = [("held_top", _DOUBLE_P), ("C", _DOUBLE_P), ("limit", ctypes.c_double)]
 
 
 def design_data(kind: str, model: Any) -> dict[str, Any]:
@@ -72,7 +84,8 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
         closed loop's ``[A + L_lin C, -L_lin, B]``) of the ZOH's augmented matrix; observer
         and prescribed_time: ``base`` (the plan's fields that do not depend on the step size,
         as the model's ``_kernel_plan`` sets them) and ``scan`` (the :class:`LevelScan`
-        fields); Luenberger: ``base`` (``LinearPlan`` fields).
+        fields); Luenberger: ``base`` (``LinearPlan`` fields) and ``held`` (the
+        :class:`HeldInnovation` fields: ``[A, B, L_lin]``, C and the limit).
 
     Examples
     --------
@@ -86,7 +99,11 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
         return {"top": np.hstack((model.A, model.B, model.E))}
     n, k, m = model._z.size, model._k, model._m
     if kind == "luenberger":
-        return {"top": model.zoh_top, "base": {"n": n, "k": k, "m": m, "cycles": 1}}
+        held = {"held_top": np.hstack((model._A, model._B, model._L_inj)),
+                "C": np.ascontiguousarray(model._C, dtype=float),
+                "limit": HELD_INNOVATION_LIMIT}
+        return {"top": model.zoh_top, "base": {"n": n, "k": k, "m": m, "cycles": 1},
+                "held": held}
     top = np.hstack((model._A, model._B, model._L_inj))
     C = np.ascontiguousarray(model._C, dtype=float)
     gains = model.gains
@@ -135,6 +152,7 @@ def library() -> ctypes.CDLL | None:
     lib.fhobs_plan_filter.restype = ctypes.c_int
     lib.fhobs_plan_prescribed.restype = ctypes.c_int
     lib.fhobs_plan_zoh.restype = None
+    lib.fhobs_plan_luenberger.restype = ctypes.c_double
     return lib
 
 
@@ -159,7 +177,8 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
     -------
     dict
         observer, prescribed_time: ``M``, ``F``, ``floor_level``, ``ceiling``; luenberger:
-        ``M``; plant: ``Phi``, ``Gamma_B``, ``Gamma_E``.
+        ``M`` and ``radius`` (of the held innovation's error map, which chose M); plant:
+        ``Phi``, ``Gamma_B``, ``Gamma_E``.
 
     Raises
     ------
@@ -179,15 +198,21 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
     m = data["base"]["m"] if "base" in data else 0
     work = np.zeros(lib.fhobs_plan_work_size(n, k, m, size, TAU_GRID.size))
     M = np.zeros((n, size))
-    if kind not in ("observer", "prescribed_time"):
+    keep: list[np.ndarray] = []
+    if kind == "luenberger":
+        base = _structure(kernel.LinearPlan, data["base"], keep)
+        held = _structure(HeldInnovation, data["held"], keep)
+        radius = lib.fhobs_plan_luenberger(ctypes.byref(kernel.LinearPlan()), ctypes.byref(base),
+                                           ctypes.byref(held), kernel.pointer(top),
+                                           ctypes.c_double(dt), kernel.pointer(M),
+                                           kernel.pointer(work))
+        return {"M": M, "radius": radius}
+    if kind == "plant":
         lib.fhobs_plan_zoh(kernel.pointer(top), n, size, ctypes.c_double(dt),
                            kernel.pointer(M), kernel.pointer(work))
-        if kind == "luenberger":
-            return {"M": M}
         widths = np.cumsum([n, model.B.shape[1]])
         Phi, Gamma_B, Gamma_E = np.split(M, widths, axis=1)
         return {"Phi": Phi, "Gamma_B": Gamma_B, "Gamma_E": Gamma_E}
-    keep: list[np.ndarray] = []
     scan = _structure(LevelScan, {**data["scan"], "n_tau": TAU_GRID.size}, keep)
     last_tau = np.zeros(1)
     if kind == "observer":

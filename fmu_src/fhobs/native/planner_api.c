@@ -8,6 +8,9 @@
 
 int fhobs_plan_work_size(int n, int k, int m, int z, int taus);
 void fhobs_plan_zoh(const double *top, int n, int size, double h, double *out, double *work);
+double fhobs_plan_luenberger(LinearPlan *plan, const LinearPlan *base,
+                             const HeldInnovation *held, const double *top, double dt,
+                             double *M, double *work);
 int fhobs_plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
                       const double *top, double dt, double *M, double *F, double *best,
                       double *work);
@@ -25,6 +28,14 @@ int fhobs_plan_work_size(int n, int k, int m, int z, int taus)
 void fhobs_plan_zoh(const double *top, int n, int size, double h, double *out, double *work)
 {
     zoh_rows(top, n, size, h, out, work);
+}
+
+/* The Luenberger observer's plan of dt, F's spectral radius returned: plan_luenberger. */
+double fhobs_plan_luenberger(LinearPlan *plan, const LinearPlan *base,
+                             const HeldInnovation *held, const double *top, double dt,
+                             double *M, double *work)
+{
+    return plan_luenberger(plan, base, held, top, dt, M, work);
 }
 
 /* The filtering observer's plan of dt (plan's factors, last_tau, work and cwork set by the
