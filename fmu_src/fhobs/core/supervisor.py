@@ -309,8 +309,8 @@ class SupervisedObserver:
         updated with ``K = P C^T S^-1`` and predicted, the next P (module docstring), and the
         cycles left (0 once P is within ``RECURSION_TOLERANCE`` of the steady state)."""
         C, steady = self._C, self.supervised.kalman.covariance
-        S = C @ P @ C.T + self._R
         CP = C @ P
+        S = CP @ C.T + self._R
         gain = np.linalg.solve(S, CP).T
         nis = float(innovation @ np.linalg.solve(S, innovation))
         z = self._Phi @ (self.kalman.z + gain @ innovation) + self._Gamma @ u
