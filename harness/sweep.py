@@ -814,14 +814,15 @@ def fmu_tag(key: str, flavour: str, options: dict[str, Any]) -> str:
 
 
 def _build(design: Any, out: Path, flavour: str, options: dict[str, Any]) -> dict[str, Path]:
-    """Build the FMUs, native ones with the ``native`` flavour (the design's Kalman filter's
-    FMU only when it has one)."""
+    """Build the FMUs, native ones with the ``native`` flavour (the Kalman filter's and the
+    supervised estimator's only when the design has them)."""
     from fhobs.build import build_fmus
+    from fhobs.fmu.kinds import KINDS
     from fhobs.native.build import build_native_fmus
 
     kinds = options.pop("kinds", None)
-    if kinds is not None and design.kalman is None:
-        kinds = [kind for kind in kinds if kind != "kalman"]
+    if kinds is not None:  # a kind whose record the design lacks (no [noise] table) is not built
+        kinds = [kind for kind in kinds if getattr(design, KINDS[kind].record) is not None]
     build = build_native_fmus if flavour == "native" else build_fmus
     return build(design, out, kinds=kinds, **options)
 
@@ -857,7 +858,8 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     noise, step = _plant_noise(spec), _plant_step(job, spec)
     options: dict[str, Any] = {
         "x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step,
-        "kinds": [k for k in KINDS if (k != "kalman" or spec.noise is not None)
+        "kinds": [k for k in KINDS
+                  if (k not in ("kalman", "supervised") or spec.noise is not None)
                   and (k != "prescribed_time" or noise == 0.0)],  # it runs without noise
     }
     if noise == 0.0:

@@ -236,8 +236,9 @@ def fmu_options(
     for kind in kinds:
         record = KINDS[kind].record
         if getattr(design, record) is None:
-            raise ValueError(f"{kind}.fmu needs a design with a {record} record (design.{record} "
-                             "is None; give the spec a [noise] table)")
+            what = KINDS[kind].description.split(" (")[0].split(":")[0]
+            raise ValueError(f"{kind}.fmu ({what}) needs a design with a {record} record "
+                             f"(design.{record} is None; give the spec a [noise] table)")
     if "prescribed_time" in kinds:
         # ValueError naming T0 if it gives no xi0
         prescribed_xi0(T0, design.model.nu, design.prescribed_time.rho)
