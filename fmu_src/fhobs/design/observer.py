@@ -85,9 +85,6 @@ RHO_MAX = 1e4
 """The automatic choice of rho climbs ``rho_0 * RHO_GROWTH**j`` up to ``RHO_MAX``, from
 ``rho_0 = RHO_START * DEFAULT_SETTLING_TIME / settling_time`` (a slower request starts lower:
 the homogeneous observer's time scale is about 1 / rho)."""
-FALLBACK_SLACK = 1.25
-"""When no rho meets the request, rungs settling within this factor of the fastest count as
-fast (:func:`_fallback`)."""
 CLIMB_PATIENCE = 4
 """Once a rung has certified, the climb stops after this many rungs in a row that fail or are
 no faster than the best one."""
@@ -388,9 +385,8 @@ def _design_for_settling_time(
     ``MAX_PEAKING``; gamma is the spec's, or rho. A rho that does not certify is passed over,
     not an end: the climb goes on up to ``RHO_MAX``, and stops early only after
     ``CLIMB_PATIENCE`` rungs in a row, once one has certified, that fail or make no progress
-    (:func:`_progress`). If no rung meets the request, :func:`_fallback` chooses, then the
-    rho halfway down to the rung below is tried too; the design's ``settling_tuning`` says
-    whether the request was met."""
+    (:func:`_progress`). If no rung meets the request, :func:`_fallback` chooses; the design's
+    ``settling_tuning`` says whether the request was met."""
     scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
 
     def rung(rho: float) -> _Rung:
@@ -419,12 +415,6 @@ def _design_for_settling_time(
     if not candidates:
         raise LMIError(_no_design_message(spec, failures))
     chosen = _fallback(candidates, spec.settling_time)
-    if not _met(chosen.response, spec.settling_time) and chosen.rho > candidates[0].rho:
-        try:  # halfway (geometrically) down to the rung below: as fast, with smaller gains?
-            candidates.append(rung(chosen.rho / RHO_GROWTH**0.5))
-            chosen = _fallback(candidates, spec.settling_time)
-        except (LMIError, CertificateError):
-            pass
     design, response = chosen.design, chosen.response
     tuning = {
         "settling_time_requested": spec.settling_time,
@@ -451,19 +441,15 @@ def _met(response: ErrorResponse, settling_time: float) -> bool:
 
 
 def _fallback(candidates: list[_Rung], settling_time: float) -> _Rung:
-    """The climb's choice: its last rung if that meets the request; else the rung of least rho
-    among those within the peaking limit that settle within ``FALLBACK_SLACK`` of the fastest
-    of them (a marginally faster design is not worth its larger gains); else, of those meeting
-    the settling time, the one that peaks least; else the fastest."""
+    """The climb's choice: its last rung if that meets the request; else the fastest rung
+    within the peaking limit; else, of those meeting the settling time, the one that peaks
+    least; else the fastest."""
     if _met(candidates[-1].response, settling_time):
         return candidates[-1]
     bounded = [c for c in candidates if c.response.peaking <= MAX_PEAKING
                and np.isfinite(c.response.settling_time)]
     if bounded:
-        fastest = min(c.response.settling_time for c in bounded)
-        return min((c for c in bounded
-                    if c.response.settling_time <= FALLBACK_SLACK * fastest),
-                   key=lambda c: c.rho)
+        return min(bounded, key=lambda c: (c.response.settling_time, c.response.peaking))
     in_time = [c for c in candidates if c.response.settling_time <= settling_time]
     if in_time:
         return min(in_time, key=lambda c: c.response.peaking)
