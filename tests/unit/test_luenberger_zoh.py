@@ -117,7 +117,7 @@ def test_step_holds_the_innovation_where_its_error_map_contracts(motor, paper_de
     assert holds == {"motor": dt == 1e-4, "pendulum": True}
 
 
-@pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
+@pytest.mark.parametrize("dt", [1e-4, 1e-3, pytest.param(2e-2, marks=pytest.mark.slow)])
 def test_steps_follow_the_continuous_observer_with_held_inputs(motor, dt):
     """50 steps with seeded y, u held: the observer's states are those of the continuous
     observer integrated finely (solve_ivp, Radau, tight tolerances) over each step, with the
