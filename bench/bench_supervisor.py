@@ -9,7 +9,7 @@ the loop is closed through the homogeneous observer (the pendulum) or the true s
 zoo), so the data do not depend on which estimate is output.
 
 - ``pendulum``: examples/pendulum.toml's design and [noise] table
-  (:func:`fhobs.design.supervised.supervised_for_spec`), the paper's loop
+  (the ``supervised`` record of :func:`fhobs.design.observer.design_for_spec`), the paper's loop
   (:func:`harness.reference.simulate`, dt = Ts = 5e-5 s): noisy RMS of ||x - x_hat|| over
   [1, 3] s, mean of the seeds 0..N-1 (scenario ``perturbed_noisy``); the noise-free
   ``perturbed`` max over [1, 3] s; the ``nominal`` error at 3 s. Targets: noisy RMS <= 1.05x

@@ -755,10 +755,10 @@ def certify_supervised(
 
     Examples
     --------
-    >>> from fhobs.design.supervised import supervised_for_spec
+    >>> from fhobs.design.observer import design_for_spec
     >>> from fhobs.design.spec import load_spec
     >>> from fhobs.paper import PENDULUM_SPEC
-    >>> record = supervised_for_spec(load_spec(PENDULUM_SPEC))
+    >>> record = design_for_spec(load_spec(PENDULUM_SPEC)).supervised
     >>> figures = certify_supervised(record)
     >>> figures["schur_kalman"] < 1 and figures["lmi_filtering"] < 0
     True

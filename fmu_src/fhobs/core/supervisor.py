@@ -174,10 +174,10 @@ class SupervisedObserver:
 
     Examples
     --------
-    >>> from fhobs.design.supervised import supervised_for_spec
+    >>> from fhobs.design.observer import design_for_spec
     >>> from fhobs.design.spec import load_spec
     >>> from fhobs.paper import PENDULUM_SPEC
-    >>> record = supervised_for_spec(load_spec(PENDULUM_SPEC))
+    >>> record = design_for_spec(load_spec(PENDULUM_SPEC)).supervised
     >>> obs = SupervisedObserver(record)
     >>> obs.step(y=[0.1, 0.0], u=[0.0], dt=record.kalman.sample_time)
     >>> obs.mode == MODE_HOMOGENEOUS, obs.x_hat.shape

@@ -45,7 +45,7 @@ from ..core.gains import FilteringGains, KalmanGains, ObserverDesign, Supervised
 from ..core.runtime import FilteringObserver
 from ..errors import SpecError
 from .kalman import design_kalman
-from .spec import NoiseSpec, PlantSpec
+from .spec import NoiseSpec
 
 WINDOW = 50.0
 """Default length of the statistic's exponential window, in Kalman samples."""
@@ -267,29 +267,3 @@ def with_supervised(design: ObserverDesign, noise: NoiseSpec) -> ObserverDesign:
     True
     """
     return dataclasses.replace(design, supervised=design_supervised(design, noise))
-
-
-def supervised_for_spec(spec: PlantSpec) -> SupervisedGains:
-    """The supervised observer of a spec with a ``[noise]`` table: the ``supervised`` record
-    of the spec's design (:func:`fhobs.design.observer.design_for_spec`, which attaches it by
-    :func:`with_supervised`).
-
-    Raises
-    ------
-    SpecError
-        If the spec has no ``[noise]`` table.
-
-    Examples
-    --------
-    >>> from fhobs.design.spec import load_spec
-    >>> from fhobs.paper import PENDULUM_SPEC
-    >>> supervised_for_spec(load_spec(PENDULUM_SPEC)).kalman.disturbance_order
-    1
-    """
-    from .observer import design_for_spec  # observer imports this module: its function here
-
-    if spec.noise is None:
-        raise SpecError(f"{spec.source}: the supervised observer needs the [noise] table "
-                        "(the Kalman filter's measurement noise, sample time and process "
-                        "intensity)")
-    return design_for_spec(spec).supervised
