@@ -1186,6 +1186,8 @@ class SweepReport:
     failed: int
     files: list[Path]
     elapsed_s: float
+    engine_log: Path | None = None
+    """The engine's log (:mod:`harness.engine_log`) when it wrote one."""
 
 
 def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: int | None = None,
@@ -1228,16 +1230,22 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
 
     for module in ("distributed", "pyarrow"):
         require(module, "sweep")
+    from harness.engine_log import ENGINE_LOG, EngineLog, engine_log
+
     started = time.perf_counter()
     points_dir = out / "points"
     points_dir.mkdir(parents=True, exist_ok=True)
     done = read_rows(points_dir)
     todo = [p for p in sweep.points if p.key not in done
             or (retry_failed and done[p.key].get("status") != STATUS_OK)]
+    log = out / ENGINE_LOG
     if todo:
         with contextlib.ExitStack() as stack:
+            stack.enter_context(engine_log(log))
             if client is None:
                 client = stack.enter_context(dask_client(scheduler, workers))
+                if scheduler is None:
+                    client.register_plugin(EngineLog(log))
             bar = stack.enter_context(tqdm(total=len(todo), desc=f"sweep {sweep.name}",
                                            unit="point", disable=not progress))
             for point, row in _submit(client, sweep, todo):
@@ -1249,7 +1257,7 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
         files += plot_sweep(rows, sweep, out / "plots")
     failed = sum(r["status"] != STATUS_OK for r in rows)
     return SweepReport(rows, len(todo), len(sweep.points) - len(todo), failed, files,
-                       time.perf_counter() - started)
+                       time.perf_counter() - started, log if log.is_file() else None)
 
 
 def _submit(client: Any, sweep: Sweep, todo: list[Point]) -> Iterator[tuple[Point, dict]]:
@@ -1455,7 +1463,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
                out: Path) -> Path:
     """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
     have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    from harness.figures import new_figure
+    from harness.figures import new_figure, save_figure
 
     rows = [r for r in rows if r.get(axis) is not None]
     numeric = all(_is_number(r[axis]) for r in rows)
@@ -1477,8 +1485,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=8)
     path = out / f"{axis.replace('/', '_')}.png"
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path, 100)
 
 
 class ParetoPoint(NamedTuple):
@@ -1564,7 +1571,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
     PosixPath('pareto.png')
     """
-    from harness.figures import new_figure
+    from harness.figures import new_figure, save_figure
 
     points = pareto_points(rows, sweep)
     if not points:
@@ -1581,12 +1588,12 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path, 100)
 
 
 def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
-    """The command's closing lines: counts, failures (first reasons), files.
+    """The command's closing lines: counts, one line per failure reason
+    (:func:`failure_lines`), files, the engine's log.
 
     Examples
     --------
@@ -1597,13 +1604,36 @@ def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
     """
     lines = [f"sweep {sweep.name}: {len(sweep.points)} points, {report.ran} run now, "
              f"{report.skipped} done before, {report.failed} failed, {report.elapsed_s:.1f} s"]
-    for row in [r for r in report.rows if r.get("status") != STATUS_OK][:5]:
-        lines.append(f"  point {row['point']} failed: {row.get('reason', '')}")
+    lines += failure_lines(report.rows)
     lines.append(f"table: {out / 'sweep.parquet'}, {out / 'sweep.csv'}")
     pngs = [str(p) for p in report.files if p.suffix == ".png"]
     if pngs:
         lines.append(f"plots: {', '.join(pngs)}")
+    if report.engine_log is not None:
+        lines.append(f"engine log (tracebacks): {report.engine_log}")
     return "\n".join(lines)
+
+
+def failure_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per distinct reason of the failed rows: how many points, the first of them
+    (rows in point order), the reason.
+
+    Examples
+    --------
+    >>> rows = [{"point": 0, "status": "ok"},
+    ...         {"point": 1, "status": "failed", "reason": "SpecError: rho"},
+    ...         {"point": 2, "status": "failed", "reason": "MasterError: bogus"},
+    ...         {"point": 3, "status": "failed", "reason": "SpecError: rho"}]
+    >>> print("\\n".join(failure_lines(rows)))
+      2 points failed (first: point 1): SpecError: rho
+      1 point failed (first: point 2): MasterError: bogus
+    """
+    points: dict[str, list[int]] = {}
+    for row in rows:
+        if row.get("status") != STATUS_OK:
+            points.setdefault(row.get("reason") or "no reason given", []).append(row["point"])
+    return [f"  {len(each)} point{'s' if len(each) > 1 else ''} failed (first: point "
+            f"{each[0]}): {reason}" for reason, each in points.items()]
 
 
 def check_workers(workers: int | None) -> None:
@@ -1621,6 +1651,6 @@ def check_workers(workers: int | None) -> None:
 
 
 __all__ = ["Base", "ParetoPoint", "Point", "Sweep", "SweepError", "SweepReport", "dask_client",
-           "fmu_bundle", "load_sweep", "make_job", "pareto_points", "plot_sweep", "point_jobs",
-           "point_key", "run_in_process", "run_point", "run_sweep", "sweep_from_table",
-           "write_table"]
+           "failure_lines", "fmu_bundle", "load_sweep", "make_job", "pareto_points",
+           "plot_sweep", "point_jobs", "point_key", "run_in_process", "run_point", "run_sweep",
+           "sweep_from_table", "write_table"]
