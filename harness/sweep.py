@@ -1463,7 +1463,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
                out: Path) -> Path:
     """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
     have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    from harness.figures import new_figure, save_figure
+    from harness.figures import new_figure
 
     rows = [r for r in rows if r.get(axis) is not None]
     numeric = all(_is_number(r[axis]) for r in rows)
@@ -1485,7 +1485,8 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=8)
     path = out / f"{axis.replace('/', '_')}.png"
-    return save_figure(fig, path, 100)
+    fig.savefig(path, dpi=100)
+    return path
 
 
 class ParetoPoint(NamedTuple):
@@ -1571,7 +1572,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
     PosixPath('pareto.png')
     """
-    from harness.figures import new_figure, save_figure
+    from harness.figures import new_figure
 
     points = pareto_points(rows, sweep)
     if not points:
@@ -1588,7 +1589,8 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    return save_figure(fig, path, 100)
+    fig.savefig(path, dpi=100)
+    return path
 
 
 def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
