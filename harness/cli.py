@@ -20,7 +20,9 @@
   or ``--mismatch`` perturbing the plant FMU's A and B); results (x and q errors over the
   transient and the steady window) and plots (errors, states, q against its estimates) in DIR.
 - ``list``: the bundled scenarios.
-- ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs).
+- ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs); refused
+  (exit 2, each FMU named) when FMUs of it need Python (pythonfmu FMUs, the ``signal`` block),
+  unless ``--allow-python``.
 - ``sweep SWEEP.toml --out DIR``: the points of a sweep file (design axes, spec entries, start
   values, seeds, steps; a grid or seeded random samples) on dask, one table of their figures
   (:mod:`harness.sweep`); exit 1 when points failed, one line per failure reason, the engine's
@@ -194,6 +196,9 @@ def _parser() -> argparse.ArgumentParser:
     ssp.add_argument("--native-blocks", action=argparse.BooleanOptionalAction, default=None,
                      help="native harness blocks, so no FMU of the SSP needs Python (default: "
                           "when the --fmu-dir FMUs are native)")
+    ssp.add_argument("--allow-python", action="store_true",
+                     help="export even when FMUs of the SSP need Python (pythonfmu FMUs, the "
+                          "signal block); without it such an export is refused, each FMU named")
     sweep = sub.add_parser("sweep", help="run a sweep file's points on dask (harness/sweep.py)")
     sweep.add_argument("sweep", help="sweep file or bundled sweep name (harness/sweeps/)")
     sweep.add_argument("--out", type=Path, required=True,
@@ -701,7 +706,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise IsADirectoryError(f"--out {args.out}: is a folder, expected the .ssp file to write")
     check_output_folder(args.out.parent)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
-    print(export_ssp(spec, args.out, args.block_cache, native_blocks=args.native_blocks))
+    print(export_ssp(spec, args.out, args.block_cache, native_blocks=args.native_blocks,
+                     allow_python=args.allow_python))
     return 0
 
 

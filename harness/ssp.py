@@ -15,6 +15,10 @@ What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6)
 - the blocks are native (compiled C, :mod:`harness.blocks.native`) when the system's own FMUs
   are (none of them a pythonfmu FMU), or when asked for: the SSP then runs in a host without
   Python (OMSimulator, ``bench/check_omsimulator.py``); else they are the pythonfmu blocks.
+- an SSP with an FMU that needs Python (a pythonfmu FMU: the pythonfmu builds of the observers
+  and the plant, the pythonfmu blocks, the ``signal`` block, which has no native build) runs
+  only in a host with Python 3.11 and numpy: ``export_ssp(..., allow_python=False)`` (the
+  command's default) refuses it, naming each such FMU (:func:`python_fmus`).
 
 The default experiment (start, stop) is written; the step size goes into two vendor
 annotations, which other engines ignore: OSP's ``osp:FixedStepAlgorithm baseStepSize`` on the
@@ -33,6 +37,7 @@ from xml.etree import ElementTree as ET
 from harness.blocks.build import is_pythonfmu
 from harness.system import (
     ConnectionSpec,
+    DescriptionError,
     FmuSpec,
     ResolvedSystem,
     SystemSpec,
@@ -41,7 +46,13 @@ from harness.system import (
     split_signal,
 )
 
-__all__ = ["export_ssp", "exported_system", "is_pythonfmu", "lower_gains"]
+__all__ = ["PythonFmuError", "export_ssp", "exported_system", "is_pythonfmu", "lower_gains",
+           "python_fmus"]
+
+
+class PythonFmuError(DescriptionError):
+    """An SSP export refused: FMUs of the system need Python at run time (the message names
+    each one and its file)."""
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -113,8 +124,37 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
     return build_blocks(replace(lowered, fmus=fmus), block_cache, native_blocks)
 
 
+def python_fmus(system: ResolvedSystem) -> dict[str, Path]:
+    """The components whose FMU needs Python at run time (a pythonfmu FMU), with their files,
+    in the system's order.
+
+    Examples
+    --------
+    >>> from harness.cli import SCENARIO_DIR
+    >>> from harness.system import load_system
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_nominal.toml",
+    ...                    {"fmu_dir": "build/pendulum"})
+    >>> sorted(python_fmus(resolve_system(exported_system(spec))))  # doctest: +SKIP
+    ['gain_4', 'gain_5', 'gain_6', 'gain_7', 'kalman', 'linear', 'observer', 'plant']
+    """
+    return {name: rf.spec.path for name, rf in system.fmus.items() if is_pythonfmu(rf.spec.path)}
+
+
+def check_no_python(system: ResolvedSystem) -> None:
+    """PythonFmuError naming every FMU of ``system`` that needs Python, if any."""
+    found = python_fmus(system)
+    if found:
+        named = ", ".join(f"{name} ({path})" for name, path in found.items())
+        raise PythonFmuError(
+            f"export-ssp: {len(found)} FMU(s) of system {system.spec.name!r} need Python 3.11 "
+            f"with numpy at run time (pythonfmu FMUs), so a host without Python cannot run "
+            f"the SSP: {named}; use native FMUs (build_fmu.py --native, --fmu-dir DIR/native; "
+            "the signal block has no native build) or pass --allow-python to export them anyway"
+        )
+
+
 def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None,
-               native_blocks: bool | None = None) -> Path:
+               native_blocks: bool | None = None, allow_python: bool = True) -> Path:
     """Write ``spec`` (gains lowered to blocks) as an SSP file at ``path``.
 
     Parameters
@@ -128,6 +168,9 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     native_blocks
         As for :func:`exported_system`: by default native blocks when the system's own FMUs
         are native, so that the SSP of native FMUs needs no Python.
+    allow_python
+        Write the SSP even when FMUs of it need Python (:func:`python_fmus`); False: refuse
+        with a :class:`PythonFmuError` naming them, nothing written.
 
     Returns
     -------
@@ -146,6 +189,8 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     PosixPath('out/pendulum_perturbed.ssp')
     """
     system = resolve_system(exported_system(spec, block_cache, native_blocks))
+    if not allow_python:
+        check_no_python(system)
     resources = _resource_names(system)
     root = _ssd(system, resources)
     path = Path(path)
