@@ -77,6 +77,14 @@ from harness.system import (
     load_system,
     resolve_system,
 )
+from harness.writing import (
+    NOTHING_WRITTEN,
+    Interrupted,
+    complete_written,
+    completed,
+    rows_written,
+    write_text,
+)
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 PAPER_SCENARIO_FILES = {"nominal": "pendulum_nominal", "perturbed": "pendulum_perturbed",
@@ -278,7 +286,9 @@ def run_scenario(
 
     A run that fails part-way still writes results.csv with the rows recorded up to the
     failure and a summary.json marked ``"incomplete": true`` with the error, then raises the
-    :class:`~harness.master.MasterError`.
+    :class:`~harness.master.MasterError`. Each file is written whole
+    (:mod:`harness.writing`), and a signal while they are written ends the command after the
+    last of them (:func:`harness.writing.completed`).
     """
     make_output_folder(out)
     if stop_time is not None:
@@ -295,16 +305,17 @@ def run_scenario(
         if err.partial is not None:
             write_incomplete(err, spec, out, csv_every)
         raise
-    write_csv(results[0], out / "results.csv", csv_every)
-    data = mean_summary(each, spec, seeds, float(results[0].time[-1]))
-    if plots:
-        from harness.plotting import plot_results
+    with completed(complete_written(out)):
+        write_csv(results[0], out / "results.csv", csv_every)
+        data = mean_summary(each, spec, seeds, float(results[0].time[-1]))
+        if plots:
+            from harness.plotting import plot_results
 
-        title = " ".join(filter(None, (label, spec.name)))
-        if seeds is not None:
-            title += f" (seed {seeds[0]}; the figures average {len(seeds)} seeds)"
-        data["plots"] = [str(p) for p in plot_results(results[0], spec, out, title)]
-    write_summary(data, out / "summary.json")
+            title = " ".join(filter(None, (label, spec.name)))
+            if seeds is not None:
+                title += f" (seed {seeds[0]}; the figures average {len(seeds)} seeds)"
+            data["plots"] = [str(p) for p in plot_results(results[0], spec, out, title)]
+        write_summary(data, out / "summary.json")
     return data
 
 
@@ -359,13 +370,15 @@ def note_clipped_evaluation(spec: SystemSpec, stop_time: float) -> None:
 def write_incomplete(err: MasterError, spec: SystemSpec, out: Path, every: int = 1) -> None:
     """results.csv of the rows recorded before a failure or an interruption (every
     ``every``-th and the last, as for a complete run) and a summary.json marked incomplete,
-    with the reason (``"interrupted"`` or ``"failed"``)."""
-    write_csv(err.partial, out / "results.csv", every)
-    data = summary(err.partial, spec.evaluation, scenario=spec.name, step=spec.step)
-    reason = "interrupted" if err.interrupted is not None else "failed"
-    data |= {"incomplete": True, "reason": reason, "error": str(err),
-             "stop_time": float(err.partial.time[-1])}
-    write_summary(data, out / "summary.json")
+    with the reason (``"interrupted"`` or ``"failed"``); both written whatever signal
+    arrives meanwhile (:func:`harness.writing.completed`)."""
+    with completed(rows_written(float(err.partial.time[-1]), out)):
+        write_csv(err.partial, out / "results.csv", every)
+        data = summary(err.partial, spec.evaluation, scenario=spec.name, step=spec.step)
+        reason = "interrupted" if err.interrupted is not None else "failed"
+        data |= {"incomplete": True, "reason": reason, "error": str(err),
+                 "stop_time": float(err.partial.time[-1])}
+        write_summary(data, out / "summary.json")
 
 
 def csv_every(args: argparse.Namespace, default: int) -> int:
@@ -592,9 +605,7 @@ def write_paper_summary(out: Path, table: dict[str, dict[str, Any]],
     lines = ["# Main job: the paper's scenarios", "", "```", format_table(table), "```", "",
              PAPER_LEGEND, "", "Runs (results.csv, summary.json, plots):", ""]
     lines += [f"- {key}: `{folders[key].relative_to(out)}/`" for key in table]
-    path = out / "summary.md"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return write_text(out / "summary.md", "\n".join(lines) + "\n")
 
 
 def plant_mismatch(spec: PlantSpec, size: float | None, seed: int | None) -> PlantSpec:
@@ -757,7 +768,9 @@ def main(argv: list[str] | None = None) -> int:
     other failure: never a traceback. SIGINT and SIGTERM end the command with one line on
     stderr and exit 130 and 143; during a run, after the chunk of steps in progress, with the
     rows recorded so far written as for a failure (summary.json's ``reason``:
-    ``"interrupted"``).
+    ``"interrupted"``); while results are written, after the last of them. The line says
+    which of the three a run left: nothing, the complete results, or the rows so far with
+    summary.json marked incomplete.
     """
     args = _parser().parse_args(argv)
     commands = {"run": _cmd_run, "paper": _cmd_paper, "plant": _cmd_plant, "list": _cmd_list,
@@ -767,30 +780,22 @@ def main(argv: list[str] | None = None) -> int:
             return commands[args.command](args)
     except MasterError as err:
         if err.interrupted is not None:
-            return _interrupted(err.interrupted, err, args)
+            return _interrupted(err.interrupted, written_before(err, args.out))
         print(f"error: {err}", file=sys.stderr)
         if err.partial is not None:
-            print(f"error: the rows up to t = {float(err.partial.time[-1])!r} were written to "
-                  f"{args.out} (summary.json marked incomplete)", file=sys.stderr)
+            print(f"error: {rows_written(float(err.partial.time[-1]), args.out)}",
+                  file=sys.stderr)
         return 2
     except (FhobsError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except Interrupted as err:
-        return _interrupted(err.signum, None, args)
+        return _interrupted(err.signum, err.written)
     except KeyboardInterrupt:
-        return _interrupted(signal.SIGINT, None, args)
+        return _interrupted(signal.SIGINT, NOTHING_WRITTEN)
     except Exception as err:  # noqa: BLE001 - last resort: a message, never a traceback
         print(f"error: {args.command} failed: {type(err).__name__}: {err}", file=sys.stderr)
         return 2
-
-
-class Interrupted(BaseException):
-    """SIGTERM outside a run (:func:`terminate_as_interrupt`); ``signum`` the signal."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
 
 
 @contextmanager
@@ -812,14 +817,19 @@ def terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _interrupted(signum: int, err: MasterError | None, args: argparse.Namespace) -> int:
-    """Print the one line of an interrupted command; its exit code, 128 + the signal's
-    number (130 for SIGINT, 143 for SIGTERM)."""
+def written_before(err: MasterError, out: Path) -> str:
+    """What a run that ``err`` ended wrote: its rows so far and an incomplete summary.json,
+    or nothing when it ended before its first row."""
+    if err.partial is None:
+        return NOTHING_WRITTEN
+    return rows_written(float(err.partial.time[-1]), out)
+
+
+def _interrupted(signum: int, written: str) -> int:
+    """Print the one line of an interrupted command, ``written`` saying what it wrote of the
+    run in progress (nothing, the complete results, or the rows so far with an incomplete
+    summary.json); its exit code, 128 + the signal's number (130 for SIGINT, 143 for
+    SIGTERM)."""
     name = signal.Signals(signum).name
-    if err is not None and err.partial is not None:
-        where = (f"the rows up to t = {float(err.partial.time[-1])!r} were written to "
-                 f"{args.out} (summary.json marked incomplete)")
-    else:
-        where = "nothing of the run in progress was written"
-    print(f"interrupted by {name}: {where}", file=sys.stderr, flush=True)
+    print(f"interrupted by {name}: {written}", file=sys.stderr, flush=True)
     return 128 + int(signum)

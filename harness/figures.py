@@ -12,6 +12,7 @@ from fhobs.extras import require
 from fhobs.paper import PAPER_SCENARIOS
 
 from harness.reference import SimulationResult
+from harness.writing import atomic_path
 
 matplotlib = require("matplotlib", "plots")
 Figure = require("matplotlib.figure", "plots").Figure
@@ -52,6 +53,23 @@ def new_figure(rows: int, columns: int, size: tuple[float, float], layout: str |
     with matplotlib.rc_context(FIXED_TITLES):
         fig = Figure(figsize=size, layout=layout)
         return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int) -> Path:
+    """Draw ``fig`` into ``path`` whole (:func:`harness.writing.atomic_path`), in the format
+    its suffix names; return the path.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> fig, _ = new_figure(1, 1, (2, 2))
+    >>> save_figure(fig, Path(tempfile.mkdtemp()) / "f.png", 50).read_bytes()[1:4]
+    b'PNG'
+    """
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip("."))
+    return path
 
 
 def fixed_margins(fig: Figure, top: float = 0.4) -> None:
@@ -165,5 +183,4 @@ def plot_errors(result: SimulationResult, scenario: str, path: str | Path,
     axes[0].legend(fontsize=8, loc="upper right")
     fig.suptitle(FIGURE_TITLES.get(scenario, scenario) + (f"\n{subtitle}" if subtitle else ""))
     fixed_margins(fig, top=0.75 if subtitle else 0.55)
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, 120)

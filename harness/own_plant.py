@@ -58,6 +58,7 @@ from harness.system import (
     expand_start,
     resolve_system,
 )
+from harness.writing import complete_written, completed, rows_written
 
 RUNS_PER_SETTLING_TIME = 3.0
 """The default stop time, in requested settling times."""
@@ -316,7 +317,9 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
     (``errors.png``: x and q errors, ``states.png``, ``disturbance.png`` with q) into ``out``.
 
     A run that fails part-way writes the rows recorded up to the failure and a summary marked
-    ``"incomplete": true``, then raises the :class:`~harness.master.MasterError`.
+    ``"incomplete": true``, then raises the :class:`~harness.master.MasterError`. Each file is
+    written whole, and a signal while they are written ends the command after the last of
+    them (:mod:`harness.writing`).
 
     Parameters
     ----------
@@ -351,17 +354,20 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
         result = run_system(resolve_system(spec))
     except MasterError as err:
         if err.partial is not None:
-            write_csv(err.partial, out / "results.csv")
-            data = _summary(err.partial, spec, settled, channels, head)
-            write_summary(data | {"incomplete": True, "error": str(err)}, out / "summary.json")
+            with completed(rows_written(float(err.partial.time[-1]), out)):
+                write_csv(err.partial, out / "results.csv")
+                data = _summary(err.partial, spec, settled, channels, head)
+                write_summary(data | {"incomplete": True, "error": str(err)},
+                              out / "summary.json")
         raise
-    write_csv(result, out / "results.csv", csv_every)
-    data = _summary(result, spec, settled, channels, head)
-    if seed is not None:
-        data["seeds"] = [seed]
-    if plots:
-        data["plots"] = [str(p) for p in _plots(result, spec, settled, channels, out)]
-    write_summary(data, out / "summary.json")
+    with completed(complete_written(out)):
+        write_csv(result, out / "results.csv", csv_every)
+        data = _summary(result, spec, settled, channels, head)
+        if seed is not None:
+            data["seeds"] = [seed]
+        if plots:
+            data["plots"] = [str(p) for p in _plots(result, spec, settled, channels, out)]
+        write_summary(data, out / "summary.json")
     return data
 
 

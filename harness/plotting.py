@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.figures import decade_grid, envelope, fixed_margins, new_figure
+from harness.figures import decade_grid, envelope, fixed_margins, new_figure, save_figure
 from harness.master import CoSimResult
 from harness.results import divergence, error_norm
 from harness.system import SystemSpec
@@ -139,8 +139,7 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
     ax.set_title(title)
     ax.legend(fontsize="small")
     decade_grid(ax)
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, 120)
 
 
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
@@ -177,8 +176,7 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
     axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t [s]")
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, 120)
 
 
 def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
@@ -243,8 +241,7 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     axes[0, 0].set_title("estimation errors (shaded: transient, up to the settling time)")
     axes[-1, 0].set_xlim(result.time[0], result.time[-1])
     axes[-1, 0].set_xlabel("t [s]")
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, 120)
 
 
 def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
@@ -297,5 +294,4 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     axes[0, 0].legend(fontsize="small", ncol=len(q_hats) + 1)
     axes[-1, 0].set_xlim(time[0], time[-1])
     axes[-1, 0].set_xlabel("t [s]")
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, 120)

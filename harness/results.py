@@ -34,6 +34,7 @@ import numpy as np
 
 from harness.master import CoSimResult
 from harness.system import Evaluation
+from harness.writing import atomic_path, write_text
 
 FIGURE_PREFIXES = ("error_at_", "max_error_", "rms_error_", "time_to_", "peak", "floor")
 """The figures of :func:`error_figures`, by the start of their names (module docstring)."""
@@ -214,8 +215,9 @@ def summary(result: CoSimResult, evaluation: Evaluation, **run: Any) -> dict[str
 def write_csv(result: CoSimResult, path: Path, every: int = 1) -> Path:
     """Write the recorded signals (``time`` first) as CSV in the format of fmpy's writer
     (``fmpy.util.write_csv``: quoted names, each number as the shortest text that reads back
-    as the same double): every ``every``-th communication point (the first always, the last
-    too). The summary figures are computed from every point whatever ``every`` is.
+    as the same double), whole (:func:`harness.writing.atomic_path`): every ``every``-th
+    communication point (the first always, the last too). The summary figures are computed
+    from every point whatever ``every`` is.
 
     Examples
     --------
@@ -229,13 +231,12 @@ def write_csv(result: CoSimResult, path: Path, every: int = 1) -> Path:
     rows = np.unique(np.append(np.arange(0, len(result.time), every), len(result.time) - 1))
     table = np.column_stack((result.time[rows], result.values[rows]))
     header = ",".join(f'"{name}"' for name in ("time", *result.names))
-    with open(path, "w") as csv:
+    with atomic_path(path) as tmp, open(tmp, "w") as csv:
         csv.write(header + "\n")
         csv.writelines(",".join(map(repr, row)) + "\n" for row in table.tolist())
     return path
 
 
 def write_summary(data: dict[str, Any], path: Path) -> Path:
-    """Write ``data`` as indented JSON."""
-    path.write_text(json.dumps(data, indent=2) + "\n")
-    return path
+    """Write ``data`` as indented JSON (whole: :func:`harness.writing.write_text`)."""
+    return write_text(path, json.dumps(data, indent=2) + "\n")

@@ -45,6 +45,7 @@ from harness.system import (
     resolve_system,
     split_signal,
 )
+from harness.writing import atomic_path
 
 __all__ = ["PythonFmuError", "export_ssp", "exported_system", "is_pythonfmu", "lower_gains",
            "python_fmus"]
@@ -155,7 +156,8 @@ def check_no_python(system: ResolvedSystem) -> None:
 
 def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = None,
                native_blocks: bool | None = None, allow_python: bool = True) -> Path:
-    """Write ``spec`` (gains lowered to blocks) as an SSP file at ``path``.
+    """Write ``spec`` (gains lowered to blocks) as an SSP file at ``path``, whole
+    (:func:`harness.writing.atomic_path`).
 
     Parameters
     ----------
@@ -195,7 +197,7 @@ def export_ssp(spec: SystemSpec, path: str | Path, block_cache: Path | None = No
     root = _ssd(system, resources)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
         zf.writestr(
             "SystemStructure.ssd", ET.tostring(root, encoding="unicode", xml_declaration=True)
         )

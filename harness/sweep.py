@@ -89,6 +89,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from harness.system import DescriptionError, SystemSpec, check_timing
+from harness.writing import atomic_path, completed, write_text
 
 SWEEP_DIR = Path(__file__).resolve().parent / "sweeps"
 """The bundled sweep files."""
@@ -1167,12 +1168,9 @@ def read_rows(points_dir: Path) -> dict[str, dict[str, Any]]:
 
 
 def write_row(points_dir: Path, row: dict[str, Any]) -> Path:
-    """Write one point's row at once (atomically: a rename); see :func:`read_rows`."""
-    path = points_dir / f"{row['key']}.json"
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, default=float))
-    os.replace(tmp, path)
-    return path
+    """Write one point's row whole (:func:`harness.writing.write_text`); see
+    :func:`read_rows`."""
+    return write_text(points_dir / f"{row['key']}.json", json.dumps(row, default=float))
 
 
 @dataclass
@@ -1366,7 +1364,9 @@ def _ordered_rows(sweep: Sweep, rows: dict[str, dict[str, Any]]) -> list[dict[st
 
 def write_table(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """``sweep.parquet`` and ``sweep.csv``: one row per point, one column per key (lists as
-    JSON text, a figure a point lacks as null).
+    JSON text, a figure a point lacks as null). Each file is written whole and the two
+    together: a signal meanwhile ends the command after both
+    (:func:`harness.writing.completed`).
 
     Examples
     --------
@@ -1384,9 +1384,12 @@ def write_table(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     table = pa.table({c: _column(values) for c, values in data.items()}) if rows else \
         pa.table({"point": pa.array([], pa.int64())})
     out.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table, out / "sweep.parquet")
-    pa_csv.write_csv(table, out / "sweep.csv")
-    return [out / "sweep.parquet", out / "sweep.csv"]
+    paths = [out / "sweep.parquet", out / "sweep.csv"]
+    with completed(f"the sweep table was written to {out} (points/ holds each point's row)"):
+        for path, write in zip(paths, (pq.write_table, pa_csv.write_csv), strict=True):
+            with atomic_path(path) as tmp:
+                write(table, str(tmp))
+    return paths
 
 
 def _cell(value: Any) -> Any:
@@ -1463,7 +1466,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
                out: Path) -> Path:
     """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
     have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    from harness.figures import new_figure
+    from harness.figures import new_figure, save_figure
 
     rows = [r for r in rows if r.get(axis) is not None]
     numeric = all(_is_number(r[axis]) for r in rows)
@@ -1485,8 +1488,7 @@ def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[st
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=8)
     path = out / f"{axis.replace('/', '_')}.png"
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path, 100)
 
 
 class ParetoPoint(NamedTuple):
@@ -1572,7 +1574,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
     PosixPath('pareto.png')
     """
-    from harness.figures import new_figure
+    from harness.figures import new_figure, save_figure
 
     points = pareto_points(rows, sweep)
     if not points:
@@ -1589,8 +1591,7 @@ def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | 
     ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path, 100)
 
 
 def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
