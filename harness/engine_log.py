@@ -3,7 +3,8 @@ traceback, a worker that died, a connection lost) written to ``DIR/engine.log`` 
 rather than to the console, where the command prints one line per failure reason.
 
 In the sweep's own process (the client, and with a local cluster its scheduler and nannies)
-:func:`engine_log` routes the engine's loggers to the file while the sweep runs;
+:func:`engine_log` routes the engine's loggers, and the warnings its modules raise, to the
+file while the sweep runs;
 :class:`EngineLog`, a worker plugin, does the same in each worker process of a local cluster
 (whose console is the command's). Workers started by the user (``--scheduler``) keep their
 own logging.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -76,9 +78,24 @@ def engine_log(path: Path) -> Iterator[Path]:
     """
     saved = route_to_file(path)
     try:
-        yield path
+        with warnings.catch_warnings():
+            warnings.showwarning = _engine_warning(warnings.showwarning)
+            yield path
     finally:
         restore(saved)
+
+
+def _engine_warning(show):  # noqa: ANN001, ANN202 - warnings.showwarning's own signature
+    """``warnings.showwarning`` that logs the engine's warnings (raised in its own modules: a
+    dashboard port in use, a slow event loop) to its loggers, and shows the others with
+    ``show``."""
+    def showwarning(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        if any(f"/{name}/" in str(filename) for name in ("distributed", "dask", "tornado")):
+            logging.getLogger("distributed").warning(
+                "%s:%s: %s: %s", filename, lineno, category.__name__, message)
+        else:
+            show(message, category, filename, lineno, file, line)
+    return showwarning
 
 
 class EngineLog(WorkerPlugin):
@@ -94,8 +111,10 @@ class EngineLog(WorkerPlugin):
         self.path = str(Path(path).resolve())
 
     def setup(self, worker: object) -> None:
-        """Route the worker process's engine loggers to the file (for the process's life)."""
+        """Route the worker process's engine loggers, and the engine's warnings, to the file
+        (for the process's life)."""
         route_to_file(Path(self.path))
+        warnings.showwarning = _engine_warning(warnings.showwarning)
 
 
 __all__ = ["ENGINE_LOG", "EngineLog", "engine_log", "restore", "route_to_file"]
