@@ -546,7 +546,7 @@ static void decide(const double *src, double *dst, double dt)
     const int kalman_consistent =
         SUPERVISOR_LOWER_RETURN < kalman && kalman < SUPERVISOR_UPPER_RETURN;
     if (mode == MODE_KALMAN) {
-        if (!(SUPERVISOR_LOWER <= kalman && kalman <= SUPERVISOR_UPPER)) {
+        if (kalman > SUPERVISOR_UPPER || (kalman < SUPERVISOR_LOWER && homogeneous < kalman)) {
             mode = MODE_HOMOGENEOUS;
             time = 0.0;
         }
