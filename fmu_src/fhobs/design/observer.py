@@ -502,8 +502,7 @@ def _design_at_margin(
     n, k = A_model.shape[0], spec.C.shape[0]
     split = split_modes(A_b, fast_mode_cut(spec.fast_mode_rate, spec.settling_time, spec.rho,
                                            spec.nu))
-    basis = np.eye(n) if split is None else split.slow
-    nu = spec.nu
+    basis, nu = (np.eye(n) if split is None else split.slow), spec.nu
     part = _homogeneous_part(A_b if split is None else split.T[:split.n_slow, :split.n_slow],
                              C_b @ basis, spec, objective, margin, filter_scale)
     hom, bar_L, P_bar, rho, L_pt, P_pt, _ = part
@@ -530,7 +529,8 @@ def _design_at_margin(
     plant = PlantModel(spec.A, spec.B, spec.C, spec.E)
     model = HomogeneousModel(
         spec.disturbance_order, hom.n_tilde, nu,
-        G0=diagonal_similarity((G_d - np.eye(n)) / nu - np.eye(n), 1.0 / d),
+        G0=diagonal_similarity(hom.G0 if split is None else (G_d - np.eye(n)) / nu - np.eye(n),
+                               1.0 / d),
         L0=L0 * d[:, None], G_d=diagonal_similarity(G_d, 1.0 / d),
         slow_projector=diagonal_similarity(basis @ basis.T, 1.0 / d),
     )
