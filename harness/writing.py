@@ -10,11 +10,12 @@
 
 from __future__ import annotations
 
-import os
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+from fhobs.core.kernel import replaced_atomically
 
 from harness.master import deferred_signals
 
@@ -60,40 +61,10 @@ class Interrupted(BaseException):
         self.written = written
 
 
-def temporary_name(path: Path) -> Path:
-    """The name ``path`` is written under until it is complete: hidden, in the same folder,
-    unique to this process, ending in ``.tmp`` (no reader of ``*.json`` or ``*.csv`` takes it).
-
-    Examples
-    --------
-    >>> temporary_name(Path("out/summary.json")).name == f".summary.json.{os.getpid()}.tmp"
-    True
-    """
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
-@contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path to write ``path`` to; rename it to ``path`` when the block ends
-    normally, remove it when the block raises (a signal's exception included).
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> target = Path(tempfile.mkdtemp()) / "summary.json"
-    >>> with atomic_path(target) as tmp:
-    ...     _ = tmp.write_text("{}")
-    ...     target.exists()
-    False
-    >>> target.read_text(), [p.name for p in target.parent.iterdir()]
-    ('{}', ['summary.json'])
-    """
-    tmp = temporary_name(path)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+atomic_path = replaced_atomically
+"""Yield a temporary path to write a file to; rename it over the file when the block ends
+normally, remove it when the block raises (a signal's exception included):
+:func:`fhobs.core.kernel.replaced_atomically`, the one such helper of the product."""
 
 
 def write_text(path: Path, text: str) -> Path:
@@ -119,6 +90,7 @@ def completed(written: str) -> Iterator[None]:
 
     Examples
     --------
+    >>> import os
     >>> try:
     ...     with completed("the complete results were written to out"):
     ...         os.kill(os.getpid(), signal.SIGINT)

@@ -283,7 +283,8 @@ def compile_source(source: Path | tuple[Path, ...], target: Path, compiler: str,
 
 @contextlib.contextmanager
 def replaced_atomically(target: Path) -> Iterator[Path]:
-    """A new path beside ``target`` for the block to write; renamed over ``target`` when the
+    """A new path beside ``target`` for the block to write (hidden, ending in ``.tmp``: no
+    reader of ``*.json``, ``*.csv`` or ``*.pickle`` takes it); renamed over ``target`` when the
     block ends, removed if it raises: concurrent processes never see a partial file.
 
     Examples
@@ -294,7 +295,7 @@ def replaced_atomically(target: Path) -> Iterator[Path]:
     >>> (folder / "a.txt").read_text(), [p.name for p in folder.iterdir()]
     ('whole', ['a.txt'])
     """
-    handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    handle, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(handle)
     partial = Path(name)
     try:
