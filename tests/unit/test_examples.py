@@ -14,6 +14,8 @@ PUBLIC_MODULES = (
     "harness.system", "harness.master", "harness.ssp", "harness.results", "harness.fmu_files",
     "fhobs.fmu.kinds", "fhobs.core.gains",
     "harness.figures", "harness.zoo", "harness.cli",
+    "fhobs.design.partial", "fhobs.design.supervised", "fhobs.core.supervisor",
+    "harness.writing", "harness.engine_log",
     # a tuning search (~15 s) of the spec of the command-line tests of --tune-noise: with them
     # on one worker, one search and then the user's cache
     pytest.param("fhobs.design.tuning",

@@ -149,7 +149,7 @@ def completed_lyapunov(H: np.ndarray, G: np.ndarray, P_s: np.ndarray, rho: float
     --------
     >>> H = np.array([[-1.0, 5.0], [0.0, -100.0]])
     >>> P = completed_lyapunov(H, np.eye(2), np.array([[1.0]]), 0.5, np.eye(2))
-    >>> bool(np.linalg.eigvalsh(P @ H + H.T @ P + P + P).max() < 0)
+    >>> bool(np.linalg.eigvalsh(P @ H + H.T @ P + 0.5 * (P + P)).max() < 0)
     True
     """
     n_s = P_s.shape[0]
