@@ -506,21 +506,20 @@ def _design_at_margin(
     part = _homogeneous_part(A_b if split is None else split.T[:split.n_slow, :split.n_slow],
                              C_b @ basis, spec, objective, margin, filter_scale)
     hom, bar_L, P_bar, rho, L_pt, P_pt, _ = part
-    G_d, G_pt = hom.G_d, hom.G_d - nu * np.eye(hom.G_d.shape[0])
-    if split is not None:
+    L0, G_d = basis @ hom.L0, hom.G_d
+    if split is not None:  # embedded: nothing injected along the modes kept by the model
         rho = rho / LMI_SLACK
         G_d = embedded_generator(split, hom.G_d, nu)
-        G_pt = G_d - nu * np.eye(n)
         bar_L = np.vstack([bar_L[:k], basis @ bar_L[k:]])
         L_pt = basis @ L_pt
-        A0 = A_b + basis @ hom.L0 @ C_b
-        bar_A0, bar_G, bar_C = augmented_system(A0, C_b, G_d)
-        P_bar = completed_lyapunov(bar_A0 + bar_L @ bar_C, bar_G, P_bar, rho,
+    A0 = A_b + L0 @ C_b
+    bar_A0, bar_G, bar_C = augmented_system(A0, C_b, G_d)
+    H = bar_A0 + bar_L @ bar_C
+    if split is not None:  # the whole model's Lyapunov matrices from the homogenised part's
+        P_bar = completed_lyapunov(H, bar_G, P_bar, rho,
                                    scipy.linalg.block_diag(np.eye(k), split.Q))
-        P_pt = completed_lyapunov(A0 + L_pt @ C_b, G_pt, P_pt, rho, split.Q)
-    L0 = basis @ hom.L0
-    bar_A0, _, bar_C = augmented_system(A_b + L0 @ C_b, C_b, G_d)
-    decay = -float(np.max(np.linalg.eigvals(bar_A0 + bar_L @ bar_C).real))
+        P_pt = completed_lyapunov(A0 + L_pt @ C_b, G_d - nu * np.eye(n), P_pt, rho, split.Q)
+    decay = -float(np.max(np.linalg.eigvals(H).real))
     d_bar = np.concatenate([np.ones(k), d])
     L_lin, luenberger_status = _luenberger_gain(spec, decay, objective, margin)
     made = {name: {"objective": objective, "lmi_margin": margin, "solver_status": status}
