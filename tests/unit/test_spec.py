@@ -165,3 +165,36 @@ def test_loading_a_spec_imports_no_solver():
             "loaded = [m for m in ('cvxpy', 'clarabel', 'scipy') if m in sys.modules]; "
             "assert not loaded, loaded")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_an_unobservable_large_plant_is_described_in_one_short_sentence():
+    """n = 601 unobservable states: the message names a few directions, never every entry."""
+    n = 601
+    C = np.zeros((1, n))
+    C[0, 0] = 1.0
+    with pytest.raises(SpecError) as caught:
+        spec_from_dict({"A": np.zeros((n, n)), "B": np.ones((n, 1)), "C": C})
+    text = str(caught.value)
+    assert "not observable" in text and "x[2]" in text and "597 more" in text
+    assert len(text) < 400
+
+
+@pytest.mark.parametrize("scale", [[1e-300, 1.0], [1e300, 1.0], [1e-7, 1e7]])
+def test_state_scales_beyond_the_designs_range_are_refused(scale):
+    from fhobs.design.limits import check_design_limits
+    spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+                           "observer": {"state_scale": scale}})
+    with pytest.raises(SpecError, match="observer.state_scale from .* is beyond the design"):
+        check_design_limits(spec)
+
+
+def test_a_settling_time_shorter_than_the_climb_can_reach_says_what_to_ask():
+    from fhobs.design.observer import RHO_MAX, design_for_spec
+    from fhobs.errors import LMIError
+    spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+                           "observer": {"settling_time": 1e-300}})
+    with pytest.raises(LMIError) as caught:
+        design_for_spec(spec)
+    text = str(caught.value)
+    assert "no rho to try" in text and f"{RHO_MAX:g}" in text
+    assert "a settling_time of at least 0.0003 s" in text

@@ -91,9 +91,14 @@ def model_state_names(n: int, p: int, order: int) -> list[str]:
     ]
 
 
+MAX_TERMS = 8
+"""The most terms :func:`describe_direction` writes out (the rest are counted)."""
+
+
 def describe_direction(vector: np.ndarray, names: list[str], digits: int = 3) -> str:
     """A direction of the state space as a readable combination of named states, rounded to
-    ``digits`` significant digits of its largest entry (entries below that are left out).
+    ``digits`` significant digits of its largest entry (entries below that are left out; past
+    :data:`MAX_TERMS` terms, counted).
 
     Examples
     --------
@@ -101,6 +106,8 @@ def describe_direction(vector: np.ndarray, names: list[str], digits: int = 3) ->
     'x[2] - 0.5 q[1]'
     >>> describe_direction(np.array([0.0, -2.0, 0.0]), ["x[1]", "x[2]", "q[1]"])
     'x[2]'
+    >>> describe_direction(np.ones(10), [f"x[{i}]" for i in range(1, 11)])
+    'x[1] + x[2] + x[3] + x[4] + x[5] + x[6] + x[7] + x[8] + 2 more terms'
     """
     vector = np.asarray(vector, dtype=float)
     vector = vector / vector[int(np.argmax(np.abs(vector)))]  # largest entry 1
@@ -112,5 +119,7 @@ def describe_direction(vector: np.ndarray, names: list[str], digits: int = 3) ->
         size = "" if abs(value) == 1.0 else f"{abs(value):g} "
         sign = "-" if value < 0 else "+"
         terms.append(f"{sign} {size}{name}")
+    if len(terms) > MAX_TERMS:
+        terms = terms[:MAX_TERMS] + [f"+ {len(terms) - MAX_TERMS} more terms"]
     text = " ".join(terms)
     return text[2:] if text.startswith("+ ") else "-" + text[2:]

@@ -11,7 +11,8 @@ overflow or a memory exhaustion deep inside the design. They were measured:
 - ``MAX_STATES``: the model's state count ``n + k * disturbance_order``. With chains of 10,
   300 states design in about 3 s and 600 in about 50 s (0.24 GB); the time grows as n^4,
   dominated by the powers of A0 that build the chain basis (:func:`fhobs.design.lmi.chain_basis`).
-- ``MAX_MAGNITUDE``: matrix entries, rho, gamma and filter_scale. The design squares and
+- ``MAX_MAGNITUDE``: matrix entries, rho, gamma, filter_scale and state_scale (its entries and
+  their spread). The design squares and
   multiplies them (A0^n_tilde, P (A + rho G)); a double integrator scaled by 1e12 is already
   infeasible for the solver, and 1e200 overflows to inf.
 - ``MIN_ABS_NU``: the dilation's weights ``1 + nu + j nu`` must be told apart by an eigenspace
@@ -67,6 +68,15 @@ def check_design_limits(spec: PlantSpec) -> None:
                 f"{spec.source}: observer.{name} = {value!r} is beyond the design's range "
                 f"(|value| <= {MAX_MAGNITUDE:g}); rescale time so the rates are moderate"
             )
+    scale = spec.state_scale
+    if scale is not None and not (scale.max() <= MAX_MAGNITUDE * scale.min()
+                                  and 1.0 / MAX_MAGNITUDE <= scale.max() <= MAX_MAGNITUDE):
+        raise SpecError(
+            f"{spec.source}: observer.state_scale from {scale.min():g} to {scale.max():g} is "
+            f"beyond the design's range (entries within [{1 / MAX_MAGNITUDE:g}, "
+            f"{MAX_MAGNITUDE:g}], spanning at most a factor {MAX_MAGNITUDE:g}); rescale the "
+            "plant's units"
+        )
     if abs(spec.nu) < MIN_ABS_NU:
         raise SpecError(
             f"{spec.source}: observer.nu = {spec.nu!r} is too close to 0: the dilation weights "

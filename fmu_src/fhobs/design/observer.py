@@ -474,8 +474,15 @@ def _rho_climb(spec: PlantSpec) -> list[float]:
 
 def _no_design_message(spec: PlantSpec, failures: list[tuple[float, Exception]]) -> str:
     """The failure of the automatic choice of rho, in the user's terms."""
-    tried = (f"rho from {failures[0][0]:.3g} to {failures[-1][0]:.3g} ({len(failures)} "
-             f"values)" if failures else "no rho (gamma / 2 is above the largest rho tried)")
+    if not failures:
+        return (f"no rho to try for a settling time of {spec.settling_time:g} s: the climb "
+                f"starts at rho = {RHO_START * DEFAULT_SETTLING_TIME:g} / settling_time and "
+                f"ends at {RHO_MAX:g}" + (f", above gamma / 2 = {spec.gamma / 2:g}"
+                                           if spec.gamma is not None else "")
+                + f". What to change: a settling_time of at least "
+                f"{RHO_START * DEFAULT_SETTLING_TIME / RHO_MAX:g} s (or rescale time), or rho "
+                f"and gamma given by hand")
+    tried = f"rho from {failures[0][0]:.3g} to {failures[-1][0]:.3g} ({len(failures)} values)"
     reasons = sorted({type(exc).__name__ + ": " + str(exc) for _, exc in failures[-2:]})
     return (f"no certified design for a settling time of {spec.settling_time:g} s: tried "
             f"{tried}, none certified (last: {'; '.join(reasons)}). What to change: a longer "

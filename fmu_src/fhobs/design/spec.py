@@ -2,6 +2,7 @@
 
 Format::
 
+    name = "motor"            # optional: the plant's name (default: the file's stem)
     A = [[...], ...]          # n x n, arrays of rows
     B = [[...], ...]          # n x m
     C = [[...], ...]          # k x n
@@ -53,6 +54,10 @@ Format::
                               # drawn for A (row by row), then B, from numpy's default_rng(seed)
     seed = 0                  # default 0
 
+    [signals]                 # optional: names and units of x, u, y, q (fhobs.design.signals)
+    [plant_model]             # optional: the user's FMU or SSP that `harness plant` runs
+                              # against (fhobs.design.plant_model); the design ignores it
+
 Every defect raises :class:`SpecError` naming the field and the reason.
 """
 
@@ -71,12 +76,15 @@ from ..core.certificate import tuning_problem
 from ..core.disturbance import describe_direction, extended_model, model_state_names
 from ..errors import SpecError
 from .homogenisation import observability_index, unobservable_directions
+from .plant_model import PLANT_MODEL_KEYS, PlantModelSpec, plant_model_spec
+from .signals import SIGNAL_KEYS, SignalNames, signal_names
 
 DEFAULT_SETTLING_TIME = 2.0
 OBJECTIVES = ("min_cond", "min_gain")
 """The LMI objectives a design accepts (:mod:`fhobs.design.lmi` implements them)."""
 DEFAULT_OBJECTIVE = "min_cond"
-TOP_KEYS = ("A", "B", "C", "E", "L_lin", "observer", "noise", "disturbance", "mismatch")
+TOP_KEYS = ("name", "A", "B", "C", "E", "L_lin", "observer", "noise", "disturbance", "mismatch",
+            "signals", "plant_model")
 OBSERVER_KEYS = (
     "nu", "rho", "gamma", "objective", "filter_scale", "disturbance_order", "settling_time",
     "state_scale", "fast_mode_rate",
@@ -230,6 +238,12 @@ class PlantSpec:
     fast_mode_rate : float or None
         Decay rate (1/s) beyond which a stable mode is kept by the observers' model rather than
         homogenised (:mod:`fhobs.design.partial`); None: ``50 / settling_time``; inf: none.
+    name : str
+        The plant's name (the spec's ``name``, else the file's stem; ``"plant"`` for a dict).
+    signals : SignalNames or None
+        The ``[signals]`` table (:mod:`fhobs.design.signals`); None: see :attr:`names`.
+    plant_model : PlantModelSpec or None
+        The ``[plant_model]`` table (:mod:`fhobs.design.plant_model`), if given.
     """
 
     A: np.ndarray
@@ -251,6 +265,29 @@ class PlantSpec:
     disturbance: DisturbanceSpec | None = None
     mismatch: MismatchSpec | None = None
     fast_mode_rate: float | None = None
+    name: str = "plant"
+    signals: SignalNames | None = None
+    plant_model: PlantModelSpec | None = None
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """The number of states, inputs, outputs and unknown inputs, by signal group."""
+        return {"states": self.A.shape[0], "inputs": self.B.shape[1],
+                "outputs": self.C.shape[0],
+                "unknown_inputs": 0 if self.E is None else self.E.shape[1]}
+
+    @property
+    def names(self) -> SignalNames:
+        """The signals' names and units: the ``[signals]`` table's, or ``x[i]``, ``u[i]``,
+        ``y[i]``, ``q[i]`` without units.
+
+        Examples
+        --------
+        >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]]})
+        >>> spec.names.states, spec.name
+        (('x[1]', 'x[2]'), 'plant')
+        """
+        return self.signals or signal_names({}, self.sizes, self.source)
 
 
 def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> PlantSpec:
@@ -288,6 +325,9 @@ def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> Plan
     fhobs.errors.SpecError: ...observer.rho = -1.0 must be > 0...
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise SpecError(f"{path}: not a regular file (a spec is a TOML file; folders, FIFOs "
+                        "and devices are refused)")
     try:
         text = path.read_text()
     except OSError as exc:
@@ -302,15 +342,18 @@ def load_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> Plan
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML ({exc})") from exc
     source = str(path)
+    if isinstance(data, dict):
+        data.setdefault("name", path.stem)
     if overrides:
         observer = data.setdefault("observer", {})
         if isinstance(observer, dict):
             observer.update(overrides)
         source += f" (with {', '.join(sorted(overrides))} from the command line)"
-    return spec_from_dict(data, source=source)
+    return spec_from_dict(data, source=source, base=path.parent)
 
 
-def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
+def spec_from_dict(data: dict[str, Any], source: str = "<dict>",
+                   base: Path | None = None) -> PlantSpec:
     """Validate a spec given as a dict (the parsed TOML).
 
     The tables are unpacked and handed to :func:`plant_spec`, the validation that
@@ -324,6 +367,8 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
         matrices as lists of rows or 2-D numpy arrays.
     source : str
         Name used in error messages.
+    base : pathlib.Path, optional
+        The spec file's folder, against which ``[plant_model] path`` is resolved and checked.
 
     Returns
     -------
@@ -361,7 +406,26 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantSpec:
         spec = replace(spec, mismatch=mismatch_spec(
             table["size"], table.get("distribution", "gaussian"), table.get("seed", 0),
             source, "mismatch."))
-    return spec
+    return _named(spec, data, base)
+
+
+def _named(spec: PlantSpec, data: dict[str, Any], base: Path | None) -> PlantSpec:
+    """``spec`` with the ``name``, ``[signals]`` and ``[plant_model]`` of ``data``."""
+    name = data.get("name", spec.name)
+    if not isinstance(name, str) or not name.strip() or not name.isprintable() or len(name) > 200:
+        raise SpecError(f"{spec.source}: name = {name!r:.80} must be a non-empty line of text "
+                        "(the plant's name, at most 200 characters)")
+    signals = None
+    if "signals" in data:
+        table = _table(data["signals"], "signals", spec.source)
+        _reject_unknown(table, SIGNAL_KEYS, spec.source, "signals.")
+        signals = signal_names(table, spec.sizes, spec.source)
+    plant_model = None
+    if "plant_model" in data:
+        table = _table(data["plant_model"], "plant_model", spec.source)
+        _reject_unknown(table, PLANT_MODEL_KEYS, spec.source, "plant_model.")
+        plant_model = plant_model_spec(table, spec.sizes, base, spec.source)
+    return replace(spec, name=name, signals=signals, plant_model=plant_model)
 
 
 def plant_spec(
@@ -472,6 +536,8 @@ def plant_spec(
 
 MAX_LISTED_DIRECTIONS = 3
 """An unobservable subspace is described by at most this many of its directions."""
+MAX_LISTED_ENTRIES = 12
+"""A direction's vector is printed only up to this many entries (its named terms always)."""
 
 
 def unobservable_text(A_model: np.ndarray, C_model: np.ndarray, n: int, p: int,
@@ -506,8 +572,9 @@ def unobservable_text(A_model: np.ndarray, C_model: np.ndarray, n: int, p: int,
         return ""
     names = model_state_names(n, p, order)
     shown = [
-        f"{describe_direction(v, names)} (vector "
-        f"[{', '.join(f'{x:.3g}' for x in v / v[np.argmax(np.abs(v))])}])"
+        f"{describe_direction(v, names)}" + (
+            f" (vector [{', '.join(f'{x:.3g}' for x in v / v[np.argmax(np.abs(v))])}])"
+            if len(v) <= MAX_LISTED_ENTRIES else "")
         for v in directions[:MAX_LISTED_DIRECTIONS]
     ]
     more = len(directions) - len(shown)
