@@ -30,6 +30,26 @@ from harness.system import SystemSpec
 
 DIVERGED_LABEL = " (diverged, cut off)"
 """Appended to the label of a diverged estimator's curve."""
+ESTIMATOR_COLOURS = {"homogeneous": "tab:red", "prescribed_time": "tab:purple",
+                     "linear": "tab:orange", "kalman": "tab:blue", "supervised": "tab:green"}
+"""Each estimator's colour (its label, :data:`fhobs.fmu.kinds.LABELS`) in every plot."""
+SPARE_COLOURS = ("tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray", "black")
+"""The colours of other labels, in the order they come."""
+
+
+def estimator_colours(labels: list[str]) -> dict[str, str]:
+    """``{label: colour}``: an estimator's own (:data:`ESTIMATOR_COLOURS`), other labels the
+    spare colours in their order (distinct up to ``len(SPARE_COLOURS)`` of them).
+
+    Examples
+    --------
+    >>> estimator_colours(["kalman", "ours", "homogeneous", "theirs"])
+    {'kalman': 'tab:blue', 'ours': 'tab:brown', 'homogeneous': 'tab:red', 'theirs': 'tab:pink'}
+    """
+    others = [label for label in dict.fromkeys(labels) if label not in ESTIMATOR_COLOURS]
+    spare = {label: SPARE_COLOURS[i % len(SPARE_COLOURS)] for i, label in enumerate(others)}
+    return {label: ESTIMATOR_COLOURS.get(label) or spare[label] for label in labels}
+
 
 
 def kept_range(curves: list[np.ndarray], log: bool = False) -> tuple[float, float] | None:
