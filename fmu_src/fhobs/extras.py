@@ -1,5 +1,6 @@
 """Optional dependencies: the design (cvxpy, clarabel), the plots (matplotlib) and the sweeps
-(distributed, pyarrow) are extras of the package (``pip install 'fhobs[design]'``, ``[plots]``,
+(distributed, pyarrow, pandas; and the design and the plots, which a sweep's points and
+pictures need) are extras of the package (``pip install 'fhobs[design]'``, ``[plots]``,
 ``[sweep]``; ``[all]`` has them all); a runtime-only user (FMUs from a design.json, the harness
 without plots) needs none of them. A module that needs one imports it through :func:`require`,
 which names the extra to install when it is missing.
@@ -16,8 +17,9 @@ import importlib
 from types import ModuleType
 
 EXTRAS = {"design": ("cvxpy", "clarabel"), "plots": ("matplotlib",),
-          "sweep": ("distributed", "pyarrow")}
-"""The extras of pyproject.toml and the modules each one installs."""
+          "sweep": ("distributed", "pyarrow", "pandas")}
+"""The extras of pyproject.toml and the modules each one installs (besides the extras it
+includes: ``sweep`` includes ``design`` and ``plots``)."""
 
 
 def require(module: str, extra: str) -> ModuleType:

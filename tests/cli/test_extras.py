@@ -31,8 +31,10 @@ def test_pyproject_extras_install_the_modules_the_code_asks_for():
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     optional = project["optional-dependencies"]
     for extra, modules in EXTRAS.items():
-        names = {re.split(r"[<>=\[]", req)[0] for req in optional[extra]}
+        names = {re.split(r"[<>=\[]", req)[0] for req in optional[extra]} - {"fhobs"}
         assert names == set(modules), extra
+        included = [req for req in optional[extra] if req.startswith("fhobs[")]
+        assert all(set(req[6:-1].split(",")) < set(EXTRAS) for req in included), extra
         assert not names & {re.split(r"[<>=\[]", req)[0] for req in project["dependencies"]}
     assert optional["all"] == [f"fhobs[{','.join(EXTRAS)}]"]
 
