@@ -33,23 +33,51 @@ DIVERGED_LABEL = " (diverged, cut off)"
 ESTIMATOR_COLOURS = {"homogeneous": "tab:red", "prescribed_time": "tab:purple",
                      "linear": "tab:orange", "kalman": "tab:blue", "supervised": "tab:green"}
 """Each estimator's colour (its label, :data:`fhobs.fmu.kinds.LABELS`) in every plot."""
-SPARE_COLOURS = ("tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray", "black")
-"""The colours of other labels, in the order they come."""
+SPARE_COLOURS = ("tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray", "black",
+                 "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2",
+                 "#c7c7c7", "#dbdb8d", "#9edae5")
+"""The colours of other labels, in the order they come: the rest of tab10, black, then tab20's
+light shades; beyond them hues spread evenly (:func:`spare_colours`)."""
+
+
+def spare_colours(count: int) -> list[str]:
+    """``count`` distinct colours for labels without their own: :data:`SPARE_COLOURS` first,
+    then hues spread evenly around the HSV circle (none repeats a colour of the map).
+
+    Examples
+    --------
+    >>> spare_colours(2)
+    ['tab:brown', 'tab:pink']
+    >>> colours = spare_colours(40)
+    >>> len(set(colours)), colours[16]
+    (40, '#d90000')
+    """
+    extra = max(count - len(SPARE_COLOURS), 0)
+    hues = [_hsv_hex(i / extra) for i in range(extra)]
+    return [*SPARE_COLOURS, *hues][:count]
+
+
+def _hsv_hex(hue: float) -> str:
+    """The saturated colour of ``hue`` (0..1) at 85 % value, as ``#rrggbb``."""
+    import colorsys
+
+    return "#" + "".join(f"{round(255 * c):02x}" for c in colorsys.hsv_to_rgb(hue, 1.0, 0.85))
 
 
 def estimator_colours(labels: list[str]) -> dict[str, str]:
     """``{label: colour}``: an estimator's own (:data:`ESTIMATOR_COLOURS`), other labels the
-    spare colours in their order (distinct up to ``len(SPARE_COLOURS)`` of them).
+    spare colours in their order (:func:`spare_colours`): no two labels share a colour.
 
     Examples
     --------
     >>> estimator_colours(["kalman", "ours", "homogeneous", "theirs"])
     {'kalman': 'tab:blue', 'ours': 'tab:brown', 'homogeneous': 'tab:red', 'theirs': 'tab:pink'}
+    >>> len(set(estimator_colours([f"e{i}" for i in range(30)]).values()))
+    30
     """
     others = [label for label in dict.fromkeys(labels) if label not in ESTIMATOR_COLOURS]
-    spare = {label: SPARE_COLOURS[i % len(SPARE_COLOURS)] for i, label in enumerate(others)}
+    spare = dict(zip(others, spare_colours(len(others)), strict=True))
     return {label: ESTIMATOR_COLOURS.get(label) or spare[label] for label in labels}
-
 
 
 def kept_range(curves: list[np.ndarray], log: bool = False) -> tuple[float, float] | None:
