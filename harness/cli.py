@@ -1,4 +1,4 @@
-"""Command line: ``python -m harness {run,paper,plant,list,export-ssp,sweep} ...``.
+"""Command line: ``python -m harness {run,paper,plant,list,export-ssp,sweep,linearize} ...``.
 
 - ``run SCENARIO --out DIR``: co-simulate one system description (a file, or the name of a
   bundled scenario such as ``pendulum_nominal``); writes ``results.csv``, ``summary.json`` and
@@ -27,6 +27,9 @@
   values, seeds, steps; a grid or seeded random samples) on dask, one table of their figures
   (:mod:`harness.sweep`); exit 1 when points failed, one line per failure reason, the engine's
   tracebacks in ``DIR/engine.log`` (:mod:`harness.engine_log`).
+- ``linearize MODEL --input U --output Y [--unknown-input Q] --out SPEC.toml``: a plant FMU
+  (Model Exchange) or SSP linearised at its start values (``--set``, ``--at``) into a plant
+  spec (:mod:`harness.linearize`, :mod:`harness.spec_writer`).
 """
 
 from __future__ import annotations
@@ -218,6 +221,23 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--retry-failed", action="store_true", help="rerun the failed points")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    lin = sub.add_parser("linearize", help="linearise a plant FMU or SSP into a plant spec "
+                                           "(harness/linearize.py)")
+    lin.add_argument("model", type=Path, help="the plant: an FMI 2.0 FMU with Model Exchange, "
+                                              "or an SSP of such FMUs")
+    lin.add_argument("--input", nargs="+", required=True, metavar="NAME",
+                     help="the inputs u (B's columns)")
+    lin.add_argument("--output", nargs="+", required=True, metavar="NAME",
+                     help="the measured outputs y (C's rows)")
+    lin.add_argument("--unknown-input", nargs="+", default=[], metavar="NAME",
+                     help="the unknown inputs q (E's columns)")
+    lin.add_argument("--system", help="the SSP's (sub)system whose connectors are the ports "
+                                      "(e.g. DC-Motor.SuT; default the top system)")
+    lin.add_argument("--at", type=float, help="simulate to this time first (inputs held)")
+    lin.add_argument("--set", dest="overrides", action="append", type=parse_assignment,
+                     default=[], metavar="VAR=VALUE",
+                     help="start value (SSP: component.var=VALUE; repeat)")
+    lin.add_argument("--out", type=Path, required=True, help="the spec TOML file to write")
     return parser
 
 
@@ -734,6 +754,20 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 1 if report.failed else 0
 
 
+def _cmd_linearize(args: argparse.Namespace) -> int:
+    from harness.linearize import linearize
+    from harness.spec_writer import summary_lines, write_spec
+
+    if args.out.is_dir():
+        raise IsADirectoryError(f"--out {args.out}: is a folder, expected the spec file to write")
+    check_output_folder(args.out.parent)
+    lin = linearize(args.model, args.input, args.output, args.unknown_input, system=args.system,
+                    at=args.at, start=dict(args.overrides))
+    print("\n".join(summary_lines(lin)))
+    print(f"spec: {write_spec(lin, args.out)}")
+    return 0
+
+
 def format_table(summaries: dict[str, dict[str, Any]]) -> str:
     """Plain-text table: one row per (scenario, error signal), one column per figure; a
     diverged estimator's row marked and named in a note under the table."""
@@ -774,7 +808,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = _parser().parse_args(argv)
     commands = {"run": _cmd_run, "paper": _cmd_paper, "plant": _cmd_plant, "list": _cmd_list,
-                "export-ssp": _cmd_export, "sweep": _cmd_sweep}
+                "export-ssp": _cmd_export, "sweep": _cmd_sweep, "linearize": _cmd_linearize}
     try:
         with terminate_as_interrupt():
             return commands[args.command](args)
