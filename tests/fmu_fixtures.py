@@ -61,9 +61,12 @@ class FmuDriver:
     unzip_dir : str
         Where it was extracted (several instances may share one extraction).
     instance_name : str
+    logging_on : bool
+        fmi2Instantiate's loggingOn.
     """
 
-    def __init__(self, path: Path, unzip_dir: str, instance_name: str = "instance") -> None:
+    def __init__(self, path: Path, unzip_dir: str, instance_name: str = "instance",
+                 logging_on: bool = True) -> None:
         self.description = read_model_description(str(path))
         self.vr = {v.name: v.valueReference for v in self.description.modelVariables}
         self.messages: list[tuple[int, str]] = []
@@ -77,7 +80,7 @@ class FmuDriver:
             modelIdentifier=self.description.coSimulation.modelIdentifier,
             instanceName=instance_name,
         )
-        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
+        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
 
     def _on_log(self, env, instance, status, category, message) -> None:  # noqa: ANN001
         self.messages.append((int(status), message.decode()))

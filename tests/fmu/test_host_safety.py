@@ -5,10 +5,13 @@ message naming the mistake; the instance stays as it was."""
 from __future__ import annotations
 
 import shutil
+import struct
 import sys
 
 import numpy as np
 import pytest
+from fhobs.core.kalman_filter import KalmanObserver
+from fhobs.fmu.fmu_state import fnv1a64, state_from_bytes, state_to_bytes
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmu_fixtures import FMI_ERROR, FmuDriver, assert_error
@@ -171,3 +174,144 @@ def test_a_changed_bit_of_a_native_state_is_refused(native_fmus, tmp_path):
         driver.fmu.freeFMUstate(state)
     finally:
         driver.fmu.freeInstance()
+
+
+# -- both builds: forged states, logging, restored time, steps the model cannot or should not take
+BUILDS = ("pythonfmu", "native")
+NATIVE_TAIL = 8  # the native serialized state ends with its 64-bit FNV-1a checksum
+
+
+@pytest.fixture(scope="module")
+def both_builds(pendulum_fmus, native_fmus):
+    """Each kind's FMU of both builds (the pendulum design, h = 5e-5), extracted once."""
+    return {(build, kind): (fmus[kind], extract(str(fmus[kind])))
+            for build, fmus in (("pythonfmu", pendulum_fmus), ("native", native_fmus))
+            for kind in ("observer", "kalman", "plant")}
+
+
+@pytest.fixture
+def open_fmu(both_builds):
+    """Factory ``open_fmu(build, kind, logging_on=True)`` of started instances, freed after."""
+    opened: list[FmuDriver] = []
+
+    def factory(build: str, kind: str, logging_on: bool = True) -> FmuDriver:
+        driver = FmuDriver(*both_builds[build, kind], f"{build}_{kind}", logging_on)
+        opened.append(driver)
+        driver.start()
+        return driver
+
+    yield factory
+    for driver in opened:
+        driver.fmu.freeInstance()
+
+
+def forged(driver: FmuDriver, build: str, data: bytes, edit) -> bytes:  # noqa: ANN001
+    """``data`` (a serialized state of ``driver``'s FMU) with its model state edited by
+    ``edit`` (on a list of floats, in place) and its checksum recomputed: a checksum proves
+    nothing. The native layout: header (8), format (4), GUID (48), FMI state (4), time (8), the
+    Real (8 each) and Integer (4 each) variables, the model state, the checksum (8)."""
+    if build == "pythonfmu":
+        state = state_from_bytes(data)
+        edit(state["model"])
+        return state_to_bytes(state)
+    body = bytearray(data[:-NATIVE_TAIL])
+    start = 8 + 4 + 48 + 4 + 8 + 12 * len(driver.description.modelVariables)
+    size = (len(body) - start) // 8
+    model = list(struct.unpack_from(f"<{size}d", body, start))
+    edit(model)
+    struct.pack_into(f"<{size}d", body, start, *model)
+    return bytes(body) + struct.pack("<Q", fnv1a64(bytes(body)))
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("k", [-100000.0, -1.0, 2.5, 2.0**42])
+def test_a_forged_step_index_of_the_plant_is_refused(open_fmu, build, k):
+    """The plant's step index k (which noise sample it reads) forged in a serialized state with
+    its checksum recomputed: fmi2DeSerializeFMUstate refuses it naming k; the instance steps on
+    as before."""
+    driver = open_fmu(build, "plant")
+    for step in range(3):
+        driver.fmu.doStep(step * DT, DT)
+    data = serialized(driver)
+
+    def set_k(model: list[float]) -> None:
+        assert model[-1] == 3.0  # x, then the step index: 3 after three steps
+        model[-1] = k
+
+    before = driver.get("x", (4,))
+    assert_error(driver, driver.fmu.deSerializeFMUstate, forged(driver, build, data, set_k),
+                 words="step index k")
+    driver.fmu.doStep(3 * DT, DT)
+    assert not np.array_equal(driver.get("x", (4,)), before)
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("offset", [-1e-6, 1.0])
+def test_a_forged_sample_offset_of_the_kalman_filter_is_refused(open_fmu, build, offset):
+    driver = open_fmu(build, "kalman")
+    driver.fmu.doStep(0.0, 1.5e-4)
+    data = serialized(driver)
+
+    def set_offset(model: list[float]) -> None:
+        assert model[-1] > 0.0  # z, then the offset to the next sample
+        model[-1] = offset
+
+    assert_error(driver, driver.fmu.deSerializeFMUstate, forged(driver, build, data, set_offset),
+                 words="offset to the next sample")
+
+
+@pytest.mark.parametrize("build", BUILDS)
+def test_errors_are_logged_with_logging_off(open_fmu, build):
+    """FMI 2.0 lets an FMU call the logger for errors whatever loggingOn says: both builds do."""
+    driver = open_fmu(build, "observer", logging_on=False)
+    assert_error(driver, driver.fmu.doStep, 0.0, -1.0, words="not a positive finite number")
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("kind", ["observer", "plant"])
+def test_a_step_whose_zoh_has_no_correct_digit_is_refused(open_fmu, build, kind):
+    """step * ||A||_1 > 1e9: the same refusal in both builds, the instance unchanged."""
+    driver = open_fmu(build, kind)
+    state = "x" if kind == "plant" else "x_hat"
+    before = driver.get(state, (4,))
+    message = assert_error(driver, driver.fmu.doStep, 0.0, 1e16, words="no correct digit")
+    assert "step * ||A||_1 = " in message and "(step = 1e+16)" in message
+    np.testing.assert_array_equal(driver.get(state, (4,)), before)
+
+
+@pytest.mark.parametrize("build", BUILDS)
+def test_last_successful_time_is_the_restored_states(open_fmu, build):
+    source, target = open_fmu(build, "observer"), open_fmu(build, "observer")
+    last = 2  # fmi2LastSuccessfulTime
+    for step in range(2):
+        source.fmu.doStep(step * DT, DT)
+    state = source.fmu.getFMUstate()
+    source.fmu.doStep(2 * DT, DT)
+    assert source.fmu.getRealStatus(last) == 3 * DT
+    source.fmu.setFMUstate(state)
+    assert source.fmu.getRealStatus(last) == 2 * DT
+    source.fmu.freeFMUstate(state)
+    restored = target.fmu.deSerializeFMUstate(serialized(source))
+    target.fmu.setFMUstate(restored)
+    target.fmu.freeFMUstate(restored)
+    assert target.fmu.getRealStatus(last) == 2 * DT
+
+
+@pytest.mark.parametrize("build", BUILDS)
+def test_kalman_steps_far_shorter_than_the_slack_take_the_first_sample(open_fmu, build,
+                                                                       kalman_design):
+    """Steps of 1e-7 Ts: the sample at time 0 is taken at the first step (one cycle of the
+    filter: the numpy filter stepped by Ts from the same start), not deferred for ever."""
+    record = kalman_design.kalman
+    ts = record.sample_time
+    driver = open_fmu(build, "kalman")
+    y, u = np.array([0.3, -0.2]), np.array([0.1])
+    driver.set("y", y)
+    driver.set("u", u)
+    for step in range(20):
+        driver.fmu.doStep(step * 1e-7 * ts, 1e-7 * ts)
+    reference = KalmanObserver(record, kernel=False)
+    reference.step(y, u, ts)  # one cycle, at the sample instant 0
+    assert np.abs(reference.z[:4]).max() > 1e-3  # the cycle moved the estimate
+    np.testing.assert_allclose(driver.get("x_hat", (4,)), reference.z[:4], rtol=1e-12,
+                               atol=1e-15)

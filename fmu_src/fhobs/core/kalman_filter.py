@@ -62,7 +62,9 @@ def samples_in_step(offset: float, dt: float, sample_time: float) -> tuple[int, 
     -------
     n : int
         The number of sample instants ``offset + i Ts`` (i >= 0) before
-        ``dt - SAMPLE_SLACK Ts``.
+        ``dt - SAMPLE_SLACK Ts``, and at least 1 when ``offset`` is 0: the sample at the step's
+        start is in the step, however short the step (steps shorter than the slack would
+        otherwise defer it for ever).
     offset : float
         Time from the step's end to the next sample instant (``offset + n Ts - dt``, at least 0).
 
@@ -77,8 +79,10 @@ def samples_in_step(offset: float, dt: float, sample_time: float) -> tuple[int, 
     (3, 0.0)
     >>> samples_in_step(0.0, 0.5e-3, 1e-3), samples_in_step(0.5e-3, 0.5e-3, 1e-3)
     ((1, 0.0005), (0, 0.0))
+    >>> samples_in_step(0.0, 1e-10, 1e-3)
+    (1, 0.0009999999)
     """
-    n = max(math.ceil((dt - offset) / sample_time - SAMPLE_SLACK), 0)
+    n = max(math.ceil((dt - offset) / sample_time - SAMPLE_SLACK), 0 if offset > 0.0 else 1)
     if n > MAX_CYCLES:
         raise ValueError(f"the step size {dt!r} holds {n} samples of Ts = {sample_time!r}, more "
                          f"than {MAX_CYCLES}; state left unchanged")

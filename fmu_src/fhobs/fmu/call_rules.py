@@ -113,6 +113,21 @@ TIME_MESSAGE = ("currentCommunicationPoint %s is not the FMU's time %s (the star
 """The refusal of a time away from the FMU's (``%s``: the two times)."""
 
 
+ZOH_CONDITION_LIMIT = 1e9
+"""Largest ``step ||A||_1`` for which the exact ZOH ``expm(step A)`` is computed: its condition
+number is at least ``step ||A||``, so at this limit its relative error can already reach
+eps * 1e9 = 2e-7 (entries like 1e300 give finite numbers that mean nothing)."""
+
+ZOH_MESSAGE = ("%s: step * ||A||_1 = %.3g exceeds " f"{ZOH_CONDITION_LIMIT:.0e}"
+               ", beyond which expm(step * A) has no correct digit (step = %s); check the "
+               "entries of A")
+"""The refusal of such a step (``%`` format: the model, step * ||A||_1, the step)."""
+
+MAX_STEP_INDEX = 2**42
+"""The plant's step index k (its noise sample) is a whole number in ``[0, MAX_STEP_INDEX)``:
+the noise block ``k // 1024`` is a 32-bit seed word in both builds."""
+
+
 def number_text(value: float) -> str:
     """A number as a message shows it: ``repr`` of a Python float (never ``np.float64(...)``).
 
@@ -179,7 +194,7 @@ def c_header() -> str:
     """The C header of this table (:data:`HEADER`): ``FHOBS_STATE_*`` bit numbers,
     ``FHOBS_CALL_*`` function numbers, their masks and the refusal messages (with one ``%s``
     for the state's name where the call is merely out of sequence), the get/set refusals
-    (``FHOBS_ACCESS_*``, :data:`ACCESS_MESSAGES`) and the time check.
+    (``FHOBS_ACCESS_*``, :data:`ACCESS_MESSAGES`), the time check and the ZOH limit.
 
     Examples
     --------
@@ -214,5 +229,7 @@ def c_header() -> str:
     lines += [f'#define FHOBS_ACCESS_{name.upper()} "{text}"'
               for name, text in ACCESS_MESSAGES.items()]
     lines += ["", f"#define FHOBS_TIME_TOLERANCE {TIME_TOLERANCE!r}",
-              f'#define FHOBS_TIME_MESSAGE "{TIME_MESSAGE}"', "", "#endif", ""]
+              f'#define FHOBS_TIME_MESSAGE "{TIME_MESSAGE}"',
+              f"#define FHOBS_ZOH_CONDITION_LIMIT {ZOH_CONDITION_LIMIT!r}",
+              f'#define FHOBS_ZOH_MESSAGE "{ZOH_MESSAGE}"', "", "#endif", ""]
     return "\n".join(lines)

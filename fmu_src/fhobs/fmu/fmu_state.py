@@ -19,13 +19,15 @@ from .modes import MODES, STATUS_OK, STEP_MODE, TERMINATED
 if TYPE_CHECKING:
     from .slave_base import SlaveModel
 
-STATE_FORMAT = 3
+STATE_FORMAT = 4
 """Version of the FMU state layout of :meth:`FhobsSlave._get_fmu_state`."""
-STATE_KEYS = {"format", "fmu", "mode", "arrays", "integers", "model"}
+STATE_KEYS = {"format", "fmu", "mode", "time", "arrays", "integers", "model"}
 """The entries of a state (:meth:`FhobsSlave._get_fmu_state`)."""
 _CHECKSUM_TAIL = re.compile(rb', "checksum": "([0-9a-f]{16})"\}\Z')
 """The last member of a serialized state: its checksum."""
 _FNV_OFFSET, _FNV_PRIME, _MASK64 = 0xCBF29CE484222325, 0x100000001B3, (1 << 64) - 1
+INTEGER_RANGE = (-(2**31), 2**31 - 1)
+"""The values of an FMI Integer variable (a C int)."""
 
 
 def fnv1a64(data: bytes) -> int:
@@ -142,6 +144,7 @@ class FmuStates:
             "format": STATE_FORMAT,
             "fmu": type(self).__name__,
             "mode": self._mode,
+            "time": float(self._clock[0]),
             "arrays": {name: value.tolist() for name, value in self._arrays.items()},
             "integers": dict(self._integers),
             "model": self.model.get_state().tolist(),
@@ -170,6 +173,8 @@ class FmuStates:
             return f"it is a state of {state['fmu']!r}, not of this FMU ({type(self).__name__})"
         if state["mode"] not in MODES:
             return f"unknown FMI state {state['mode']!r}"
+        if type(state["time"]) is not float or not math.isfinite(state["time"]):
+            return f"its time {state['time']!r} is not a finite number"
         arrays, integers = state["arrays"], state["integers"]
         if not isinstance(arrays, dict) or set(arrays) != set(self._arrays):
             return "its variables are not this FMU's"
@@ -181,9 +186,17 @@ class FmuStates:
         if not isinstance(integers, dict) or set(integers) != set(self._integers):
             return "its Integer variables are not this FMU's"
         for name, value in integers.items():
-            if type(value) is not int:
-                return f"Integer variable {name} = {value!r} is not an integer"
-        return _array_problem(state["model"], (self.model.get_state().size,), "model state")
+            if type(value) is not int or not INTEGER_RANGE[0] <= value <= INTEGER_RANGE[1]:
+                return (f"Integer variable {name} = {value!r} is not an integer in "
+                        f"[{INTEGER_RANGE[0]}, {INTEGER_RANGE[1]}]")
+        return (_array_problem(state["model"], (self.model.get_state().size,), "model state")
+                or self._model_state_problem(np.asarray(state["model"], dtype=float)))
+
+    def _model_state_problem(self, model_state: np.ndarray) -> str:
+        """Why the finite ``model_state`` of the right size is not one the model can continue
+        from ('' if it is): its whole-number fields and ranges, those the model's own
+        ``set_state`` does not check (a kind whose state has such fields overrides this)."""
+        return ""
 
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`_get_fmu_state` (possibly of another instance), or
@@ -217,6 +230,7 @@ class FmuStates:
         self._start_model = None
         self._accepted_step = math.nan
         self._time = math.nan  # the next doStep's time is taken as it comes
+        self._clock[0] = state["time"]
         if state["mode"] in (STEP_MODE, TERMINATED):
             self._certified = self._parameters()
         self._set_mode(state["mode"])

@@ -8,6 +8,8 @@ samples. Shipped in the FMU by :mod:`fhobs.build` like ``observer.py``.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..core.certificate import certify_kalman
 from ..core.kalman_filter import KalmanObserver
 from .kinds import KINDS
@@ -22,6 +24,14 @@ class FhobsKalman(ObserverSlave):
 
     def _check_timing(self) -> None:
         positive_parameter(self, "Ts", "sample time Ts")
+
+    def _model_state_problem(self, model_state: np.ndarray) -> str:
+        """The offset to the next sample (the state's last entry) is in ``[0, Ts)``."""
+        offset, ts = float(model_state[-1]), float(self.array("Ts"))
+        if 0.0 <= offset < ts:
+            return ""
+        return (f"its Kalman filter's offset to the next sample {offset!r} is not in "
+                f"[0, Ts = {ts!r})")
 
     def _check_gains(self) -> None:
         certify_kalman(self.edited_record())

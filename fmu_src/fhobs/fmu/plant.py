@@ -6,7 +6,10 @@ dx/dt = A x + B u + E q, y = C x + eta, with eta uniform in [-a, a], a function 
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..core.plant import PLANT_SCHEMES, LTIPlant
+from .call_rules import MAX_STEP_INDEX
 from .kinds import KINDS
 from .slave_base import FhobsSlave, zoh_problem
 
@@ -23,6 +26,15 @@ class FhobsPlant(FhobsSlave):
     def _step_problem(self, step_size: float) -> str:
         """The exact ZOH over the step must be computable to some digits."""
         return zoh_problem(self._arrays["A"], step_size, "the plant")
+
+    def _model_state_problem(self, model_state: np.ndarray) -> str:
+        """The step index k (the state's last entry) is a whole number in
+        ``[0, MAX_STEP_INDEX)``."""
+        k = float(model_state[-1])
+        if k.is_integer() and 0.0 <= k < MAX_STEP_INDEX:
+            return ""
+        return (f"its step index k = {k!r} is not a whole number in [0, {MAX_STEP_INDEX}) (the "
+                "plant's noise sample)")
 
     def _make_model(self) -> LTIPlant:
         return LTIPlant(

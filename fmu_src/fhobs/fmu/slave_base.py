@@ -62,7 +62,14 @@ from pythonfmu.enums import Fmi2Status
 from ..core.gains import ObserverDesign
 from ..core.runtime import SCHEMES
 from .access import AccessRules
-from .call_rules import TIME_TOLERANCE, call_problem, number_text, time_problem
+from .call_rules import (
+    TIME_TOLERANCE,
+    ZOH_CONDITION_LIMIT,
+    ZOH_MESSAGE,
+    call_problem,
+    number_text,
+    time_problem,
+)
 from .fmu_state import FmuStates
 from .kinds import Kind, edited_record
 from .modes import (
@@ -81,12 +88,6 @@ DESIGN_FILE = "design.json"
 CONFIG_FILE = "fmu_config.json"
 
 _hypot = math.hypot
-
-ZOH_CONDITION_LIMIT = 1e9
-"""Largest ``step ||A||_1`` for which the exact ZOH ``expm(step A)`` is computed: its condition
-number is at least ``step ||A||``, so at this limit its relative error can already reach
-eps * 1e9 = 2e-7 (entries like 1e300 give finite numbers that mean nothing)."""
-
 
 class SlaveModel(Protocol):
     """What the base class needs from a runtime object (observer or plant).
@@ -124,9 +125,7 @@ def zoh_problem(A: np.ndarray, step: float, what: str) -> str:
     scale = step * float(np.linalg.norm(A, 1))
     if scale <= ZOH_CONDITION_LIMIT:
         return ""
-    return (f"{what}: step * ||A||_1 = {scale:.3g} exceeds {ZOH_CONDITION_LIMIT:.0e}, beyond "
-            f"which expm(step * A) has no correct digit (step = {number_text(step)}); "
-            "check the entries of A")
+    return ZOH_MESSAGE % (what, scale, number_text(step))
 
 
 class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
@@ -169,6 +168,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._set_mode(INSTANTIATED)
         self._start_time = self._time = 0.0
         self._time_slack = 0.0  # the next doStep's time passes the fast path within this
+        self._clock = np.zeros(1)  # the last successful time, read by the wrapper
         self.via_wrapper = self._register_with_wrapper()
         self.model: SlaveModel = self._make_model()
         # the start model and the parameters it was built from, until initialisation uses it
@@ -244,7 +244,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         if not math.isfinite(start_time):
             self._refuse(f"fmi2SetupExperiment: startTime {number_text(start_time)} is not finite")
             return
-        self._start_time = float(start_time)
+        self._start_time = self._clock[0] = float(start_time)
 
     def enter_initialization_mode(self) -> None:
         """Enter initialisation mode: once, right after instantiation or fmi2Reset."""
@@ -281,7 +281,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             return
         self._certified = self._parameters()
         self._accepted_step = math.nan
-        self._time = self._start_time
+        self._time = self._clock[0] = self._start_time
         self._set_mode(STEP_MODE)
 
     def terminate(self) -> None:
@@ -335,7 +335,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             attributes.update(saved)
             return self._fail(f"doStep at t = {number_text(current_time)} rejected: {err}")
         self._outputs[...] = outputs
-        self._time = current_time + step_size
+        self._time = self._clock[0] = current_time + step_size
         self._time_slack = TIME_TOLERANCE * max(abs(self._time), step_size)
         return True
 

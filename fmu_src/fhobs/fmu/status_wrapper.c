@@ -23,8 +23,8 @@
  *   or FHOBS_STEP_RAISED (do_step raised: the slave re-raises the exception in pythonfmu's
  *   fmi2DoStep, called next, which answers fmi2Fatal and logs it as it always did). Waiting
  *   messages are handed to the importer's logger by any pythonfmu call: the status read.
- *   The last successful time that pythonfmu's fmi2GetRealStatus reports is kept here for
- *   those steps (t + h after a step, t after a rejected one, as pythonfmu sets it).
+ *   fmi2GetRealStatus(fmi2LastSuccessfulTime) reads the slave's own last successful time
+ *   (registered with the buffer: the end of its last step, the time of a restored FMU state).
  * - any other fmi2Get/Set call is first put to the slave's access callback, which answers
  *   whether it may go ahead; a refusal (unknown value reference, another type, a write to an
  *   output or, after initialisation, to a parameter) is answered with fmi2Error and the
@@ -142,8 +142,7 @@ typedef struct {
     fhobs_step_fn *step;     /* the slave's doStep */
     fhobs_access_fn *access; /* the slave's check of a get/set call */
     fhobs_state_fn *check_state; /* the slave's check of a serialized state */
-    int own_time;            /* whether the last doStep went through step */
-    double last_time;        /* then: the last successful time */
+    const double *clock;     /* the slave's last successful time (restored with a state) */
     fmi2CallbackLogger logger;
     fmi2ComponentEnvironment environment;
     char *name;              /* instance name */
@@ -845,12 +844,13 @@ static int ensure_impl(const char *resources, int *just_loaded)
  * slave). Returns 1 if registered, 0 if no instance is being created by this thread or the
  * arguments are inconsistent (then every call goes through pythonfmu). */
 int fhobs_register(double *values, size_t n_values, const long long *position,
-    const unsigned char *writable, size_t n_position, const int *mode, fhobs_step_fn *step,
-    fhobs_access_fn *access, fhobs_state_fn *check_state)
+    const unsigned char *writable, size_t n_position, const int *mode, const double *clock,
+    fhobs_step_fn *step, fhobs_access_fn *access, fhobs_state_fn *check_state)
 {
     Instance *w = registering;
     if (w == NULL || values == NULL || position == NULL || writable == NULL || n_position == 0
-        || mode == NULL || step == NULL || access == NULL || check_state == NULL) {
+        || mode == NULL || clock == NULL || step == NULL || access == NULL
+        || check_state == NULL) {
         return 0;
     }
     for (size_t i = 0; i < n_position; i++) {
@@ -867,6 +867,7 @@ int fhobs_register(double *values, size_t n_values, const long long *position,
     w->position = copy;
     w->writable = writable;
     w->mode = mode;
+    w->clock = clock;
     w->n_position = n_position;
     w->values = values;
     w->step = step;
@@ -1089,7 +1090,9 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     w->name = strdup(instanceName != NULL ? instanceName : "");
     Instance *outer = registering; /* restored: instantiations may nest */
     registering = w;
-    w->impl = instantiate(instanceName, fmuType, guid, resources, functions, visible, loggingOn);
+    /* The slaves log errors and warnings only: handed to the host whatever loggingOn says, as
+     * the native FMUs do (pythonfmu would drop them without debug logging). */
+    w->impl = instantiate(instanceName, fmuType, guid, resources, functions, visible, fmi2True);
     registering = outer;
     if (w->impl == NULL) {
         unregister(w);
@@ -1156,17 +1159,10 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     if (self->step != NULL) {
         switch (self->step(t, h)) {
         case FHOBS_STEP_OK:
-            self->own_time = 1;
-            self->last_time = t + h;
             return fmi2OK;
         case FHOBS_STEP_OK_LOGGED:
-            self->own_time = 1;
-            self->last_time = t + h;
-            recorded(self->impl, fmi2OK); /* a pythonfmu call: hands the messages over */
-            return fmi2OK;
+            return recorded(self->impl, fmi2OK); /* a pythonfmu call: hands the messages over */
         case FHOBS_STEP_REJECTED:
-            self->own_time = 1;
-            self->last_time = t;
             return recorded(self->impl, fmi2Discard);
         case FHOBS_STEP_RAISED:
             return fmi2DoStep_impl(self->impl, t, h, noSetPrior); /* re-raised there: fatal */
@@ -1176,9 +1172,6 @@ fmi2Status fmi2DoStep(fmi2Component w, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     }
     /* The slaves' do_step returns True (fmi2OK) only on success: no status to read then. */
     fmi2Status returned = fmi2DoStep_impl(INNER(w), t, h, noSetPrior);
-    if (self != NULL && (returned == fmi2OK || returned == fmi2Discard)) {
-        self->own_time = 0; /* pythonfmu set its last successful time (not after an exception) */
-    }
     return returned == fmi2OK ? returned : recorded(INNER(w), returned);
 }
 
@@ -1186,8 +1179,8 @@ fmi2Status fmi2GetRealStatus(fmi2Component w, const fmi2StatusKind k, fmi2Real *
 {
     const Instance *self = w;
     CHECK_CALL(w, FHOBS_CALL_GETREALSTATUS);
-    if (self->own_time && k == fmi2LastSuccessfulTime && v != NULL) {
-        *v = self->last_time;
+    if (self->clock != NULL && k == fmi2LastSuccessfulTime && v != NULL) {
+        *v = *self->clock;
         return fmi2OK;
     }
     IMPL(fmi2GetRealStatus, fmi2Error)
@@ -1377,8 +1370,15 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component w, const fmi2Byte b[], size_t s
     return status;
 }
 
-FORWARD(fmi2SetDebugLogging, FHOBS_CALL_SETDEBUGLOGGING, (fmi2Component w, fmi2Boolean on,
-    size_t n, const fmi2String cat[]), (c, on, n, cat))
+/* Debug logging stays on in pythonfmu: the slaves log errors and warnings only, which reach the
+ * host whatever loggingOn says (as from fmi2Instantiate). */
+fmi2Status fmi2SetDebugLogging(fmi2Component w, fmi2Boolean on, size_t n, const fmi2String cat[])
+{
+    (void)on;
+    IMPL(fmi2SetDebugLogging, fmi2Error)
+    CHECK_CALL(w, FHOBS_CALL_SETDEBUGLOGGING);
+    return fmi2SetDebugLogging_impl(INNER(w), fmi2True, n, cat);
+}
 FORWARD(fmi2SetupExperiment, FHOBS_CALL_SETUPEXPERIMENT, (fmi2Component w, fmi2Boolean tolDef,
     fmi2Real tol, fmi2Real t0, fmi2Boolean stopDef, fmi2Real t1),
     (c, tolDef, tol, t0, stopDef, t1))

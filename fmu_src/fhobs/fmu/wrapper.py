@@ -46,9 +46,10 @@ class WrapperCalls:
         without loading it (``RTLD_NOLOAD``), given the buffer's address, the buffer position
         of every Real value reference and the callback, and released. Without the wrapper, or
         when the slave is not being created through it, nothing happens and every call goes
-        through pythonfmu. ``self._values``, ``self._writable`` and ``self._mode_code`` (the index
-        of the FMI state, which the wrapper reads to refuse calls out of sequence) are never
-        rebound or resized
+        through pythonfmu. ``self._values``, ``self._writable``, ``self._mode_code`` (the index
+        of the FMI state, which the wrapper reads to refuse calls out of sequence) and
+        ``self._clock`` (the last successful time, its fmi2GetRealStatus) are never rebound or
+        resized
         after this (the wrapper keeps their addresses).
         """
         if not (self._status_via_wrapper and hasattr(os, "RTLD_NOLOAD")):
@@ -73,11 +74,12 @@ class WrapperCalls:
             register.restype = ctypes.c_int
             register.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
                                  ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
-                                 _WRAPPER_STEP_TYPE, _WRAPPER_ACCESS_TYPE, _WRAPPER_STATE_TYPE]
+                                 ctypes.c_void_p, _WRAPPER_STEP_TYPE, _WRAPPER_ACCESS_TYPE,
+                                 _WRAPPER_STATE_TYPE]
             return bool(register(self._values.ctypes.data, self._values.size,
                                  positions.ctypes.data, self._writable.ctypes.data,
                                  positions.size, self._mode_code.ctypes.data,
-                                 *self._wrapper_callbacks))
+                                 self._clock.ctypes.data, *self._wrapper_callbacks))
         finally:
             _ctypes.dlclose(library._handle)  # balance the RTLD_NOLOAD reference
 

@@ -14,8 +14,10 @@
  *     compiled into the binary (the design) accepts only its built value, bit for bit;
  *   - doStep refuses a step size that is not positive and finite or not one of the built
  *     ones, and inputs that are not finite or exceed input_bound;
- *   - an FMU state (in memory or serialized) carries the FMU's identity (its GUID) and is
- *     checked completely before any of it is used.
+ *   - an FMU state (in memory or serialized) carries the FMU's identity (its GUID) and the
+ *     last successful time, and is checked completely before any of it is used (every field
+ *     of the model state that is a count or an index: a whole number in its range);
+ *   - doStep refuses a step whose exact ZOH has no correct digit (step * ||A||_1 > 1e9).
  * Every instance owns all its data (no globals but constant ones): many instances of one or
  * several native FMUs run in one process. The model (models.c, the generated model_data.c)
  * is reached through model.h; the fmi2 functions are the only symbols the library exports.
@@ -34,7 +36,7 @@
 #define INSTANCE_MAGIC 0x6668696eu /* "fhin" */
 #define SNAPSHOT_MAGIC 0x66687374u /* "fhst" */
 #define STATE_HEADER "FHOBSNAT"
-#define STATE_FORMAT 2u
+#define STATE_FORMAT 3u
 #define IDENTITY_FIELD 48
 #define MESSAGE_SIZE 1024
 #define STATUS_OK 0    /* fhobs.fmu.modes.STATUS_OK */
@@ -53,6 +55,7 @@ static const char *const TYPE_NAMES[] = {"Real", "Integer", "Boolean", "String"}
 
 typedef struct {
     int mode;
+    double time; /* the last successful time: the start time, then the end of the last step */
     double real[FHOBS_N_VARIABLES]; /* by value reference (Integer variables: unused) */
     int integer[FHOBS_N_VARIABLES]; /* by value reference (Real variables: unused) */
     double state[FHOBS_STATE_SIZE]; /* the model's state */
@@ -79,7 +82,7 @@ typedef struct {
 /* serialized: header, format, identity, the Values' fields, then a 64-bit FNV-1a checksum of
  * everything before it */
 #define SERIALIZED_SIZE                                                                        \
-    (8 + 4 + IDENTITY_FIELD + 4 + 8 * FHOBS_N_VARIABLES + 4 * FHOBS_N_VARIABLES +              \
+    (8 + 4 + IDENTITY_FIELD + 4 + 8 + 8 * FHOBS_N_VARIABLES + 4 * FHOBS_N_VARIABLES +          \
      8 * FHOBS_STATE_SIZE + 8)
 
 /* -- memory and messages ------------------------------------------------------------------ */
@@ -165,6 +168,7 @@ static void start_values(Instance *c)
     char msg[MESSAGE_SIZE];
     Values *v = &c->values;
     v->mode = INSTANTIATED;
+    v->time = 0.0;
     for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
         v->real[i] = VARIABLES[i].type == FHOBS_REAL ? VARIABLES[i].start : 0.0;
         v->integer[i] = VARIABLES[i].type == FHOBS_INTEGER ? (int)VARIABLES[i].start : 0;
@@ -219,10 +223,16 @@ static int values_problem(const Values *v, char *msg, size_t len)
             return 1;
         }
     }
+    if (!isfinite(v->time)) {
+        snprintf(msg, len, "its time %s is not a finite number", fhobs_number(v->time, a, sizeof a));
+        return 1;
+    }
     if (!all_finite(v->state, FHOBS_STATE_SIZE)) {
         snprintf(msg, len, "its model state is not finite");
         return 1;
     }
+    if (model_state_problem(v->state, msg, len))
+        return 1;
     if (v->mode == STEP_MODE || v->mode == TERMINATED)
         return parameters_problem(v, msg, len);
     double state[FHOBS_STATE_SIZE]; /* before initialisation: the initial state must be one */
@@ -325,7 +335,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean toleranceDef
                  fhobs_number(startTime, a, sizeof a));
         return fail(c, msg);
     }
-    c->start_time = startTime;
+    c->start_time = c->values.time = startTime;
     return ok(c);
 }
 
@@ -350,7 +360,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component component)
     memcpy(v->state, state, sizeof state);
     publish(c);
     v->mode = STEP_MODE;
-    c->time = c->start_time;
+    c->time = v->time = c->start_time;
     return ok(c);
 }
 
@@ -557,6 +567,20 @@ static int time_problem(const Instance *c, double t, double dt, char *msg, size_
     return 1;
 }
 
+/* Why the exact ZOH of the model over dt has no correct digit (1 and the message) or 0
+ * (fhobs.fmu.slave_base.zoh_problem). */
+static int zoh_problem(double dt, char *msg, size_t len)
+{
+    char a[32];
+    double scale = dt * FHOBS_MODEL_NORM1;
+    if (!(scale > FHOBS_ZOH_CONDITION_LIMIT))
+        return 0;
+    snprintf(msg, len, FHOBS_ZOH_MESSAGE,
+             FHOBS_KIND == FHOBS_KIND_PLANT ? "the plant" : "the observer's model", scale,
+             fhobs_number(dt, a, sizeof a));
+    return 1;
+}
+
 fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentCommunicationPoint)
@@ -575,6 +599,7 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
         problem = 1;
     }
     problem = problem || time_problem(c, currentCommunicationPoint, dt, reason, sizeof reason);
+    problem = problem || zoh_problem(dt, reason, sizeof reason);
     problem = problem || input_problem(c, reason, sizeof reason) ||
               model_step(c->work, v->real, v->integer, v->state, next, dt, reason,
                          sizeof reason);
@@ -585,7 +610,7 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     }
     memcpy(v->state, next, sizeof next);
     publish(c);
-    c->time = currentCommunicationPoint + dt;
+    c->time = v->time = currentCommunicationPoint + dt;
     return ok(c);
 }
 
@@ -623,13 +648,14 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     return unsupported(c, FHOBS_CALL_GETSTRINGSTATUS);
 }
 
-/* fmi2LastSuccessfulTime: the end of the last step (the start time before one). */
+/* fmi2LastSuccessfulTime: the end of the last step (the start time before one; the time of a
+ * restored FMU state). */
 fmi2Status fmi2GetRealStatus(fmi2Component component, const fmi2StatusKind s, fmi2Real *value)
 {
     CHECK_CALL(component, FHOBS_CALL_GETREALSTATUS);
     if (s != fmi2LastSuccessfulTime || !value)
         return fail(c, "fmi2GetRealStatus: only fmi2LastSuccessfulTime, into a non-NULL value");
-    *value = c->time;
+    *value = c->values.time;
     return ok(c);
 }
 
@@ -786,6 +812,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component component, fmi2FMUstate state,
     p = put(p, &format, 4);
     p = put(p, identity, IDENTITY_FIELD);
     p = put(p, &mode, 4);
+    p = put(p, &s->values.time, 8);
     p = put(p, s->values.real, sizeof s->values.real);
     p = put(p, s->values.integer, sizeof s->values.integer);
     p = put(p, s->values.state, sizeof s->values.state);
@@ -823,6 +850,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
                        "match (the bytes were changed after fmi2SerializeFMUstate)");
     p = get(p, &mode, 4);
     values.mode = mode;
+    p = get(p, &values.time, 8);
     p = get(p, values.real, sizeof values.real);
     p = get(p, values.integer, sizeof values.integer);
     get(p, values.state, sizeof values.state);

@@ -27,6 +27,10 @@ FHOBS_HIDDEN int model_initial_state(const double *real, double *state, char *ms
  * then unspecified. */
 FHOBS_HIDDEN int model_step(Work *w, const double *real, const int *integer, const double *src,
                             double *dst, double dt, char *msg, size_t len);
+/* Why a finite model state is not one the model can continue from (1, message) or 0: a field
+ * that is a count, an index or a mode not a whole number in its range, an offset or a time
+ * outside its range. */
+FHOBS_HIDDEN int model_state_problem(const double *state, char *msg, size_t len);
 /* The outputs of the state into the variables. */
 FHOBS_HIDDEN void model_outputs(Work *w, double *real, const int *integer, const double *state);
 
