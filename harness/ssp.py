@@ -11,13 +11,14 @@ What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6)
 - start values: written as component ``ParameterBindings`` with inline ``ssv:ParameterSet``
   values (libcosim applies them; fmpy's ``simulate_ssp`` parses but does not apply them, so
   a caller hands them over as its ``parameter_set``).
-- signal sources: carried as :mod:`harness.blocks` sine FMUs (the systems already use them).
+- signal sources: carried as :mod:`harness.blocks` FMUs (sine, signal, noise: the systems
+  already use them).
 - the blocks are native (compiled C, :mod:`harness.blocks.native`) when the system's own FMUs
   are (none of them a pythonfmu FMU), or when asked for: the SSP then runs in a host without
   Python (OMSimulator, ``bench/check_omsimulator.py``); else they are the pythonfmu blocks.
 - an SSP with an FMU that needs Python (a pythonfmu FMU: the pythonfmu builds of the observers
-  and the plant, the pythonfmu blocks, the ``signal`` block, which has no native build) runs
-  only in a host with Python 3.11 and numpy: ``export_ssp(..., allow_python=False)`` (the
+  and the plant, the pythonfmu blocks) runs only in a host with Python 3.11 and numpy (every
+  block kind has a native build): ``export_ssp(..., allow_python=False)`` (the
   command's default) refuses it, naming each such FMU (:func:`python_fmus`).
 
 The default experiment (start, stop) is written; the step size goes into two vendor
@@ -149,8 +150,8 @@ def check_no_python(system: ResolvedSystem) -> None:
         raise PythonFmuError(
             f"export-ssp: {len(found)} FMU(s) of system {system.spec.name!r} need Python 3.11 "
             f"with numpy at run time (pythonfmu FMUs), so a host without Python cannot run "
-            f"the SSP: {named}; use native FMUs (build_fmu.py --native, --fmu-dir DIR/native; "
-            "the signal block has no native build) or pass --allow-python to export them anyway"
+            f"the SSP: {named}; use native FMUs (build_fmu.py --native, --fmu-dir DIR/native, "
+            "and native blocks) or pass --allow-python to export them anyway"
         )
 
 

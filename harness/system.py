@@ -80,7 +80,6 @@ from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
 from harness.blocks.build import native_by_default
-from harness.blocks.native import KIND_MACROS
 from harness.fmu_files import description
 
 StartValue = float | int | bool
@@ -420,11 +419,10 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None,
     block_cache : Path or None
         Where the blocks are built (default: :func:`harness.blocks.default_cache_dir`).
     native : bool or None
-        Native blocks (compiled C, :mod:`harness.blocks.native`) for the kinds that have one
-        (True), pythonfmu blocks (False), or (None) native ones when none of the system's own
-        FMUs is a pythonfmu FMU (:func:`harness.blocks.build.native_by_default`): a system of
-        native FMUs then needs no Python in any FMU. The kinds without a native version
-        (``signal``) are pythonfmu blocks either way.
+        Native blocks (compiled C, :mod:`harness.blocks.native`: every kind has one) (True),
+        pythonfmu blocks (False), or (None) native ones when none of the system's own FMUs is a
+        pythonfmu FMU (:func:`harness.blocks.build.native_by_default`): a system of native
+        FMUs then needs no Python in any FMU.
 
     Returns
     -------
@@ -445,8 +443,7 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None,
         native = native_by_default(fs.path for fs in spec.fmus.values()
                                    if fs.block is None and fs.path is not None)
     fmus = {name: fs if fs.block is None or fs.path is not None
-            else replace(fs, path=block_fmu(*fs.block, block_cache,
-                                            native=native and fs.block[0] in KIND_MACROS))
+            else replace(fs, path=block_fmu(*fs.block, block_cache, native=native))
             for name, fs in spec.fmus.items()}
     return replace(spec, fmus=fmus)
 

@@ -42,11 +42,16 @@ class BlockKind:
 
 BLOCK_KINDS: dict[str, BlockKind] = {
     "sine": BlockKind("sine_source", "SineSource", ("n_outputs",)),
+    "constant": BlockKind("constant_source", "ConstantSource", ("n_outputs",)),
     "gain": BlockKind("matrix_gain", "MatrixGain", ("n_outputs", "n_inputs")),
+    "sum": BlockKind("sum", "Sum", ("n_outputs", "n_terms")),
     "signal": BlockKind("signal_source", "SignalSource", ("n_outputs",), "signal_source.py"),
+    "noise": BlockKind("noise_source", "NoiseSource", ("n_outputs",), "signal_source.py"),
 }
-"""The block kinds; ``signal`` (a step, ramp, sine or seeded random walk from a start time,
-:mod:`harness.blocks.signal_source`) has no native version."""
+"""The block kinds: :mod:`harness.blocks.slaves` (sine, constant, gain, sum) and the seeded
+sources of :mod:`harness.blocks.signal_source` (``signal``: a step, ramp, sine or random walk
+from a start time; ``noise``: uniform or Gaussian white noise). Each has a native build too
+(:mod:`harness.blocks.native`)."""
 
 
 def default_cache_dir() -> Path:
@@ -83,8 +88,9 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
     Parameters
     ----------
     kind_name
-        A key of :data:`BLOCK_KINDS` (``"sine"``, ``"signal"``: ``(n_outputs,)``; ``"gain"``:
-        ``(n_outputs, n_inputs)``).
+        A key of :data:`BLOCK_KINDS` (``"sine"``, ``"constant"``, ``"signal"``, ``"noise"``:
+        ``(n_outputs,)``; ``"gain"``: ``(n_outputs, n_inputs)``; ``"sum"``: ``(n_outputs,
+        n_terms)``).
     dims
         Positive dimensions, one per name in the kind's ``dimensions``.
     cache_dir

@@ -1,13 +1,16 @@
-"""Native harness blocks: the sine source and the matrix gain as FMUs of compiled C.
+"""Native harness blocks: every kind of :data:`harness.blocks.BLOCK_KINDS` as an FMU of compiled C.
 
 A native block has the interface of the pythonfmu block of the same kind and dimensions (its
 modelDescription is that block's, with this FMU's identity and capabilities): the same names,
 value references, causalities, variabilities, start values and output dependencies. Its
 binary is ``native_blocks.c`` (libc and libm only, no Python) compiled with the native FMUs'
 compiler helper (:func:`fhobs.native.build.compile_binary`) from a generated unit
-``sources/fhobs_fmu.c`` that holds the block's variable table, read from the modelDescription.
-So a host without Python (OMSimulator, fmusim, the FMU Compliance Checker) runs a system with
-harness blocks, such as an exported SSP (:func:`harness.ssp.export_ssp`).
+``sources/fhobs_fmu.c`` that holds the block's variable table, read from the modelDescription,
+with the product's call-rules header (``fhobs_call_rules.h``, :mod:`fhobs.fmu.call_rules`) and,
+for the seeded sources (``signal``, ``noise``), the product's noise generator
+(``fhobs/native/noise.c``, the draws of :mod:`harness.blocks.signal_source`). So a host without
+Python (OMSimulator, fmusim, the FMU Compliance Checker) runs a system with harness blocks, such
+as an exported SSP (:func:`harness.ssp.export_ssp`).
 """
 
 from __future__ import annotations
@@ -21,14 +24,20 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.blocks.build import BLOCK_KINDS, SOURCE, block_fmu, default_cache_dir
+from harness.blocks.build import BLOCK_KINDS, block_fmu, default_cache_dir
 
 HERE = Path(__file__).resolve().parent
 C_SOURCES = ("native_blocks.c", "native_blocks.h")
 """The block layer's C files (in this folder), shipped in every native block's ``sources/``."""
-KIND_MACROS = {"sine": "BLOCK_SINE", "gain": "BLOCK_GAIN"}
+NOISE_SOURCES = ("noise.c", "noise.h")
+"""The product's noise generator (``fhobs/native``), shipped and compiled with the seeded
+sources."""
+KIND_MACROS = {"sine": "BLOCK_SINE", "constant": "BLOCK_CONSTANT", "gain": "BLOCK_GAIN",
+               "sum": "BLOCK_SUM", "signal": "BLOCK_SIGNAL", "noise": "BLOCK_NOISE"}
 """The block kinds with a native version, and their ``BLOCK_KIND`` in ``native_blocks.c``."""
-ROLES = {"parameter": "ROLE_PARAMETER", "input": "ROLE_INPUT", "output": "ROLE_OUTPUT"}
+SEEDED = ("signal", "noise")
+"""The kinds that draw from the noise generator."""
+TYPES = {"Real": "TYPE_REAL", "Integer": "TYPE_INTEGER"}
 CAPABILITIES = {
     "needsExecutionTool": "false",
     "canHandleVariableCommunicationStepSize": "true",
@@ -48,8 +57,8 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     Parameters
     ----------
     kind_name
-        A key of :data:`harness.blocks.BLOCK_KINDS` (``"sine"``: ``(n_outputs,)``; ``"gain"``:
-        ``(n_outputs, n_inputs)``).
+        A key of :data:`harness.blocks.BLOCK_KINDS`, with its dimensions as for
+        :func:`harness.blocks.block_fmu`.
     dims
         Positive dimensions, one per name in the kind's ``dimensions``.
     cache_dir
@@ -76,7 +85,9 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     >>> sorted(n.split("/")[0] for n in names if n.endswith((".so", ".xml")))
     ['binaries', 'modelDescription.xml']
     """
+    import fhobs.native
     from fhobs.errors import BuildError
+    from fhobs.fmu import call_rules
     from fhobs.native.build import FMI_HEADERS, _fmi_headers, compile_binary
 
     if kind_name not in KIND_MACROS:
@@ -85,9 +96,15 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     kind = BLOCK_KINDS[kind_name]
     reference = block_fmu(kind_name, dims, cache_dir)  # checks kind_name and dims
     dims = tuple(int(d) for d in dims)
-    digest = hashlib.sha256(repr((kind_name, dims)).encode() + SOURCE.read_bytes())
-    for name in C_SOURCES:
-        digest.update(name.encode() + (HERE / name).read_bytes())
+    extra = NOISE_SOURCES if kind_name in SEEDED else ()
+    shipped = {name: HERE / name for name in C_SOURCES} | {
+        name: Path(fhobs.native.__file__).with_name(name) for name in extra}
+    units = [name for name in extra if name.endswith(".c")]
+    header = call_rules.c_header()
+    digest = hashlib.sha256(repr((kind_name, dims)).encode() + kind.source.read_bytes()
+                            + header.encode())
+    for name, path in shipped.items():
+        digest.update(name.encode() + path.read_bytes())
     suffix = "x".join(str(d) for d in dims)
     identifier = f"harness_{kind.module}_{suffix}_native_{digest.hexdigest()[:10]}"
     guid = str(uuid.UUID(bytes=digest.digest()[:16]))
@@ -103,13 +120,15 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
         stage = Path(tmp) / "fmu"
         sources = stage / "sources"
         sources.mkdir(parents=True)
-        (sources / "fhobs_fmu.c").write_text(block_unit(kind_name, root, guid))
-        for name in C_SOURCES:
-            shutil.copy(HERE / name, sources / name)
+        (sources / "fhobs_fmu.c").write_text(block_unit(kind_name, dims, root, guid))
+        (sources / call_rules.HEADER).write_text(header)
+        for name, path in shipped.items():
+            shutil.copy(path, sources / name)
         for name in FMI_HEADERS:  # the native FMUs' FMI headers (fmpy's copy)
             shutil.copy(_fmi_headers() / name, sources / name)
-        compile_binary(sources, stage / "binaries" / "linux64" / f"{identifier}.so", compiler)
-        ET.ElementTree(native_model_description(root, identifier, guid)).write(
+        compile_binary(sources, stage / "binaries" / "linux64" / f"{identifier}.so", compiler,
+                       ["fhobs_fmu.c", *units])
+        ET.ElementTree(native_model_description(root, identifier, guid, units)).write(
             stage / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
         built = Path(tmp) / target.name
         with zipfile.ZipFile(built, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -120,17 +139,21 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     return target
 
 
-def block_unit(kind_name: str, model_description: ET.Element, guid: str) -> str:
+def block_unit(kind_name: str, dims: tuple[int, ...], model_description: ET.Element,
+               guid: str) -> str:
     """The generated translation unit ``fhobs_fmu.c`` of a native block.
 
     Parameters
     ----------
     kind_name
-        ``"sine"`` or ``"gain"``.
+        A key of :data:`KIND_MACROS`.
+    dims
+        The block's dimensions: ``N_<NAME>`` macros (``N_OUTPUTS``, ``N_INPUTS``, ``N_TERMS``)
+        of the kind's dimension names.
     model_description
-        The root of the pythonfmu block's modelDescription: its variables, in value-reference
-        order, become the C variable table, and the first value reference of each array
-        (``K``, ``u``, ``y``, ``amplitude``, ...) a ``VR_<NAME>`` macro.
+        The root of the pythonfmu block's modelDescription: its variables (Real or Integer),
+        in value-reference order, become the C variable table, and the first value reference
+        of each array or scalar (``K``, ``u``, ``y``, ``seed``, ...) a ``VR_<NAME>`` macro.
     guid
         The FMU's GUID (``fmi2Instantiate`` checks it).
 
@@ -142,41 +165,42 @@ def block_unit(kind_name: str, model_description: ET.Element, guid: str) -> str:
     Raises
     ------
     ValueError
-        If the variables are not Real, not numbered 0, 1, ... in order, or an array's elements
-        are not contiguous.
+        If a variable is neither Real nor Integer, the variables are not numbered 0, 1, ... in
+        order, or an array's elements are not contiguous.
 
     Examples
     --------
     >>> root = ET.fromstring(
     ...     '<m><ModelVariables>'
-    ...     '<ScalarVariable name="K[1,1]" valueReference="0" causality="parameter">'
-    ...     '<Real start="0"/></ScalarVariable>'
+    ...     '<ScalarVariable name="K[1,1]" valueReference="0" causality="parameter" '
+    ...     'variability="tunable"><Real start="0"/></ScalarVariable>'
     ...     '<ScalarVariable name="u[1]" valueReference="1" causality="input">'
     ...     '<Real start="0"/></ScalarVariable>'
     ...     '<ScalarVariable name="y[1]" valueReference="2" causality="output">'
     ...     '<Real start="0"/></ScalarVariable></ModelVariables></m>')
-    >>> print(block_unit("gain", root, "g").splitlines()[4])
+    >>> print(block_unit("gain", (1, 1), root, "g").splitlines()[4])
     #define BLOCK_KIND BLOCK_GAIN
     """
     rows, first, count = [], {}, {}
     for index, var in enumerate(model_description.iterfind("ModelVariables/ScalarVariable")):
-        name, real = var.get("name"), var.find("Real")
-        if int(var.get("valueReference")) != index or real is None:
-            raise ValueError(f"block variable {name}: expected the Real variable of value "
-                             f"reference {index}")
+        name = var.get("name")
+        typed = [child for child in var if child.tag in TYPES]
+        if int(var.get("valueReference")) != index or len(typed) != 1:
+            raise ValueError(f"block variable {name}: expected the Real or Integer variable of "
+                             f"value reference {index}")
         base = re.sub(r"\[.*", "", name)
         if base in first and first[base] + count[base] != index:
             raise ValueError(f"block variable {name}: the elements of {base} are not contiguous")
         first.setdefault(base, index)
         count[base] = count.get(base, 0) + 1
-        start = float(real.get("start", "0"))
-        rows.append(f'    {{"{name}", {ROLES[var.get("causality")]}, {start.hex()}}},')
-    sizes = {"N_VARIABLES": len(rows), "N_OUTPUTS": count["y"]}
-    if kind_name == "gain":
-        sizes["N_INPUTS"] = count["u"]
+        start = float(typed[0].get("start", "0"))
+        rows.append(f'    {{"{name}", {_role(var)}, {TYPES[typed[0].tag]}, {start.hex()}}},')
+    sizes = {name.removeprefix("n_").upper(): int(d)
+             for name, d in zip(BLOCK_KINDS[kind_name].dimensions, dims, strict=True)}
     defines = [f"#define BLOCK_KIND {KIND_MACROS[kind_name]}",
                f'#define BLOCK_IDENTITY "{guid}"',
-               *(f"#define {key} {value}" for key, value in sizes.items()),
+               f"#define N_VARIABLES {len(rows)}",
+               *(f"#define N_{key} {value}" for key, value in sizes.items()),
                *(f"#define VR_{base.upper()} {vr}" for base, vr in first.items())]
     return "\n".join([
         "/* Generated by harness.blocks.native from the pythonfmu block's modelDescription: the",
@@ -192,17 +216,28 @@ def block_unit(kind_name: str, model_description: ET.Element, guid: str) -> str:
     ])
 
 
-def native_model_description(reference: ET.Element, identifier: str, guid: str) -> ET.Element:
+def _role(var: ET.Element) -> str:
+    """The variable's ``ROLE_*`` of ``native_blocks.h`` (causality, and a parameter's
+    variability)."""
+    causality = var.get("causality")
+    if causality == "parameter":
+        return "ROLE_FIXED" if var.get("variability") == "fixed" else "ROLE_TUNABLE"
+    return {"input": "ROLE_INPUT", "output": "ROLE_OUTPUT"}[causality]
+
+
+def native_model_description(reference: ET.Element, identifier: str, guid: str,
+                             units: list[str] | tuple[str, ...] = ()) -> ET.Element:
     """The pythonfmu block's modelDescription with the native block's identity, capabilities
-    (:data:`CAPABILITIES`) and source file; the variables and the model structure unchanged.
+    (:data:`CAPABILITIES`) and source files (``fhobs_fmu.c`` and the other compiled ``units``);
+    the variables and the model structure unchanged.
 
     Examples
     --------
     >>> root = ET.fromstring('<fmiModelDescription guid="x"><CoSimulation modelIdentifier="p"/>'
     ...                      '</fmiModelDescription>')
-    >>> cosim = native_model_description(root, "blk", "g").find("CoSimulation")
-    >>> cosim.get("modelIdentifier"), cosim.find("SourceFiles/File").get("name")
-    ('blk', 'fhobs_fmu.c')
+    >>> cosim = native_model_description(root, "blk", "g", ["noise.c"]).find("CoSimulation")
+    >>> cosim.get("modelIdentifier"), [f.get("name") for f in cosim.iter("File")]
+    ('blk', ['fhobs_fmu.c', 'noise.c'])
     """
     root = ET.fromstring(ET.tostring(reference))
     root.set("modelName", identifier)
@@ -214,5 +249,7 @@ def native_model_description(reference: ET.Element, identifier: str, guid: str) 
         cosim.set(name, value)
     for child in list(cosim):
         cosim.remove(child)
-    ET.SubElement(ET.SubElement(cosim, "SourceFiles"), "File", name="fhobs_fmu.c")
+    files = ET.SubElement(cosim, "SourceFiles")
+    for name in ("fhobs_fmu.c", *units):
+        ET.SubElement(files, "File", name=name)
     return root

@@ -1,4 +1,4 @@
-"""The signal block's pythonfmu slave (FMI 2.0 co-simulation): a step, ramp, sine or random walk.
+"""The seeded sources' pythonfmu slaves (FMI 2.0 co-simulation): the signal and the noise block.
 
 :class:`SignalSource` has the outputs ``y[1..n]`` and the parameters ``shape`` (Integer: 0 step,
 1 ramp, 2 sine, 3 random walk, the order of :data:`SIGNAL_SHAPES`), ``size[i]``, ``start`` (s),
@@ -7,15 +7,29 @@
     step         y[i](t) = size[i]
     ramp         y[i](t) = size[i] (t - start)
     sine         y[i](t) = size[i] sin(2 pi frequency (t - start))
-    random_walk  y(t_k + h) = y(t_k) + size sqrt(h) w_k   for t_k >= start,
-                 w_k ~ N(0, I) drawn in turn from numpy's default_rng(seed), one per doStep
+    random_walk  y(t_k + h) = y(t_k) + size sqrt(h) w_j   for t_k >= start,
+                 w_j = gaussian(draw j of the seed), j = 0, 1, ... one per doStep from start on
+
+:class:`NoiseSource` has the outputs ``y[1..n]`` and the parameters ``distribution`` (Integer:
+0 uniform, 1 gaussian, the order of :data:`NOISE_DISTRIBUTIONS`), ``size[i]`` (the uniform
+noise's amplitude, or the Gaussian noise's standard deviation) and ``seed`` (Integer): white
+noise, ``y[i] = size[i] u_i`` (uniform in [-size, size)) or ``size[i] w_i`` of draw ``k`` of the
+seed, ``k`` the number of doSteps since initialisation (one draw per step, held over it).
+
+The draws are the product's portable generator (the native plant's measurement noise,
+``fhobs/native/noise.c``, whose C code the native blocks compile): draw ``k`` is row
+``k mod NOISE_BLOCK`` of ``numpy.random.default_rng([seed, k // NOISE_BLOCK]).uniform(-1, 1,
+(NOISE_BLOCK, 2 n))``, its first n numbers ``v`` and last n ``v'``: uniform noise takes ``v``,
+a Gaussian number is the Box-Muller transform ``sqrt(-2 log((1 - v_i) / 2)) cos(pi v'_i)``.
+So the native blocks (:mod:`harness.blocks.native`) draw the same numbers; the random walk's
+increments are these Gaussians (they are not numpy's ``default_rng(seed).standard_normal``).
 
 After ``doStep(t, h)`` the outputs are the signal at ``t + h``; after ``setupExperiment(t0)``
 they are the signal at ``t0`` (as the sine block's): under the Jacobi convention the value read
 at ``t_k`` is the signal at ``t_k``, held by its reader over ``[t_k, t_k + h)``. A time counts as
 reached ``start`` within 1e-9 of ``max(1, start)``. The random walk is a Wiener process of
 intensity ``size`` (its variance grows by ``size^2`` per second) sampled at the communication
-step; it is no FMU state: no rollback.
+step; neither block has FMU states: no rollback.
 
 The module is self-contained (pythonfmu shares ``sys.modules`` between FMUs:
 :mod:`harness.blocks.build` bakes the dimensions into a uniquely named copy of it).
@@ -29,24 +43,65 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 
 SIGNAL_SHAPES = ("step", "ramp", "sine", "random_walk")
+NOISE_DISTRIBUTIONS = ("uniform", "gaussian")
 START_TOLERANCE = 1e-9
+NOISE_BLOCK = 1024
+"""Draws per generator block (block b of a seed from ``default_rng([seed, b])``), as the plant's
+measurement noise."""
 
 
-class SignalSource(Fmi2Slave):
-    """A vector signal of one shape from ``start`` on (module docstring)."""
+def gaussian(v: float, w: float) -> float:
+    """A standard normal number from two uniform numbers of [-1, 1) (Box-Muller).
+
+    Examples
+    --------
+    >>> gaussian(0.0, 0.0) == math.sqrt(2.0 * math.log(2.0))
+    True
+    """
+    return math.sqrt(-2.0 * math.log(0.5 * (1.0 - v))) * math.cos(math.pi * w)
+
+
+class Draws:
+    """The uniform draws of a seed, ``2 width`` numbers of [-1, 1) per draw index (module
+    docstring), one generator block held.
+
+    Examples
+    --------
+    >>> row = Draws(3, 2).row(1500)
+    >>> expected = np.random.default_rng([3, 1]).uniform(-1, 1, (NOISE_BLOCK, 4))[1500 - 1024]
+    >>> row == expected.tolist()
+    True
+    """
+
+    def __init__(self, seed: int, width: int) -> None:
+        self.seed, self.width = seed, width
+        self.block, self.rows = -1, None
+
+    def row(self, k: int) -> list[float]:
+        """Draw ``k``: its ``2 width`` uniform numbers."""
+        block, index = divmod(k, NOISE_BLOCK)
+        if block != self.block:
+            rng = np.random.default_rng([self.seed, block])
+            self.rows = rng.uniform(-1.0, 1.0, size=(NOISE_BLOCK, 2 * self.width))
+            self.block = block
+        return self.rows[index].tolist()
+
+
+class SeededSource(Fmi2Slave):
+    """What the two blocks share: fixed parameters, the outputs ``y[i]``, a seed and an
+    Integer parameter naming a choice of ``choices`` (its name ``selector``)."""
 
     author = "fhobs harness"
-    description = "Signal source: a step, ramp, sine or seeded random walk from t = start on"
+    selector = ""
+    choices: tuple[str, ...] = ()
 
-    def __init__(self, n_outputs: int = 1, **kwargs) -> None:
+    def __init__(self, n_outputs: int, reals: tuple[str, ...], **kwargs) -> None:
         super().__init__(**kwargs)
         self.n_outputs = n_outputs
         self.time = 0.0
         self.size = [0.0] * n_outputs
-        self.reals = {"start": 0.0, "frequency": 0.0}
-        self.integers = {"shape": 0, "seed": 0}
-        self.walk = [0.0] * n_outputs
-        self.rng = None
+        self.reals = dict.fromkeys(reals, 0.0)
+        self.integers = {self.selector: 0, "seed": 0}
         for i in range(n_outputs):
             self._register_real(f"size[{i + 1}]", self.size, i)
         for name in self.reals:
@@ -76,21 +131,48 @@ class SignalSource(Fmi2Slave):
                                        getter=lambda: self.integers[name], setter=setter))
 
     @property
-    def shape(self) -> str:
-        """The shape's name; ValueError for an index outside :data:`SIGNAL_SHAPES`."""
-        index = self.integers["shape"]
-        if not 0 <= index < len(SIGNAL_SHAPES):
-            raise ValueError(f"shape = {index} is not one of 0..{len(SIGNAL_SHAPES) - 1} "
-                             f"({', '.join(SIGNAL_SHAPES)})")
-        return SIGNAL_SHAPES[index]
+    def choice(self) -> str:
+        """The selected choice's name; ValueError for an index outside :attr:`choices`."""
+        index = self.integers[self.selector]
+        if not 0 <= index < len(self.choices):
+            raise ValueError(f"{self.selector} = {index} is not one of 0..{len(self.choices) - 1}"
+                             f" ({', '.join(self.choices)})")
+        return self.choices[index]
+
+    @property
+    def seed(self) -> int:
+        """The seed; ValueError when negative."""
+        if self.integers["seed"] < 0:
+            raise ValueError(f"seed = {self.integers['seed']} must be >= 0")
+        return self.integers["seed"]
+
+    def value(self, i: int) -> float:
+        """Output ``i`` (0-based) at the block's current time."""
+        raise NotImplementedError
+
+    def setup_experiment(self, start_time: float, stop_time, tolerance) -> None:
+        self.time = float(start_time)
+
+
+class SignalSource(SeededSource):
+    """A vector signal of one shape from ``start`` on (module docstring)."""
+
+    description = "Signal source: a step, ramp, sine or seeded random walk from t = start on"
+    selector = "shape"
+    choices = SIGNAL_SHAPES
+
+    def __init__(self, n_outputs: int = 1, **kwargs) -> None:
+        super().__init__(n_outputs, ("start", "frequency"), **kwargs)
+        self.walk = [0.0] * n_outputs
+        self.draws = Draws(0, n_outputs)
+        self.steps = 0
 
     def _started(self, t: float) -> bool:
         start = self.reals["start"]
         return t >= start - START_TOLERANCE * max(1.0, abs(start))
 
     def value(self, i: int) -> float:
-        """Output ``i`` (0-based) at the block's current time."""
-        shape = self.shape
+        shape = self.choice
         if shape == "random_walk":
             return self.walk[i]
         if not self._started(self.time):
@@ -102,21 +184,51 @@ class SignalSource(Fmi2Slave):
             return self.size[i] * elapsed
         return self.size[i] * math.sin(2.0 * math.pi * self.reals["frequency"] * elapsed)
 
-    def setup_experiment(self, start_time: float, stop_time, tolerance) -> None:
-        self.time = float(start_time)
-
     def exit_initialization_mode(self) -> None:
-        self.shape  # noqa: B018 - checks the shape index (ValueError: fmi2Error)
-        if self.integers["seed"] < 0:
-            raise ValueError(f"seed = {self.integers['seed']} must be >= 0")
-        self.rng = np.random.default_rng(self.integers["seed"])
+        self.choice  # noqa: B018 - checks the shape index (ValueError: fmi2Error)
+        self.draws = Draws(self.seed, self.n_outputs)
         self.walk = [0.0] * self.n_outputs
+        self.steps = 0
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        if self.shape == "random_walk" and self._started(current_time):
+        if self.choice == "random_walk" and self._started(current_time):
             scale = math.sqrt(step_size)
-            w = self.rng.standard_normal(self.n_outputs)
-            self.walk = [v + s * scale * float(x)
-                         for v, s, x in zip(self.walk, self.size, w, strict=True)]
+            row = self.draws.row(self.steps)
+            self.steps += 1
+            n = self.n_outputs
+            self.walk = [v + s * scale * gaussian(row[i], row[n + i])
+                         for i, (v, s) in enumerate(zip(self.walk, self.size, strict=True))]
+        self.time = current_time + step_size
+        return True
+
+
+class NoiseSource(SeededSource):
+    """Seeded white noise, one draw per doStep (module docstring)."""
+
+    description = "Noise source: seeded uniform or Gaussian white noise, one draw per step"
+    selector = "distribution"
+    choices = NOISE_DISTRIBUTIONS
+
+    def __init__(self, n_outputs: int = 1, **kwargs) -> None:
+        super().__init__(n_outputs, (), **kwargs)
+        self.steps = 0
+        self.draws = Draws(0, n_outputs)
+
+    def value(self, i: int) -> float:
+        distribution = self.choice
+        if self.draws.seed != self.seed:
+            self.draws = Draws(self.seed, self.n_outputs)
+        row = self.draws.row(self.steps)
+        if distribution == "uniform":
+            return self.size[i] * row[i]
+        return self.size[i] * gaussian(row[i], row[self.n_outputs + i])
+
+    def exit_initialization_mode(self) -> None:
+        self.choice  # noqa: B018 - checks the distribution index (ValueError: fmi2Error)
+        self.draws = Draws(self.seed, self.n_outputs)
+        self.steps = 0
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        self.steps += 1
         self.time = current_time + step_size
         return True

@@ -1,18 +1,22 @@
-"""The utility blocks' pythonfmu slaves (FMI 2.0 co-simulation): a signal source and a gain.
+"""The utility blocks' pythonfmu slaves (FMI 2.0 co-simulation): sources, a gain and a sum.
 
 - :class:`SineSource`: ``y[i] = amplitude[i] * sin(omega[i] * t + phase[i]) + offset[i]``.
   After ``doStep(t, h)`` the outputs are the signal at ``t + h``; after ``setupExperiment(t0)``
   they are the signal at ``t0``. So under the Jacobi convention the value read at ``t_k`` is
   exactly the signal at ``t_k``.
+- :class:`ConstantSource`: ``y[i] = value[i]`` (tunable parameters).
 - :class:`MatrixGain`: ``y = K u`` (direct feedthrough, no state), inputs ``u[1..m]``, outputs
   ``y[1..p]``, parameters ``K[i,j]`` (row-major). The outputs are evaluated from the current
   inputs whenever they are read. A co-simulation master that only exchanges values at
   communication points therefore sees this block as one communication step of delay on the
   path through it; the harness applies connection gains itself (no delay) and uses this block
-  only where an external engine needs the gain as an FMU (SSP export). The model description
-  declares the direct feedthrough: each output depends on every input (``<Unknown
-  dependencies>``; K is tunable, so no entry is assumed zero), which lets a master find
-  algebraic loops through the block.
+  only where an external engine needs the gain as an FMU (SSP export).
+- :class:`Sum`: ``y = u[1,:] + ... + u[m,:]``, the sum of ``m`` input vectors of ``n`` entries
+  (inputs ``u[k,i]``, term k, entry i), evaluated whenever read, as the gain.
+
+The model descriptions declare the direct feedthrough of the gain and the sum: each output
+depends on the inputs it is computed from (``<Unknown dependencies>``; K is tunable, so no
+entry of it is assumed zero), which lets a master find algebraic loops through the block.
 
 The dimensions are constructor arguments; :mod:`harness.blocks.build` bakes them into a
 uniquely named copy of this module (pythonfmu shares ``sys.modules`` between FMUs), which is
@@ -22,6 +26,7 @@ why the module imports nothing from the harness.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from xml.etree.ElementTree import Element
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
@@ -29,8 +34,24 @@ from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Re
 SINE_PARAMETERS = ("amplitude", "omega", "phase", "offset")
 
 
+def added(terms: Iterable[float]) -> float:
+    """The terms added one by one from 0.0 in their order, as the native blocks add them (not
+    ``sum``, which compensates the rounding from Python 3.12 on).
+
+    Examples
+    --------
+    >>> added([1e16, 1.0, -1e16])
+    0.0
+    """
+    total = 0.0
+    for term in terms:
+        total += term
+    return total
+
+
 class Block(Fmi2Slave):
-    """What the blocks share: Real variables backed by list entries, outputs ``y[i]``."""
+    """What the blocks share: Real variables backed by list entries, outputs ``y[i]``, and the
+    outputs' dependencies on the inputs (:meth:`inputs_of`) in the model description."""
 
     author = "fhobs harness"
 
@@ -52,6 +73,18 @@ class Block(Fmi2Slave):
             )
         )
 
+    def _register_parameters(self, name: str, store: list[float], labels: list[str]) -> None:
+        """Register ``store[j]`` as the tunable parameter ``name[labels[j]]``."""
+        for j, label in enumerate(labels):
+            self._register_element(f"{name}[{label}]", store, j, Fmi2Causality.parameter,
+                                   Fmi2Variability.tunable)
+
+    def _register_inputs(self, store: list[float], labels: list[str]) -> None:
+        """Register ``store[j]`` as the input ``u[labels[j]]``."""
+        for j, label in enumerate(labels):
+            self._register_element(f"u[{label}]", store, j, Fmi2Causality.input,
+                                   Fmi2Variability.continuous)
+
     def _register_outputs(self, n_outputs: int) -> None:
         """Register the outputs ``y[1..n_outputs]``, read from :meth:`value`."""
         for i in range(n_outputs):
@@ -69,6 +102,27 @@ class Block(Fmi2Slave):
         """Output ``i`` (0-based)."""
         raise NotImplementedError
 
+    def inputs_of(self, i: int, inputs: list[str]) -> list[str]:
+        """The names among ``inputs`` that output ``i`` (0-based) is computed from: all."""
+        return inputs
+
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
+        """pythonfmu's model description with each output's dependencies on the inputs
+        declared (:meth:`inputs_of`; pythonfmu 0.7.0 writes no dependencies)."""
+        root = super().to_xml(model_options if model_options is not None else {})
+        index = {v.get("name"): position
+                 for position, v in enumerate(root.find("ModelVariables"), start=1)}
+        inputs = [v.get("name") for v in root.find("ModelVariables")
+                  if v.get("causality") == "input"]
+        if inputs:
+            for i, unknown in enumerate(root.iterfind("ModelStructure/Outputs/Unknown")):
+                unknown.set("dependencies",
+                            " ".join(str(index[name]) for name in self.inputs_of(i, inputs)))
+        return root
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        return True
+
 
 class SineSource(Block):
     """Vector of independent sinusoids; parameters ``amplitude, omega, phase, offset [i]``."""
@@ -83,9 +137,8 @@ class SineSource(Block):
         self.time = 0.0
         self.params = {name: [0.0] * n_outputs for name in SINE_PARAMETERS}
         for name in SINE_PARAMETERS:
-            for i in range(n_outputs):
-                self._register_element(f"{name}[{i + 1}]", self.params[name], i,
-                                       Fmi2Causality.parameter, Fmi2Variability.tunable)
+            self._register_parameters(name, self.params[name],
+                                      [str(i + 1) for i in range(n_outputs)])
         self._register_outputs(n_outputs)
 
     def value(self, i: int) -> float:
@@ -103,6 +156,22 @@ class SineSource(Block):
         return True
 
 
+class ConstantSource(Block):
+    """``y[i] = value[i]``, parameters ``value[i]`` (tunable)."""
+
+    description = "Constant source: y[i] = value[i]"
+
+    def __init__(self, n_outputs: int = 1, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.values = [0.0] * n_outputs
+        self._register_parameters("value", self.values, [str(i + 1) for i in range(n_outputs)])
+        self._register_outputs(n_outputs)
+
+    def value(self, i: int) -> float:
+        """Output ``i`` (0-based): its parameter."""
+        return self.values[i]
+
+
 class MatrixGain(Block):
     """``y = K u`` with ``K`` of shape ``(n_outputs, n_inputs)``, parameters ``K[i,j]``."""
 
@@ -113,28 +182,33 @@ class MatrixGain(Block):
         self.gain = [[0.0] * n_inputs for _ in range(n_outputs)]
         self.inputs = [0.0] * n_inputs
         for i in range(n_outputs):
-            for j in range(n_inputs):
-                self._register_element(f"K[{i + 1},{j + 1}]", self.gain[i], j,
-                                       Fmi2Causality.parameter, Fmi2Variability.tunable)
-        for j in range(n_inputs):
-            self._register_element(f"u[{j + 1}]", self.inputs, j,
-                                   Fmi2Causality.input, Fmi2Variability.continuous)
+            self._register_parameters("K", self.gain[i],
+                                      [f"{i + 1},{j + 1}" for j in range(n_inputs)])
+        self._register_inputs(self.inputs, [str(j + 1) for j in range(n_inputs)])
         self._register_outputs(n_outputs)
 
     def value(self, i: int) -> float:
         """Output ``i`` (0-based): row i of K times the current inputs."""
-        return sum(k * u for k, u in zip(self.gain[i], self.inputs, strict=True))
+        return added(k * u for k, u in zip(self.gain[i], self.inputs, strict=True))
 
-    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
-        """pythonfmu's model description with each output's dependence on every input declared
-        (pythonfmu 0.7.0 writes no dependencies)."""
-        root = super().to_xml(model_options if model_options is not None else {})
-        variables = list(root.find("ModelVariables"))
-        inputs = " ".join(str(index) for index, v in enumerate(variables, start=1)
-                          if v.get("causality") == "input")
-        for unknown in root.iterfind("ModelStructure/Outputs/Unknown"):
-            unknown.set("dependencies", inputs)
-        return root
 
-    def do_step(self, current_time: float, step_size: float) -> bool:
-        return True
+class Sum(Block):
+    """``y = u[1,:] + ... + u[n_terms,:]``, inputs ``u[k,i]`` (term k, entry i)."""
+
+    description = "Sum of input vectors y = u[1,:] + ... + u[m,:]"
+
+    def __init__(self, n_outputs: int = 1, n_terms: int = 2, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.n_outputs = n_outputs
+        self.inputs = [0.0] * (n_terms * n_outputs)
+        self._register_inputs(self.inputs, [f"{k + 1},{i + 1}" for k in range(n_terms)
+                                            for i in range(n_outputs)])
+        self._register_outputs(n_outputs)
+
+    def value(self, i: int) -> float:
+        """Output ``i`` (0-based): entry i of every term, added in the terms' order."""
+        return added(self.inputs[i::self.n_outputs])
+
+    def inputs_of(self, i: int, inputs: list[str]) -> list[str]:
+        """Entry ``i`` of every term."""
+        return inputs[i::self.n_outputs]

@@ -1,11 +1,13 @@
 """The native harness blocks (harness/blocks/native.py, native_blocks.c): the pythonfmu blocks'
-interface and values, compiled C without Python, and fmi2Error with a message for every caller
-mistake."""
+interface and values (every kind, every signal shape and noise distribution, over runs of odd
+steps), the same seeded draws, compiled C without Python, the product's call rules, and
+fmi2Error with a message for every caller mistake."""
 
 from __future__ import annotations
 
 import doctest
 import math
+import re
 import shutil
 import subprocess
 import zipfile
@@ -15,6 +17,8 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
+from fhobs.core.plant import noise_samples
+from fhobs.fmu.call_rules import call_problem
 from fmpy import extract
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -23,15 +27,20 @@ from fmpy.fmi2 import (
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2LastSuccessfulTime,
     free,
 )
 from fmpy.validation import validate_fmu
 from fmu_fixtures import FmuDriver, assert_error
+from host_runner import read_outputs
+from scipy import stats
 
 import harness.blocks.native
 from harness.blocks import block_fmu
+from harness.blocks.signal_source import NoiseSource, SignalSource
 
-BLOCKS = {"sine": (3,), "gain": (2, 4)}
+BLOCKS = {"sine": (3,), "constant": (2,), "gain": (2, 4), "sum": (2, 3), "signal": (2,),
+          "noise": (3,)}
 CAPABILITIES = ("needsExecutionTool", "canGetAndSetFMUstate", "canSerializeFMUstate",
                 "canHandleVariableCommunicationStepSize", "canInterpolateInputs")
 
@@ -43,19 +52,27 @@ def cache(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def fmus(cache) -> dict[tuple[str, bool], Path]:
-    """``(kind, native) -> .fmu`` for both kinds, pythonfmu and native."""
+    """``(kind, native) -> .fmu`` for every kind, pythonfmu and native."""
     return {(kind, native): block_fmu(kind, dims, cache, native=native)
             for kind, dims in BLOCKS.items() for native in (False, True)}
 
 
+@pytest.fixture(scope="module")
+def unzipped(fmus, tmp_path_factory) -> dict[tuple[str, bool], str]:
+    """Each FMU extracted once: every instance of a pythonfmu block in the process loads the
+    same library (a second copy of it crashes the process once an instance failed)."""
+    folder = tmp_path_factory.mktemp("unzipped")
+    return {key: extract(str(fmu), str(folder / f"{key[0]}{key[1]}"))
+            for key, fmu in fmus.items()}
+
+
 @pytest.fixture
-def open_block(fmus, tmp_path):
+def open_block(fmus, unzipped):
     """``open_block(kind, native)`` -> an instantiated :class:`FmuDriver`."""
     drivers = []
 
     def factory(kind: str, native: bool = True) -> FmuDriver:
-        driver = FmuDriver(fmus[kind, native], extract(str(fmus[kind, native]),
-                                                       str(tmp_path / f"{kind}{native}")))
+        driver = FmuDriver(fmus[kind, native], unzipped[kind, native])
         drivers.append(driver)
         return driver
 
@@ -70,7 +87,7 @@ def _description(fmu: Path) -> ET.Element:
 
 def _interface(root: ET.Element) -> list:
     """Every variable (attributes and start value) and the model structure."""
-    variables = [(dict(v.attrib), dict(v.find("Real").attrib))
+    variables = [(dict(v.attrib), [(typed.tag, dict(typed.attrib)) for typed in v])
                  for v in root.iterfind("ModelVariables/ScalarVariable")]
     structure = [(u.tag, dict(u.attrib)) for u in root.find("ModelStructure").iter()]
     return [variables, structure]
@@ -122,14 +139,17 @@ def test_binary_needs_no_python(fmus, kind, tmp_path):
 
 @pytest.mark.parametrize("kind", BLOCKS)
 def test_sources_compile_warning_free_as_c99(fmus, kind, tmp_path):
-    """The shipped sources (``<SourceFiles>``: fhobs_fmu.c) compile with -std=c99 -pedantic
-    -Wall -Wextra and no warning."""
+    """The shipped sources (``<SourceFiles>``: fhobs_fmu.c, and noise.c for the seeded
+    sources) compile with -std=c99 -pedantic -Wall -Wextra and no warning."""
     compiler = shutil.which("cc") or shutil.which("gcc")
     zipfile.ZipFile(fmus[kind, True]).extractall(tmp_path)
+    units = [tmp_path / "sources" / f.get("name")
+             for f in _description(fmus[kind, True]).iter("File")]
+    assert units[0].name == "fhobs_fmu.c" and len(units) == 1 + (kind in ("signal", "noise"))
     result = subprocess.run(
         [compiler, "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2", "-shared",
          "-fPIC", f"-I{tmp_path / 'sources'}", "-o", str(tmp_path / "block.so"),
-         str(tmp_path / "sources" / "fhobs_fmu.c"), "-lm"],
+         *map(str, units), "-lm"],
         capture_output=True, text=True, check=False)
     assert result.returncode == 0 and result.stderr == "", result.stderr
 
@@ -185,9 +205,13 @@ def test_gain_is_direct_feedthrough_with_the_pythonfmu_values(open_block):
 
 
 def test_caller_mistakes_are_errors_that_change_nothing(open_block):
+    """Out of sequence: the product's call rules and their messages (fhobs.fmu.call_rules)."""
     block = open_block("gain")
     vr = block.vr
-    assert_error(block, block.fmu.doStep, 0.0, 1e-3, words="doStep runs between")
+    assert_error(block, block.fmu.doStep, 0.0, 1e-3,
+                 words=call_problem("fmi2DoStep", "instantiated"))
+    assert_error(block, block.fmu.getReal, [vr["y[1]"]],
+                 words=call_problem("fmi2GetReal", "instantiated"))
     block.start({"K": [[1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 0.0, 1.0]]})
     block.set("u", [1.0, 1.0, 1.0, 1.0])
     assert block.get("y", (2,)).tolist() == [10.0, 1.0]
@@ -204,21 +228,219 @@ def test_caller_mistakes_are_errors_that_change_nothing(open_block):
                      words="input u[2] = ")
     assert_error(block, block.fmu.setReal, [vr["K[1,1]"]], [math.nan], words="parameter K[1,1]")
     assert block.get("y", (2,)).tolist() == [10.0, 1.0]  # nothing of a refused call was set
-    assert_error(block, block.fmu.enterInitializationMode, words="initialised once")
-    assert_error(block, block.fmu.setupExperiment, None, 0.0, words="only before")
+    assert_error(block, block.fmu.enterInitializationMode,
+                 words=call_problem("fmi2EnterInitializationMode", "step mode"))
+    assert_error(block, block.fmu.setupExperiment, None, 0.0,
+                 words=call_problem("fmi2SetupExperiment", "step mode"))
     for dt in (0.0, -1e-3, math.nan):
         assert_error(block, block.fmu.doStep, 0.0, dt, words="h positive")
-    assert_error(block, block.fmu.getFMUstate, words="canGetAndSetFMUstate=false")
+    assert_error(block, block.fmu.getFMUstate, words="canGetAndSetFMUstate = false")
+    assert_error(block, block.fmu.cancelStep, words=call_problem("fmi2CancelStep", "step mode"))
     block.set("K", [[0.5, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])  # tunable: set between steps
     assert block.get("y", (2,)).tolist() == [0.5, 0.0]
     block.fmu.doStep(0.0, 1e-3)
+    assert_error(block, block.fmu.doStep, 0.5, 1e-3, words="is not the FMU's time 0.001")
+    block.fmu.doStep(1e-3 * (1 + 1e-12), 1e-3)  # a host's round-off: accepted
+    assert block.fmu.getRealStatus(fmi2LastSuccessfulTime) == 1e-3 * (1 + 1e-12) + 1e-3
     block.fmu.terminate()
-    assert_error(block, block.fmu.setReal, [vr["u[1]"]], [1.0], words="after fmi2Terminate")
-    assert_error(block, block.fmu.doStep, 1e-3, 1e-3, words="called in terminated")
+    assert_error(block, block.fmu.setReal, [vr["u[1]"]], [1.0],
+                 words=call_problem("fmi2SetReal", "terminated"))
+    assert_error(block, block.fmu.doStep, 2e-3, 1e-3,
+                 words=call_problem("fmi2DoStep", "terminated"))
     block.fmu.reset()
-    assert block.get("K", (2, 4)).tolist() == np.zeros((2, 4)).tolist()
     block.start()
+    assert block.get("K", (2, 4)).tolist() == np.zeros((2, 4)).tolist()
     block.fmu.doStep(0.0, 1e-3)
+
+
+@pytest.mark.parametrize(("kind", "selector", "value", "words"), [
+    ("signal", "shape", 4, "shape = 4 is not one of 0..3 (step, ramp, sine, random_walk)"),
+    ("noise", "distribution", -1, "distribution = -1 is not one of 0..1 (uniform, gaussian)"),
+    ("noise", "seed", -3, "seed = -3 must be >= 0"),
+])
+def test_bad_integer_parameters_fail_initialisation_in_both_builds(open_block, kind, selector,
+                                                                    value, words):
+    """The native block's fmi2Error, and the pythonfmu block's slave class raising the same
+    (its FMU's fatal error is not exercised here: fmpy freeing a second pythonfmu instance
+    after one was fatal crashes the process)."""
+    block = open_block(kind)
+    block.fmu.setupExperiment(startTime=0.0)
+    block.fmu.enterInitializationMode()
+    block.fmu.setInteger([block.vr[selector]], [value])
+    assert_error(block, block.fmu.exitInitializationMode, words=words)
+    slave = {"signal": SignalSource, "noise": NoiseSource}[kind](n_outputs=2, instance_name="s")
+    slave.integers[selector] = value
+    with pytest.raises(ValueError, match=re.escape(words)):
+        slave.exit_initialization_mode()
+
+
+def test_fixed_parameters_are_set_before_initialisation_only(open_block):
+    block = open_block("signal")
+    block.fmu.setupExperiment(startTime=0.0)
+    block.fmu.setInteger([block.vr["shape"]], [1])
+    block.fmu.enterInitializationMode()
+    block.set("size", [2.0, 3.0])
+    block.fmu.exitInitializationMode()
+    assert block.fmu.getInteger([block.vr["shape"]]) == [1]
+    for call, ref, value in ((block.fmu.setReal, "size[1]", 1.0),
+                             (block.fmu.setInteger, "seed", 1)):
+        assert_error(block, call, [block.vr[ref]], [value],
+                     words=f"{ref} (value reference {block.vr[ref]}) is a fixed parameter")
+    assert_error(block, block.fmu.getReal, [block.vr["shape"]],
+                 words="is of type Integer, not Real")
+    block.fmu.doStep(0.0, 0.5)
+    assert block.get("y", (2,)).tolist() == [1.0, 1.5]
+
+
+# -- the pythonfmu block's values, over runs of odd steps ---------------------------------------
+
+def _odd_steps(count: int, seed: int) -> np.ndarray:
+    """Step sizes of 0.3e-2 .. 1.7e-2 s, none alike."""
+    return np.random.default_rng(seed).uniform(0.3e-2, 1.7e-2, count)
+
+
+def _run(driver: FmuDriver, t0: float, steps: np.ndarray, parameters: dict[str, float],
+         inputs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """setupExperiment(t0), the scalar ``parameters`` (Integer ones as such), initialisation,
+    then a doStep of each of ``steps``, the time accumulated in floating point (t += h) as
+    OMSimulator does; row k of ``inputs`` set before the outputs are read at t_k. The times
+    and the outputs (rows) after initialisation and after each step."""
+    variables = {v.name: v for v in driver.description.modelVariables}
+    outputs = [v.valueReference for v in driver.description.modelVariables
+               if v.causality == "output"]
+    ins = [v.valueReference for v in driver.description.modelVariables
+           if v.causality == "input"]
+    driver.fmu.setupExperiment(startTime=t0)
+    driver.fmu.enterInitializationMode()
+    for name, value in parameters.items():
+        if variables[name].type == "Integer":
+            driver.fmu.setInteger([variables[name].valueReference], [int(value)])
+        else:
+            driver.fmu.setReal([variables[name].valueReference], [float(value)])
+    driver.fmu.exitInitializationMode()
+    t, times, rows = t0, [], []
+    for k in range(len(steps) + 1):
+        if inputs is not None:
+            driver.fmu.setReal(ins, inputs[k].tolist())
+        times.append(t)
+        rows.append(driver.fmu.getReal(outputs))
+        if k < len(steps):
+            driver.fmu.doStep(t, float(steps[k]))
+            t += float(steps[k])
+    return np.array(times), np.array(rows)
+
+
+def _both(open_block, kind: str, t0: float, steps: np.ndarray, parameters: dict[str, float],
+          inputs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The times and the native block's outputs, checked against the pythonfmu block's to
+    1e-12 relative to the largest output."""
+    times, python = _run(open_block(kind, False), t0, steps, parameters, inputs)
+    _, native = _run(open_block(kind, True), t0, steps, parameters, inputs)
+    assert np.max(np.abs(native - python)) <= 1e-12 * np.max(np.abs(python))
+    return times, native
+
+
+def _draws(seed: int, count: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Draws 0 .. count - 1 of the product's portable generator (fhobs.core.plant's noise):
+    their uniform numbers of [-1, 1) and their Gaussian numbers (Box-Muller of each pair)."""
+    rows = noise_samples(seed, count, 1.0, 2 * n)
+    v, w = rows[:, :n], rows[:, n:]
+    return v, np.sqrt(-2.0 * np.log(0.5 * (1.0 - v))) * np.cos(np.pi * w)
+
+
+SIZE = np.array([1.5, -0.25])
+T0 = 0.125
+
+
+def _signal(open_block, shape: int, count: int, **extra: float):
+    steps = _odd_steps(count, shape)
+    start = T0 + float(np.sum(steps[:40])) + 0.37 * float(steps[40])  # between two steps
+    parameters = {"shape": shape, "size[1]": SIZE[0], "size[2]": SIZE[1], "start": start,
+                  "seed": 9, **extra}
+    times, native = _both(open_block, "signal", T0, steps, parameters)
+    on = times >= start - 1e-9 * max(1.0, start)
+    assert not on[40] and on[41]  # t_40 < start < t_41
+    return steps, start, times, on, native
+
+
+@pytest.mark.parametrize("shape", [0, 1, 2])
+def test_signal_shapes_give_the_pythonfmu_values(open_block, shape):
+    """Step, ramp and sine from a start between two steps, over 300 steps of odd sizes: the
+    pythonfmu block's values and their formulas to 1e-12 relative."""
+    _, start, times, on, native = _signal(open_block, shape, 300, frequency=1.7)
+    elapsed = (times - start)[:, None]
+    unit = [np.ones_like(elapsed), elapsed, np.sin(2 * np.pi * 1.7 * elapsed)][shape]
+    expected = np.where(on[:, None], SIZE * unit, 0.0)
+    assert np.max(np.abs(native - expected)) <= 1e-12 * np.max(np.abs(expected))
+
+
+def test_random_walk_draws_the_portable_generators_numbers(open_block):
+    """1300 steps (over a generator block of 1024 draws): the pythonfmu block's walk and
+    y(t_k + h) = y(t_k) + size sqrt(h) w_j, w_j the Gaussians of the product's generator."""
+    steps, _, _, on, native = _signal(open_block, 3, 1300)
+    _, w = _draws(9, 1300, 2)
+    expected = np.zeros((len(steps) + 1, 2))
+    j = 0
+    for k, h in enumerate(steps):
+        expected[k + 1] = expected[k]
+        if on[k]:
+            expected[k + 1] += SIZE * math.sqrt(h) * w[j]
+            j += 1
+    assert j > 1024
+    assert np.max(np.abs(native - expected)) <= 1e-12 * np.max(np.abs(expected))
+
+
+@pytest.mark.parametrize("distribution", [0, 1])
+def test_noise_gives_the_pythonfmu_draws_in_value_and_distribution(open_block, distribution):
+    """6000 steps of odd sizes: the same numbers in both builds, the product generator's draw
+    k after k steps, and uniform in [-size, size) or normal of std size (Kolmogorov-Smirnov)."""
+    size = np.array([0.5, 2.0, 1e-3])
+    parameters = {"distribution": distribution, "seed": 21,
+                  **{f"size[{i + 1}]": a for i, a in enumerate(size)}}
+    _, native = _both(open_block, "noise", T0, _odd_steps(6000, 5), parameters)
+    v, w = _draws(21, 6001, 3)
+    expected = size * (v if distribution == 0 else w)
+    assert np.max(np.abs(native - expected)) <= 1e-12 * np.max(np.abs(expected))
+    standard = (native / size).ravel()
+    reference = stats.uniform(loc=-1.0, scale=2.0) if distribution == 0 else stats.norm()
+    assert stats.kstest(standard, reference.cdf).pvalue > 1e-3
+    assert abs(standard.mean()) < 4 * reference.std() / math.sqrt(standard.size)
+
+
+def test_constant_and_sum_give_the_pythonfmu_values(open_block):
+    rng = np.random.default_rng(8)
+    steps = _odd_steps(30, 8)
+    _, constant = _both(open_block, "constant", T0, steps, {"value[1]": 2.5, "value[2]": -1e-7})
+    assert constant.tolist() == [[2.5, -1e-7]] * 31
+    inputs = rng.normal(size=(31, 6)) * 10.0 ** rng.integers(-6, 6, size=(31, 6))
+    _, total = _both(open_block, "sum", T0, steps, {}, inputs)
+    expected = inputs.reshape(31, 3, 2).sum(axis=1)  # u[k,i]: term k, entry i
+    assert np.max(np.abs(total - expected)) <= 1e-12 * np.max(np.abs(expected))
+
+
+def test_native_blocks_run_in_the_c_host(native_host, fmus, open_block, tmp_path):
+    """The C test host (no Python in its process, every FMI call checked for fmi2OK, the time
+    accumulated in floating point): the noise block and the signal's step give the pythonfmu
+    blocks' values."""
+    steps = _odd_steps(1500, 2)
+    start = float(np.sum(steps[:40])) + 0.5 * float(steps[40])
+    for kind, parameters in (("noise", {"size[1]": 0.5, "size[2]": 2.0, "size[3]": 3.0}),
+                             ("signal", {"size[1]": 1.5, "size[2]": -0.25, "start": start})):
+        folder = tmp_path / kind
+        zipfile.ZipFile(fmus[kind, True]).extractall(folder)
+        with (tmp_path / "in.csv").open("w") as f:
+            f.write("time,step\n")
+            f.writelines(f"0.0,{float(h)!r}\n" for h in [*steps, 0.0])
+        done = subprocess.run([str(native_host), str(folder), str(tmp_path / "in.csv"),
+                               str(tmp_path / "out.csv"), "-",
+                               *(f"{name}={value!r}" for name, value in parameters.items())],
+                              env={}, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        _, host = read_outputs(tmp_path / "out.csv")
+        times, python = _run(open_block(kind, False), 0.0, steps, parameters)
+        assert host[:, 0].tolist() == times.tolist()
+        assert np.max(np.abs(host[:, 1:] - python)) <= 1e-12 * np.max(np.abs(python))
+        assert np.max(np.abs(python)) > 0.1
 
 
 def test_wrong_guid_and_model_exchange_are_refused(fmus, tmp_path):

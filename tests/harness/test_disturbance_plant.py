@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 import scipy.signal
+from fhobs.core.plant import noise_samples
 
 from harness.blocks import block_fmu
 from harness.cli import main
@@ -133,13 +134,15 @@ def test_table_separates_transient_and_steady_windows(step_run):
 
 def test_signal_block_shapes_follow_their_definitions():
     """The signal block alone (two channels, start 0.25, h = 0.05): ramp, sine and the seeded
-    random walk against their formulas (the walk from numpy's default_rng(seed))."""
+    random walk against their formulas (the walk's increments the Box-Muller Gaussians of the
+    product's noise generator, fhobs.core.plant.noise_samples of the seed)."""
     h, stop, start = 0.05, 0.6, 0.25
     fmu = block_fmu("signal", (2,))
     t = h * np.arange(round(stop / h) + 1)
     on = t >= start - 1e-12
     size = np.array([1.0, -0.5])
-    w = np.random.default_rng(4).standard_normal((t.size, 2))
+    draws = noise_samples(4, t.size, 1.0, 4)
+    w = np.sqrt(-2.0 * np.log(0.5 * (1.0 - draws[:, :2]))) * np.cos(np.pi * draws[:, 2:])
     walk = np.zeros((t.size, 2))
     for k in range(t.size - 1):
         walk[k + 1] = walk[k] + (size * math.sqrt(h) * w[int(np.sum(on[:k]))] if on[k] else 0.0)

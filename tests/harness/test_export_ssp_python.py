@@ -1,6 +1,6 @@
-"""``export-ssp`` names every FMU of the SSP that needs Python (pythonfmu FMUs, the ``signal``
-block) and refuses the export with exit 2 unless ``--allow-python``; an SSP of native FMUs
-only is written without it."""
+"""``export-ssp`` names every FMU of the SSP that needs Python (pythonfmu FMUs: the pythonfmu
+blocks) and refuses the export with exit 2 unless ``--allow-python``; an SSP of native FMUs
+only (every block kind, native by default) is written without it."""
 
 from __future__ import annotations
 
@@ -61,35 +61,30 @@ def _export(tmp_path, cache, source: str, *options: str) -> tuple[int, object]:
     return code, out
 
 
-@pytest.mark.parametrize("options", [(), ("--no-native-blocks",)])
-def test_python_fmus_are_named_and_refused(tmp_path, cache, capsys, options):
-    """The signal block (and, with pythonfmu blocks, the gain blocks too): exit 2, one line
-    naming exactly the components that --allow-python then writes as pythonfmu FMUs; no
-    file without it."""
-    code, out = _export(tmp_path, cache, "signal", *options)
+def test_python_fmus_are_named_and_refused(tmp_path, cache, capsys):
+    """The pythonfmu blocks (--no-native-blocks): exit 2, one line naming exactly the
+    components that --allow-python then writes as pythonfmu FMUs; no file without it."""
+    code, out = _export(tmp_path, cache, "signal", "--no-native-blocks")
     err = capsys.readouterr().err
     assert code == 2
     assert not out.exists()
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert "--allow-python" in err and "need Python" in err
 
-    code, out = _export(tmp_path, cache, "signal", *options, "--allow-python")
+    code, out = _export(tmp_path, cache, "signal", "--no-native-blocks", "--allow-python")
     assert code == 0, capsys.readouterr().err
     python = _python_components(out)
-    assert "source" in python
-    if options:
-        assert python == {"source", "scale", "gain_1"}
-    else:
-        assert python == {"source"}
+    assert python == {"source", "scale", "gain_1"}
     named = {name for name in ("source", "scale", "gain_1") if f" {name} (" in err}
     assert named == python
     assert f"{len(python)} FMU(s)" in err
 
 
-def test_native_fmus_only_export_without_the_option(tmp_path, cache, capsys):
-    """A sine block and gain blocks, native by default: written, no FMU of it a pythonfmu
-    one."""
-    code, out = _export(tmp_path, cache, "sine")
+@pytest.mark.parametrize("source", ["sine", "constant", "signal", "noise"])
+def test_native_fmus_only_export_without_the_option(tmp_path, cache, capsys, source):
+    """Each source block and gain blocks, native by default: written, no FMU of it a
+    pythonfmu one."""
+    code, out = _export(tmp_path, cache, source)
     assert code == 0, capsys.readouterr().err
     assert out.is_file()
     assert _python_components(out) == set()
