@@ -13,6 +13,9 @@ import pytest
 import scipy.linalg
 import scipy.signal
 from fhobs.core.plant import noise_samples
+from fhobs.design.spec import DISTURBANCE_SHAPES as SHAPES
+from fhobs.design.spec import DisturbanceSpec
+from fhobs.design.tuning import disturbance_samples
 
 from harness.blocks import block_fmu
 from harness.cli import main
@@ -155,6 +158,10 @@ def test_signal_block_shapes_follow_their_definitions():
                             record=("q.y",))
         result = run_system(resolve_system(system), progress=False)
         np.testing.assert_allclose(result.vector("q.y"), expected[shape], rtol=0, atol=1e-12)
+        predicted = disturbance_samples(  # the design's replay of the block (noise tuning)
+            DisturbanceSpec(SHAPES[shape], size, start, extra.get("frequency"),
+                            extra.get("seed", 0)), 2, h, t.size)
+        np.testing.assert_allclose(predicted, expected[shape], rtol=0, atol=1e-12)
 
 
 BAD_TABLES = [

@@ -44,8 +44,8 @@ Format::
     frequency = 2.0           # Hz, shape = "sine" only (required there):
                               # q = size sin(2 pi frequency (t - start))
     seed = 0                  # shape = "random_walk" only (default 0): the increments
-                              # size sqrt(h) w_k, w_k ~ N(0, I) of numpy's default_rng(seed),
-                              # one per communication step h from start on
+                              # size sqrt(h) w_k, w_k ~ N(0, I) (Box-Muller of the product's
+                              # seeded uniforms, as the plant's noise), one per step h from start on
 
     [mismatch]                # optional table: `harness plant`'s plant FMU gets A and B
                               # perturbed entry by entry; the observers keep the nominal model

@@ -70,6 +70,7 @@ from ..core.certificate import certify, certify_filtering
 from ..core.gains import FilteringGains, KalmanGains, ObserverDesign, PlantModel
 from ..core.kalman_filter import KalmanObserver
 from ..core.linalg import zoh_blocks
+from ..core.plant import noise_samples
 from ..core.runtime import FilteringObserver
 from ..errors import CertificateError, KalmanDesignError, LMIError, SpecError
 from .cache import cached
@@ -604,8 +605,9 @@ def disturbance_samples(disturbance: DisturbanceSpec, channels: int, step: float
                         steps: int) -> np.ndarray:
     """q at ``t_k = k step``, k = 0 .. steps - 1, as the harness's signal block gives it
     (:mod:`harness.blocks.signal_source`: zero before ``start``; the random walk
-    ``q(t_k+1) = q(t_k) + size sqrt(step) w_k`` for ``t_k >= start``, w_k from numpy's
-    ``default_rng(seed)``).
+    ``q(t_k+1) = q(t_k) + size sqrt(step) w_j`` for ``t_k >= start``, w_j the Box-Muller
+    Gaussians of draw j of the product's noise generator, :func:`fhobs.core.plant.noise_samples`
+    of the seed, j counting the steps from ``start`` on).
 
     Examples
     --------
@@ -625,11 +627,14 @@ def disturbance_samples(disturbance: DisturbanceSpec, channels: int, step: float
     elif disturbance.shape == "sine":
         q[started] = np.outer(np.sin(2.0 * np.pi * disturbance.frequency * elapsed), size)
     else:
-        rng = np.random.default_rng(disturbance.seed)
-        walk = np.zeros(channels)
+        draws = noise_samples(disturbance.seed, steps, 1.0, 2 * channels)
+        v, u = draws[:, :channels], draws[:, channels:]
+        w = np.sqrt(-2.0 * np.log(0.5 * (1.0 - v))) * np.cos(np.pi * u)
+        walk, j = np.zeros(channels), 0
         for i in range(steps - 1):
             if started[i]:
-                walk = walk + size * math.sqrt(step) * rng.standard_normal(channels)
+                walk = walk + size * math.sqrt(step) * w[j]
+                j += 1
             q[i + 1] = walk
     return q
 
