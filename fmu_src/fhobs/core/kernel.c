@@ -212,10 +212,10 @@ static int correct_at(const FilterPlan *p, const double *psi, double xi, const d
     return sigma_of(psi_new, p->k, *xi_new) <= level;
 }
 
-/* The correction at the filtering observer's own level (FilteringObserver._correct_own_level):
- * sigma between the floor and the ceiling; when sigma after the correction exceeds `mismatch`
- * times that level, the self-consistent level s, sigma_after(s) = s, is searched in ln s
- * (bracket expansion by 2 up to the ceiling, then bisection to BISECTION_TOL), the decisions
+/* The correction at the filtering observer's own level (FilteringObserver.
+ * _consistent_correction): sigma between the floor and the ceiling; when sigma after the
+ * correction exceeds `mismatch` times that level, the self-consistent level s,
+ * sigma_after(s) = s, is searched in ln s (bracket expansion by 2 up to the ceiling, then bisection to BISECTION_TOL), the decisions
  * and the levels tried as in the numpy runtime. Writes psi_new, xi_new (consecutive) and dz. */
 static void correct_own_level(const FilterPlan *p, const double *psi, double xi,
                               const double *v, double *psi_new, double *xi_new, double *dz)
@@ -256,7 +256,8 @@ static void correct_own_level(const FilterPlan *p, const double *psi, double xi,
 }
 
 /* One split step over dt: state (z, psi, xi), inputs (y, u): the correction at the
- * observer's own level, then the prediction. */
+ * observer's own level, xi raised to at least the floor squared (FilteringObserver.
+ * _correct_own_level), then the prediction. */
 int fhobs_filter_step(const Call *call)
 {
     const FilterPlan *p = call->plan;
@@ -270,6 +271,10 @@ int fhobs_filter_step(const Call *call)
     for (int i = 0; i < k; i++)
         v[i] -= y[i];
     correct_own_level(p, psi, src[n + k], v, dst + n, dst + n + k, dz);
+    /* xi at least the floor squared: the floor carried into the next step (Python's max) */
+    const double floor_squared = p->floor_level * p->floor_level;
+    if (floor_squared > dst[n + k])
+        dst[n + k] = floor_squared;
 
     /* prediction: z+ = M (z, u, v) + F dz */
     matvec3(p->M, n, z, n, u, p->m, v, k, dst);
@@ -436,8 +441,8 @@ static double prescribed_xi(const PrescribedPlan *p, double xi)
     return copysign(pow(base, -1.0 / p->nu), xi);
 }
 
-/* The gain level of xi: |xi| between the floor and the ceiling (PrescribedTimeObserver._level,
- * Python's min(max(.)) order). */
+/* The gain level of the level state: its modulus between the floor and the ceiling
+ * (PrescribedTimeObserver._level, Python's min(max(.)) order). */
 static double prescribed_level(const PrescribedPlan *p, double xi)
 {
     double level = fabs(xi);
@@ -503,8 +508,10 @@ static void prescribed_correct(const PrescribedPlan *p, const double *v, double 
     }
 }
 
-/* One split step over dt of the prescribed-time observer: state (z, xi), inputs (y, u): the
- * correction at the level of xi, xi's exact flow, then the prediction z+ = M (z, u, v) + F dz. */
+/* One split step over dt of the prescribed-time observer: state (z, xi, the gain-level state),
+ * inputs (y, u): the correction at the level of the level state, the exact flow of xi and of
+ * the level state (then raised to at least the floor: PrescribedTimeObserver.
+ * _correct_own_level), then the prediction z+ = M (z, u, v) + F dz. */
 void fhobs_prescribed_correct(const PrescribedPlan *p, const double *v, double log_x,
                               double *dz)
 {
@@ -523,8 +530,11 @@ int fhobs_prescribed_step(const Call *call)
     matvec(p->C, z, k, n, v);
     for (int i = 0; i < k; i++)
         v[i] -= y[i];
-    prescribed_correct(p, v, log(prescribed_level(p, src[n])), dz);
+    prescribed_correct(p, v, log(prescribed_level(p, src[n + 1])), dz);
     dst[n] = prescribed_xi(p, src[n]);
+    dst[n + 1] = prescribed_xi(p, src[n + 1]); /* the gain-level state, at least the floor */
+    if (p->floor_level > dst[n + 1])
+        dst[n + 1] = p->floor_level;
     matvec3(p->M, n, z, n, u, p->m, v, k, dst);
     for (int i = 0; i < n; i++) {
         const double *a = p->F + (size_t)i * n;
@@ -533,5 +543,5 @@ int fhobs_prescribed_step(const Call *call)
             s += a[j] * dz[j];
         dst[i] += s;
     }
-    return all_finite(dst, n + 1) ? FHOBS_OK : FHOBS_NONFINITE;
+    return all_finite(dst, n + 2) ? FHOBS_OK : FHOBS_NONFINITE;
 }

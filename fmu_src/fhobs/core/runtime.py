@@ -58,6 +58,14 @@ substeps of size ``<= h``, with one of two schemes:
     floored at the s where that amplification equals ``AMPLIFICATION_LIMIT``, so the capped
     observer's bandwidth stays where double precision can follow it.
 
+**Variable communication steps.** The floor depends on dt alone, so steps of different sizes
+in turn would use levels far apart (a ratio of ``(dt2/dt1)^(-1/nu)``), and the product of
+maps that each contract in their own dilated coordinates need not contract. The floor is
+therefore carried into the next step in the gain state: the filtering observer's xi is at
+least the floor squared after a step, the prescribed-time observer's gain-level state (its
+state ``[z, xi, level]``) at least the floor; the level then falls from one step to the next
+only as the observer's own gain law lets it (docs/theory.md, "Variable communication steps").
+
 Edges: ``sigma = 0`` (all-zero start) and ``xi = 0`` (prescribed time reached) use the capped
 level, so no 0 * inf appears; a step that would produce a non-finite state raises ValueError
 and leaves the state untouched.
@@ -623,6 +631,16 @@ class FilteringObserver(_Observer):
 
     def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
                            dt: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`_consistent_correction`, then xi raised to at least the square of dt's floor:
+        the floor is carried into the next step in the gain state (module docstring,
+        variable communication steps)."""
+        aux_new, dz = self._consistent_correction(aux, v, dt)
+        floor = self._floor(dt)
+        aux_new[-1] = max(float(aux_new[-1]), floor * floor)
+        return aux_new, dz
+
+    def _consistent_correction(self, aux: np.ndarray, v: np.ndarray,
+                               dt: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Correction at the level of :meth:`_level`, redone at a self-consistent level when it
         leaves sigma above ``LEVEL_MISMATCH`` times the frozen level (e.g. at an all-zero start,
         where sigma = 0 but psi grows at once): that level s solves ``sigma_after(s) = s``
@@ -792,7 +810,8 @@ class PrescribedTimeObserver(_Observer):
         super().__init__(prescribed_time, h, scheme, z0, model.L0,
                          prescribed_time.model_matrices)
         self._nu = model.nu
-        self._aux = as_finite_vector(xi0, 1, "xi0")
+        xi = as_finite_vector(xi0, 1, "xi0")
+        self._aux = np.append(xi, abs(xi))  # xi, then the gain-level state
         self._dilation = Dilation(model.G_d, right=prescribed_time.L_pt)
         self._Q = ExpmFamily(self._C @ prescribed_time.L_pt)
         self.tau_max = None if tau_max is None else float(tau_max)
@@ -861,16 +880,18 @@ class PrescribedTimeObserver(_Observer):
         return abs(float(self._aux[0])) ** (-nu) / (-nu * self.gains.rho)
 
     def diagnostics(self) -> dict[str, float | np.ndarray]:
-        """``z``, ``xi`` and the gain level actually used."""
-        return {"z": self.z, "xi": float(self._aux[0]), "level": self._level(self._aux, self.h)}
+        """``z``, ``xi``, the gain-level state and the gain level a step of size h uses."""
+        return {"z": self.z, "xi": float(self._aux[0]), "level_state": float(self._aux[1]),
+                "level": self._level(self._aux, self.h)}
 
     def _error_scaling(self, level: float) -> np.ndarray:
         """``d_pt(ln level) = level^-nu d(ln level)``: the dilation of ``z - x``."""
         return level ** -self._nu * Dilation(self.gains.model.G_d).matrix(math.log(level))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
-        """|xi| between the floor and the ceiling of dt (module docstring)."""
-        return min(max(abs(float(aux[0])), self._floor(dt)), self._ceiling(dt))
+        """The gain-level state (|xi| until dt's floor acts) between the floor and the ceiling
+        of dt (module docstring)."""
+        return min(max(abs(float(aux[1])), self._floor(dt)), self._ceiling(dt))
 
     def _xi_exact(self, xi: float, hs: float) -> float:
         """Exact flow of ``dxi/dt = -rho |xi|^(1+nu) sign(xi)``: |xi|^-nu decreases linearly."""
@@ -888,14 +909,23 @@ class PrescribedTimeObserver(_Observer):
         tau = hs * math.exp(nu * log_x)
         _, phi_v = self._Q.apply(tau, v * math.exp(-(1.0 + nu) * log_x))  # tau phi1(tau Q) v
         dz = self._dilation.apply(log_x, phi_v)
-        return np.array([self._xi_exact(float(aux[0]), hs)]), dz
+        return np.array([self._xi_exact(float(a), hs) for a in aux]), dz
+
+    def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
+                           dt: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`_correct` at :meth:`_level`, the gain-level state then raised to at least
+        dt's floor: the floor carried into the next step (module docstring, variable
+        communication steps)."""
+        aux_new, dz = self._correct(aux, v, dt, self._level(aux, dt))
+        aux_new[1] = max(float(aux_new[1]), self._floor(dt))
+        return aux_new, dz
 
     def _euler_rates(self, aux: np.ndarray, v: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
-        xi = float(aux[0])
         log_x = math.log(self._level(aux, dt))
         dz_gain = math.exp(-log_x) * self._dilation.apply(log_x, v)
-        return np.array([-self.gains.rho * signed_power(xi, 1.0 + self._nu)]), dz_gain
+        rates = [-self.gains.rho * signed_power(float(a), 1.0 + self._nu) for a in aux]
+        return np.array(rates), dz_gain
 
 
 class LuenbergerObserver(_Observer):

@@ -206,7 +206,6 @@ def build_native_fmus(
         for kind in kinds:
             variables = _variables(KINDS[kind], design, config)
             data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
-            data["norm1"] = _zoh_norm(KINDS[kind].runs(design))
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
                                   stage / kind)
         binaries = _compile_all(staged, stage / "shared", compiler)
@@ -256,14 +255,6 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
         euler = cls(record, h=h, scheme="euler")
         data["euler"] = captured_plan(euler, h) if euler.compiled else None
     return data
-
-
-def _zoh_norm(record: Any) -> float:
-    """``||A||_1`` of the state matrix whose exact ZOH the FMU of ``record`` computes (the
-    plant's A, an estimator's model matrix), for doStep's check of a step whose ZOH has no
-    correct digit (:func:`fhobs.fmu.slave_base.zoh_problem`)."""
-    matrix = record.A if isinstance(record, PlantModel) else record.model_matrices[0]
-    return float(np.linalg.norm(matrix, 1))
 
 
 def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
@@ -388,8 +379,6 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
              f"#define FHOBS_N_VARIABLES {len(variables)}"]
     lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]
     lines += [f"#define VR_{name.upper()} {first_vr.get(name, -1)}" for name in LAYOUT]
-    lines += [f"#define FHOBS_MODEL_NORM1 {c_number(data['norm1'])}",
-              f"#define FHOBS_MAX_STEP_INDEX {c_number(call_rules.MAX_STEP_INDEX)}"]
     lines += _state_outputs(kind, variables, first_vr)
     rows = [f'    {{"{var["name"]}", FHOBS_{var["type"].upper()}, FHOBS_{var["role"].upper()}, '
             f'{c_number(var["start"])}}},' for var in variables]
@@ -522,7 +511,7 @@ def _sizes(kind: str, plant: PlantModel, data: dict[str, Any]) -> dict[str, int]
     n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
     r = 0 if plant.E is None else plant.E.shape[1]
     state = {"observer": n_model + plant.k + 1, "plant": plant.n + 1,
-             "kalman": n_model + 1, "prescribed_time": n_model + 1,
+             "kalman": n_model + 1, "prescribed_time": n_model + 2,
              "supervised": HEAD_SIZE + (n_model + plant.k + 1) + (n_model + 1)
                            + n_model * n_model + 1,
              }.get(kind, n_model)
