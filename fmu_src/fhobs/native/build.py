@@ -206,6 +206,7 @@ def build_native_fmus(
         for kind in kinds:
             variables = _variables(KINDS[kind], design, config)
             data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
+            data["norm1"] = _zoh_norm(KINDS[kind].runs(design))
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
                                   stage / kind)
         binaries = _compile_all(staged, stage / "shared", compiler)
@@ -255,6 +256,14 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
         euler = cls(record, h=h, scheme="euler")
         data["euler"] = captured_plan(euler, h) if euler.compiled else None
     return data
+
+
+def _zoh_norm(record: Any) -> float:
+    """``||A||_1`` of the state matrix whose exact ZOH the FMU of ``record`` computes (the
+    plant's A, an estimator's model matrix), for doStep's check of a step whose ZOH has no
+    correct digit (:func:`fhobs.fmu.slave_base.zoh_problem`)."""
+    matrix = record.A if isinstance(record, PlantModel) else record.model_matrices[0]
+    return float(np.linalg.norm(matrix, 1))
 
 
 def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
@@ -379,6 +388,8 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
              f"#define FHOBS_N_VARIABLES {len(variables)}"]
     lines += [f"#define FHOBS_{name.upper()} {value}" for name, value in sizes.items()]
     lines += [f"#define VR_{name.upper()} {first_vr.get(name, -1)}" for name in LAYOUT]
+    lines += [f"#define FHOBS_MODEL_NORM1 {c_number(data['norm1'])}",
+              f"#define FHOBS_MAX_STEP_INDEX {c_number(call_rules.MAX_STEP_INDEX)}"]
     lines += _state_outputs(kind, variables, first_vr)
     rows = [f'    {{"{var["name"]}", FHOBS_{var["type"].upper()}, FHOBS_{var["role"].upper()}, '
             f'{c_number(var["start"])}}},' for var in variables]

@@ -123,6 +123,35 @@ static int read_finite(const double *real, int vr, int n, const char *name, doub
     return 0;
 }
 
+#if FHOBS_KIND == FHOBS_KIND_PLANT || FHOBS_KIND == FHOBS_KIND_SUPERVISED
+/* Whether x is a whole number in [low, high]; else 1 with the message naming `what`. */
+static int whole_problem(double x, double low, double high, const char *what, char *msg,
+                         size_t len)
+{
+    char a[32], b[32], c[32];
+    if (x == floor(x) && x >= low && x <= high)
+        return 0;
+    snprintf(msg, len, "its %s = %s is not a whole number in [%s, %s]", what,
+             fhobs_number(x, a, sizeof a), fhobs_number(low, b, sizeof b),
+             fhobs_number(high, c, sizeof c));
+    return 1;
+}
+#endif
+
+#if FHOBS_KIND == FHOBS_KIND_KALMAN || FHOBS_KIND == FHOBS_KIND_SUPERVISED
+/* Whether the Kalman filter's offset to the next sample is in [0, Ts); else 1 with the
+ * message (fhobs.core.kalman_filter.KalmanObserver.set_state). */
+static int offset_problem(double offset, char *msg, size_t len)
+{
+    char a[32], b[32];
+    if (offset >= 0.0 && offset < KALMAN_TS)
+        return 0;
+    snprintf(msg, len, "its Kalman filter's offset to the next sample %s is not in [0, Ts = %s)",
+             fhobs_number(offset, a, sizeof a), fhobs_number(KALMAN_TS, b, sizeof b));
+    return 1;
+}
+#endif
+
 #if FHOBS_KIND != FHOBS_KIND_PLANT
 /* The model state z of an estimator: z0 for the plant's states, zeros for the disturbance
  * model's. */
@@ -309,6 +338,14 @@ static int observer_step(Work *w, const double *real, const int *integer, const 
 int model_initial_state(const double *real, double *state, char *msg, size_t len)
 {
     return observer_initial_state(real, state, msg, len);
+}
+
+int model_state_problem(const double *state, char *msg, size_t len)
+{
+    (void)state; /* no counts or indices: any finite state */
+    (void)msg;
+    (void)len;
+    return 0;
 }
 
 int model_step(Work *w, const double *real, const int *integer, const double *src,
@@ -624,6 +661,26 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
     return 0;
 }
 
+/* The statistics and the time in band >= 0, the mode 0 or 1, the Kalman filter's offset in
+ * [0, Ts), the cycles left a whole number in [0, RECURSION_CYCLES]
+ * (SupervisedObserver.set_state). */
+int model_state_problem(const double *state, char *msg, size_t len)
+{
+    char a[32];
+    for (int i = 0; i < SUPERVISOR_HEAD; i++) {
+        if (i != 1 && !(state[i] >= 0.0)) {
+            snprintf(msg, len, "its %s = %s is negative",
+                     i == 3 ? "time in the return band" : "innovation statistic",
+                     fhobs_number(state[i], a, sizeof a));
+            return 1;
+        }
+    }
+    return whole_problem(state[1], MODE_KALMAN, MODE_HOMOGENEOUS, "mode", msg, len) ||
+           offset_problem(state[KALMAN_STATE + FHOBS_N_MODEL], msg, len) ||
+           whole_problem(state[CYCLES_STATE], 0.0, FHOBS_RECURSION_CYCLES,
+                         "cycles left of the Kalman recursion", msg, len);
+}
+
 /* The statistic and the mode (state outputs); x_hat and q_hat of the mode's estimator. */
 void model_outputs(Work *w, double *real, const int *integer, const double *state)
 {
@@ -720,6 +777,14 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     return 0;
 }
 
+/* The step index k: a whole number in [0, FHOBS_MAX_STEP_INDEX) (its noise block a 32-bit
+ * word). */
+int model_state_problem(const double *state, char *msg, size_t len)
+{
+    return whole_problem(state[FHOBS_N], 0.0, FHOBS_MAX_STEP_INDEX - 1.0,
+                         "step index k (the plant's noise sample)", msg, len);
+}
+
 int model_step(Work *w, const double *real, const int *integer, const double *src,
                double *dst, double dt, char *msg, size_t len)
 {
@@ -807,13 +872,19 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     return initial_z(real, state, msg, len);
 }
 
+int model_state_problem(const double *state, char *msg, size_t len)
+{
+    return offset_problem(state[FHOBS_N_MODEL], msg, len);
+}
+
 /* fhobs.core.kalman_filter.samples_in_step: the cycles of the sample instants offset + i Ts inside
- * the step (before dt - SAMPLE_SLACK Ts) and the offset of the next one after it. */
+ * the step (before dt - SAMPLE_SLACK Ts; a sample at the step's start, offset 0, always) and
+ * the offset of the next one after it. */
 static double samples_in_step(double offset, double dt, double *next)
 {
     double n = ceil((dt - offset) / KALMAN_TS - FHOBS_SAMPLE_SLACK);
-    if (n < 0.0)
-        n = 0.0;
+    if (n < (offset > 0.0 ? 0.0 : 1.0))
+        n = offset > 0.0 ? 0.0 : 1.0;
     *next = (offset + n * KALMAN_TS) - dt;
     if (*next < 0.0)
         *next = 0.0;
@@ -948,6 +1019,7 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     }
     state[FHOBS_N_MODEL] = xi0;
     state[FHOBS_N_MODEL + 1] = xi0; /* the gain-level state starts at xi0 (positive) */
+    state[FHOBS_N_MODEL + 1] = xi0; /* the gain-level state starts at xi0 (positive) */
     return 0;
 }
 
@@ -977,6 +1049,14 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
         snprintf(msg, len, "the split step diverged (non-finite state); state left unchanged");
         return 1;
     }
+    return 0;
+}
+
+int model_state_problem(const double *state, char *msg, size_t len)
+{
+    (void)state; /* no counts or indices: any finite state */
+    (void)msg;
+    (void)len;
     return 0;
 }
 
