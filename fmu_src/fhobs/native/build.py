@@ -67,11 +67,13 @@ from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
 from ..core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
 from ..core.supervisor import HEAD_SIZE, SupervisedObserver, sample_count
+from ..design.signals import SignalNames
 from ..errors import BuildError
 from ..fmu import call_rules
 from ..fmu.kinds import KINDS, Kind
 from ..fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 from ..fmu.variables import element_names
+from ..model_description import describe, naming_options
 from . import planner
 
 HERE = Path(__file__).resolve().parent
@@ -132,6 +134,8 @@ def build_native_fmus(
     *,
     steps: Iterable[float] | None = None,
     kinds: Iterable[str] | None = None,
+    names: SignalNames | None = None,
+    plant_name: str | None = None,
     **options: Any,
 ) -> dict[str, Path]:
     """Build native FMUs into ``out_dir`` and return ``{kind: path}``.
@@ -151,6 +155,9 @@ def build_native_fmus(
         As for :func:`fhobs.build.build_fmus` (default: observer, luenberger, plant, kalman
         when the design has a Kalman filter, and prescribed_time when its correction has an
         eigen path, :attr:`~fhobs.core.runtime.PrescribedTimeObserver.eigen`).
+    names, plant_name : optional
+        The plant's signal names and name in the modelDescriptions, as for
+        :func:`fhobs.build.build_fmus` (the same descriptions and units).
     **options
         Start values of the setting parameters, as for :func:`fhobs.build.fmu_options`
         (``h``, ``scheme``, ``z0``, ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``,
@@ -200,6 +207,7 @@ def build_native_fmus(
     out_dir.mkdir(parents=True, exist_ok=True)
     built = {}
     config = fmu_options(design, kinds, **options)
+    naming = naming_options(design, names, plant_name)
     with tempfile.TemporaryDirectory(prefix="fhobs_native_") as tmp:
         stage = Path(tmp)
         staged = {}
@@ -208,7 +216,7 @@ def build_native_fmus(
             data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
             data["norm1"] = _zoh_norm(KINDS[kind].runs(design))
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
-                                  stage / kind)
+                                  stage / kind, naming)
         binaries = _compile_all(staged, stage / "shared", compiler)
         for kind, fmu in staged.items():
             built[kind] = _package(fmu, binaries[kind], out_dir / f"{kind}.fmu")
@@ -545,9 +553,10 @@ class _Staged:
 
 
 def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
-           sizes: dict[str, int], stage: Path) -> _Staged:
-    """Generate the sources of one native FMU, its modelDescription and documentation into
-    ``stage/fmu``."""
+           sizes: dict[str, int], stage: Path, naming: dict[str, Any]) -> _Staged:
+    """Generate the sources of one native FMU, its modelDescription (its signals named by
+    ``naming``, :func:`fhobs.model_description.naming_options`, part of its GUID) and
+    documentation into ``stage/fmu``."""
     header, data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES}
     sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
@@ -555,6 +564,7 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
     if kind == "plant":
         sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
     digest = hashlib.sha256(header.encode() + data.encode())
+    digest.update(json.dumps(naming, sort_keys=True).encode())
     for name in sorted(sources):
         digest.update(name.encode() + sources[name].encode())
     guid = str(uuid.UUID(bytes=digest.digest()[:16]))
@@ -579,6 +589,8 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
         shutil.copy(_fmi_headers() / name, root / "sources" / name)
     files = tuple(sorted(name for name in sources if name.endswith(".c")))
     tree = _model_description(KINDS[kind], variables, identifier, guid, list(files))
+    describe(tree.getroot(), KINDS[kind], naming["signals"], naming["plant_name"])
+    ET.indent(tree, "\t")
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
     (root / "documentation" / "index.html").write_text(_documentation(kind, variables, native))
