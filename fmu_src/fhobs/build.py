@@ -14,6 +14,9 @@ Each FMU is a pythonfmu 0.7.0 co-simulation FMU whose ``resources/`` hold:
   class in ``fhobs_<kind>_<tag>.fmu``;
 - ``design.json`` and ``fmu_config.json``: read by each instance from its own resources.
 
+The modelDescription names the plant's signals (:mod:`fhobs.model_description`: descriptions,
+units, the model name), rewritten after pythonfmu's builder.
+
 On linux64 a small C wrapper (``fmu/status_wrapper.c``, compiled here with the system C
 compiler) is placed in front of pythonfmu's binary so that rejected inputs and rejected
 parameters are answered with ``fmi2Error`` (see :mod:`fhobs.fmu.slave_base`), and the runtime's
@@ -32,6 +35,7 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -52,11 +56,13 @@ from .core.kernel import (
 )
 from .core.plant import PLANT_SCHEMES
 from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
+from .design.signals import SignalNames
 from .errors import BuildError
 from .fmu import call_rules
-from .fmu.kinds import KINDS
+from .fmu.kinds import KINDS, Kind
 from .fmu.modes import STATUS_VALUE_REFERENCE
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
+from .model_description import describe, naming_options
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_PACKAGES = ("core", "fmu")
@@ -64,6 +70,7 @@ SHIPPED_PACKAGES = ("core", "fmu")
 DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
 PYTHON_RECORD = "resources/fhobs_python.txt"
+MODEL_DESCRIPTION = "modelDescription.xml"
 """Where the status wrapper finds :func:`python_record` in an FMU."""
 
 
@@ -74,6 +81,8 @@ def build_fmus(
     kinds: Iterable[str] | None = None,
     status_wrapper: bool | None = None,
     kernel: bool | None = None,
+    names: SignalNames | None = None,
+    plant_name: str | None = None,
     **options: Any,
 ) -> dict[str, Path]:
     """Build the requested FMUs into ``out_dir`` and return ``{kind: path}``.
@@ -95,6 +104,11 @@ def build_fmus(
         Ship the compiled step kernel (linux64). Default: on Linux when a C compiler is found.
         True without a compiler or on another platform raises :class:`BuildError`; False
         builds FMUs that run the numpy runtime alone.
+    names : SignalNames, optional
+        The names and units of the plant's signals (a spec's ``spec.names``), written into
+        the modelDescriptions (:mod:`fhobs.model_description`); default ``x[i]``, ``u[i]``...
+    plant_name : str, optional
+        The plant's name (``spec.name``) for the modelDescriptions' description.
     **options
         Start values of the setting parameters, as for :func:`fmu_options` (``h``,
         ``scheme``, ``z0``, ``psi0``, ``xi0``, ``T0``, ``x0``, ``noise_amplitude``,
@@ -129,7 +143,8 @@ def build_fmus(
         raise BuildError("kernel=True needs Linux and a C compiler (cc or gcc) on PATH")
     certify(design)
     config = {"status_wrapper": status_wrapper, "kernel": kernel,
-              **fmu_options(design, kinds, **options)}
+              **fmu_options(design, kinds, **options),
+              **naming_options(design, names, plant_name)}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fhobs_build_") as tmp:
@@ -152,8 +167,7 @@ def build_fmus(
             ship_package(package, library)
             script = _write_script(stage, kind, tag)
             built[kind] = _build_one(script, stage, package, dest)
-            if wrapper is not None:
-                _install_wrapper(built[kind], wrapper)
+            _finish(built[kind], KINDS[kind], config, wrapper)
             _to_cache(key, built[kind])
         _forget_modules(stage, tag)
     return built
@@ -517,20 +531,28 @@ def python_record() -> str:
     return "\n".join(lines) + "\n"
 
 
-def _install_wrapper(fmu: Path, wrapper: Path) -> None:
-    """Rename pythonfmu's linux64 library ``<id>_pythonfmu.so``; the wrapper becomes ``<id>.so``,
-    and :func:`python_record` is written as ``resources/fhobs_python.txt`` for it."""
+def _finish(fmu: Path, kind: Kind, config: dict[str, Any], wrapper: Path | None) -> None:
+    """Rewrite pythonfmu's FMU: its modelDescription names the plant's signals
+    (:func:`fhobs.model_description.describe`); with a status ``wrapper``, pythonfmu's linux64
+    library is renamed ``<id>_pythonfmu.so``, the wrapper becomes ``<id>.so`` and
+    :func:`python_record` is written as ``resources/fhobs_python.txt`` for it."""
     rebuilt = fmu.with_suffix(".tmp")
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(rebuilt, "w", zipfile.ZIP_DEFLATED) as dst:
         for item in src.infolist():
             data = src.read(item)
-            if item.filename.startswith(_LIB_DIR) and item.filename.endswith(".so"):
+            if item.filename == MODEL_DESCRIPTION:
+                root = ET.fromstring(data)
+                describe(root, kind, config["signals"], config["plant_name"])
+                dst.writestr(item, ET.tostring(root, encoding="UTF-8", xml_declaration=True))
+            elif (wrapper is not None and item.filename.startswith(_LIB_DIR)
+                  and item.filename.endswith(".so")):
                 stem = item.filename[: -len(".so")]
                 dst.writestr(f"{stem}_pythonfmu.so", data)
                 dst.write(wrapper, item.filename)
             elif item.filename != PYTHON_RECORD:
                 dst.writestr(item, data)
-        dst.writestr(PYTHON_RECORD, python_record())
+        if wrapper is not None:
+            dst.writestr(PYTHON_RECORD, python_record())
     rebuilt.replace(fmu)
 
 

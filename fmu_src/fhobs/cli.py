@@ -251,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
             from .build import build_fmus
 
             kernel = False if args.no_kernel else None
-            for name, fmu in build_fmus(design, args.out, h=args.h, kernel=kernel).items():
+            for name, fmu in build_fmus(design, args.out, h=args.h, kernel=kernel,
+                                        names=spec.names, plant_name=spec.name).items():
                 print(f"{name}: {fmu}")
         if args.native:
             from .build import BuildError
@@ -259,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
 
             try:
                 native = build_native_fmus(design, args.out / "native", steps=args.native_step,
-                                           h=args.h)
+                                           h=args.h, names=spec.names, plant_name=spec.name)
             except BuildError as exc:
                 print(f"error: native FMUs: {exc}", file=sys.stderr)
                 return 2

@@ -40,7 +40,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,6 +79,12 @@ class Variable:
         option's value).
     integer : bool
         An Integer variable (``status``, a choice, ``noise_seed``), else Real.
+    signal : str
+        ``input`` / ``output`` role: the group of the plant's signals its elements are
+        (``"states"``, ``"inputs"``, ``"outputs"``, ``"unknown_inputs"``: the keys of the
+        spec's ``[signals]`` table), named in the modelDescription (:meth:`element_text`).
+    text : str
+        The description of an element with ``{}`` for its signal's name.
     source : str
         ``output`` role: where its value comes from. ``"state"``: the next elements of the
         runtime model's state vector (``get_state()``; in C the state the model keeps), taken
@@ -94,6 +100,8 @@ class Variable:
     shape: Callable[[Any], tuple[int, ...]] | None = None
     choices: tuple[str, ...] = ()
     integer: bool = False
+    signal: str = ""
+    text: str = ""
     source: str = "state"
 
     def start(self, record: Any, options: Mapping[str, Any]) -> Any:
@@ -115,6 +123,38 @@ class Variable:
             return self.choices.index(value) if self.choices else value
         shape = self.shape(record)
         return np.zeros(shape) if int(np.prod(shape)) or not shape else None
+
+    def element_text(self, index: int, names: Mapping[str, Sequence[str]]) -> tuple[str, str]:
+        """The description and unit (``""``: none) of element ``index`` (0-based) of a signal
+        variable (:attr:`signal`) for the plant's signal ``names`` (the keys of the spec's
+        ``[signals]`` table, every one present). Past the group's size the elements are its
+        derivatives, one block per order (``q_hat``: q, then q', ...; the unit per second).
+
+        Examples
+        --------
+        >>> names = {"unknown_inputs": ["M_load"], "unknown_input_units": ["N.m"]}
+        >>> [KINDS["observer"].variable("q_hat").element_text(i, names) for i in (0, 1)]
+        [('estimate of the unknown input M_load', 'N.m'), \
+("estimate of the unknown input M_load'", 'N.m/s')]
+        """
+        labels, units = names[self.signal], names[self.signal[:-1] + "_units"]
+        order, i = divmod(index, len(labels))
+        return self.text.format(labels[i] + "'" * order), derivative_unit(units[i], order)
+
+
+def derivative_unit(unit: str, order: int) -> str:
+    """The unit of the ``order``-th time derivative of a quantity in ``unit`` (Modelica's unit
+    syntax: ``"N.m/s"``, ``"(rad/s)/s2"``; ``""`` stays ``""``).
+
+    Examples
+    --------
+    >>> derivative_unit("N.m", 1), derivative_unit("rad/s", 2), derivative_unit("", 3)
+    ('N.m/s', '(rad/s)/s2', '')
+    """
+    if not unit or not order:
+        return unit
+    base = f"({unit})" if "/" in unit else unit
+    return f"{base}/s" if order == 1 else f"{base}/s{order}"
 
 
 @dataclass(frozen=True)
@@ -290,9 +330,12 @@ PLANT_MATRICES = (
     Variable("C", "design", "plant output matrix (k x n)", field="plant.C"),
 )
 ESTIMATOR_SIGNALS = (
-    Variable("y", "input", "measured plant output", shape=lambda r: (r.plant.k,)),
-    Variable("u", "input", "plant input", shape=lambda r: (r.plant.m,)),
-    Variable("x_hat", "output", "state estimate z", shape=lambda r: (r.plant.n,)),
+    Variable("y", "input", "measured plant output", shape=lambda r: (r.plant.k,),
+             signal="outputs", text="measured {}"),
+    Variable("u", "input", "plant input", shape=lambda r: (r.plant.m,), signal="inputs",
+             text="input {}"),
+    Variable("x_hat", "output", "state estimate z", shape=lambda r: (r.plant.n,),
+             signal="states", text="estimate of {}"),
 )
 Z0 = Variable("z0", "setting", "initial state estimate", option="z0")
 TIMING = (
@@ -302,7 +345,8 @@ TIMING = (
              option="scheme", choices=SCHEMES, integer=True),
 )
 Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its derivatives",
-                 shape=_disturbance_states)
+                 shape=_disturbance_states, signal="unknown_inputs",
+                 text="estimate of the unknown input {}")
 
 
 def _estimator(name: str, number: int, slave: str, description: str, label: str, record: str,
@@ -452,7 +496,8 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         outputs=("statistic", "mode", "x_hat", "q_hat"),
         signals=(*ESTIMATOR_SIGNALS[:2],
                  dataclasses.replace(ESTIMATOR_SIGNALS[2], source="x_hat",
-                                     description="state estimate of the mode's estimator")),
+                                     description="state estimate of the mode's estimator",
+                                     text="estimate of {} (by the mode's estimator)")),
     ),
     Kind(
         "plant", 3, "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",
@@ -472,11 +517,14 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Variable("scheme", "setting", "plant step: "
                      + ", ".join(f"{i} = {s}" for i, s in enumerate(PLANT_SCHEMES)),
                      option="plant_scheme", choices=PLANT_SCHEMES, integer=True),
-            Variable("u", "input", "control input", shape=lambda p: (p.m,)),
-            Variable("q", "input", "perturbation (through E)", shape=_perturbations),
+            Variable("u", "input", "control input", shape=lambda p: (p.m,), signal="inputs",
+                     text="input {}"),
+            Variable("q", "input", "perturbation (through E)", shape=_perturbations,
+                     signal="unknown_inputs", text="unknown input {} (through E)"),
             Variable("y", "output", "measured output C x + noise", shape=lambda p: (p.k,),
-                     source="y"),
-            Variable("x", "output", "true state", shape=lambda p: (p.n,)),
+                     source="y", signal="outputs", text="measured {} (C x + noise)"),
+            Variable("x", "output", "true state", shape=lambda p: (p.n,), signal="states",
+                     text="true value of {}"),
             INPUT_BOUND,
         ),
         outputs=("y", "x"),
