@@ -71,6 +71,7 @@ from harness.results import (
     write_csv,
     write_summary,
 )
+from harness.sweep import CONNECT_TIMEOUT, MAX_SEEDS
 from harness.system import (
     DescriptionError,
     SystemSpec,
@@ -218,6 +219,9 @@ def _parser() -> argparse.ArgumentParser:
                                            "(tcp://HOST:PORT); default: a local cluster")
     sweep.add_argument("--workers", type=int, help="local cluster's worker processes "
                                                    "(default: the core count)")
+    sweep.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT,
+                       metavar="SECONDS", help="seconds the --scheduler has to answer "
+                                               f"(default {CONNECT_TIMEOUT:g})")
     sweep.add_argument("--retry-failed", action="store_true", help="rerun the failed points")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -413,6 +417,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for option in ("seeds", "jobs"):
         if getattr(args, option) is not None and getattr(args, option) < 1:
             raise DescriptionError(f"--{option} = {getattr(args, option)} must be >= 1")
+    if args.seeds is not None and args.seeds > MAX_SEEDS:
+        raise DescriptionError(f"--seeds = {args.seeds}: at most {MAX_SEEDS} seeds (each is a "
+                               "run; the figures are their mean)")
     check_output_folder(args.out)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
     if args.step is not None:
@@ -669,6 +676,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     stop_time = args.stop_time or RUNS_PER_SETTLING_TIME * spec.settling_time
     stop_time = step * round(stop_time / step)
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
+    if spec.plant_model is not None:
+        return _plant_model_run(args, spec, design, step, stop_time)
     options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step}
     fmus = build_fmus(design, args.out / "fmus", T0=spec.settling_time, **options)
     if args.native:
@@ -710,6 +719,28 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plant_model_run(args: argparse.Namespace, spec: Any, design: Any, step: float,
+                     stop_time: float) -> int:
+    """``harness plant`` against the spec's ``[plant_model]`` (:mod:`harness.plant_model`)."""
+    from harness.plant_model import run_plant_model, state_table
+
+    settled = transient_end(design, spec.settling_time, step, stop_time)
+    data = run_plant_model(spec, design, args.out, step=step, stop_time=stop_time,
+                           settled=settled, seed=args.seed, plots=not args.no_plots,
+                           csv_every=csv_every(args, 1), native=args.native,
+                           block_cache=args.block_cache)
+    model = data["plant_model"]
+    print(f"model: {model['path']}" + (f", system {model['system']}" if model["system"] else "")
+          + f"; {model['initial_error']}")
+    print(plant_table(data))
+    print(state_table(data))
+    print(f"{data['steps']} steps, {data['wall_time_s']:.2f} s")
+    if not args.no_plots:
+        print(f"plots: {', '.join(data['plots'])}")
+    print(f"results in {args.out}, FMUs in {args.out / 'fmus'}")
+    return 0
+
+
 def _cmd_list(args: argparse.Namespace) -> int:
     paths = sorted(SCENARIO_DIR.glob("*.toml"))
     width = max(len(path.stem) for path in paths)
@@ -743,13 +774,21 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from harness.sweep import check_workers, format_report, load_sweep, run_sweep
+    from harness.sweep import (
+        check_connect_timeout,
+        check_workers,
+        format_report,
+        load_sweep,
+        run_sweep,
+    )
 
     check_workers(args.workers)
+    check_connect_timeout(args.connect_timeout)
     sweep = load_sweep(args.sweep)
     check_output_folder(args.out)
     report = run_sweep(sweep, args.out, args.scheduler, args.workers, args.retry_failed,
-                       not args.no_progress, not args.no_plots)
+                       not args.no_progress, not args.no_plots,
+                       connect_timeout=args.connect_timeout)
     print(format_report(report, sweep, args.out))
     return 1 if report.failed else 0
 

@@ -23,6 +23,15 @@ anything worse raises :class:`MasterError` naming the FMU, the call, the time an
 log messages (every FMU is instantiated with logging on). A failure during the run keeps what
 was recorded up to it: the error carries the partial :class:`CoSimResult` (``partial``).
 
+A connection may subtract an offset from its sources and add a bias to its targets
+(``to = gain @ (from - offset) + bias``), and add measurement noise to its sources: the
+master adds a Gaussian draw to the value it passes on (no block, no step of delay). The draws
+of a run are row k (the step from t_k) of ``numpy.random.default_rng(noise_seed)
+.standard_normal((steps, p))`` times the standard deviations, p the noisy sources in the order
+of the recorded signals; every connection from one source gets the same draw. Derived
+signals (``[[derived]]`` of :mod:`harness.system`) are computed from the recorded rows after
+the run and recorded after the FMUs' signals.
+
 SIGINT and SIGTERM during a run (in the main thread) are deferred: they are noted, never
 raised inside an FMU's code, and the run stops after the chunk of steps in progress with a
 :class:`MasterError` whose ``interrupted`` is the signal, its ``partial`` every row recorded.
@@ -226,15 +235,24 @@ def _alias(arr: np.ndarray, start: int, count: int) -> ctypes.Array:
 
 
 class Connections:
-    """The connection matrix as rows of (output index, gain) entries: input i is the sum of
-    ``gain * outputs[j]`` over its row's entries, left to right, the same sums in the master's
-    Python loop (:meth:`gather`) and in its C loop (:attr:`struct`, ``Gather`` of
-    step_loop.c), so that both give the same inputs bit for bit.
+    """The connection matrix as rows of (output index, gain, offset, noise index) entries:
+    input i is the sum of ``gain * (outputs[j] - offset + draw)`` over its row's entries, left
+    to right, plus its bias; the same sums in the master's Python loop (:meth:`gather`) and
+    in its C loop (:attr:`struct`, ``Gather`` of step_loop.c), so that both give the same
+    inputs bit for bit.
 
     Parameters
     ----------
     matrix : np.ndarray
         (inputs x outputs) gains; zero entries are no connection.
+    offsets : np.ndarray, optional
+        (inputs x outputs) the offset subtracted from output j on its way to input i.
+    bias : np.ndarray, optional
+        Added to each input.
+    noise : np.ndarray, optional
+        (inputs x outputs) booleans: whether the entry adds output j's draw.
+    std : np.ndarray, optional
+        Per output, the standard deviation of its draws (> 0 where an entry adds it).
 
     Examples
     --------
@@ -243,26 +261,63 @@ class Connections:
     >>> c.gather(np.array([3.0, 4.0]), inputs)
     >>> inputs.tolist()
     [8.0, -1.0]
+    >>> c = Connections(np.array([[2.0, 0.0]]), offsets=np.array([[1.0, 0.0]]),
+    ...                 bias=np.array([0.5]))
+    >>> c.gather(np.array([3.0, 4.0]), inputs[:1])
+    >>> float(inputs[0])
+    4.5
     """
 
-    def __init__(self, matrix: np.ndarray) -> None:
+    def __init__(self, matrix: np.ndarray, offsets: np.ndarray | None = None,
+                 bias: np.ndarray | None = None, noise: np.ndarray | None = None,
+                 std: np.ndarray | None = None) -> None:
+        offsets = np.zeros_like(matrix) if offsets is None else offsets
+        noise = np.zeros(matrix.shape, dtype=bool) if noise is None else noise
+        self.std = np.zeros(matrix.shape[1]) if std is None else np.asarray(std, dtype=float)
+        self.noisy = np.flatnonzero(noise.any(axis=0))
+        column = {int(j): n for n, j in enumerate(self.noisy)}
         rows = [np.flatnonzero(row) for row in matrix]
-        self.entries = [[(int(j), float(row[j])) for j in cols]
-                        for row, cols in zip(matrix, rows, strict=True)]
+        self.entries = [[(int(j), float(matrix[i, j]), float(offsets[i, j]),
+                          column[int(j)] if noise[i, j] else -1) for j in cols]
+                        for i, cols in enumerate(rows)]
+        self.bias = [0.0] * len(rows) if bias is None else [float(b) for b in bias]
+        flat = [entry for row in self.entries for entry in row]
         self._row_start = np.cumsum([0] + [len(cols) for cols in rows]).astype(np.intc)
-        self._cols = np.array([j for cols in rows for j in cols] or [0], dtype=np.intc)
-        self._gains = np.array([g for row in self.entries for _, g in row] or [0.0])
+        self._cols = np.array([e[0] for e in flat] or [0], dtype=np.intc)
+        self._gains = np.array([e[1] for e in flat] or [0.0])
+        self._offsets = np.array([e[2] for e in flat] or [0.0])
+        self._noise_index = np.array([e[3] for e in flat] or [-1], dtype=np.intc)
+        self._bias = np.array(self.bias or [0.0])
+        self._draws = np.zeros((1, max(self.noisy.size, 1)))
         self.struct = Gather(len(rows), self._row_start.ctypes.data, self._cols.ctypes.data,
-                             self._gains.ctypes.data)
+                             self._gains.ctypes.data, self._offsets.ctypes.data,
+                             self._bias.ctypes.data, self._noise_index.ctypes.data,
+                             self._draws.ctypes.data, int(self.noisy.size), 0)
 
-    def gather(self, outputs: np.ndarray, inputs: np.ndarray) -> None:
-        """Write the inputs of the outputs ``outputs`` into ``inputs``."""
+    def draw(self, rng: np.random.Generator, k_from: int, k_to: int) -> np.ndarray:
+        """The draws of steps ``k_from .. k_to - 1`` (one row per step, one column per noisy
+        output), kept for :meth:`gather` and the C loop."""
+        draws = rng.standard_normal((k_to - k_from, self.noisy.size)) * self.std[self.noisy]
+        if self.noisy.size:
+            self._draws = np.ascontiguousarray(draws)
+            self.struct.noise = self._draws.ctypes.data
+        self.struct.noise_from = k_from
+        return draws
+
+    def gather(self, outputs: np.ndarray, inputs: np.ndarray,
+               draws: np.ndarray | None = None) -> None:
+        """Write the inputs of the outputs ``outputs`` into ``inputs``; ``draws`` the noise
+        draws of this step (a row of :meth:`draw`)."""
         values = outputs.tolist()
+        noise = draws.tolist() if draws is not None else []
         for i, row in enumerate(self.entries):
             total = 0.0
-            for j, gain in row:
-                total += gain * values[j]
-            inputs[i] = total
+            for j, gain, offset, index in row:
+                value = values[j] - offset
+                if index >= 0:
+                    value += noise[index]
+                total += gain * value
+            inputs[i] = total + self.bias[i]
 
 
 class Master:
@@ -294,11 +349,20 @@ class Master:
         in_index = {f"{f}.{v.name}": i for i, (f, v) in enumerate(inputs)}
         self.inputs = tuple(f"{f}.{v.name}" for f, v in inputs)
         self.matrix = np.zeros((len(inputs), len(self.names)))
+        offsets = np.zeros_like(self.matrix)
+        noise = np.zeros(self.matrix.shape, dtype=bool)
+        bias, std = np.zeros(len(inputs)), np.zeros(len(self.names))
         for conn in system.connections:
             rows = [in_index[f"{f}.{v.name}"] for f, v in conn.targets]
             cols = [index[f"{f}.{v.name}"] for f, v in conn.sources]
             self.matrix[np.ix_(rows, cols)] += conn.gain
-        self.connections = Connections(self.matrix)
+            offsets[np.ix_(rows, cols)] = conn.offset
+            bias[rows] = conn.bias
+            if conn.noise is not None:
+                noise[np.ix_(rows, cols)] = conn.noise > 0.0
+                std[cols] = np.maximum(std[cols], conn.noise)
+        self.connections = Connections(self.matrix, offsets, bias, noise, std)
+        self.derived = tuple(name for d in system.derived for name in d.names)
 
     def run(self, stop_time: float | None = None, progress: bool | None = None) -> CoSimResult:
         """Run from the system's start time to ``stop_time`` (default: the system's).
@@ -322,6 +386,7 @@ class Master:
         values = _recording(steps, len(self.names), spec.name)
         started = time.perf_counter()
         self._logs: dict[str, deque[str]] = {}
+        rng = np.random.default_rng(spec.noise_seed)
         done = -1  # the last step whose row is recorded (-1: not even t0's)
         try:
             with deferred_signals() as received, self._slaves(t0, t_end) as slaves:
@@ -337,11 +402,12 @@ class Master:
                     if received:
                         break
                     k1 = min(k0 + PROGRESS_CHUNK, steps)
+                    draws = self.connections.draw(rng, k0, k1)
                     if k0 == 0 and self.first_inputs == "zero":
                         unconnected = Connections(np.zeros_like(self.matrix))
-                        self._steps(slaves, 0, 1, t0, h, *buffers, unconnected)
+                        self._steps(slaves, 0, 1, t0, h, *buffers, unconnected, draws)
                         k0 = 1
-                    self._steps(slaves, k0, k1, t0, h, *buffers, self.connections)
+                    self._steps(slaves, k0, k1, t0, h, *buffers, self.connections, draws)
                     done = k1
         except MasterError as err:
             raise self._explained(err, values, t0, h, time.perf_counter() - started) from None
@@ -349,7 +415,18 @@ class Master:
             err = self._interrupted(received[0], done)
             raise self._explained(err, values, t0, h, time.perf_counter() - started)
         wall = time.perf_counter() - started
-        return CoSimResult(t0 + h * np.arange(steps + 1), self.names, values, steps, wall)
+        return CoSimResult(t0 + h * np.arange(steps + 1), self.names + self.derived,
+                           self._with_derived(values), steps, wall)
+
+    def _with_derived(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (rows of the recorded signals) with the derived signals' columns."""
+        if not self.derived:
+            return values
+        columns = [values]
+        for d in self.system.derived:
+            cols = [self.names.index(f"{f}.{v.name}") for f, v in d.sources]
+            columns.append((values[:, cols] - d.offset) @ d.gain.T + d.bias)
+        return np.hstack(columns)
 
     def _interrupted(self, signum: int, done: int) -> MasterError:
         """The MasterError of a run stopped by ``signum`` after step ``done`` (-1: before the
@@ -375,8 +452,8 @@ class Master:
         partial = None
         if err.step is not None:
             k = err.step
-            partial = CoSimResult(t0 + h * np.arange(k + 1), self.names, values[: k + 1].copy(),
-                                  k, wall)
+            partial = CoSimResult(t0 + h * np.arange(k + 1), self.names + self.derived,
+                                  self._with_derived(values[: k + 1].copy()), k, wall)
         return MasterError(message, err.slave, err.step, partial, err.interrupted)
 
     @staticmethod
@@ -399,8 +476,10 @@ class Master:
         outputs: np.ndarray,
         inputs: np.ndarray,
         connections: Connections,
+        draws: np.ndarray,
     ) -> None:
-        """Steps ``k_from .. k_to - 1`` with inputs gathered by ``connections``: the hot loop.
+        """Steps ``k_from .. k_to - 1`` with inputs gathered by ``connections`` (``draws``
+        the noise draws of the chunk, from :meth:`Connections.draw`): the hot loop.
 
         When :func:`harness.native.step_library` is available, one call of its ``harness_run``
         makes the steps (gather, the nine FMI calls of each step, the recorded row); else the
@@ -413,6 +492,7 @@ class Master:
             self._native_steps(native, slaves, k_from, k_to, t0, h, values, outputs, inputs,
                                connections)
             return
+        first = connections.struct.noise_from
         t_c = ctypes.c_double(0.0)
         h_c = ctypes.c_double(h)
         no_set_prior = ctypes.c_int(1)
@@ -429,7 +509,7 @@ class Master:
         for k in range(k_from, k_to):
             t = t0 + k * h
             t_c.value = t
-            gather(outputs, inputs)
+            gather(outputs, inputs, draws[k - first])
             for set_real, comp, vr, n, buf, name in setters:
                 if status := set_real(comp, vr, n, buf):
                     _status(status, name, "fmi2SetReal", t, k)

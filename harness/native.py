@@ -31,13 +31,20 @@ CALLS = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal")
 
 
 class Gather(ctypes.Structure):
-    """``Gather`` of step_loop.c: the connections as rows of (output index, gain) entries."""
+    """``Gather`` of step_loop.c: the connections as rows of (output index, gain, offset,
+    noise index) entries, a bias per input and the noise draws of a chunk of steps."""
 
     _fields_ = [
         ("n_inputs", ctypes.c_int),
         ("row_start", ctypes.c_void_p),
         ("cols", ctypes.c_void_p),
         ("gains", ctypes.c_void_p),
+        ("offsets", ctypes.c_void_p),
+        ("bias", ctypes.c_void_p),
+        ("noise_index", ctypes.c_void_p),
+        ("noise", ctypes.c_void_p),
+        ("n_noise", ctypes.c_int),
+        ("noise_from", ctypes.c_long),
     ]
 
 

@@ -141,6 +141,28 @@ def signal_start(disturbance: DisturbanceSpec) -> dict[str, float | int]:
             "frequency": float(disturbance.frequency or 0.0), "seed": int(disturbance.seed)}
 
 
+def estimator_kinds(design: ObserverDesign, fmus: dict[str, object], step: float,
+                    noisy: bool) -> dict[str, str]:
+    """``{kind: label}`` of the estimators that run: those in ``fmus``, but the
+    prescribed-time observer with noise (its gain grows without bound towards T0: noise,
+    amplified) and the supervised one unless ``step`` is a whole number of its Kalman
+    samples.
+
+    Examples
+    --------
+    >>> from fhobs.design.observer import paper_gains
+    >>> estimator_kinds(paper_gains(), {"plant": 0, "observer": 0, "prescribed_time": 0},
+    ...                 1e-3, True)
+    {'observer': 'homogeneous'}
+    """
+    observers = dict(LABELS)
+    if noisy:
+        observers.pop("prescribed_time")
+    if design.supervised is not None and not whole_samples(step, design.supervised):
+        observers.pop("supervised")
+    return {kind: label for kind, label in observers.items() if kind in fmus}
+
+
 def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.ndarray,
                      stop_time: float, step: float = STEP,
                      noise_amplitude: float = 0.0, *,
@@ -199,12 +221,7 @@ def own_plant_system(design: ObserverDesign, fmus: dict[str, object], x0: np.nda
     if plant_matrices is not None:
         plant_start |= expand_start("A", np.asarray(A, dtype=float).tolist())
         plant_start |= expand_start("B", np.asarray(B, dtype=float).tolist())
-    observers = dict(LABELS)
-    if noise_amplitude > 0.0:  # its gain grows without bound towards T0: noise, amplified
-        observers.pop("prescribed_time")
-    if design.supervised is not None and not whole_samples(step, design.supervised):
-        observers.pop("supervised")  # it steps whole samples of its Kalman filter only
-    present = {kind: label for kind, label in observers.items() if kind in fmus}
+    present = estimator_kinds(design, fmus, step, noise_amplitude > 0.0)
     specs = {"plant": FmuSpec("plant", fmus["plant"], plant_start)}
     specs |= {kind: FmuSpec(kind, fmus[kind]) for kind in present}
     connections = [ConnectionSpec("plant.x", "plant.u", K)]
@@ -312,7 +329,8 @@ def plant_figures(result: CoSimResult, system: SystemSpec, settled: float,
 
 def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: int,
                   seed: int | None = None, plots: bool = True, csv_every: int = 1,
-                  about: dict[str, Any] | None = None) -> dict[str, Any]:
+                  about: dict[str, Any] | None = None,
+                  state_names: list[str] | None = None) -> dict[str, Any]:
     """Run the plant command's system and write ``results.csv``, ``summary.json`` and the plots
     (``errors.png``: x and q errors, ``states.png``, ``disturbance.png`` with q) into ``out``.
 
@@ -339,12 +357,15 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
         Write every ``csv_every``-th point to results.csv.
     about : dict, optional
         Extra summary items (the disturbance, the mismatch).
+    state_names : list of str, optional
+        The states' names and units (``states.png``'s panels); default ``x[i]``.
 
     Returns
     -------
     dict
         The summary (as written to summary.json): per estimator label the evaluation's
-        figures (:mod:`harness.results`) and :data:`FIGURES`.
+        figures (:mod:`harness.results`), :data:`FIGURES` and ``x_rms_states``, the RMS
+        error of each state over the steady window.
     """
     out.mkdir(parents=True, exist_ok=True)
     spec = system if seed is None else system.with_seed(seed)
@@ -366,7 +387,8 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
         if seed is not None:
             data["seeds"] = [seed]
         if plots:
-            data["plots"] = [str(p) for p in _plots(result, spec, settled, channels, out)]
+            data["plots"] = [str(p) for p in _plots(result, spec, settled, channels, out,
+                                                    state_names)]
         write_summary(data, out / "summary.json")
     return data
 
@@ -377,13 +399,17 @@ def _summary(result: CoSimResult, system: SystemSpec, settled: float, channels: 
             "wall_time_s": result.wall_time_s}
     generic = flagged(error_figures(result, system.evaluation),
                       divergence(result, system.evaluation))
+    steady = window_mask(result.time, min(settled, result.time[-1] / 2), result.time[-1])
     for label, figures in plant_figures(result, system, settled, channels).items():
-        data[label] = generic[label] | figures
+        reference, estimate = system.evaluation.errors[label]
+        e = (result.vector(reference) - result.vector(estimate))[steady]
+        data[label] = generic[label] | figures | {
+            "x_rms_states": np.sqrt(np.mean(e ** 2, axis=0)).tolist()}
     return data
 
 
 def _plots(result: CoSimResult, system: SystemSpec, settled: float, channels: int,
-           out: Path) -> list[Path]:
+           out: Path, state_names: list[str] | None = None) -> list[Path]:
     from harness.plotting import plot_disturbance, plot_plant_errors, plot_state_estimates
 
     q, q_hats = q_signals(result, system, channels)
@@ -391,9 +417,9 @@ def _plots(result: CoSimResult, system: SystemSpec, settled: float, channels: in
     diverged = {label for label, flag in divergence(result, system.evaluation).items() if flag}
     paths = [plot_plant_errors(result, errors, q, q_hats, settled, out / "errors.png",
                                diverged),
-             plot_state_estimates(result, "plant.x",
+             plot_state_estimates(result, next(iter(errors.values()))[0],
                                   {label: est for label, (_, est) in errors.items()},
-                                  out / "states.png", system.name, diverged)]
+                                  out / "states.png", system.name, diverged, state_names)]
     if channels and (q_hats or DISTURBANCE_BLOCK in system.fmus):
         paths.append(plot_disturbance(result.time, q, q_hats, settled,
                                       out / "disturbance.png", diverged))

@@ -18,6 +18,7 @@ it lies in that range (:func:`in_view`), its label saying so.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from collections.abc import Set as AbstractSet
 from pathlib import Path
 
@@ -191,10 +192,12 @@ def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: s
 
 
 def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, str],
-                         path: Path, title: str, diverged: AbstractSet[str] = frozenset()) -> Path:
-    """``states.png``: one panel per component of ``state`` (named by its variable,
-    ``plant.x[1]``...) with the same component of every estimate (``{label: signal}``) over
-    time; the ``diverged`` estimates drawn while in the range of the others (:func:`in_view`).
+                         path: Path, title: str, diverged: AbstractSet[str] = frozenset(),
+                         names: Sequence[str] | None = None) -> Path:
+    """``states.png``: one panel per component of ``state`` (named ``names[i]``, e.g.
+    ``"inductor.i [A]"``, or by its variable, ``plant.x[1]``...) with the same component of
+    every estimate (``{label: signal}``) over time; the ``diverged`` estimates drawn while in
+    the range of the others (:func:`in_view`).
 
     Examples
     --------
@@ -219,7 +222,7 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
         ax.plot(*envelope(result.time, drawn.pop(state)), color="k", lw=2, label=state)
         for label, estimate in drawn.items():
             ax.plot(*envelope(result.time, estimate), lw=1, label=label)
-        ax.set_ylabel(f"{state}[{i + 1}]")
+        ax.set_ylabel(f"{state}[{i + 1}]" if names is None else names[i])
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
     axes[0, 0].set_title(title)

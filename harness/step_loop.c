@@ -29,21 +29,34 @@ typedef struct {
 #define FMI2_WARNING 1
 
 /* The connections: input i = sum over e in [row_start[i], row_start[i+1]) of
- * gains[e] * outputs[cols[e]], summed left to right (harness.master.Gather). */
+ * gains[e] * (outputs[cols[e]] - offsets[e] + draw), summed left to right, plus bias[i]
+ * (harness.master.Connections); draw = noise[(k - noise_from) * n_noise + noise_index[e]] of
+ * step k when noise_index[e] >= 0, none else. */
 typedef struct {
     int n_inputs;
     const int *row_start;
     const int *cols;
     const double *gains;
+    const double *offsets;
+    const double *bias;
+    const int *noise_index;
+    const double *noise;
+    int n_noise;
+    long noise_from;
 } Gather;
 
-static void gather(const Gather *g, const double *outputs, double *inputs)
+static void gather(const Gather *g, const double *outputs, double *inputs, long k)
 {
+    const double *draws = g->noise + (size_t)(k - g->noise_from) * (size_t)g->n_noise;
     for (int i = 0; i < g->n_inputs; i++) {
         double s = 0.0;
-        for (int e = g->row_start[i]; e < g->row_start[i + 1]; e++)
-            s += g->gains[e] * outputs[g->cols[e]];
-        inputs[i] = s;
+        for (int e = g->row_start[i]; e < g->row_start[i + 1]; e++) {
+            double v = outputs[g->cols[e]] - g->offsets[e];
+            if (g->noise_index[e] >= 0)
+                v += draws[g->noise_index[e]];
+            s += g->gains[e] * v;
+        }
+        inputs[i] = s + g->bias[i];
     }
 }
 
@@ -87,7 +100,7 @@ int harness_run(const StepFmu *fmus, int n, const Gather *g, const double *outpu
                 double t0, double h, int failed[2], long *failed_step)
 {
     for (long k = k_from; k < k_to; k++) {
-        gather(g, outputs, inputs);
+        gather(g, outputs, inputs, k);
         int status = harness_step(fmus, n, t0 + (double)k * h, h, failed);
         if (status) {
             *failed_step = k;

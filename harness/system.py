@@ -21,6 +21,7 @@ File format (all keys except ``fmus`` optional)::
     step = 5e-5
     stop_time = 3.0
     seed = "plant.noise_seed"        # the start value that --seed sets
+    noise_seed = 0                   # the seed of the master's connection noise (--seed too)
     record = ["plant.x", "observer.x_hat"]   # extra signals; connected outputs are always kept
     [fmus.plant]
     path = "${fmu_dir}/plant.fmu"    # relative to this file
@@ -30,9 +31,22 @@ File format (all keys except ``fmus`` optional)::
     outputs = 1                      # block dimensions: outputs (sine); outputs, inputs (gain)
     start = { amplitude = [0.1], omega = [5.0] }
     [[connections]]
-    from = "observer.x_hat"          # a vector name expands to x_hat[1..n], or one scalar
+    from = "observer.x_hat"          # a vector name expands to x_hat[1..n], or one scalar;
+                                     # a list of signals is their concatenation; outputs or
+                                     # local Real variables (a model's states)
     to = "plant.u"
     gain = [[2, -35, 1.5, -3]]       # optional: to = gain @ from, applied by the master
+    offset = [0, 0, 0, 0]            # optional, per source: to = gain @ (from - offset) + bias
+    bias = [0.5]                     # optional, per target
+    noise = [0.01]                   # optional, per source: the std of a Gaussian draw the
+                                     # master adds to the source before the gain (no block, no
+                                     # delay); one draw per source and communication step,
+                                     # shared by every connection from that source (module
+                                     # docstring of harness.master: the draws and their seed)
+    [[derived]]                      # a signal the master computes from recorded ones, no FMU:
+    from = ["a.i", "b.phi"]          # the same keys as a connection but noise; recorded as
+    to = "deviation.x"               # deviation.x[1..2] (its element, "deviation", is no FMU)
+    offset = [0.0, 1.5]              # and usable as an [evaluation.errors] reference
     [evaluation]                     # summary.json figures, see harness.results
     at = [1.5]
     windows = [[1.0, 3.0]]
@@ -91,9 +105,12 @@ PAPER_VALUES: dict[str, Any] = {
 }
 """The paper's set-up by name, for ``"${paper.NAME}"`` values (module docstring)."""
 _PAPER_VALUE = re.compile(r"\$\{(paper\.[A-Za-z0-9_.]+)\}")
-TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "evaluation", "plots")
-RUN_KEYS = ("step", "stop_time", "start_time", "seed", "record")
-CONNECTION_KEYS = ("from", "to", "gain")
+TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "derived",
+            "evaluation", "plots")
+RUN_KEYS = ("step", "stop_time", "start_time", "seed", "noise_seed", "record")
+CONNECTION_KEYS = ("from", "to", "gain", "offset", "bias", "noise")
+READABLE = ("output", "local")
+"""The causalities a connection, a record or an error may read (Real variables)."""
 EVALUATION_KEYS = ("at", "windows", "converged", "peak", "floor", "errors")
 MAX_STEPS = 10**9
 """The most communication steps of one run (every step is a recorded row)."""
@@ -118,11 +135,24 @@ class FmuSpec:
 
 @dataclass(frozen=True)
 class ConnectionSpec:
-    """``to = gain @ from`` between vector or scalar signals ``"fmu.variable"``."""
+    """``to = gain @ (from - offset + noise) + bias`` between vector or scalar signals
+    ``"fmu.variable"``; ``source`` one signal or a tuple of them (concatenated); ``offset``
+    and ``noise`` (standard deviations) per source scalar, ``bias`` per target scalar."""
 
-    source: str
+    source: str | tuple[str, ...]
     target: str
     gain: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    bias: np.ndarray | None = None
+    noise: np.ndarray | None = None
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        """The source signals as a tuple."""
+        return (self.source,) if isinstance(self.source, str) else tuple(self.source)
+
+    def __str__(self) -> str:
+        return f"{' + '.join(self.sources)} -> {self.target}"
 
 
 @dataclass(frozen=True)
@@ -163,6 +193,8 @@ class SystemSpec:
     evaluation: Evaluation = field(default_factory=Evaluation)
     figure: FigureSpec | None = None
     source: Path | None = None
+    derived: tuple[ConnectionSpec, ...] = ()
+    noise_seed: int = 0
 
     def with_start(self, overrides: dict[str, StartValue]) -> SystemSpec:
         """Copy with start values ``{"fmu.variable": value}`` overriding the file's."""
@@ -180,12 +212,16 @@ class SystemSpec:
         return replace(self, fmus=fmus)
 
     def with_seed(self, seed: int) -> SystemSpec:
-        """Copy with the start value named by ``run.seed`` set to ``seed``."""
-        if self.seed is None:
+        """Copy with the start value named by ``run.seed`` and the master's noise seed
+        (``noise_seed``) set to ``seed``."""
+        noisy = any(c.noise is not None for c in self.connections)
+        if self.seed is None and not noisy:
             raise DescriptionError(
-                f"system {self.name!r} names no seed variable ([run] seed = ...)"
+                f"system {self.name!r} names no seed variable ([run] seed = ...) and has no "
+                "noisy connection"
             )
-        return self.with_start({self.seed: int(seed)})
+        spec = self if self.seed is None else self.with_start({self.seed: int(seed)})
+        return replace(spec, noise_seed=int(seed))
 
 
 def split_signal(signal: str) -> tuple[str, str]:
@@ -309,6 +345,13 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
     seed = run.get("seed")
     if seed is not None and not isinstance(seed, str):
         raise DescriptionError(f"{where}: run.seed = {seed!r} must name a variable ('fmu.var')")
+    noise_seed = run.get("noise_seed", 0)
+    if isinstance(noise_seed, bool) or not isinstance(noise_seed, int) or noise_seed < 0:
+        raise DescriptionError(f"{where}: run.noise_seed = {noise_seed!r} must be an integer "
+                               ">= 0")
+    derived = _list(data, "derived", where)
+    if not all(isinstance(d, dict) for d in derived):
+        raise DescriptionError(f"{where}: derived must be [[derived]] tables")
     return SystemSpec(
         name=_string(data.get("name", path.stem), f"{where}: name"),
         fmus=fmus,
@@ -322,6 +365,9 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
         evaluation=evaluation,
         figure=_figure_spec(_table(data, "plots", where), f"{where}: [plots]"),
         source=path,
+        derived=tuple(_connection_spec(d, f"{where}: derived {i}", derived=True)
+                      for i, d in enumerate(derived, start=1)),
+        noise_seed=noise_seed,
     )
 
 
@@ -680,17 +726,29 @@ def _dimension(entry: dict[str, Any], key: str, where: str) -> int:
     return value
 
 
-def _connection_spec(entry: dict[str, Any], where: str) -> ConnectionSpec:
-    _reject_unknown(entry, CONNECTION_KEYS, where)
+def _connection_spec(entry: dict[str, Any], where: str, derived: bool = False) -> ConnectionSpec:
+    _reject_unknown(entry, CONNECTION_KEYS[:-1] if derived else CONNECTION_KEYS, where)
     try:
         source, target = entry["from"], entry["to"]
     except KeyError as err:
         raise DescriptionError(f"{where} {entry!r} lacks {err}") from None
-    source, target = _string(source, f"{where}: from"), _string(target, f"{where}: to")
-    gain = entry.get("gain")
-    if gain is not None:
-        gain = np.atleast_2d(number_matrix(gain, f"{where} ({source} -> {target}): gain"))
-    return ConnectionSpec(source, target, gain)
+    if isinstance(source, list) and source:
+        source = tuple(_string(s, f"{where}: from") for s in source)
+    else:
+        source = _string(source, f"{where}: from")
+    target = _string(target, f"{where}: to")
+    arrays = {}
+    for key in ("gain", "offset", "bias", "noise"):
+        if entry.get(key) is not None:
+            value = number_matrix(entry[key], f"{where} (-> {target}): {key}")
+            if key != "gain" and value.ndim != 1:
+                raise DescriptionError(f"{where} (-> {target}): {key} must be a list of "
+                                       "numbers, one per scalar")
+            arrays[key] = np.atleast_2d(value) if key == "gain" else value
+    if "noise" in arrays and np.any(arrays["noise"] < 0.0):
+        raise DescriptionError(f"{where} (-> {target}): noise = {entry['noise']!r} must be "
+                               "standard deviations >= 0")
+    return ConnectionSpec(source, target, **arrays)
 
 
 # ---------------------------------------------------------------- resolution against the FMUs
@@ -707,11 +765,28 @@ class ResolvedFmu:
 
 @dataclass(frozen=True)
 class ResolvedConnection:
-    """Scalar sources and targets of one connection and its gain, ``targets = gain @ sources``."""
+    """Scalar sources and targets of one connection, its gain, offset, bias and noise,
+    ``targets = gain @ (sources - offset + noise) + bias`` (``noise``: the standard deviations
+    per source, None for a connection without noise)."""
 
     sources: tuple[tuple[str, ScalarVariable], ...]
     targets: tuple[tuple[str, ScalarVariable], ...]
     gain: np.ndarray
+    offset: np.ndarray
+    bias: np.ndarray
+    noise: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ResolvedDerived:
+    """A derived signal (``[[derived]]``): ``names = gain @ (sources - offset) + bias``, its
+    scalar names ``"element.var[i]"``."""
+
+    sources: tuple[tuple[str, ScalarVariable], ...]
+    names: tuple[str, ...]
+    gain: np.ndarray
+    offset: np.ndarray
+    bias: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -722,6 +797,7 @@ class ResolvedSystem:
     fmus: dict[str, ResolvedFmu]
     connections: tuple[ResolvedConnection, ...]
     recorded: tuple[str, ...]  # scalar "fmu.var" outputs recorded, connected ones included
+    derived: tuple[ResolvedDerived, ...] = ()
 
 
 _INDEXED = re.compile(r"^(?P<base>.+)\[(?P<idx>[0-9, ]+)\]$")
@@ -776,14 +852,18 @@ def resolve_system(spec: SystemSpec) -> ResolvedSystem:
     connections = tuple(_resolve_connection(c, fmus) for c in spec.connections)
     _check_inputs(fmus, connections)
     _check_algebraic_loops(fmus, connections)
+    _check_noise(connections)
+    derived = tuple(_resolve_derived(d, fmus) for d in spec.derived)
     recorded: list[str] = []
-    for conn in connections:
+    for conn in (*connections, *derived):
         recorded += [f"{f}.{v.name}" for f, v in conn.sources]
     figure = () if spec.figure is None else tuple(spec.figure.signals.values())
     errors = tuple(s for pair in spec.evaluation.errors.values() for s in pair)
+    elements = {split_signal(d.target)[0] for d in spec.derived}
     for signal in spec.record + errors + figure:
-        recorded += [f"{f}.{v.name}" for f, v in _signals(signal, fmus, "output")]
-    return ResolvedSystem(spec, fmus, connections, tuple(dict.fromkeys(recorded)))
+        if split_signal(signal)[0] not in elements:
+            recorded += [f"{f}.{v.name}" for f, v in _signals(signal, fmus, READABLE)]
+    return ResolvedSystem(spec, fmus, connections, tuple(dict.fromkeys(recorded)), derived)
 
 
 def _resolve_fmu(fs: FmuSpec) -> ResolvedFmu:
@@ -847,9 +927,10 @@ def _variable(fmu: str, variables: dict[str, ScalarVariable], name: str) -> Scal
 
 
 def _signals(
-    signal: str, fmus: dict[str, ResolvedFmu], causality: str
+    signal: str, fmus: dict[str, ResolvedFmu], causality: tuple[str, ...]
 ) -> list[tuple[str, ScalarVariable]]:
-    """Scalar variables of a vector or scalar signal, checked for causality and type Real."""
+    """Scalar variables of a vector or scalar signal, checked for causality (one of
+    ``causality``) and type Real."""
     fmu, name = split_signal(signal)
     if fmu not in fmus:
         raise DescriptionError(f"signal {signal!r}: unknown FMU {fmu!r} (have {sorted(fmus)})")
@@ -858,9 +939,10 @@ def _signals(
     out = []
     for n in names:
         v = variables[n]
-        if v.causality != causality:
+        if v.causality not in causality:
             raise DescriptionError(
-                f"{fmu}.{n}: causality is {v.causality}, a connection needs {causality} here"
+                f"{fmu}.{n}: causality is {v.causality}, a connection needs "
+                f"{' or '.join(causality)} here"
             )
         if v.type != "Real":
             raise DescriptionError(f"{fmu}.{n}: type {v.type}; connections carry Real signals only")
@@ -869,18 +951,63 @@ def _signals(
 
 
 def _resolve_connection(c: ConnectionSpec, fmus: dict[str, ResolvedFmu]) -> ResolvedConnection:
-    sources = _signals(c.source, fmus, "output")
-    targets = _signals(c.target, fmus, "input")
-    gain = np.eye(len(targets)) if c.gain is None else c.gain
-    if gain.shape != (len(targets), len(sources)):
+    sources = [s for signal in c.sources for s in _signals(signal, fmus, READABLE)]
+    targets = _signals(c.target, fmus, ("input",))
+    gain, offset, bias = _affine(c, len(sources), len(targets))
+    noise = None if c.noise is None else _sized(c, "noise", c.noise, len(sources), "sources")
+    return ResolvedConnection(tuple(sources), tuple(targets), gain, offset, bias, noise)
+
+
+def _resolve_derived(c: ConnectionSpec, fmus: dict[str, ResolvedFmu]) -> ResolvedDerived:
+    element, var = split_signal(c.target)
+    if element in fmus:
+        raise DescriptionError(f"derived {c}: {element!r} is an FMU of the system; a derived "
+                               "signal needs an element name of its own")
+    sources = [s for signal in c.sources for s in _signals(signal, fmus, READABLE)]
+    rows = len(sources) if c.gain is None else c.gain.shape[0]
+    gain, offset, bias = _affine(c, len(sources), rows)
+    names = tuple(f"{element}.{var}[{i + 1}]" for i in range(rows))
+    return ResolvedDerived(tuple(sources), names, gain, offset, bias)
+
+
+def _affine(c: ConnectionSpec, n_sources: int,
+            n_targets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gain, offset and bias of ``c`` checked against its sizes (defaults: I, 0, 0)."""
+    gain = np.eye(n_targets) if c.gain is None else c.gain
+    if gain.shape != (n_targets, n_sources):
         what = "gain shape " + str(gain.shape) if c.gain is not None else "sizes differ:"
         raise DescriptionError(
-            f"connection {c.source} -> {c.target}: {what} for {len(sources)} "
-            f"sources and {len(targets)} targets"
+            f"connection {c}: {what} for {n_sources} sources and {n_targets} targets"
         )
     if not np.all(np.isfinite(gain)):
-        raise DescriptionError(f"connection {c.source} -> {c.target}: gain is not finite")
-    return ResolvedConnection(tuple(sources), tuple(targets), gain)
+        raise DescriptionError(f"connection {c}: gain is not finite")
+    offset = (np.zeros(n_sources) if c.offset is None
+              else _sized(c, "offset", c.offset, n_sources, "sources"))
+    bias = (np.zeros(n_targets) if c.bias is None
+            else _sized(c, "bias", c.bias, n_targets, "targets"))
+    return gain, offset, bias
+
+
+def _sized(c: ConnectionSpec, key: str, value: np.ndarray, size: int, what: str) -> np.ndarray:
+    if value.shape != (size,):
+        raise DescriptionError(f"connection {c}: {key} has {value.size} entries for {size} "
+                               f"{what}")
+    return value
+
+
+def _check_noise(connections: tuple[ResolvedConnection, ...]) -> None:
+    """A source's noise is one draw per step for every connection that reads it: its standard
+    deviation must be the same in each."""
+    std: dict[str, float] = {}
+    for conn in connections:
+        if conn.noise is None:
+            continue
+        for (fmu, v), sigma in zip(conn.sources, conn.noise, strict=True):
+            key = f"{fmu}.{v.name}"
+            if std.setdefault(key, float(sigma)) != float(sigma):
+                raise DescriptionError(f"{key}: connections add noise of standard deviation "
+                                       f"{std[key]!r} and {float(sigma)!r}; one source has "
+                                       "one noise draw per step, give both the same")
 
 
 def _check_inputs(
