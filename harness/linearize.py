@@ -91,6 +91,10 @@ class Linearization:
     model: Path
     system: str | None
     start: dict[str, Any] = field(default_factory=dict)
+    u: np.ndarray | None = None
+    """The ports at the operating point: the inputs, then the unknown inputs."""
+    y: np.ndarray | None = None
+    """The outputs at the operating point."""
 
     @property
     def equilibrium(self) -> bool:
@@ -286,6 +290,7 @@ def linearize(model: str | Path, inputs: list[str], outputs: list[str],
         x = composition.simulate(0.0, t)
         A, B, C, D, method_text, accuracy = composition.linear(t, x, method)
         dx = composition.rhs(t, x)
+        w = composition.evaluate(t, x, composition.couple(t, x, composition.u0))[1]
         _check_feedthrough(D, C, composition, inputs + list(unknown_inputs), outputs, accuracy)
         m = len(inputs)
         return Linearization(
@@ -295,7 +300,8 @@ def linearize(model: str | Path, inputs: list[str], outputs: list[str],
             input_units=units["inputs"], outputs=list(outputs), output_units=units["outputs"],
             unknown_inputs=list(unknown_inputs), unknown_input_units=units["unknown_inputs"],
             x=x, dx=dx, time=t, method=method_text, accuracy=accuracy, model=model,
-            system=system if name != "" else None, start=start)
+            system=system if name != "" else None, start=start, u=composition.u0.copy(),
+            y=composition.P @ w + composition.Q @ composition.u0)
 
 
 def _check_names(inputs: list[str], outputs: list[str], unknown_inputs: list[str]) -> None:
