@@ -217,6 +217,7 @@ class Composition:
                 f"{named[m]} ({', '.join(p.name for p, j in pairs if j.method == m)})"
                 for m in ("directional", "differences"))
         accuracy = max((j.accuracy for j in jacobians), default=0.0)
+        method_text += "".join(f"; {j.note}" for j in jacobians if j.note)
         return A_total, B_total, C_total, D_total, method_text, accuracy
 
     def simulate(self, t0: float, t1: float) -> np.ndarray:

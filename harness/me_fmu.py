@@ -20,7 +20,9 @@ at h ~ eps^(1/3) ~ 6e-6 relative, both then ~ eps^(2/3) ~ 4e-11 relative. The ac
 reported is the largest difference between the Jacobians at h and at 2 h, relative to the
 largest entry (an estimate of the error at 2 h, three times the truncation error at h); for
 directional derivatives, their largest difference from the central differences, which checks
-the FMU's derivatives.
+the FMU's derivatives: beyond :data:`DISAGREEMENT` they are taken as wrong and the central
+differences are used (Reference-FMUs' VanDerPol answers 0 for d x0 / d x0, its output x0
+being its state).
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ from harness.fmu_files import description, unzipped
 
 STEP = float(np.finfo(float).eps) ** (1.0 / 3.0)
 """The central differences' relative step, eps^(1/3)."""
+DISAGREEMENT = 1e-4
+"""Directional derivatives that differ from central differences by more than this (relative
+to the largest entry) are not used: the differences are (unless asked for by name)."""
 TIME_VARYING = ("continuous", "discrete")
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
 
@@ -51,7 +56,8 @@ class LinearizeError(FhobsError, ValueError):
 @dataclass(frozen=True)
 class Jacobian:
     """The matrices of one linearisation (:meth:`MeFmu.jacobian`): ``method``
-    ``"directional"`` or ``"differences"``, ``accuracy`` as the module describes."""
+    ``"directional"`` or ``"differences"``, ``accuracy`` as the module describes, ``note``
+    why the FMU's directional derivatives were not used ("" when they were or it has none)."""
 
     A: np.ndarray
     B: np.ndarray
@@ -59,6 +65,7 @@ class Jacobian:
     D: np.ndarray
     method: str
     accuracy: float
+    note: str = ""
 
 
 def closest(name: str, names: list[str]) -> str:
@@ -264,15 +271,22 @@ class MeFmu:
                  method: str | None = None) -> Jacobian:
         """A, B, C, D at (t, x, v) (see the module); ``method`` "directional" or
         "differences" (default: directional derivatives when the FMU provides them)."""
-        method = method or ("directional" if self.directional else "differences")
+        chosen = method or ("directional" if self.directional else "differences")
         n = len(self.states)
-        if method == "directional":
+        note = ""
+        if chosen == "directional":
             J = self._directional(t, x, v)
-            accuracy = _relative(J, self._differences(t, x, v, 1.0))
+            differences = self._differences(t, x, v, 1.0)
+            accuracy = _relative(J, differences)
+            if method is None and accuracy > DISAGREEMENT:
+                note = (f"{self.label}'s directional derivatives differ from central "
+                        f"differences by {accuracy:.2g} relative: not used")
+                chosen, J = "differences", differences
+                accuracy = _relative(J, self._differences(t, x, v, 2.0))
         else:
             J = self._differences(t, x, v, 1.0)
             accuracy = _relative(J, self._differences(t, x, v, 2.0))
-        return Jacobian(J[:n, :n], J[:n, n:], J[n:, :n], J[n:, n:], method, accuracy)
+        return Jacobian(J[:n, :n], J[:n, n:], J[n:, :n], J[n:, n:], chosen, accuracy, note)
 
     def _directional(self, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         self.set_point(t, x, v)

@@ -513,7 +513,7 @@ def _model_description(layout: _Layout, name: str, guid: str, directional: bool,
         if v.nominal is not None:
             real["nominal"] = repr(v.nominal)
         ET.SubElement(ET.SubElement(variables, "ScalarVariable", attrib), "Real", real)
-    for i, state in enumerate(states):
+    for state in states:
         der = f"der({state.name})"
         attrib = {"name": der, "valueReference": str(layout.vr[der]), "causality": "local",
                   "variability": "continuous", "initial": "calculated"}
@@ -552,8 +552,9 @@ def _c_source(layout: _Layout, jacobian: dict[tuple[str, str], str] | None) -> s
     settable += [0] * len(states)
     start = [v.start for v in variables] + [0.0] * len(states)
     nominal = [v.nominal if v.nominal is not None else 1.0 for v in states]
-    evaluate = [f"    r[{layout.vr['der(' + s.name + ')']}] = {layout.c(layout.derivatives[s.name])};"
-                for s in states]
+    der_vr = [layout.vr[f"der({s.name})"] for s in states]
+    evaluate = [f"    r[{vr}] = {layout.c(layout.derivatives[s.name])};"
+                for vr, s in zip(der_vr, states, strict=True)]
     evaluate += [f"    r[{layout.vr[y]}] = {layout.c(e)};" for y, e in layout.outputs.items()]
     partial = ["    switch (unknown * NR + known) {"]
     for (unknown, known), expression in (jacobian or {}).items():
@@ -567,7 +568,7 @@ def _c_source(layout: _Layout, jacobian: dict[tuple[str, str], str] | None) -> s
 static const double START[NR] = {_c_array(start)};
 static const int SETTABLE[NR] = {_c_array(settable, "int")};
 static const int STATE_VR[NX ? NX : 1] = {_c_array([layout.vr[s.name] for s in states], "int")};
-static const int DER_VR[NX ? NX : 1] = {_c_array([layout.vr['der(' + s.name + ')'] for s in states], "int")};
+static const int DER_VR[NX ? NX : 1] = {_c_array(der_vr, "int")};
 static const double NOMINAL[NX ? NX : 1] = {_c_array(nominal)};
 
 static void evaluate(double *r) {{

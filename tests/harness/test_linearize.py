@@ -17,16 +17,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from me_fmus import (  # noqa: E402
     DC_MOTOR_BOUND,
     DC_MOTOR_DEFAULTS,
+    Variable,
     dc_motor_matrices,
     dc_motor_ssp,
     linear_fmu,
+    me_fmu,
     vanderpol_fmu,
     vanderpol_jacobian,
 )
 
 FREQUENCIES = np.array([0.1j, 1.0j, 3.0 + 10.0j, 100.0j, 1e3j])
 """Where the transfer functions are compared (s, rad/s; none a pole of the plants)."""
-SPEC_TABLES = ("name", "signals", "plant_model")
 
 
 def relative(a, b):
@@ -117,6 +118,18 @@ def test_vanderpol_at(fmus):
     assert lin.time == 0.8
 
 
+def test_wrong_directional_derivatives_are_not_used(tmp_path):
+    """An FMU whose directional derivatives miss dy/dx (0 instead of 3): central differences
+    are used and the method says why."""
+    fmu = me_fmu(tmp_path / "wrong.fmu", "wrong",
+                 [Variable("x", "state", 1.0), Variable("u", "input"), Variable("y", "output")],
+                 {"x": "-2.0 * {x} + {u}"}, {"y": "3.0 * {x}"},
+                 {("der(x)", "x"): "-2.0", ("der(x)", "u"): "1.0"})
+    lin = linearize(fmu, ["u"], ["y"])
+    assert lin.method.startswith("central differences; wrong's directional derivatives differ")
+    assert relative(lin.C, [[3.0]]) <= 1e-6 and relative(lin.A, [[-2.0]]) <= 1e-6
+
+
 @pytest.mark.parametrize("kind, tolerance", [("ssp", 1e-8), ("ssp_fd", 1e-6)])
 def test_dc_motor_ssp(fmus, kind, tolerance):
     lin = linearize(fmus[kind], ["U"], ["phiB"], ["M_load"], system="DC-Motor.SuT")
@@ -166,13 +179,17 @@ def test_written_spec_reads_back_and_designs(fmus, tmp_path, capsys):
     assert data["observer"]["state_scale"] == [1.0, 1.0, 100.0]  # the nominal values
 
     from fhobs.design.observer import design_for_spec
-    from fhobs.design.spec import spec_from_dict
+    from fhobs.design.spec import load_spec
 
-    for name in SPEC_TABLES:
-        data.pop(name)
-    spec = spec_from_dict(data, str(out))
+    spec = load_spec(out)
     for name in "ABCE":
         assert relative(getattr(spec, name), hand[name]) <= 1e-8, name
+    assert spec.name == "DC-Motor.SuT"
+    assert list(spec.signals.states) == data["signals"]["states"]
+    assert list(spec.signals.unknown_input_units) == ["Nm"]
+    assert spec.plant_model.path.resolve() == Path(fmus["ssp"]).resolve()
+    assert spec.plant_model.system == "DC-Motor.SuT" and spec.plant_model.at == 0.0
+    assert spec.plant_model.start == {"edrive.J": 0.004}
     design = design_for_spec(spec)
     assert design.settling_tuning["met"]
 
