@@ -277,7 +277,8 @@ def linearize(model: str | Path, inputs: list[str], outputs: list[str],
     if at is not None and not (np.isfinite(at) and at >= 0.0):
         raise LinearizeError(f"--at {at!r}: the operating time must be finite and >= 0")
     with ExitStack() as stack:
-        if model.suffix.lower() == ".ssp" or (model.is_file() and _is_ssp(model)):
+        ssp = model.suffix.lower() == ".ssp" or (model.is_file() and _is_ssp(model))
+        if ssp:
             folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="linearize_")))
             composition, units, name = _ssp_composition(model, system, inputs, outputs,
                                                          unknown_inputs, start, folder, stack)
