@@ -302,7 +302,7 @@ def linearize(model: str | Path, inputs: list[str], outputs: list[str],
             input_units=units["inputs"], outputs=list(outputs), output_units=units["outputs"],
             unknown_inputs=list(unknown_inputs), unknown_input_units=units["unknown_inputs"],
             x=x, dx=dx, time=t, method=method_text, accuracy=accuracy, model=model,
-            system=system if name != "" else None, start=start, u=composition.u0.copy(),
+            system=name if ssp else None, start=start, u=composition.u0.copy(),
             y=composition.P @ w + composition.Q @ composition.u0)
 
 
