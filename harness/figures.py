@@ -72,19 +72,40 @@ def save_figure(fig: Figure, path: str | Path, dpi: int) -> Path:
     return path
 
 
-def fixed_margins(fig: Figure, top: float = 0.4) -> None:
-    """Place the axes of ``fig`` with margins fixed in inches (0.8 left, 0.15 right, 0.5 below,
-    ``top`` above, 0.3 between rows and 0.2 between columns), and their axis labels at fixed
-    distances from the axes (0.62 inch left, 0.27 inch below): a layout engine (constrained
-    or tight layout), like the labels' automatic placement, measures every tick label and
-    costs as much as the drawing itself."""
+LEGEND_WIDTH = 2.4
+"""Inches right of the axes kept for a legend (:func:`outside_legend`)."""
+
+
+def fixed_margins(fig: Figure, top: float = 0.4, right: float = 0.15) -> None:
+    """Place the axes of ``fig`` with margins fixed in inches (0.8 left, ``right`` right: add
+    :data:`LEGEND_WIDTH` for a legend beside the axes, 0.5 below, ``top`` above, 0.3 between
+    rows and 0.2 between columns), and their axis labels at fixed distances from the axes
+    (0.62 inch left, 0.27 inch below): a layout engine (constrained or tight layout), like the
+    labels' automatic placement, measures every tick label and costs as much as the drawing
+    itself."""
     width, height = fig.get_size_inches()
-    fig.subplots_adjust(left=0.8 / width, right=1 - 0.15 / width, bottom=0.5 / height,
+    fig.subplots_adjust(left=0.8 / width, right=1 - right / width, bottom=0.5 / height,
                         top=1 - top / height, hspace=0.3 * len(fig.axes) / height,
                         wspace=0.2 * len(fig.axes) / width)
     for ax in fig.axes:
         ax.yaxis.set_label_coords(0.0, 0.5, transform=offset_copy(ax.transAxes, fig, x=-0.62))
         ax.xaxis.set_label_coords(0.5, 0.0, transform=offset_copy(ax.transAxes, fig, y=-0.27))
+
+
+def outside_legend(ax: Any, **options: Any) -> Any:
+    """The legend of ``ax`` right of its axes, its top at the axes' top, over no data (the
+    figure keeps :data:`LEGEND_WIDTH` for it, :func:`fixed_margins`); ``options`` as for
+    ``Axes.legend``.
+
+    Examples
+    --------
+    >>> fig, axes = new_figure(1, 1, (4, 2))
+    >>> _ = axes[0, 0].plot([0, 1], label="a")
+    >>> bool(outside_legend(axes[0, 0]).get_bbox_to_anchor().x0 > axes[0, 0].bbox.x1)
+    True
+    """
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
+                     fontsize="small", **options)
 
 
 def decade_grid(ax: Any) -> None:

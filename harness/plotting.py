@@ -18,13 +18,23 @@ it lies in that range (:func:`in_view`), its label saying so.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from collections.abc import Set as AbstractSet
 from pathlib import Path
 
 import numpy as np
+from fhobs.design.signals import SignalNames
 
-from harness.figures import decade_grid, envelope, fixed_margins, new_figure, save_figure
+from harness.figures import (
+    LEGEND_WIDTH,
+    decade_grid,
+    envelope,
+    fixed_margins,
+    new_figure,
+    outside_legend,
+    save_figure,
+)
 from harness.master import CoSimResult
 from harness.results import divergence, error_norm
 from harness.system import SystemSpec
@@ -34,10 +44,14 @@ DIVERGED_LABEL = " (diverged, cut off)"
 ESTIMATOR_COLOURS = {"homogeneous": "tab:red", "prescribed_time": "tab:purple",
                      "linear": "tab:orange", "kalman": "tab:blue", "supervised": "tab:green"}
 """Each estimator's colour (its label, :data:`fhobs.fmu.kinds.LABELS`) in every plot."""
-SPARE_COLOURS = ("tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray", "black",
+REFERENCE_COLOUR = "black"
+"""The colour of the true signal (the plant's state, its q) an estimate is drawn against."""
+NOTE_ID = "panel-note"
+"""The ``gid`` of a panel's note (:func:`panel_note`)."""
+SPARE_COLOURS = ("tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray",
                  "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2",
                  "#c7c7c7", "#dbdb8d", "#9edae5")
-"""The colours of other labels, in the order they come: the rest of tab10, black, then tab20's
+"""The colours of other labels, in the order they come: the rest of tab10, then tab20's
 light shades; beyond them hues spread evenly (:func:`spare_colours`)."""
 
 
@@ -50,7 +64,7 @@ def spare_colours(count: int) -> list[str]:
     >>> spare_colours(2)
     ['tab:brown', 'tab:pink']
     >>> colours = spare_colours(40)
-    >>> len(set(colours)), colours[16]
+    >>> len(set(colours)), colours[15]
     (40, '#d90000')
     """
     extra = max(count - len(SPARE_COLOURS), 0)
@@ -104,12 +118,33 @@ def kept_range(curves: list[np.ndarray], log: bool = False) -> tuple[float, floa
     return lo - margin, hi + margin
 
 
+def panel_note(ax, line: str) -> None:  # noqa: ANN001
+    """Add ``line`` to the note in the lower left corner of the panel ``ax`` (one text per
+    panel, its lines in the order they come).
+
+    Examples
+    --------
+    >>> from harness.figures import new_figure
+    >>> ax = new_figure(1, 1, (2, 2))[1][0, 0]
+    >>> panel_note(ax, "a"); panel_note(ax, "b")
+    >>> [t.get_text() for t in ax.texts]
+    ['a\\nb']
+    """
+    for text in ax.texts:
+        if text.get_gid() == NOTE_ID:
+            text.set_text(f"{text.get_text()}\n{line}")
+            return
+    ax.text(0.01, 0.02, line, transform=ax.transAxes, ha="left", va="bottom", fontsize="x-small",
+            gid=NOTE_ID, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"})
+
+
 def in_view(ax, curves: dict[str, np.ndarray], diverged: AbstractSet[str],  # noqa: ANN001
             log: bool = False) -> dict[str, np.ndarray]:
     """``curves`` (``{label: values}``) as an axis draws them: with a diverged one among them
     and others to range over, the axis's y range set to the others' (:func:`kept_range`) and
     the diverged ones drawn only where they lie in it (NaN elsewhere: a growing oscillation
-    does not fill the panel), their labels ending in ``DIVERGED_LABEL``; unchanged otherwise.
+    does not fill the panel), their labels ending in ``DIVERGED_LABEL`` and the panel's note
+    saying so (``"linear diverged (max 1e+32), clipped"``); unchanged otherwise.
 
     Examples
     --------
@@ -118,8 +153,8 @@ def in_view(ax, curves: dict[str, np.ndarray], diverged: AbstractSet[str],  # no
     >>> out = in_view(ax, {"a": np.array([0.0, 1.0]), "b": np.array([0.5, 1e30])}, {"b"})
     >>> out["b (diverged, cut off)"].tolist()
     [0.5, nan]
-    >>> [round(float(y), 12) for y in ax.get_ylim()]
-    [-0.05, 1.05]
+    >>> [round(float(y), 12) for y in ax.get_ylim()], ax.texts[0].get_text()
+    ([-0.05, 1.05], 'b diverged (max 1e+30), clipped')
     """
     if not diverged & set(curves):
         return curves
@@ -129,9 +164,70 @@ def in_view(ax, curves: dict[str, np.ndarray], diverged: AbstractSet[str],  # no
         return curves
     ax.set_ylim(*limits)
     lo, hi = limits
+    for label in [label for label in curves if label in diverged]:
+        values = np.abs(curves[label][~np.isnan(curves[label])])
+        peak = float(np.max(values)) if values.size else math.nan
+        panel_note(ax, f"{label} diverged (max {peak:.0e}), clipped")
     return {label + DIVERGED_LABEL if label in diverged else label:
             np.where((values >= lo) & (values <= hi), values, np.nan) if label in diverged
             else values for label, values in curves.items()}
+
+
+def on_log_axis(ax, curves: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: ANN001
+    """``curves`` as a log axis draws them: the values that are not positive and finite
+    (zeros, negatives, infinities, NaN) left off (NaN), their number in the panel's note.
+
+    Examples
+    --------
+    >>> from harness.figures import new_figure
+    >>> ax = new_figure(1, 1, (2, 2))[1][0, 0]
+    >>> on_log_axis(ax, {"a": np.array([1.0, 0.0, np.inf])})["a"].tolist()
+    [1.0, nan, nan]
+    >>> ax.texts[0].get_text()
+    '2 points not drawn on the log axis (zero, negative or not finite)'
+    """
+    kept = {label: np.where(np.isfinite(values) & (values > 0.0), values, np.nan)
+            for label, values in curves.items()}
+    left_off = sum(int(np.count_nonzero(np.isnan(kept[label]) & ~np.isnan(curves[label]))
+                       + np.count_nonzero(np.isnan(curves[label]))) for label in curves)
+    if left_off:
+        noun = "point" if left_off == 1 else "points"
+        panel_note(ax, f"{left_off} {noun} not drawn on the log axis "
+                       "(zero, negative or not finite)")
+    return kept
+
+
+def _draw(ax, time: np.ndarray, curves: dict[str, np.ndarray],  # noqa: ANN001
+          colours: dict[str, str], diverged: AbstractSet[str], log: bool = False,
+          reference: str | None = None, what: str = "{}") -> None:
+    """Draw ``curves`` (``{label: values}``) on ``ax``: each in its colour of ``colours``
+    (``reference`` in :data:`REFERENCE_COLOUR`, thicker), the ``diverged`` ones clipped
+    (:func:`in_view`), on a log axis the points it cannot show left off and counted
+    (:func:`on_log_axis`); the legend label ``what`` with ``{}`` for the curve's label."""
+    if log:
+        ax.set_yscale("log")
+        curves = on_log_axis(ax, curves)
+    for label, values in in_view(ax, curves, diverged, log).items():
+        name = label.removesuffix(DIVERGED_LABEL)
+        style = ({"color": REFERENCE_COLOUR, "lw": 2} if name == reference
+                 else {"color": colours[name], "lw": 1})
+        text = name if name == reference else what.format(name) + label[len(name):]
+        ax.plot(*envelope(time, values), label=text, **style)
+
+
+def _common_unit(units: Sequence[str]) -> str:
+    """The unit of a norm of signals in ``units``: theirs when they share one, else ''.
+
+    Examples
+    --------
+    >>> _common_unit(["rad", "rad"]), _common_unit(["A", "rad"]), _common_unit([])
+    ('rad', '', '')
+    """
+    return units[0] if units and len(set(units)) == 1 else ""
+
+
+def _unit_label(text: str, unit: str) -> str:
+    return f"{text} [{unit}]" if unit else text
 
 
 def plot_results(result: CoSimResult, spec: SystemSpec, out: Path,
@@ -169,24 +265,25 @@ def plot_paper_figure(result: CoSimResult, spec: SystemSpec, path: Path, title: 
 def plot_error_norms(result: CoSimResult, spec: SystemSpec, path: Path, title: str,
                      diverged: AbstractSet[str] = frozenset()) -> Path:
     """``errors.png``: the norms of the evaluation's error signals, the evaluation windows
-    shaded; the ``diverged`` ones drawn while in range (:func:`in_view`)."""
-    fig, axes = new_figure(1, 1, (7, 4))
+    shaded; the ``diverged`` ones clipped (:func:`in_view`), the legend right of the axes."""
+    fig, axes = new_figure(1, 1, (7 + LEGEND_WIDTH, 4))
     ax = axes[0, 0]
-    fixed_margins(fig)
-    curves = {f"{name}: ||{reference} - {estimate}||":
-              np.maximum(error_norm(result, reference, estimate), 1e-16)
-              for name, (reference, estimate) in spec.evaluation.errors.items()}
-    shown = {label for label, name in zip(curves, spec.evaluation.errors, strict=True)
-             if name in diverged}
-    for label, e in in_view(ax, curves, shown, log=True).items():
-        ax.semilogy(*envelope(result.time, e), label=label)
+    fixed_margins(fig, right=LEGEND_WIDTH + 0.15)
+    errors = spec.evaluation.errors
+    labels = {name: f"{name}: ||{reference} - {estimate}||"
+              for name, (reference, estimate) in errors.items()}
+    colours = estimator_colours(list(errors))
+    _draw(ax, result.time, {labels[name]: error_norm(result, *signals)
+                            for name, signals in errors.items()},
+          {labels[name]: colours[name] for name in errors},
+          {labels[name] for name in diverged if name in labels}, log=True)
     for i, (a, b) in enumerate(spec.evaluation.windows):
         ax.axvspan(a, b, color="0.9", zorder=0, label="evaluation window" if i == 0 else None)
     ax.set_xlim(result.time[0], result.time[-1])
     ax.set_xlabel("t [s]")
     ax.set_ylabel("estimation error")
     ax.set_title(title)
-    ax.legend(fontsize="small")
+    outside_legend(ax)
     decade_grid(ax)
     return save_figure(fig, path, 120)
 
@@ -196,8 +293,8 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
                          names: Sequence[str] | None = None) -> Path:
     """``states.png``: one panel per component of ``state`` (named ``names[i]``, e.g.
     ``"inductor.i [A]"``, or by its variable, ``plant.x[1]``...) with the same component of
-    every estimate (``{label: signal}``) over time; the ``diverged`` estimates drawn while in
-    the range of the others (:func:`in_view`).
+    every estimate (``{label: signal}``, a colour each) over time; the ``diverged`` estimates
+    clipped to the range of the others (:func:`in_view`); the legend right of the panels.
 
     Examples
     --------
@@ -207,24 +304,21 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     ...                      np.column_stack([np.ones(11), 1 - np.exp(-5 * t), 1e9 ** t]), 10, 0.0)
     >>> path = Path(tempfile.mkdtemp()) / "states.png"
     >>> plot_state_estimates(result, "p.x", {"a": "a.x_hat", "b": "b.x_hat"}, path, "t",
-    ...                      {"b"}).stat().st_size > 1000
+    ...                      {"b"}, ["w [rad/s]"]).stat().st_size > 1000
     True
     """
     x = result.vector(state)
     n = x.shape[1]
     columns = {label: result.vector(signal) for label, signal in estimates.items()}
-    fig, axes = new_figure(n, 1, (7, 1.6 * n + 0.6), sharex=True)
-    fixed_margins(fig)
+    colours = estimator_colours(list(columns))
+    fig, axes = new_figure(n, 1, (7 + LEGEND_WIDTH, 1.6 * n + 0.6), sharex=True)
+    fixed_margins(fig, right=LEGEND_WIDTH + 0.15)
     for i, ax in enumerate(axes[:, 0]):
-        drawn = in_view(ax, {state: x[:, i]} | {label: estimate[:, i]
-                                                 for label, estimate in columns.items()},
-                        diverged)
-        ax.plot(*envelope(result.time, drawn.pop(state)), color="k", lw=2, label=state)
-        for label, estimate in drawn.items():
-            ax.plot(*envelope(result.time, estimate), lw=1, label=label)
+        curves = {state: x[:, i]} | {label: estimate[:, i] for label, estimate in columns.items()}
+        _draw(ax, result.time, curves, colours, diverged, reference=state)
         ax.set_ylabel(f"{state}[{i + 1}]" if names is None else names[i])
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize="small", ncol=len(estimates) + 1)
+    outside_legend(axes[0, 0])
     axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t [s]")
     return save_figure(fig, path, 120)
@@ -232,10 +326,11 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
 
 def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q: np.ndarray,
                       q_hats: dict[str, np.ndarray], settled: float, path: Path,
-                      diverged: AbstractSet[str] = frozenset()) -> Path:
+                      diverged: AbstractSet[str] = frozenset(), *,
+                      names: SignalNames | None = None, title: str = "") -> Path:
     """``errors.png`` of the plant command: ``||x - x_hat||`` per estimator (top) and, when an
     estimator has a disturbance model, ``||q - q_hat||`` (bottom), log scale; the transient
-    ``[t0, settled]`` shaded; the ``diverged`` estimators drawn while in range (:func:`in_view`).
+    ``[t0, settled]`` shaded; the ``diverged`` estimators clipped (:func:`in_view`).
 
     Parameters
     ----------
@@ -253,6 +348,10 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
         The PNG to write.
     diverged : set of str
         The labels of the estimators that diverged.
+    names : SignalNames, optional
+        The plant's signals: a norm's axis carries their unit when they share one.
+    title : str
+        The plant's name, heading the plot.
 
     Returns
     -------
@@ -272,34 +371,34 @@ def plot_plant_errors(result: CoSimResult, errors: dict[str, tuple[str, str]], q
     True
     """
     rows = 2 if q_hats else 1
-    fig, axes = new_figure(rows, 1, (7, 2.6 * rows + 0.8), sharex=True)
-    fixed_margins(fig)
-    colours = {label: f"C{i}" for i, label in enumerate(errors)}
-    panels = [{label: np.maximum(error_norm(result, reference, estimate), 1e-16)
+    fig, axes = new_figure(rows, 1, (7 + LEGEND_WIDTH, 2.6 * rows + 0.8), sharex=True)
+    fixed_margins(fig, top=0.6, right=LEGEND_WIDTH + 0.15)
+    colours = estimator_colours(list(errors))
+    panels = [{label: error_norm(result, reference, estimate)
                for label, (reference, estimate) in errors.items()},
-              {label: np.maximum(np.linalg.norm(q - q_hat, axis=1), 1e-16)
-               for label, q_hat in q_hats.items()}]
-    for ax, curves, what in zip(axes[:, 0], panels, ("x", "q"), strict=False):
-        for label, e in in_view(ax, curves, diverged, log=True).items():
-            name = label.removesuffix(DIVERGED_LABEL)
-            ax.semilogy(*envelope(result.time, e), color=colours.get(name),
-                        label=f"{name}: ||{what} - {what}_hat||{label[len(name):]}")
-    for ax, what in zip(axes[:, 0], ("state error", "q error"), strict=False):
+              {label: np.linalg.norm(q - q_hat, axis=1) for label, q_hat in q_hats.items()}]
+    units = ([], []) if names is None else (names.state_units, names.unknown_input_units)
+    for ax, curves, what, unit in zip(axes[:, 0], panels, ("x", "q"), units, strict=False):
+        _draw(ax, result.time, curves, colours, diverged, log=True,
+              what=f"{{}}: ||{what} - {what}_hat||")
         ax.axvspan(result.time[0], settled, color="0.92", zorder=0)
-        ax.set_ylabel(what)
+        ax.set_ylabel(_unit_label(f"||{what} - {what}_hat||", _common_unit(unit)))
         decade_grid(ax)
-        ax.legend(fontsize="small")
-    axes[0, 0].set_title("estimation errors (shaded: transient, up to the settling time)")
+        outside_legend(ax)
+    axes[0, 0].set_title((f"{title}: " if title else "")
+                         + "estimation errors (shaded: transient, up to the settling time)")
     axes[-1, 0].set_xlim(result.time[0], result.time[-1])
     axes[-1, 0].set_xlabel("t [s]")
     return save_figure(fig, path, 120)
 
 
 def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarray],
-                     settled: float, path: Path, diverged: AbstractSet[str] = frozenset()) -> Path:
-    """``disturbance.png``: one panel per q channel with q (the plant's input) and every
-    estimator's ``q_hat`` of it; the transient shaded; the ``diverged`` estimators drawn while
-    in range (:func:`in_view`).
+                     settled: float, path: Path, diverged: AbstractSet[str] = frozenset(), *,
+                     names: Sequence[str] | None = None, title: str = "") -> Path:
+    """``disturbance.png``: one panel per q channel (named ``names[i]``, e.g.
+    ``"M_load [N.m]"``, else ``q[i]``) with q (the plant's input) and every estimator's
+    ``q_hat`` of it; the transient shaded; the ``diverged`` estimators clipped
+    (:func:`in_view`).
 
     Parameters
     ----------
@@ -315,6 +414,10 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
         The PNG to write.
     diverged : set of str
         The labels of the estimators that diverged.
+    names : sequence of str, optional
+        Each channel's name and unit.
+    title : str
+        The plant's name, heading the plot.
 
     Returns
     -------
@@ -330,19 +433,17 @@ def plot_disturbance(time: np.ndarray, q: np.ndarray, q_hats: dict[str, np.ndarr
     True
     """
     r = q.shape[1]
-    fig, axes = new_figure(r, 1, (7, 1.8 * r + 0.8), sharex=True)
-    fixed_margins(fig)
+    fig, axes = new_figure(r, 1, (7 + LEGEND_WIDTH, 1.8 * r + 0.8), sharex=True)
+    fixed_margins(fig, right=LEGEND_WIDTH + 0.15)
+    colours = estimator_colours(list(q_hats))
     for i, ax in enumerate(axes[:, 0]):
-        drawn = in_view(ax, {"q": q[:, i]} | {f"{label} q_hat": q_hat[:, i]
-                                              for label, q_hat in q_hats.items()},
-                        {f"{label} q_hat" for label in diverged})
-        ax.plot(*envelope(time, drawn.pop("q")), color="k", lw=2, label="q")
-        for label, values in drawn.items():
-            ax.plot(*envelope(time, values), lw=1, label=label)
+        curves = {"q": q[:, i]} | {label: q_hat[:, i] for label, q_hat in q_hats.items()}
+        _draw(ax, time, curves, colours, diverged, reference="q", what="{} q_hat")
         ax.axvspan(time[0], settled, color="0.92", zorder=0)
-        ax.set_ylabel(f"q[{i + 1}]")
+        ax.set_ylabel(f"q[{i + 1}]" if names is None else names[i])
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize="small", ncol=len(q_hats) + 1)
+    outside_legend(axes[0, 0])
+    axes[0, 0].set_title((f"{title}: " if title else "") + "unknown inputs and their estimates")
     axes[-1, 0].set_xlim(time[0], time[-1])
     axes[-1, 0].set_xlabel("t [s]")
     return save_figure(fig, path, 120)
