@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from .core.cache_files import cache_unusable, is_fmu, trusted
 from .core.certificate import certify
 from .core.gains import ObserverDesign
 from .core.kernel import (
@@ -391,9 +392,12 @@ def _fmu_key(tag: str, wrapper: Path | None, library: Path | None) -> str:
 
 def _from_cache(key: str, dest: Path) -> bool:
     """Copy the FMU built earlier from the same inputs (:func:`_fmu_key`) to ``dest``, if the
-    user's cache has it: rebuilding an unchanged design is a file copy."""
-    cached = cache_dir() / "fmus" / f"{key}.fmu"
+    user's cache has it and it is trusted (:func:`fhobs.core.cache_files.trusted`: this user's,
+    an FMU): rebuilding an unchanged design is a file copy."""
     try:
+        cached = cache_dir() / "fmus" / f"{key}.fmu"
+        if not trusted(cached, is_fmu):
+            return False
         shutil.copyfile(cached, dest)
     except OSError:
         return False
@@ -403,16 +407,19 @@ def _from_cache(key: str, dest: Path) -> bool:
 def _to_cache(key: str, fmu: Path) -> None:
     """Keep a copy of the freshly built ``fmu`` in the user's cache (:func:`cache_copy`); the
     oldest beyond :data:`FMU_CACHE_KEPT` are removed. A cache that cannot be written is
-    skipped."""
-    folder = cache_dir() / "fmus"
+    skipped (one warning line)."""
     try:
-        folder.mkdir(exist_ok=True)
+        folder = cache_dir() / "fmus"
+    except OSError:
+        return
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
         cache_copy(fmu, folder / f"{key}.fmu")
         kept = sorted(folder.glob("*.fmu"), key=lambda path: path.stat().st_mtime)
         for old in kept[:-FMU_CACHE_KEPT]:
             old.unlink(missing_ok=True)
-    except OSError:
-        return
+    except OSError as err:
+        cache_unusable(folder, err)
 
 
 def cache_copy(source: Path, target: Path) -> None:
@@ -459,14 +466,38 @@ def _compile_wrapper() -> Path:
     import fmpy
 
     header = call_rules.c_header()
-    include = cache_dir() / f"call_rules_{hashlib.sha256(header.encode()).hexdigest()[:16]}"
-    include.mkdir(exist_ok=True)
-    if not (include / call_rules.HEADER).exists():
-        (include / call_rules.HEADER).write_text(header)
+    include = _header_folder(call_rules.HEADER, header)
     flags = ("-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
              f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{include}")
     return _cached(PACKAGE_DIR / "fmu" / "status_wrapper.c", "fhobs_status_wrapper", flags,
                    ("-ldl", "-lpthread"), (include / call_rules.HEADER,), "the status wrapper")
+
+
+def _header_folder(name: str, text: str) -> Path:
+    """A folder holding the header ``name`` with the content ``text``: in the user's cache,
+    named by the content (written there once; a file there that is not this user's alone or
+    differs is written again), else a private temporary folder."""
+
+    def this_header(path: Path) -> bool:
+        """the header of this build: its text"""
+        return path.read_text() == text
+
+    try:
+        folder = cache_dir() / f"{Path(name).stem}_{hashlib.sha256(text.encode()).hexdigest()[:16]}"
+    except OSError:
+        folder = None
+    if folder is not None:
+        try:
+            folder.mkdir(mode=0o700, exist_ok=True)
+            if not trusted(folder / name, this_header):
+                with replaced_atomically(folder / name) as partial:
+                    partial.write_text(text)
+            return folder
+        except OSError as err:
+            cache_unusable(folder, err)
+    folder = Path(tempfile.mkdtemp(prefix="fhobs_headers_"))
+    (folder / name).write_text(text)
+    return folder
 
 
 def _compile_kernel() -> Path:

@@ -8,6 +8,7 @@ import pytest
 PUBLIC_MODULES = (
     "fhobs", "fhobs.cli", "fhobs.design.observer", "fhobs.design.spec", "fhobs.errors",
     "fhobs.design.limits", "fhobs.design.feedback", "fhobs.design.cache", "fhobs.build",
+    "fhobs.core.cache_files",
     "fhobs.design.kalman", "fhobs.core.certificate", "fhobs.core.runtime", "fhobs.core.plant",
     "fhobs.core.kalman_filter", "fhobs.core.linalg", "fhobs.paper", "harness.reference",
     "fhobs.design.settling", "fhobs.core.disturbance", "fhobs.native.build",

@@ -48,6 +48,8 @@ from typing import TypeVar
 
 import numpy as np
 
+from .cache_files import cache_unusable, check_private, is_elf, trusted
+
 SOURCE = Path(__file__).resolve().with_name("kernel.c")
 HEADER = SOURCE.with_name("kernel.h")
 """The kernel's declarations (plans, scratch sizes, shared helpers), included by kernel.c."""
@@ -228,13 +230,29 @@ def cached_build(source: Path, prefix: str, flags: tuple[str, ...], libs: tuple[
     name = f"{prefix}_{tag[:16]}.so"
     try:
         path = cache_dir() / name
-        if not path.exists():
-            compile_source(source, path, compiler, flags, libs)
-        return path
     except OSError:
-        private = Path(tempfile.mkdtemp(prefix=f"{prefix}_"))  # kept: the library is in use
-        compile_source(source, private / name, compiler, flags, libs)
-        return private / name
+        path = None
+    if path is not None and trusted(path, is_elf):
+        return path
+    if path is not None:
+        try:
+            compile_source(source, path, compiler, flags, libs)
+            return path
+        except (OSError, subprocess.SubprocessError) as err:
+            failure = err  # the cache's fault only if a private folder does better
+    private = Path(tempfile.mkdtemp(prefix=f"{prefix}_"))  # kept: the library is in use
+    compile_source(source, private / name, compiler, flags, libs)
+    if path is not None:
+        cache_unusable(path.parent, _reason(failure))
+    return private / name
+
+
+def _reason(err: BaseException) -> str:
+    """A compiler's or the file system's complaint in one line."""
+    detail = getattr(err, "stderr", None) or err
+    if isinstance(detail, bytes):
+        detail = detail.decode(errors="replace")
+    return " ".join(str(detail).split())
 
 
 def _open(path: Path) -> ctypes.PyDLL | None:
@@ -253,10 +271,25 @@ def _open(path: Path) -> ctypes.PyDLL | None:
 
 def cache_dir() -> Path:
     """``$XDG_CACHE_HOME/fhobs`` (default ``~/.cache/fhobs``), created private to the user: where
-    compiled helpers (this kernel, the harness's step loop) are kept."""
+    compiled helpers (this kernel, the harness's step loop) are kept.
+
+    Raises
+    ------
+    OSError
+        If the folder cannot be used (a file in its place, not writable, not private to the
+        user: :func:`fhobs.core.cache_files.check_private`); logged once
+        (:func:`fhobs.core.cache_files.cache_unusable`), the caller does without the cache.
+    """
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     path = Path(base) / "fhobs"
-    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        check_private(path)
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise PermissionError(f"{path} is not writable")
+    except OSError as err:
+        cache_unusable(path, err)
+        raise
     return path
 
 

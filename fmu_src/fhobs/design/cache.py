@@ -5,8 +5,9 @@ the runtime's source code, the numerical libraries' versions), in
 again: a cached design never skips its certificate).
 
 The cache holds pickles written by this package in the user's private cache folder (the one
-the compiled kernel is loaded from); a file is read only if it belongs to the user and no one
-else may write it. A file that cannot be read, or whose result fails its check, is computed
+the compiled kernel is loaded from); a file is read only if it and its folder belong to the user
+and no one else may write them (:func:`fhobs.core.cache_files.trusted`; one warning line
+otherwise). A file that cannot be read, or whose result fails its check, is computed
 again and replaced; deleting the folder only costs the next call its time. The folder keeps
 the :data:`KEPT` most recently used files. With the environment variable
 ``FHOBS_NO_DESIGN_CACHE`` set (non-empty) every result is computed, nothing read or written.
@@ -23,6 +24,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, TypeVar
 
+from ..core.cache_files import cache_unusable, trusted
 from ..core.kernel import cache_dir, library, replaced_atomically
 from ..errors import CertificateError
 
@@ -81,25 +83,17 @@ def cached(kind: str, inputs: Any, compute: Callable[[], T], check: Callable[[T]
         path = cache_dir() / "designs" / f"{kind}_{_key(inputs)}.pickle"
     except OSError:  # no cache folder to be had: computed every time
         return compute(), False
-    try:
-        _check_private(path)
-        result = pickle.loads(path.read_bytes())
-        check(result)
-        os.utime(path)  # recently used: the last to be dropped
-        return result, True
-    except UNREADABLE:
-        pass  # no file, a stale or partial one, or a result that fails its check
+    if trusted(path):  # this user's alone (else one warning line): read
+        try:
+            result = pickle.loads(path.read_bytes())
+            check(result)
+            os.utime(path)  # recently used: the last to be dropped
+            return result, True
+        except UNREADABLE:
+            pass  # a stale or partial file, or a result that fails its check
     result = compute()
     _write(path, result)
     return result, False
-
-
-def _check_private(path: Path) -> None:
-    """OSError unless ``path`` belongs to this user and no one else may write it: a pickle is
-    read only from where this user alone could have put it."""
-    info = path.stat()
-    if info.st_uid != os.getuid() or info.st_mode & 0o022:
-        raise PermissionError(f"{path} is not private to this user: not read")
 
 
 def _key(inputs: Any) -> str:
@@ -144,8 +138,10 @@ def _write(path: Path, result: Any) -> None:
         if len(files) > KEPT:
             for old in sorted(files, key=_modified)[:len(files) - KEPT]:
                 old.unlink(missing_ok=True)
-    except (OSError, pickle.PicklingError, TypeError, AttributeError):
-        pass
+    except OSError as err:
+        cache_unusable(path.parent, err)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        pass  # a result that cannot be kept is computed again next time
 
 
 def _modified(path: Path) -> float:

@@ -61,6 +61,7 @@ import numpy as np
 
 from ..build import cache_copy, default_kinds, fmu_options
 from ..core import kernel
+from ..core.cache_files import cache_unusable, is_elf, trusted
 from ..core.certificate import certify
 from ..core.gains import ObserverDesign, PlantModel, SupervisedGains
 from ..core.kalman_filter import KalmanObserver
@@ -703,12 +704,18 @@ def cached_object(sources: Path, name: str, out: Path, compiler: str) -> Path:
             digest.update(path.name.encode() + path.read_bytes())
     try:
         cache = kernel.cache_dir() / "objects"
-        cache.mkdir(exist_ok=True)
+        cache.mkdir(mode=0o700, exist_ok=True)
     except OSError:
         return compile_object(sources, name, out, compiler)
     target = cache / f"{Path(name).stem}_{digest.hexdigest()[:16]}.o"
-    if not target.exists():
-        cache_copy(compile_object(sources, name, out, compiler), target)
+    if trusted(target, is_elf):
+        return target
+    compiled = compile_object(sources, name, out, compiler)
+    try:
+        cache_copy(compiled, target)
+    except OSError as err:
+        cache_unusable(cache, err)
+        return compiled
     return target
 
 
