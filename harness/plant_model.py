@@ -217,6 +217,10 @@ def plant_model_system(design: ObserverDesign, fmus: dict[str, Path], ports: Mod
     n = A.shape[0]
     initial = "model" if ports.settable else "estimators"
     start = {fmu: dict(values) for fmu, values in ports.start.items()}
+    for target in (*(t for ts in ports.inputs for t in ts),
+                   *(t for ts in ports.unknown_inputs for t in ts)):
+        fmu, _, var = target.partition(".")  # their start values set the operating point
+        start[fmu].pop(var, None)
     if initial == "model":
         for signal, value in zip(ports.states, point.x + state_scale, strict=True):
             fmu, _, var = signal.partition(".")
