@@ -671,7 +671,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
     if spec.plant_model is not None:
         return _plant_model_run(args, spec, design, step, stop_time)
-    options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step}
+    options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step,
+               "names": spec.names, "plant_name": spec.name}
     fmus = build_fmus(design, args.out / "fmus", T0=spec.settling_time, **options)
     if args.native:
         from fhobs.native.build import build_native_fmus
@@ -699,7 +700,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     data = run_own_plant(system, args.out, settled=settled,
                          channels=0 if design.plant.E is None else design.plant.E.shape[1],
                          seed=args.seed if noise else None, plots=not args.no_plots,
-                         csv_every=csv_every(args, 1), about=about)
+                         csv_every=csv_every(args, 1), about=about, names=spec.names,
+                         title=spec.name)
     print(plant_table(data))
     steady = f"steady [{settled:g}, {stop_time:g}] s" if settled < stop_time else "no steady window"
     print(f"windows: transient [0, {settled:g}] s, {steady}; {data['steps']} steps, "

@@ -35,6 +35,7 @@ import numpy as np
 from fhobs.core.gains import ObserverDesign, SupervisedGains
 from fhobs.core.supervisor import sample_count
 from fhobs.design.feedback import state_feedback
+from fhobs.design.signals import SignalNames
 from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
 from fhobs.fmu.kinds import LABELS
 
@@ -330,7 +331,8 @@ def plant_figures(result: CoSimResult, system: SystemSpec, settled: float,
 def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: int,
                   seed: int | None = None, plots: bool = True, csv_every: int = 1,
                   about: dict[str, Any] | None = None,
-                  state_names: list[str] | None = None) -> dict[str, Any]:
+                  state_names: list[str] | None = None, names: SignalNames | None = None,
+                  title: str | None = None) -> dict[str, Any]:
     """Run the plant command's system and write ``results.csv``, ``summary.json`` and the plots
     (``errors.png``: x and q errors, ``states.png``, ``disturbance.png`` with q) into ``out``.
 
@@ -358,7 +360,12 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
     about : dict, optional
         Extra summary items (the disturbance, the mismatch).
     state_names : list of str, optional
-        The states' names and units (``states.png``'s panels); default ``x[i]``.
+        The states' names and units (``states.png``'s panels); default from ``names``.
+    names : SignalNames, optional
+        The plant's signals (a spec's ``spec.names``): the plots' axes carry their names and
+        units; default ``plant.x[i]``, ``q[i]``.
+    title : str, optional
+        The plant's name (``spec.name``), heading the plots; default the system's name.
 
     Returns
     -------
@@ -388,7 +395,7 @@ def run_own_plant(system: SystemSpec, out: Path, *, settled: float, channels: in
             data["seeds"] = [seed]
         if plots:
             data["plots"] = [str(p) for p in _plots(result, spec, settled, channels, out,
-                                                    state_names)]
+                                                    state_names, names, title)]
         write_summary(data, out / "summary.json")
     return data
 
@@ -409,20 +416,26 @@ def _summary(result: CoSimResult, system: SystemSpec, settled: float, channels: 
 
 
 def _plots(result: CoSimResult, system: SystemSpec, settled: float, channels: int,
-           out: Path, state_names: list[str] | None = None) -> list[Path]:
+           out: Path, state_names: list[str] | None = None, names: SignalNames | None = None,
+           title: str | None = None) -> list[Path]:
     from harness.plotting import plot_disturbance, plot_plant_errors, plot_state_estimates
 
     q, q_hats = q_signals(result, system, channels)
     errors = system.evaluation.errors
     diverged = {label for label, flag in divergence(result, system.evaluation).items() if flag}
+    title = title or system.name
+    labels = {group: [names.label(group, i) for i in range(len(getattr(names, group)))]
+              for group in ("states", "unknown_inputs")} if names is not None else {}
     paths = [plot_plant_errors(result, errors, q, q_hats, settled, out / "errors.png",
-                               diverged),
+                               diverged, names=names, title=title),
              plot_state_estimates(result, next(iter(errors.values()))[0],
                                   {label: est for label, (_, est) in errors.items()},
-                                  out / "states.png", system.name, diverged, state_names)]
+                                  out / "states.png", title, diverged,
+                                  state_names or labels.get("states"))]
     if channels and (q_hats or DISTURBANCE_BLOCK in system.fmus):
         paths.append(plot_disturbance(result.time, q, q_hats, settled,
-                                      out / "disturbance.png", diverged))
+                                      out / "disturbance.png", diverged,
+                                      names=labels.get("unknown_inputs"), title=title))
     return paths
 
 
