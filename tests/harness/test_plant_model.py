@@ -134,6 +134,29 @@ def test_linear_model_gives_the_generated_plants_errors(motor):
                                atol=1e-15)
 
 
+def test_states_without_start_values_start_the_estimators_off(motor, tmp_path):
+    """A model whose state variables accept no start value (initial calculated): it starts
+    at its own start (the origin), the estimators at z0 = -state_scale: the initial error is
+    state_scale all the same, and the homogeneous observer removes it."""
+    source = motor[0] / "motor.fmu"
+    path = _edited(source, tmp_path / "calculated.fmu", rb'(causality="local" variability='
+                   rb'"continuous") initial="exact"><Real start="0.0"', rb'\1 initial='
+                   rb'"calculated"><Real')
+    spec_path = tmp_path / "motor.toml"
+    spec_path.write_text(_spec_text(path.name, ["i", "phi", "w"]))
+    spec, design, fmus = load_spec(spec_path), motor[2], motor[3]
+    ports = model_ports(spec.plant_model, tmp_path)
+    assert not ports.settable
+    system, initial = plant_model_system(design, fmus, ports, operating_point(spec.plant_model),
+                                         spec.state_scale, 0.5, STEP)
+    assert initial == "estimators"
+    result = run_system(resolve_system(system), progress=False)
+    errors = _errors(result, system)
+    for error in errors.values():
+        np.testing.assert_allclose(error[0], STATE_SCALE, rtol=0, atol=1e-15)
+    assert np.max(np.abs(errors["homogeneous"][-1])) < 1e-2
+
+
 def _receiver(path: Path) -> Path:
     """y1 = u1 (feedthrough; after a step from t_k its output is the input set at t_k)."""
     return linear_fmu(path, [[-1.0]], [[0.0]], [[0.0]], [[1.0]], name="receiver")
@@ -203,7 +226,8 @@ def test_two_fmu_ssp_runs_its_components_coupled(tmp_path, capsys):
     components extracted into fmus/model, the estimators converge, and against the generated
     plant.fmu of the spec's matrices the states agree to the Jacobi coupling's accuracy (each
     FMU sees the others' outputs one step late: a relative error of ~ step x rho per unit
-    time, allowed 10 times; measured: 2.5 % of the current's peak, 0.3 % of the speed's, 0.09 % of the angle's)."""
+    time, allowed 10 times; measured: 2.5 % of the current's peak, 0.3 % of the speed's,
+    0.09 % of the angle's)."""
     dc_motor_ssp(tmp_path / "motor.ssp")
     spec_path = tmp_path / "motor.toml"
     assert main(["linearize", str(tmp_path / "motor.ssp"), "--system", "DC-Motor.SuT",
@@ -244,13 +268,14 @@ def _csv(path: Path) -> tuple[list[str], np.ndarray]:
     return read_results(path)
 
 
-def _me_only(source: Path, target: Path) -> Path:
-    """``source`` without its CoSimulation element."""
+def _edited(source: Path, target: Path, pattern: bytes, replacement: bytes) -> Path:
+    """``source`` with ``pattern`` replaced in its modelDescription.xml (it must occur)."""
     with zipfile.ZipFile(source) as zin, zipfile.ZipFile(target, "w") as zout:
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
-                data = re.sub(rb"<CoSimulation[^>]*/>", b"", data)
+                data, count = re.subn(pattern, replacement, data)
+                assert count, pattern
             zout.writestr(item, data)
     return target
 
@@ -262,7 +287,7 @@ def test_refusals_are_one_paragraph_and_write_nothing(motor, tmp_path, capsys, c
     source = motor[0] / "motor.fmu"
     model, states = "motor.fmu", ["i", "phi", "w"]
     if case == "model_exchange_only":
-        model = _me_only(source, tmp_path / "me_only.fmu").name
+        model = _edited(source, tmp_path / "me_only.fmu", rb"<CoSimulation[^>]*/>", b"").name
     elif case == "unknown_state":
         (tmp_path / model).write_bytes(source.read_bytes())
         states = ["i", "phii", "w"]
