@@ -71,6 +71,7 @@ from harness.results import (
     write_csv,
     write_summary,
 )
+from harness.sweep import CONNECT_TIMEOUT, MAX_SEEDS
 from harness.system import (
     DescriptionError,
     SystemSpec,
@@ -218,6 +219,9 @@ def _parser() -> argparse.ArgumentParser:
                                            "(tcp://HOST:PORT); default: a local cluster")
     sweep.add_argument("--workers", type=int, help="local cluster's worker processes "
                                                    "(default: the core count)")
+    sweep.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT,
+                       metavar="SECONDS", help="seconds the --scheduler has to answer "
+                                               f"(default {CONNECT_TIMEOUT:g})")
     sweep.add_argument("--retry-failed", action="store_true", help="rerun the failed points")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -413,6 +417,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for option in ("seeds", "jobs"):
         if getattr(args, option) is not None and getattr(args, option) < 1:
             raise DescriptionError(f"--{option} = {getattr(args, option)} must be >= 1")
+    if args.seeds is not None and args.seeds > MAX_SEEDS:
+        raise DescriptionError(f"--seeds = {args.seeds}: at most {MAX_SEEDS} seeds (each is a "
+                               "run; the figures are their mean)")
     check_output_folder(args.out)
     spec = load_scenario(args.scenario, args.fmu_dir, args.block_cache)
     if args.step is not None:
@@ -769,13 +776,21 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from harness.sweep import check_workers, format_report, load_sweep, run_sweep
+    from harness.sweep import (
+        check_connect_timeout,
+        check_workers,
+        format_report,
+        load_sweep,
+        run_sweep,
+    )
 
     check_workers(args.workers)
+    check_connect_timeout(args.connect_timeout)
     sweep = load_sweep(args.sweep)
     check_output_folder(args.out)
     report = run_sweep(sweep, args.out, args.scheduler, args.workers, args.retry_failed,
-                       not args.no_progress, not args.no_plots)
+                       not args.no_progress, not args.no_plots,
+                       connect_timeout=args.connect_timeout)
     print(format_report(report, sweep, args.out))
     return 1 if report.failed else 0
 

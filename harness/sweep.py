@@ -61,8 +61,9 @@ runs the FMUs named in it; a plant-spec base runs :func:`harness.own_plant.own_p
 Every finished row is written at once to ``DIR/points/<key>.json`` (the key is a hash of the
 point and of the files it depends on); a re-run of the same command skips the points that
 have a row (``--retry-failed`` reruns the failed ones). At the end ``DIR/sweep.parquet`` and
-``DIR/sweep.csv`` hold one row per point, and ``DIR/plots/`` each figure against each swept
-axis and, with ``[pareto]``, the Pareto picture.
+``DIR/sweep.csv`` hold one row per point (:func:`read_table` reads either back as a pandas
+DataFrame), and ``DIR/plots/`` each figure against each swept axis and, with ``[pareto]``, the
+Pareto picture (:mod:`harness.sweep_plots`).
 """
 
 from __future__ import annotations
@@ -104,9 +105,18 @@ RUN_AXES = ("base", "seed", "step", "stop_time")
 """Axes that are not spec entries or start values."""
 DISTRIBUTIONS = ("uniform", "loguniform", "integers", "choice")
 STATUS_OK, STATUS_FAILED = "ok", "failed"
-PARETO_LABELS = 12
-"""The Pareto picture labels an estimator's points when it has at most this many (more
-labels would cover each other and the picture)."""
+MAX_POINTS = 100_000
+"""The most points a sweep file may have (each is a co-simulation and a row)."""
+MAX_SEEDS = 1000
+"""The most distinct seeds of a sweep (and of ``harness run --seeds``)."""
+MAX_SEED = 2**31 - 1
+"""The largest seed: the plant FMU's ``noise_seed`` is an FMI Integer (int32)."""
+WORKERS_PER_CORE = 4
+"""``--workers`` is at most this many times the core count (one thread each)."""
+CONNECT_TIMEOUT = 30.0
+"""Seconds a ``--scheduler`` has to accept the connection and answer (``--connect-timeout``)."""
+MAX_CONNECT_TIMEOUT = 3600.0
+"""The longest ``--connect-timeout``."""
 
 
 class SweepError(DescriptionError):
@@ -356,9 +366,15 @@ def _combinations(data: dict[str, Any], where: str) -> list[dict[str, Any]]:
     combos: list[dict[str, Any]] = []
     for i, grid in enumerate(grids, start=1):
         combos += _grid_points(grid, f"{where}: grid" + (f" {i}" if len(grids) > 1 else ""))
+        check_size(len(combos), f"{where}: [grid]")
     if "random" in data:
         samples = _random_points(data["random"], f"{where}: [random]")
+        check_size(len(combos or [{}]) * len(samples), f"{where}: [grid] times [random]")
         combos = [c | s for c in (combos or [{}]) for s in samples]
+    seeds = {json.dumps(c["seed"]) for c in combos if "seed" in c}
+    if len(seeds) > MAX_SEEDS:
+        raise SweepError(f"{where}: axis 'seed' has {len(seeds)} values, more than a sweep may "
+                         f"have (at most {MAX_SEEDS})")
     return combos
 
 
@@ -373,8 +389,25 @@ def _grid_points(grid: dict[str, Any], where: str) -> list[dict[str, Any]]:
         if not values:
             raise SweepError(f"{where}: axis {axis!r} is empty (the grid would have no point)")
     names = sorted(axes)
+    check_size(math.prod(len(axes[n]) for n in names), where)
     return [dict(zip(names, values, strict=True))
             for values in itertools.product(*(axes[n] for n in names))]
+
+
+def check_size(points: int, where: str) -> None:
+    """SweepError when ``points`` exceeds :data:`MAX_POINTS`.
+
+    Examples
+    --------
+    >>> check_size(10**9, "sweep.toml: grid")
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: sweep.toml: grid has 1e+09 points, more than a sweep may have \
+(at most 100000); split it into several sweeps
+    """
+    if points > MAX_POINTS:
+        raise SweepError(f"{where} has {points:.3g} points, more than a sweep may have (at "
+                         f"most {MAX_POINTS}); split it into several sweeps")
 
 
 def _random_points(table: Any, where: str) -> list[dict[str, Any]]:
@@ -385,6 +418,7 @@ def _random_points(table: Any, where: str) -> list[dict[str, Any]]:
     samples = table.get("samples")
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
         raise SweepError(f"{where}: samples = {samples!r} must be an integer >= 1")
+    check_size(samples, f"{where}: samples")
     seed = table.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SweepError(f"{where}: seed = {seed!r} must be an integer >= 0")
@@ -604,7 +638,6 @@ def _describe(params: dict[str, Any]) -> str:
 def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
     from fhobs.design.spec import spec_from_dict
     from fhobs.errors import SpecError
-    from fhobs.fmu.kinds import KINDS
 
     digest = design_key(job)
     if digest not in checked:
@@ -617,11 +650,11 @@ def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
             spec_from_dict(design_spec_data(job), source=f"the spec of base {job['base']!r}")
         except SpecError as err:
             raise SweepError(f"{label}: {err}") from None
-    fmus = set(job["system"].fmus) if job["system"] is not None else set(KINDS)
-    for axis in job["params"]:
-        if axis.startswith("set.") and axis.split(".")[1] not in fmus:
-            raise SweepError(f"{label}: axis {axis!r}: no FMU {axis.split('.')[1]!r} in base "
-                             f"{job['base']!r} (FMUs: {', '.join(sorted(fmus))})")
+    check_seed(job["seed"], label)
+    fmus = fmu_variables(job)
+    for axis, value in job["params"].items():
+        if axis.startswith("set."):
+            _check_start(axis, value, fmus, job, label)
     step, stop = job["step"], job["stop_time"]
     system = job["system"]
     if system is not None:
@@ -633,6 +666,95 @@ def _check_point(job: dict[str, Any], label: str, checked: set[str]) -> None:
             check_timing(step, start, stop, "step/stop_time")
         except DescriptionError as err:
             raise SweepError(f"{label}: {err}") from None
+
+
+def check_seed(seed: Any, where: str) -> None:
+    """SweepError unless ``seed`` is None or a whole number in 0..:data:`MAX_SEED`.
+
+    Examples
+    --------
+    >>> check_seed(-1, "sweep.toml: point 0 (seed = -1)")
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: sweep.toml: point 0 (seed = -1): axis 'seed' = -1 must be a whole \
+number from 0 to 2147483647 (the plant FMU's noise_seed, an FMI Integer)
+    """
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)
+                             or not 0 <= seed <= MAX_SEED):
+        raise SweepError(f"{where}: axis 'seed' = {seed!r} must be a whole number from 0 to "
+                         f"{MAX_SEED} (the plant FMU's noise_seed, an FMI Integer)")
+
+
+def fmu_variables(job: dict[str, Any]) -> dict[str, tuple[str, ...] | None]:
+    """The FMUs of a point's system with the names of their variables: a kind's FMU (built
+    for the point) its declared variables (:data:`fhobs.fmu.kinds.KINDS`), an FMU file its
+    model description's scalar variables, a harness block None (not known before it is built).
+
+    Examples
+    --------
+    >>> sweep = load_sweep("pendulum_noisy_seeds")
+    >>> fmus = fmu_variables(make_job(sweep.bases["pendulum_noisy"], {}, sweep.settings))
+    >>> sorted(fmus), "x0" in fmus["plant"]
+    (['kalman', 'linear', 'observer', 'perturbation', 'plant'], True)
+    """
+    from fhobs.fmu.kinds import KINDS
+
+    from harness.fmu_files import description
+
+    if job["system"] is None:
+        return {name: tuple(v.name for v in kind.variables) for name, kind in KINDS.items()}
+    out: dict[str, tuple[str, ...] | None] = {}
+    for name, fs in job["system"].fmus.items():
+        if fs.path is None:
+            out[name] = None
+        elif str(fs.path).startswith(FMU_PLACEHOLDER):
+            out[name] = tuple(v.name for v in KINDS[Path(fs.path).stem].variables)
+        else:
+            out[name] = tuple(v.name for v in description(fs.path).modelVariables)
+    return out
+
+
+def _check_start(axis: str, value: Any, fmus: dict[str, tuple[str, ...] | None],
+                 job: dict[str, Any], label: str) -> None:
+    """SweepError unless ``set.FMU.VAR = value`` names an FMU of the point's system and, where
+    its variables are known before the run, a variable of it with as many elements as the
+    value (the plant FMU's ``x0``: the spec's n)."""
+    from harness.system import expand_start
+
+    _, fmu, var = axis.split(".", 2)
+    where = f"{label}: axis {axis!r} = {json.dumps(value)}"
+    if fmu not in fmus:
+        raise SweepError(f"{label}: axis {axis!r}: no FMU {fmu!r} in base {job['base']!r} "
+                         f"(FMUs: {', '.join(sorted(fmus))})")
+    try:
+        names = expand_start(var, value)
+    except DescriptionError as err:
+        raise SweepError(f"{where}: {err}") from None
+    known = fmus[fmu]
+    if known is None:
+        return
+    kind = job["system"] is None or str(job["system"].fmus[fmu].path).startswith(
+        FMU_PLACEHOLDER)
+    have = set(known) if kind else {n.partition("[")[0] for n in known}
+    if var not in have:
+        raise SweepError(f"{where}: FMU {fmu!r} has no variable {var!r} (its variables: "
+                         f"{', '.join(dict.fromkeys(n.partition('[')[0] for n in known))})")
+    size = len(names) if isinstance(value, list) else 0
+    expected = _expected_size(job, fmu, var) if kind else sum(
+        n.partition("[")[0] == var and "[" in n for n in known)
+    if expected is not None and size != expected:
+        what = f"{expected} values" if expected else "a number"
+        raise SweepError(f"{where}: {fmu}.{var} takes {what}, not "
+                         f"{size or 'a number'}{' values' if size else ''}")
+
+
+def _expected_size(job: dict[str, Any], fmu: str, var: str) -> int | None:
+    """The number of elements of a kind's array variable known from the spec alone: the
+    plant's ``x0`` (n); None for the others."""
+    kind = fmu if job["system"] is None else Path(job["system"].fmus[fmu].path).stem
+    if (kind, var) == ("plant", "x0"):
+        return len(design_spec_data(job)["A"])
+    return None
 
 
 # -- a point's job: what travels to a worker ---------------------------------------------------
@@ -1043,7 +1165,8 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
     Returns
     -------
     dict
-        The point's parameters, ``status`` (``ok`` or ``failed``), ``reason``, the figures
+        The point's parameters, ``status`` (``ok`` or ``failed``), ``reason``, ``note`` (the
+        ``[evaluation]`` entries beyond its run, :func:`clipped_note`, or ''), the figures
         ``<estimator>.<figure>``, ``wall_time_s`` (the whole point), ``cosim_s`` (its run),
         ``build_s`` (its design and FMU build, shared with the points of the same design),
         ``started_at``/``finished_at`` (Unix time), ``worker`` and ``pid``.
@@ -1057,16 +1180,19 @@ def run_point(job: dict[str, Any], bundle: dict[str, Any] | None = None) -> dict
     """
     from harness.master import MasterError, run_system
     from harness.results import error_figures
-    from harness.system import resolve_system
+    from harness.system import evaluation_outside, resolve_system
 
     started, clock = time.time(), time.perf_counter()
-    row: dict[str, Any] = {"status": STATUS_OK, "reason": "", "cosim_s": math.nan}
+    row: dict[str, Any] = {"status": STATUS_OK, "reason": "", "note": "", "cosim_s": math.nan}
     try:
         with np.errstate(all="ignore"):
             if bundle is not None:
                 row["build_s"] = bundle["build_s"]
                 install_bundle(job, bundle)
             system, stop = point_system(job)
+            end = system.stop_time if stop is None else stop
+            outside = evaluation_outside(system.evaluation, system.start_time, end)
+            row["note"] = clipped_note(end, outside) if outside else ""
             result = run_system(resolve_system(system), stop, progress=False)
         row["cosim_s"] = result.wall_time_s
         row["steps"] = result.steps
@@ -1105,9 +1231,11 @@ def _worker_name() -> str:
 
 # -- the engine -------------------------------------------------------------------------------
 @contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
-    """A dask.distributed client: of the cluster at ``scheduler``, or of an embedded
-    LocalCluster of ``workers`` worker processes (default: the core count), one thread each.
+def dask_client(scheduler: str | None = None, workers: int | None = None,
+                connect_timeout: float = CONNECT_TIMEOUT) -> Iterator[Any]:
+    """A dask.distributed client: of the cluster at ``scheduler`` (which must answer within
+    ``connect_timeout`` seconds, :func:`check_scheduler`), or of an embedded LocalCluster of
+    ``workers`` worker processes (default: the core count), one thread each.
 
     Examples
     --------
@@ -1120,8 +1248,9 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
+        check_scheduler(scheduler, connect_timeout)
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(scheduler, timeout=f"{connect_timeout}s")
         except (OSError, TimeoutError) as err:
             raise SweepError(f"--scheduler {scheduler}: cannot connect ({err}); start one with "
                              "`dask scheduler` and workers with `dask worker ADDRESS`") from None
@@ -1190,7 +1319,8 @@ class SweepReport:
 
 def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: int | None = None,
               retry_failed: bool = False, progress: bool = True,
-              plots: bool = True, client: Any = None) -> SweepReport:
+              plots: bool = True, client: Any = None,
+              connect_timeout: float = CONNECT_TIMEOUT) -> SweepReport:
     """Run the points of ``sweep`` that have no row in ``out`` yet, then write the table.
 
     Parameters
@@ -1212,6 +1342,8 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
         Draw the PNGs.
     client : distributed.Client, optional
         A client to use (``scheduler`` and ``workers`` are then ignored).
+    connect_timeout : float
+        Seconds ``scheduler`` has to answer (:func:`check_scheduler`).
 
     Returns
     -------
@@ -1241,7 +1373,7 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
         with contextlib.ExitStack() as stack:
             stack.enter_context(engine_log(log))
             if client is None:
-                client = stack.enter_context(dask_client(scheduler, workers))
+                client = stack.enter_context(dask_client(scheduler, workers, connect_timeout))
                 if scheduler is None:
                     client.register_plugin(EngineLog(log))
             bar = stack.enter_context(tqdm(total=len(todo), desc=f"sweep {sweep.name}",
@@ -1252,6 +1384,8 @@ def run_sweep(sweep: Sweep, out: Path, scheduler: str | None = None, workers: in
     rows = _ordered_rows(sweep, read_rows(points_dir))
     files = write_table(rows, out)
     if plots:
+        from harness.sweep_plots import plot_sweep
+
         files += plot_sweep(rows, sweep, out / "plots")
     failed = sum(r["status"] != STATUS_OK for r in rows)
     return SweepReport(rows, len(todo), len(sweep.points) - len(todo), failed, files,
@@ -1364,9 +1498,10 @@ def _ordered_rows(sweep: Sweep, rows: dict[str, dict[str, Any]]) -> list[dict[st
 
 def write_table(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """``sweep.parquet`` and ``sweep.csv``: one row per point, one column per key (lists as
-    JSON text, a figure a point lacks as null). Each file is written whole and the two
-    together: a signal meanwhile ends the command after both
-    (:func:`harness.writing.completed`).
+    JSON text, a figure a point lacks as null). Both are written to temporary names and
+    renamed over the previous ones when both are complete (a failure leaves the previous
+    table, :func:`harness.writing.atomic_path`); a signal meanwhile ends the command after
+    both (:func:`harness.writing.completed`).
 
     Examples
     --------
@@ -1385,11 +1520,41 @@ def write_table(rows: list[dict[str, Any]], out: Path) -> list[Path]:
         pa.table({"point": pa.array([], pa.int64())})
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "sweep.parquet", out / "sweep.csv"]
-    with completed(f"the sweep table was written to {out} (points/ holds each point's row)"):
+    with completed(f"the sweep table was written to {out} (points/ holds each point's row)"), \
+            contextlib.ExitStack() as renames:  # both renamed once both are written
         for path, write in zip(paths, (pq.write_table, pa_csv.write_csv), strict=True):
-            with atomic_path(path) as tmp:
-                write(table, str(tmp))
+            write(table, str(renames.enter_context(atomic_path(path))))
     return paths
+
+
+def read_table(path: str | Path) -> Any:
+    """A sweep's table as a pandas DataFrame: ``DIR/sweep.parquet`` (or ``sweep.csv``, or the
+    folder ``DIR``), one row per point; lists are JSON text, a figure a point lacks is NaN
+    (a number column) or None.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> out = Path(tempfile.mkdtemp())
+    >>> _ = write_table([{"point": 0, "rho": 3.0, "kalman.peak": 1.5},
+    ...                  {"point": 1, "rho": 4.0}], out)
+    >>> frame = read_table(out)
+    >>> frame["rho"].tolist(), frame["kalman.peak"].isna().tolist()
+    ([3.0, 4.0], [False, True])
+    """
+    from fhobs.extras import require
+
+    require("pandas", "sweep")
+    path = Path(path)
+    if path.is_dir():
+        path = path / "sweep.parquet"
+    if path.suffix == ".csv":
+        import pyarrow.csv as pa_csv
+
+        return pa_csv.read_csv(str(path)).to_pandas()
+    import pyarrow.parquet as pq
+
+    return pq.read_table(str(path)).to_pandas()
 
 
 def _cell(value: Any) -> Any:
@@ -1429,77 +1594,29 @@ def figure_columns(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
     return out
 
 
-def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path]:
-    """Each figure against each numeric swept axis (one PNG per axis) and, with ``[pareto]``,
-    the Pareto picture; the finished rows only.
-
-    Returns
-    -------
-    list of Path
-        The PNGs written (none without finished rows).
-
-    Examples
-    --------
-    >>> report = run_sweep(sweep, Path("out"), plots=False)         # doctest: +SKIP
-    >>> [p.name for p in plot_sweep(report.rows, sweep, Path("out/plots"))]  # doctest: +SKIP
-    ['seed.png', 'pareto.png']
-    """
-    ok = [r for r in rows if r.get("status") == STATUS_OK]
-    figures = figure_columns(ok)
-    if not ok or not figures:
-        return []
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [_plot_axis(ok, axis, figures, out) for axis in sweep.axes
-             if any(r.get(axis) is not None for r in ok)]
-    if sweep.pareto:
-        path = plot_pareto(ok, sweep, out / "pareto.png")
-        if path is not None:
-            paths.append(path)
-    return paths
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def _plot_axis(rows: list[dict[str, Any]], axis: str, figures: dict[str, list[str]],
-               out: Path) -> Path:
-    """One PNG: every figure (a panel each) against ``axis``, per estimator; the rows that
-    have the axis; a non-numeric axis (base, a start vector) by its values' order."""
-    from harness.figures import new_figure, save_figure
-
-    rows = [r for r in rows if r.get(axis) is not None]
-    numeric = all(_is_number(r[axis]) for r in rows)
-    labels = list(dict.fromkeys(json.dumps(r[axis]) for r in rows))
-    x = [r[axis] if numeric else labels.index(json.dumps(r[axis])) for r in rows]
-    fig, axes = new_figure(1, len(figures), (4.5 * len(figures), 3.6), layout="constrained")
-    for ax, (figure, estimators) in zip(axes[0], figures.items(), strict=True):
-        for estimator in estimators:
-            y = [r.get(f"{estimator}.{figure}") for r in rows]
-            pairs = [(a, b) for a, b in zip(x, y, strict=True)
-                     if b is not None and 0 < b < math.inf]  # the log axis's values
-            if pairs:
-                ax.semilogy(*zip(*pairs, strict=True), "o", ms=4, label=estimator)
-        if not numeric:
-            ax.set_xticks(range(len(labels)), [t.strip('"') for t in labels], fontsize=7,
-                          rotation=20)
-        ax.set_xlabel(axis)
-        ax.set_title(figure, fontsize=9)
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].legend(fontsize=8)
-    path = out / f"{axis.replace('/', '_')}.png"
-    return save_figure(fig, path, 100)
-
-
 class ParetoPoint(NamedTuple):
     """One design of one estimator in the Pareto picture: ``x`` its max error in the
     perturbation base, ``y`` its RMS error in the noisy base (mean over the seeds), ``label``
-    and ``params`` its design's axis values (``{axis: value}``)."""
+    and ``params`` its design's axis values (``{axis: value}``), ``y_min`` and ``y_max`` the
+    least and largest RMS over the seeds (``y`` when not given)."""
 
     x: float
     y: float
     label: str
     params: dict[str, Any]
+    y_min: float = math.nan
+    y_max: float = math.nan
+
+    def spread(self) -> tuple[float, float]:
+        """``(y_min, y_max)``, each ``y`` when not given.
+
+        Examples
+        --------
+        >>> ParetoPoint(1.0, 2.0, "a", {}).spread(), ParetoPoint(1.0, 2.0, "a", {}, 1.5).spread()
+        ((2.0, 2.0), (1.5, 2.0))
+        """
+        return (self.y if math.isnan(self.y_min) else self.y_min,
+                self.y if math.isnan(self.y_max) else self.y_max)
 
 
 def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[ParetoPoint]]:
@@ -1520,12 +1637,13 @@ def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[Pa
     ...         {"base": "pendulum_noisy", "seed": 0, "kalman.rms_error_1_3": 2e-3},
     ...         {"base": "pendulum_noisy", "seed": 1, "kalman.rms_error_1_3": 4e-3}]
     >>> pareto_points(rows, sweep)
-    {'kalman': [ParetoPoint(x=0.001, y=0.003, label='no axis', params={})]}
+    {'kalman': [ParetoPoint(x=0.001, y=0.003, label='no axis', params={}, y_min=0.002, \
+y_max=0.004)]}
     """
-    xfig = _first(rows, sweep.pareto["perturbation"], "max_error_")
-    yfig = _first(rows, sweep.pareto["noisy"], "rms_error_")
-    if xfig is None or yfig is None:
+    figures = pareto_figures(rows, sweep)
+    if figures is None:
         return {}
+    xfig, yfig = figures
     others = [a for a in sweep.axes if a not in ("base", "seed")]
     selected = sweep.pareto.get("estimators") or dict.fromkeys(
         figure_columns(rows).get(xfig, []), others)
@@ -1548,9 +1666,26 @@ def pareto_points(rows: list[dict[str, Any]], sweep: Sweep) -> dict[str, list[Pa
             ys = [r.get(f"{estimator}.{yfig}") for r in noisy]
             if None in xs or None in ys:
                 continue
-            out.setdefault(estimator, []).append(
-                ParetoPoint(float(np.mean(xs)), float(np.mean(ys)), label, params))
+            out.setdefault(estimator, []).append(ParetoPoint(
+                float(np.mean(xs)), float(np.mean(ys)), label, params, float(min(ys)),
+                float(max(ys))))
     return out
+
+
+def pareto_figures(rows: list[dict[str, Any]], sweep: Sweep) -> tuple[str, str] | None:
+    """The Pareto picture's figures: the first max error of the perturbation base's rows and
+    the first RMS error of the noisy base's; None when one is missing.
+
+    Examples
+    --------
+    >>> pareto_figures([{"base": "pendulum_perturbed", "kalman.max_error_1_3": 1.0},
+    ...                 {"base": "pendulum_noisy", "kalman.rms_error_1_3": 1.0}],
+    ...                load_sweep("pendulum_noisy_seeds"))
+    ('max_error_1_3', 'rms_error_1_3')
+    """
+    xfig = _first(rows, sweep.pareto["perturbation"], "max_error_")
+    yfig = _first(rows, sweep.pareto["noisy"], "rms_error_")
+    return None if xfig is None or yfig is None else (xfig, yfig)
 
 
 def _first(rows: list[dict[str, Any]], base: str, prefix: str) -> str | None:
@@ -1564,39 +1699,9 @@ def _first(rows: list[dict[str, Any]], base: str, prefix: str) -> str | None:
     return None
 
 
-def plot_pareto(rows: list[dict[str, Any]], sweep: Sweep, path: Path) -> Path | None:
-    """The Pareto picture: noisy RMS against perturbation max error, per estimator, each
-    point labelled by its design while the estimator has at most :data:`PARETO_LABELS` (None
-    when the sweep lacks one of the two figures).
-
-    Examples
-    --------
-    >>> plot_pareto(rows, load_sweep("pendulum_noisy_seeds"), Path("pareto.png"))  # doctest: +SKIP
-    PosixPath('pareto.png')
-    """
-    from harness.figures import new_figure, save_figure
-
-    points = pareto_points(rows, sweep)
-    if not points:
-        return None
-    fig, axes = new_figure(1, 1, (7, 5), layout="constrained")
-    ax = axes[0, 0]
-    for estimator, values in points.items():
-        ax.loglog([p.x for p in values], [p.y for p in values], "o", ms=6, label=estimator)
-        for p in values if 1 < len(values) <= PARETO_LABELS else ():
-            ax.annotate(p.label, (p.x, p.y), fontsize=6, xytext=(3, 3),
-                        textcoords="offset points")
-    ax.set_xlabel(f"{sweep.pareto['perturbation']}: max error (first window)")
-    ax.set_ylabel(f"{sweep.pareto['noisy']}: RMS error (first window, mean over seeds)")
-    ax.set_title(f"sweep {sweep.name}: noise against perturbation", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    return save_figure(fig, path, 100)
-
-
 def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
     """The command's closing lines: counts, one line per failure reason
-    (:func:`failure_lines`), files, the engine's log.
+    (:func:`failure_lines`) and per note (:func:`note_lines`), files, the engine's log.
 
     Examples
     --------
@@ -1607,7 +1712,7 @@ def format_report(report: SweepReport, sweep: Sweep, out: Path) -> str:
     """
     lines = [f"sweep {sweep.name}: {len(sweep.points)} points, {report.ran} run now, "
              f"{report.skipped} done before, {report.failed} failed, {report.elapsed_s:.1f} s"]
-    lines += failure_lines(report.rows)
+    lines += failure_lines(report.rows) + note_lines(report.rows)
     lines.append(f"table: {out / 'sweep.parquet'}, {out / 'sweep.csv'}")
     pngs = [str(p) for p in report.files if p.suffix == ".png"]
     if pngs:
@@ -1639,8 +1744,43 @@ def failure_lines(rows: list[dict[str, Any]]) -> list[str]:
             f"{each[0]}): {reason}" for reason, each in points.items()]
 
 
+def note_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per distinct note of the finished rows (an ``[evaluation]`` entry beyond a
+    point's run, :func:`clipped_note`): how many points, the first of them, the note.
+
+    Examples
+    --------
+    >>> rows = [{"point": 0, "status": "ok", "note": "stop_time 0.05 ends ..."},
+    ...         {"point": 1, "status": "ok", "note": ""},
+    ...         {"point": 2, "status": "ok", "note": "stop_time 0.05 ends ..."}]
+    >>> note_lines(rows)
+    ['  note: 2 points (first: point 0): stop_time 0.05 ends ...']
+    """
+    points: dict[str, list[int]] = {}
+    for row in rows:
+        if row.get("status") == STATUS_OK and row.get("note"):
+            points.setdefault(row["note"], []).append(row["point"])
+    return [f"  note: {len(each)} point{'s' if len(each) > 1 else ''} (first: point "
+            f"{each[0]}): {note}" for note, each in points.items()]
+
+
+def clipped_note(stop: float, outside: list[str]) -> str:
+    """A point's note when its run ends before entries of its ``[evaluation]``
+    (:func:`harness.system.evaluation_outside`), as ``harness run --stop-time`` says it.
+
+    Examples
+    --------
+    >>> clipped_note(0.05, ["at = 0.1", "window [0.1, 0.2]"])
+    'stop_time 0.05 ends the run before its [evaluation] at = 0.1, window [0.1, 0.2]: no \
+figures for them'
+    """
+    return (f"stop_time {stop:g} ends the run before its [evaluation] {', '.join(outside)}: "
+            "no figures for them")
+
+
 def check_workers(workers: int | None) -> None:
-    """SweepError unless ``--workers`` is None or >= 1.
+    """SweepError unless ``--workers`` is None or from 1 to :data:`WORKERS_PER_CORE` times the
+    core count.
 
     Examples
     --------
@@ -1648,12 +1788,88 @@ def check_workers(workers: int | None) -> None:
     Traceback (most recent call last):
     ...
     harness.sweep.SweepError: --workers = 0 must be >= 1
+    >>> check_workers(10**6)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: --workers = 1000000: at most ... (4 per core of this machine's ...)
     """
     if workers is not None and workers < 1:
         raise SweepError(f"--workers = {workers} must be >= 1")
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > WORKERS_PER_CORE * cores:
+        raise SweepError(f"--workers = {workers}: at most {WORKERS_PER_CORE * cores} "
+                         f"({WORKERS_PER_CORE} per core of this machine's {cores}; each worker "
+                         "is a process running one point at a time)")
 
 
-__all__ = ["Base", "ParetoPoint", "Point", "Sweep", "SweepError", "SweepReport", "dask_client",
-           "failure_lines", "fmu_bundle", "load_sweep", "make_job", "pareto_points",
-           "plot_sweep", "point_jobs", "point_key", "run_in_process", "run_point", "run_sweep",
+def check_connect_timeout(seconds: float) -> None:
+    """SweepError unless ``--connect-timeout`` is > 0 and at most :data:`MAX_CONNECT_TIMEOUT`.
+
+    Examples
+    --------
+    >>> check_connect_timeout(float("nan"))
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: --connect-timeout = nan must be > 0 and at most 3600 s
+    """
+    if not 0.0 < seconds <= MAX_CONNECT_TIMEOUT:
+        raise SweepError(f"--connect-timeout = {seconds:g} must be > 0 and at most "
+                         f"{MAX_CONNECT_TIMEOUT:g} s")
+
+
+def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """SweepError unless a dask scheduler answers at ``address`` within ``timeout`` seconds:
+    a ``tcp://HOST:PORT`` (or ``HOST:PORT``) address, connected to and asked its identity.
+
+    Examples
+    --------
+    >>> check_scheduler("http://localhost:8786")
+    Traceback (most recent call last):
+    ...
+    harness.sweep.SweepError: --scheduler http://localhost:8786: not a dask scheduler's address: \
+give tcp://HOST:PORT (the address `dask scheduler` prints)
+    """
+    import asyncio
+
+    scheme, sep, rest = address.partition("://")
+    host, _, port = (rest if sep else address).rpartition(":")
+    if (sep and scheme != "tcp") or not host or not port.isdigit():
+        tls = " (TLS needs certificates this command does not take)" if scheme == "tls" else ""
+        raise SweepError(f"--scheduler {address}: not a dask scheduler's address{tls}: give "
+                         "tcp://HOST:PORT (the address `dask scheduler` prints)")
+    try:
+        asyncio.run(_identity(f"tcp://{host}:{port}", timeout))
+    except (OSError, TimeoutError, ValueError, KeyError) as err:
+        raise SweepError(
+            f"--scheduler {address}: no dask scheduler answered within {timeout:g} s "
+            f"({type(err).__name__}{': ' if str(err) else ''}{err}); start one with `dask "
+            "scheduler` and workers with `dask worker ADDRESS`, or give a longer "
+            "--connect-timeout") from None
+
+
+async def _identity(address: str, timeout: float) -> dict[str, Any]:
+    """The scheduler's answer to ``identity`` (a dict with its ``type``), each step of the
+    exchange bounded by ``timeout`` seconds in all."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def exchange() -> dict[str, Any]:
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            answer = await comm.read()
+        finally:
+            comm.abort()
+        if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+            raise ValueError(f"the server answered {str(answer)[:80]!r}, not as a scheduler")
+        return answer
+
+    return await asyncio.wait_for(exchange(), timeout)
+
+
+__all__ = ["Base", "ParetoPoint", "Point", "Sweep", "SweepError", "SweepReport",
+           "check_connect_timeout", "check_scheduler", "dask_client", "failure_lines",
+           "fmu_bundle", "load_sweep", "make_job", "pareto_figures", "pareto_points",
+           "point_jobs", "point_key", "read_table", "run_in_process", "run_point", "run_sweep",
            "sweep_from_table", "write_table"]

@@ -72,6 +72,24 @@ BAD_FILES = {
                       "converged = 0 must be > 0"),
     "errors in a sweep": ('[evaluation.errors]\nx = ["plant.x", "observer.x_hat"]\n[grid]\n'
                           'seed = [0]\n', "unknown key 'errors'"),
+    "negative seed": ("[grid]\nseed = [0, -1]\n",
+                      "point 1 (seed = -1): axis 'seed' = -1 must be a whole number from 0"),
+    "fractional seed": ("[grid]\nseed = [1.5]\n", "axis 'seed' = 1.5 must be a whole number"),
+    "x0 length": ('[grid]\n"set.plant.x0" = [[1, 0, 3]]\n',
+                  "axis 'set.plant.x0' = [1, 0, 3]: plant.x0 takes 2 values, not 3 values"),
+    "nested axis": ('[grid.set.plant.x0]\ny = [[1, 0]]\n',
+                    "axis 'set.plant.x0.y' = [1, 0]: FMU 'plant' has no variable 'x0.y'"),
+    "unknown variable": ('[grid]\n"set.plant.xq" = [1.0]\n', "FMU 'plant' has no variable 'xq'"),
+    "huge grid": ("[grid]\n" + "".join(f"{axis} = {list(range(1, 1001))}\n"
+                                       for axis in ("rho", "gamma", "nu")),
+                  "grid has 1e+09 points, more than a sweep may have (at most 100000)"),
+    "huge random": ("[random]\nsamples = 1000000000\n[random.axes]\nrho = {uniform = [1, 2]}\n",
+                    "samples has 1e+09 points, more than a sweep may have"),
+    "grid times random": ("[grid]\nrho = " + str(list(range(1, 1001))) + "\n[random]\n"
+                          "samples = 1000\n[random.axes]\ngamma = {uniform = [1, 2]}\n",
+                          "[grid] times [random] has 1e+06 points"),
+    "too many seeds": (f"[grid]\nseed = {list(range(1001))}\n",
+                       "axis 'seed' has 1001 values, more than a sweep may have (at most 1000)"),
 }
 
 
@@ -102,6 +120,73 @@ def test_missing_files_and_options_are_errors(tmp_path, capsys):
     assert "base 'missing/plant.toml': no such file" in err and err.count("\n") == 1
     assert main(["sweep", str(path), "--out", str(tmp_path), "--workers", "0"]) == 2
     assert "--workers = 0 must be >= 1" in capsys.readouterr().err
+    many = 4 * (os.cpu_count() or 1) + 1
+    assert main(["sweep", str(path), "--out", str(tmp_path), "--workers", str(many)]) == 2
+    assert f"--workers = {many}: at most {many - 1} (4 per core" in capsys.readouterr().err
+    for timeout in ("0", "nan", "1e6"):
+        assert main(["sweep", str(path), "--out", str(tmp_path), "--connect-timeout",
+                     timeout]) == 2
+        assert "--connect-timeout" in capsys.readouterr().err
+    assert main(["run", "pendulum_noisy", "--out", str(tmp_path), "--seeds", "1001"]) == 2
+    assert "--seeds = 1001: at most 1000 seeds" in capsys.readouterr().err
+
+
+def silent_server() -> tuple[int, object]:
+    """A local TCP server that accepts connections and never answers: its port and socket."""
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    held: list = []
+    threading.Thread(target=lambda: held.extend(iter(server.accept, None)), daemon=True).start()
+    return server.getsockname()[1], server
+
+
+def test_scheduler_that_never_answers_or_is_no_dask_address(tmp_path, capsys):
+    """--scheduler: a server that accepts and says nothing is given up after
+    --connect-timeout (1 s here, not the 300 s it hung before), an HTTP or TLS address at once:
+    exit 2, one line naming the address, no traceback, no point run."""
+    path = write_sweep(tmp_path, [0])
+    port, server = silent_server()
+    try:
+        for address, expected, most in (
+                (f"tcp://127.0.0.1:{port}", "no dask scheduler answered within 1 s", 8.0),
+                (f"http://127.0.0.1:{port}", "not a dask scheduler's address", 2.0),
+                (f"tls://127.0.0.1:{port}", "not a dask scheduler's address (TLS", 2.0)):
+            started = time.perf_counter()
+            code = main(["sweep", str(path), "--out", str(tmp_path / "out"), "--scheduler",
+                         address, "--connect-timeout", "1", "--no-progress"])
+            elapsed = time.perf_counter() - started
+            err = capsys.readouterr().err
+            assert code == 2 and elapsed < most, (address, elapsed)
+            assert f"--scheduler {address}: {expected}" in err, err
+            assert err.count("\n") == 1 and "Traceback" not in err
+            assert not read_rows(tmp_path / "out" / "points")
+    finally:
+        server.close()
+
+
+def test_points_beyond_their_evaluation_are_marked_as_run_marks_them(tmp_path):
+    """A point whose stop_time ends the run before its [evaluation] is ok with a note (the
+    words of `harness run --stop-time`) and no figure of those entries; the report has one
+    line for it; the other point has figures and no note."""
+    from harness.sweep import SweepReport, format_report, run_in_process
+
+    path = write_sweep(tmp_path, [0])
+    path.write_text(path.read_text().replace("stop_time = 0.2\n", "").replace(
+        "[[grid]]\n", "[[grid]]\nstop_time = [0.05, 0.2]\n"))
+    sweep = load_sweep(path)
+    rows = run_in_process(sweep)
+    short, full = sorted(rows, key=lambda r: r["stop_time"])
+    assert short["status"] == full["status"] == STATUS_OK
+    assert short["note"] == ("stop_time 0.05 ends the run before its [evaluation] at = 0.1, "
+                             "window [0.1, 0.2]: no figures for them")
+    assert not [k for k in short if k.endswith(("error_at_0_1", "_error_0_1_0_2"))]
+    assert full["note"] == "" and [k for k in full if k.endswith("rms_error_0_1_0_2")]
+    report = format_report(SweepReport(rows, 2, 0, 0, [], 1.0), sweep, tmp_path)
+    assert f"  note: 1 point (first: point {short['point']}): {short['note']}" in report
 
 
 def test_grid_and_random_points_are_reproducible(tmp_path):
@@ -143,11 +228,12 @@ def test_bundled_sweep_is_the_main_jobs_noisy_seeds():
 # -- the engine -------------------------------------------------------------------------------
 @pytest.mark.slow  # three LocalClusters, ~15 s; the sweep files and points stay in the fast tests
 def test_local_cluster_runs_every_point_then_resumes(tmp_path):
-    """Two worker processes run four points (one fails: a start value the plant FMU lacks;
-    the sweep goes on); the table has one row per point in Parquet and CSV, with the figures
-    per estimator; a re-run computes nothing (the rows' finish times unchanged); a point
-    whose row is removed is the only one run again."""
-    path = write_sweep(tmp_path, [0, 1, 2], extra='[[grid]]\n"set.plant.bogus" = [1.0]\n')
+    """Two worker processes run four points (one fails: a rho the design refuses, found only
+    when designing; the sweep goes on); the table has one row per point in Parquet and CSV,
+    with the figures per estimator; the seeds' spread is plotted, not a seed axis; a re-run
+    computes nothing (the rows' finish times unchanged); a point whose row is removed is the
+    only one run again."""
+    path = write_sweep(tmp_path, [0, 1, 2], extra='[[grid]]\nrho = [1e13]\n')
     sweep = load_sweep(path)
     out = tmp_path / "out"
     report = run_sweep(sweep, out, workers=2, progress=False)
@@ -164,8 +250,8 @@ def test_local_cluster_runs_every_point_then_resumes(tmp_path):
         assert row["steps"] == 200 and row["wall_time_s"] > 0.0
     assert ok[0]["homogeneous.rms_error_0_1_0_2"] != ok[1]["homogeneous.rms_error_0_1_0_2"]
     failed = table[3]
-    assert failed["status"] == STATUS_FAILED and "bogus" in failed["reason"]
-    assert (out / "plots" / "seed.png").is_file()
+    assert failed["status"] == STATUS_FAILED and "observer.rho" in failed["reason"]
+    assert sorted(p.name for p in (out / "plots").iterdir()) == ["spread.png"]
 
     before = read_rows(out / "points")
     again = run_sweep(sweep, out, workers=2, progress=False, plots=False)
@@ -463,34 +549,6 @@ def test_bundled_noise_tradeoff_sweep_is_the_benchs_points():
             "filter_scale": 2.0} in homogeneous
     assert sweep.settings["fmus"] == "native" and set(sweep.pareto["estimators"]) == {
         "kalman", "homogeneous"}
-
-
-def test_pareto_picture_labels_only_a_readable_number_of_points(tmp_path, monkeypatch):
-    """plot_pareto labels an estimator's points by their design up to PARETO_LABELS points
-    and draws more without labels (the noise_tradeoff sweep's 148 Kalman filters)."""
-    import dataclasses
-
-    from matplotlib.axes import Axes
-
-    import harness.sweep as sweep_module
-
-    labels: list[str] = []
-    annotate = Axes.annotate
-    monkeypatch.setattr(Axes, "annotate",
-                        lambda self, text, *a, **k: labels.append(text) or annotate(
-                            self, text, *a, **k))
-    sweep = load_sweep("pendulum_noisy_seeds")
-    sweep = dataclasses.replace(
-        sweep, axes=("base", "rho", "seed", "spec.noise.process_intensity"),
-        pareto=sweep.pareto | {"estimators": {"kalman": ["spec.noise.process_intensity"],
-                                              "homogeneous": ["rho"]}})
-    assert sweep_module.plot_pareto(pareto_rows(), sweep, tmp_path / "a.png").is_file()
-    assert labels == ["spec.noise.process_intensity = 0.001",
-                      "spec.noise.process_intensity = 0.1", "rho = 4.0", "rho = 6.0"]
-    labels.clear()
-    monkeypatch.setattr(sweep_module, "PARETO_LABELS", 1)
-    assert sweep_module.plot_pareto(pareto_rows(), sweep, tmp_path / "b.png").is_file()
-    assert labels == []
 
 
 # -- the main job's seeds ---------------------------------------------------------------------
