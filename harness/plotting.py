@@ -316,7 +316,10 @@ def plot_state_estimates(result: CoSimResult, state: str, estimates: dict[str, s
     for i, ax in enumerate(axes[:, 0]):
         curves = {state: x[:, i]} | {label: estimate[:, i] for label, estimate in columns.items()}
         _draw(ax, result.time, curves, colours, diverged, reference=state)
-        ax.set_ylabel(f"{state}[{i + 1}]" if names is None else names[i])
+        if names is None:
+            ax.set_ylabel(f"{state}[{i + 1}]")
+        else:  # a model's names are long: each above its panel
+            ax.set_title(names[i], loc="left", fontsize="small")
         ax.grid(True, alpha=0.3)
     outside_legend(axes[0, 0])
     axes[0, 0].set_title(title)
