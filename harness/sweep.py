@@ -209,6 +209,9 @@ def sweep_path(name: str | Path) -> Path:
     path = Path(name)
     if path.is_file():
         return path
+    if path.exists():
+        raise SweepError(f"{name}: not a regular file (a sweep file is a TOML file; folders, "
+                         "FIFOs and devices are refused)")
     bundled = SWEEP_DIR / f"{name}.toml"
     if path.suffix != ".toml" and bundled.is_file():
         return bundled

@@ -5,10 +5,13 @@ the console."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
+
+import pytest
 
 from harness.sweep import STATUS_FAILED, SweepReport, format_report, load_sweep, read_rows
 
@@ -96,3 +99,11 @@ def test_engine_log_docstring_examples():
     result = doctest.testmod(harness.engine_log)
     assert result.attempted > 0 and result.failed == 0
     assert logging.getLogger("distributed").handlers == before
+
+
+def test_a_sweep_file_that_is_a_fifo_is_refused_without_blocking(tmp_path):
+    from harness.sweep import SweepError
+    fifo = tmp_path / "sweep.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(SweepError, match="not a regular file"):
+        load_sweep(fifo)
