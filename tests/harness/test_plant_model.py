@@ -187,6 +187,32 @@ def test_master_adds_the_seeded_noise_without_delay(tmp_path, monkeypatch, loop)
     np.testing.assert_allclose(y, np.exp(-2.0 * result.time), rtol=1e-9)
 
 
+def test_description_file_reads_locals_offsets_biases_and_derived_signals(tmp_path):
+    """The TOML keys: ``from`` a list of signals (a local state and an output), ``offset``,
+    ``bias``, ``[run] noise_seed`` and ``[[derived]]``: the receiver gets
+    ``gain @ (from - offset) + bias`` one step on, the derived signal is computed from the
+    recorded rows."""
+    linear_fmu(tmp_path / "decay.fmu", [[-2.0]], [[0.0]], [[3.0]], x0=[1.0])
+    _receiver(tmp_path / "receiver.fmu")
+    (tmp_path / "system.toml").write_text("\n".join([
+        "[run]", "step = 0.01", "stop_time = 0.2", "noise_seed = 3",
+        "[fmus.model]", 'path = "decay.fmu"', "start = { u1 = 0.0 }",
+        "[fmus.r]", 'path = "receiver.fmu"',
+        "[[connections]]", 'from = ["model.x1", "model.y1"]', 'to = "r.u1"',
+        "gain = [[2.0, -1.0]]", "offset = [0.5, 0.25]", "bias = [4.0]",
+        "[[derived]]", 'from = ["model.x1"]', 'to = "deviation.x"', "offset = [1.0]",
+        "[evaluation.errors]", 'r = ["deviation.x", "r.y1"]', ""]))
+    from harness.system import load_system
+
+    spec = load_system(tmp_path / "system.toml")
+    assert spec.noise_seed == 3 and spec.connections[0].sources == ("model.x1", "model.y1")
+    result = run_system(resolve_system(spec), progress=False)
+    x = np.exp(-2.0 * result.time)
+    np.testing.assert_allclose(result.signal("r.y1")[1:],
+                               2.0 * (x[:-1] - 0.5) - (3.0 * x[:-1] - 0.25) + 4.0, rtol=1e-9)
+    np.testing.assert_allclose(result.vector("deviation.x")[:, 0], x - 1.0, atol=1e-9)
+
+
 def test_noisy_spec_sends_the_measurement_std_to_every_estimator(motor):
     """With [noise]: each estimator's y connection carries measurement_std, offset y_op."""
     folder, spec, design, fmus = motor
