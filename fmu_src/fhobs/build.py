@@ -460,7 +460,8 @@ def _build_one(script: Path, stage: Path, package: Path, dest: Path) -> Path:
 
 
 def _compile_wrapper() -> Path:
-    """``fmu/status_wrapper.c`` compiled for linux64 (FMI headers: fmpy's copy), once per
+    """``fmu/status_wrapper.c`` compiled for linux64 (FMI headers: fmpy's copy; this
+    interpreter's Python.h, for the types of the PyConfig it starts Python with), once per
     machine (:func:`fhobs.core.kernel.cached_build`; the call-rules header it includes is
     written to a folder named by its content)."""
     import fmpy
@@ -468,7 +469,8 @@ def _compile_wrapper() -> Path:
     header = call_rules.c_header()
     include = _header_folder(call_rules.HEADER, header)
     flags = ("-shared", "-fPIC", "-O2", f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
-             f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{include}")
+             f"-I{Path(fmpy.__file__).parent / 'c-code'}", f"-I{include}",
+             f"-I{sysconfig.get_paths()['include']}")
     return _cached(PACKAGE_DIR / "fmu" / "status_wrapper.c", "fhobs_status_wrapper", flags,
                    ("-ldl", "-lpthread"), (include / call_rules.HEADER,), "the status wrapper")
 

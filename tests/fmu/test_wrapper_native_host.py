@@ -316,3 +316,33 @@ def test_null_component_is_an_error(null_calls, function):
 def test_free_instance_of_null_does_nothing(host, folders):
     done = run_host(host, "null", folders["observer"], "fmi2FreeInstance", env=preloaded())
     assert (done.returncode, done.stdout) == (0, "CALLED\n"), done.stderr[-2000:]
+
+
+def broken_stdlib(tmp_path: Path, fault: str) -> Path:
+    """A PYTHONHOME that passes for a prefix (lib/python3.11/encodings/__init__.py exists) but
+    whose standard library is broken: ``"empty"`` (that file empty, no codecs) or ``"raises"``
+    (that file raises). (An os.py that raises would not do: Python 3.11 starts with a frozen
+    os module.)"""
+    home = tmp_path / f"home_{fault}"
+    (home / "lib" / "python3.11" / "encodings").mkdir(parents=True)
+    text = "" if fault == "empty" else "raise ImportError('this standard library is broken')\n"
+    (home / "lib" / "python3.11" / "encodings" / "__init__.py").write_text(text)
+    return home
+
+
+@pytest.mark.parametrize("fault", ["empty", "raises"])
+@pytest.mark.parametrize("preload", [False, True], ids=["loaded_by_wrapper", "ld_preload"])
+def test_pythonhome_with_a_broken_standard_library_is_refused_not_an_abort(
+        host, folders, tmp_path, fault, preload):
+    """PYTHONHOME at a prefix whose standard library is broken: the interpreter fails to start
+    (Python would end the host, "Fatal Python error"); fmi2Instantiate returns NULL with a
+    message naming PYTHONHOME and what failed, and the host exits normally."""
+    home = broken_stdlib(tmp_path, fault)
+    env = {**(preloaded() if preload else {}), "PYTHONHOME": str(home)}
+    done = run_kind(host, folders["observer"], "observer", tmp_path, env=env)
+    assert done.returncode == NULL_INSTANCE, (done.returncode, done.stderr[-2000:])
+    assert "Fatal Python error" not in done.stderr
+    (message,) = [line for line in done.stderr.splitlines() if "could not start" in line]
+    assert message.startswith(f"[host] status {FMI_ERROR} ")
+    assert f"PYTHONHOME={home}" in message
+    assert "init_fs_encoding" in message and "encoding" in message.split("could not start")[1]

@@ -64,6 +64,15 @@
  * sys.path itself, it is appended to PYTHONPATH (after the user's entries). PYTHONHOME and
  * PYTHONPATH the user set are kept; a PYTHONHOME without lib/python<version>/encodings (a
  * virtual environment), on which Py_Initialize would abort the host, is refused.
+ * Then this library starts the interpreter itself (PyConfig: Py_InitializeFromConfig, which
+ * answers a failure with a status where Py_Initialize ends the process, "Fatal Python error";
+ * a PYTHONHOME whose standard library is broken), with the candidate's executable as program
+ * name, and releases the GIL; pythonfmu finds it running and uses it as a Python host's. A
+ * failure is fmi2Instantiate's NULL with a message naming PYTHONHOME and what failed. Only an
+ * interpreter of the version of the headers this library was compiled with (the build's
+ * Python) is started so; another one (preloaded) is left for pythonfmu to start. The
+ * interpreter started here is not finalised at exit (pythonfmu's instances may still hold its
+ * objects): the process ends with it.
  * Where no candidate fits, or pythonfmu's library does not load, fmi2Instantiate hands the
  * reason and every place tried to the host's logger and returns NULL, and every other function
  * returns fmi2Error: nothing aborts the host. Messages of this library go to the host's logger
@@ -79,7 +88,11 @@
  * releases the state (and finalises the interpreter pythonfmu started, once no instance is
  * left); the static destructor and the destructor function then find it released.
  */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h> /* the types of PyConfig and PyStatus; every Python function through dlsym */
+#ifndef _GNU_SOURCE
 #define _GNU_SOURCE
+#endif
 #include <dlfcn.h>
 #include <limits.h>
 #include <pthread.h>
@@ -408,6 +421,9 @@ static int find_numpy(const char *home, const char *version, const char *site, c
     return 0;
 }
 
+/* The program name the interpreter is started with (prepare_interpreter). */
+static char program_name[PATH_MAX + 32];
+
 /* Before pythonfmu starts the interpreter (Py_Initialize, which reads PYTHONHOME, PYTHONPATH and
  * the program name): make it start as ``executable`` would (its prefix, its virtual environment,
  * its site-packages; not as whatever python3 comes first on PATH, the default program name's
@@ -420,6 +436,7 @@ static void prepare_interpreter(const char *executable, const char *home, const 
         = (void (*)(const wchar_t *))as_function(dlsym(RTLD_DEFAULT, "Py_SetProgramName"));
     wchar_t *(*decode)(const char *, size_t *)
         = (wchar_t * (*)(const char *, size_t *))as_function(dlsym(RTLD_DEFAULT, "Py_DecodeLocale"));
+    copy(program_name, sizeof program_name, executable);
     if (set_program_name != NULL && decode != NULL && executable[0] != '\0') {
         static wchar_t *program = NULL; /* kept: the interpreter may keep the pointer */
         if (program == NULL) {
@@ -736,6 +753,57 @@ static int read_record(const char *resources, Python *record, char *where, size_
     return 0;
 }
 
+/* A Python function of the loaded libpython, typed as Python.h declares it (NULL if missing). */
+#define PYTHON_FUNCTION(name) ((__typeof__(&name))as_function(dlsym(RTLD_DEFAULT, #name)))
+
+/* Start the interpreter of libpython (loaded, not running) with PyConfig, as pythonfmu's
+ * Py_Initialize would start it (environment variables read, program_name as program name), and
+ * release the GIL. 1 when it runs; 0 when it failed to start, load_error then naming
+ * PYTHONHOME (``user_home``, or the prefix ``home`` the interpreter derives) and what failed;
+ * -1 when it is left to pythonfmu (another version than this library's headers, or a
+ * libpython without PyConfig). */
+static int start_interpreter(const char *version, const char *user_home)
+{
+    __typeof__(&Py_GetVersion) get_version = PYTHON_FUNCTION(Py_GetVersion);
+    __typeof__(&PyConfig_InitPythonConfig) init_config = PYTHON_FUNCTION(PyConfig_InitPythonConfig);
+    __typeof__(&PyConfig_SetBytesString) set_string = PYTHON_FUNCTION(PyConfig_SetBytesString);
+    __typeof__(&Py_InitializeFromConfig) initialize = PYTHON_FUNCTION(Py_InitializeFromConfig);
+    __typeof__(&PyConfig_Clear) clear_config = PYTHON_FUNCTION(PyConfig_Clear);
+    __typeof__(&PyStatus_Exception) failed = PYTHON_FUNCTION(PyStatus_Exception);
+    __typeof__(&PyEval_SaveThread) save_thread = PYTHON_FUNCTION(PyEval_SaveThread);
+    char own[16];
+    (void)bounded_format(own, sizeof own, "%d.%d.", PY_MAJOR_VERSION, PY_MINOR_VERSION);
+    if (get_version == NULL || init_config == NULL || set_string == NULL || initialize == NULL
+        || clear_config == NULL || failed == NULL || save_thread == NULL
+        || strncmp(get_version(), own, strlen(own)) != 0) {
+        return -1;
+    }
+    PyConfig config;
+    init_config(&config);
+    PyStatus status = { ._type = 0 };
+    if (program_name[0] != '\0') {
+        status = set_string(&config, &config.program_name, program_name);
+    }
+    if (!failed(status)) {
+        status = initialize(&config);
+    }
+    clear_config(&config);
+    if (failed(status)) {
+        char home[PATH_MAX + 64];
+        (void)bounded_format(home, sizeof home, user_home != NULL ? "PYTHONHOME=%s"
+            : "PYTHONHOME unset, the prefix of %s", user_home != NULL ? user_home : program_name);
+        (void)bounded_format(load_error, sizeof load_error, "Python %s could not start with %s "
+            "(%s: %s): PYTHONHOME must be the prefix of a complete Python %s (its standard "
+            "library in lib/python%s); for a virtual environment leave PYTHONHOME unset or give "
+            "its base prefix, and give its site-packages in PYTHONPATH", version, home,
+            status.func != NULL ? status.func : "Py_InitializeFromConfig",
+            status.err_msg != NULL ? status.err_msg : "exit requested", version, version);
+        return 0;
+    }
+    (void)save_thread(); /* pythonfmu takes the GIL for each call (PyGILState_Ensure) */
+    return 1;
+}
+
 /* At exit, before pythonfmu's static std::shared_ptr<PyState> is destroyed: release it through
  * pythonfmu's own finalizePythonInterpreter (the interpreter is finalised if no instance is
  * left). Otherwise exit() destroys that shared_ptr first and pythonfmu's destructor function
@@ -796,6 +864,11 @@ static void load_impl(const char *resources)
             "with numpy, or start the host with LD_PRELOAD=<prefix>/lib/libpython%s.so and "
             "PYTHONHOME=<prefix>, or use the native FMUs (build_fmu.py --native)", version,
             tried, version, version);
+        return;
+    }
+    void *now_initialized = dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    if (now_initialized != NULL && !((int (*)(void))as_function(now_initialized))()
+        && start_interpreter(version, user_home) == 0) {
         return;
     }
     Dl_info info;
