@@ -318,9 +318,8 @@ def run_plant_model(spec: Any, design: ObserverDesign, out: Path, *, step: float
         if native:
             from fhobs.native.build import build_native_fmus
 
-            built = build_native_fmus(design, out / "fmus" / "native", steps=(step,),
-                                      **names, **options)
-            fmus |= {kind: path for kind, path in built.items() if kind in kinds}
+            fmus |= build_native_fmus(design, out / "fmus" / "native", steps=(step,),
+                                      kinds=kinds, **names, **options)
         ports = install_fmus(ports, out / "fmus" / "model")
     system, initial = plant_model_system(
         design, fmus, ports, point, np.asarray(spec.state_scale, dtype=float), stop_time, step,

@@ -246,6 +246,20 @@ def test_plant_command_names_the_states_and_records_the_model(motor, tmp_path, c
         assert (out / name).stat().st_size > 1000, name
 
 
+@pytest.mark.slow  # builds the native FMUs (cached after the first time)
+def test_native_estimators_give_the_same_run(motor, tmp_path):
+    """``--native``: the native estimator FMUs against the same model give results.csv's
+    columns of the pythonfmu run to BUILDS_RTOL (C and numpy round differently)."""
+    from results_csv import BUILDS_RTOL, column_differences
+
+    common = ["plant", str(motor[0] / "motor.toml"), "--stop-time", "0.3", "--no-plots"]
+    assert main([*common, "--out", str(tmp_path / "python")]) == 0
+    assert main([*common, "--out", str(tmp_path / "native"), "--native"]) == 0
+    assert (tmp_path / "native" / "fmus" / "native" / "observer.fmu").is_file()
+    assert column_differences(tmp_path / "native" / "results.csv",
+                              tmp_path / "python" / "results.csv").max() <= BUILDS_RTOL
+
+
 def test_two_fmu_ssp_runs_its_components_coupled(tmp_path, capsys):
     """tests/me_fmus.py's motor SSP (electrical, mechanical and gear FMUs in DC-Motor.SuT,
     bindings in the SSD and an .ssv), linearised by ``harness linearize`` and run: the
