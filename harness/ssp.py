@@ -75,6 +75,11 @@ def lower_gains(spec: SystemSpec) -> SystemSpec:
     fmus = dict(spec.fmus)
     connections: list[ConnectionSpec] = []
     for i, conn in enumerate(spec.connections, start=1):
+        extras = [key for key in ("offset", "bias", "noise") if getattr(conn, key) is not None]
+        if extras or not isinstance(conn.source, str):
+            what = ", ".join(extras) or "several sources"
+            raise DescriptionError(f"connection {conn}: {what}, which the master applies and "
+                                   "an SSP cannot express; export a system without them")
         if conn.gain is None:
             connections.append(conn)
             continue

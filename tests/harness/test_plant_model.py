@@ -346,3 +346,15 @@ def test_refusals_are_one_paragraph_and_write_nothing(motor, tmp_path, capsys, c
     if case == "unknown_state":
         assert "closest: phi" in message
     assert not out.exists() or not any(out.rglob("*"))
+
+
+def test_ssp_export_refuses_what_only_the_master_applies():
+    """An offset, a bias, noise or a list of sources has no SSP form: refused by name."""
+    from harness.ssp import lower_gains
+    from harness.system import DescriptionError
+
+    fmus = {"a": FmuSpec("a", None)}
+    for conn, what in ((ConnectionSpec("a.y", "a.u", noise=np.ones(1)), "noise"),
+                       (ConnectionSpec(("a.y", "a.x"), "a.u"), "several sources")):
+        with pytest.raises(DescriptionError, match=f"a.u: {what}, which the master applies"):
+            lower_gains(SystemSpec("s", fmus, (conn,), 0.1, 1.0))
