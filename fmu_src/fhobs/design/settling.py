@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.gains import FilteringGains
+from ..core.linalg import expm
 from ..core.runtime import FilteringObserver
 
 SETTLED = 1e-3
@@ -121,3 +122,130 @@ def error_response(filtering: FilteringGains, state_scale: np.ndarray,
         worst_time = max(worst_time, math.inf if last_above == steps else last_above * dt)
         worst_final = max(worst_final, error)
     return ErrorResponse(worst_time, worst_peak, worst_final)
+
+
+HELD_STEPS = (10, 20, 50, 100, 200, 500)
+"""Communication steps H = settling_time / N tried by :func:`communication_step_bracket`,
+coarsest first (N = ``STEPS_PER_SETTLING_TIME``, the fine prediction's, last)."""
+HELD_SLOWDOWN = 2.0
+"""Held inputs are tolerated while the settling time stays within this factor of the fine
+step's."""
+BRACKET_RATIO = 1.1
+"""The bisection between a tolerated and a refused step ends when they are this close."""
+
+
+def held_input_response(filtering: FilteringGains, state_scale: np.ndarray,
+                        settling_time: float, step: float, K: np.ndarray) -> ErrorResponse:
+    """The estimation error of the runtime as a co-simulation master runs it: the plant (exact
+    ZOH) in closed loop with ``u = K x_hat``, the observer fed ``y`` and ``u`` of each step's
+    start, held over the communication step ``step``; from each of :func:`initial_errors` as
+    the plant's initial state with the observer at 0, for ``HORIZON`` settling times.
+
+    Unlike :func:`error_response` (a plant at rest, whose held output is exact), the plant moves
+    within a step while the observer sees its output of the step's start.
+
+    Parameters
+    ----------
+    filtering : FilteringGains
+        The filtering observer (run at its own internal step, ``h = DEFAULT_H``).
+    state_scale : numpy.ndarray
+        Typical size of each plant state (n entries); the unit of the error.
+    settling_time : float
+        The horizon's unit (s).
+    step : float
+        The communication step H (s).
+    K : numpy.ndarray
+        The state feedback (m x n) closing the loop on the estimate.
+
+    Returns
+    -------
+    ErrorResponse
+        Infinite figures if the runtime refuses the step or the error grows beyond 1e6.
+
+    Examples
+    --------
+    >>> from fhobs.design.feedback import state_feedback
+    >>> from fhobs.design.observer import paper_gains
+    >>> gains = paper_gains().filtering
+    >>> K = state_feedback(gains.plant.A, gains.plant.B)
+    >>> response = held_input_response(gains, np.ones(4), 2.0, 1e-3, K)
+    >>> bool(response.settling_time < 2.0)
+    True
+    """
+    plant = filtering.plant
+    steps = int(math.ceil(HORIZON * settling_time / step))
+    Phi, Gamma = _zoh(plant.A, plant.B, step)
+    observer = FilteringObserver(filtering)
+    start = observer.get_state()
+    worst_time, worst_peak, worst_final = 0.0, 1.0, 0.0
+    size = math.sqrt(plant.n)
+    for e0 in initial_errors(state_scale):
+        observer.set_state(start.copy())
+        x = e0.copy()
+        last_above, error = 0, 1.0
+        for k in range(1, steps + 1):
+            u = K @ observer.x_hat
+            try:
+                observer.advance(plant.C @ x, u, step)
+            except ValueError:
+                return ErrorResponse(np.inf, np.inf, np.inf)
+            x = Phi @ x + Gamma @ u
+            error = float(np.linalg.norm((observer.x_hat - x) / state_scale)) / size
+            if not error < 1e6:
+                return ErrorResponse(np.inf, np.inf, np.inf)
+            worst_peak = max(worst_peak, error)
+            if error > SETTLED:
+                last_above = k  # no early end at round-off: a held loop may grow from there
+        worst_time = max(worst_time, math.inf if last_above == steps else last_above * step)
+        worst_final = max(worst_final, error)
+    return ErrorResponse(worst_time, worst_peak, worst_final)
+
+
+def communication_step_bracket(filtering: FilteringGains, state_scale: np.ndarray,
+                               settling_time: float, K: np.ndarray) -> tuple[float, float]:
+    """The longest communication step with held inputs the design tolerates, as ``(held,
+    refused)``: at ``held`` the closed loop's error (:func:`held_input_response`) settles
+    within ``HELD_SLOWDOWN`` times the settling time at the fine step ``settling_time /
+    STEPS_PER_SETTLING_TIME`` (where that does not settle within the horizon, its error at
+    the horizon's end is within that factor of the fine step's); at ``refused`` (at most
+    ``BRACKET_RATIO`` times ``held``, or inf when the coarsest step of ``HELD_STEPS`` is
+    tolerated) it does not.
+
+    Examples
+    --------
+    >>> from fhobs.design.feedback import state_feedback
+    >>> from fhobs.design.observer import paper_gains
+    >>> gains = paper_gains().filtering
+    >>> K = state_feedback(gains.plant.A, gains.plant.B)
+    >>> held, refused = communication_step_bracket(gains, np.ones(4), 2.0, K)
+    >>> bool(held < refused <= BRACKET_RATIO * held)
+    True
+    """
+    fine = held_input_response(filtering, state_scale, settling_time,
+                               settling_time / STEPS_PER_SETTLING_TIME, K)
+
+    def tolerated(step: float) -> bool:
+        held = held_input_response(filtering, state_scale, settling_time, step, K)
+        if math.isfinite(fine.settling_time):
+            return held.settling_time <= HELD_SLOWDOWN * fine.settling_time
+        return held.final <= HELD_SLOWDOWN * fine.final  # not settled in the horizon: how far
+
+    refused = math.inf
+    for n_steps in HELD_STEPS:
+        held = settling_time / n_steps
+        if n_steps == STEPS_PER_SETTLING_TIME or tolerated(held):
+            break
+        refused = held
+    while math.isfinite(refused) and refused / held > BRACKET_RATIO:
+        middle = math.sqrt(held * refused)
+        held, refused = (middle, refused) if tolerated(middle) else (held, middle)
+    return held, refused
+
+
+def _zoh(A: np.ndarray, B: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's exact ZOH step (Phi, Gamma) of size ``step``."""
+    n, m = B.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n], block[:n, n:] = A * step, B * step
+    exp = expm(block)
+    return exp[:n, :n], exp[:n, n:]
