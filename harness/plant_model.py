@@ -328,11 +328,10 @@ def run_plant_model(spec: Any, design: ObserverDesign, out: Path, *, step: float
     about = {"plant_model": about_model(model, spec.names, point, initial)}
     if spec.disturbance is not None:
         about["disturbance"] = {**vars(spec.disturbance), "size": spec.disturbance.size.tolist()}
-    state_names = about["plant_model"]["states"]
     return run_own_plant(build_blocks(system, block_cache), out, settled=settled,
                          channels=len(model.unknown_inputs),
                          seed=(0 if seed is None else seed) if std is not None else None,
-                         plots=plots, csv_every=csv_every, about=about, state_names=state_names)
+                         plots=plots, csv_every=csv_every, about=about, names=spec.names)
 
 
 def state_table(data: dict[str, Any]) -> str:
