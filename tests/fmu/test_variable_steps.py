@@ -171,3 +171,19 @@ def test_builds_agree_under_random_steps(kind, kalman_design, pendulum_fmus, nat
     reference = runtime_rows(kind, kalman_design, ys, us, steps)
     assert_agree(native, reference)
     assert_agree(python, reference)
+
+
+@native_only
+@pytest.mark.parametrize("kind", ["observer", "prescribed_time"])
+def test_builds_agree_with_a_new_size_every_step(kind, kalman_design, pendulum_fmus, native_fmus,
+                                                 tmp_path):
+    """200 distinct sizes, log-uniform in [1e-6, 1e-3] (80 bins of sizes, more than the plan
+    caches keep): each size's plan from its bin's tau scan, checked at the size, in all three."""
+    steps = np.exp(np.random.default_rng(6).uniform(np.log(1e-6), np.log(1e-3), 200))
+    assert np.unique(steps).size == steps.size
+    _, ys, us = plant_run(kalman_design, steps)
+    native = fmu_rows(native_fmus[kind], tmp_path / "native", kind, ys, us, steps)
+    python = fmu_rows(pendulum_fmus[kind], tmp_path / "python", kind, ys, us, steps)
+    reference = runtime_rows(kind, kalman_design, ys, us, steps)
+    assert_agree(native, reference)
+    assert_agree(python, reference)

@@ -81,8 +81,10 @@ This module is numpy-only: it runs inside the FMUs.
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
+from collections import OrderedDict
 from typing import NamedTuple
 
 import numpy as np
@@ -136,6 +138,10 @@ carries a rounding error of about ``cond(S) eps`` (1e-9 and more), as large as t
 of the radii of the smallest taus from one, and the scan ignores it."""
 CAP_CACHE_SIZE = 16
 """Gain caps are cached per communication step size; the cache is cleared at this many."""
+SIZE_BINS_PER_OCTAVE = 8
+"""The tau scan is made once per bin of step sizes (:func:`size_bin`): this many per octave."""
+BIN_CACHE_SIZE = 64
+"""Tau scans of this many bins are kept (the least recently used one is dropped)."""
 
 MAX_SUBSTEPS = 1_000_000
 """A communication step longer than this many internal steps h is rejected (ValueError) rather
@@ -162,6 +168,35 @@ def signed_power_decay(w: float, gamma: float, p: float, h: float) -> float:
     """Exact flow over h of ``dw/dt = -gamma floor(w)^p`` with 0 < p < 1 (reaches 0, stays 0)."""
     q = 1.0 - p
     return math.copysign(max(abs(w) ** q - q * gamma * h, 0.0) ** (1.0 / q), w) if w else 0.0
+
+
+def size_bin(dt: float) -> float:
+    """The representative step size of dt's bin: with ``dt = f 2^e``, ``f`` in [1/2, 1), the
+    octave ``[2^(e-1), 2^e)`` is cut into ``SIZE_BINS_PER_OCTAVE`` equal parts of f, and the
+    representative is the upper end of dt's part. Exact arithmetic (frexp, a product by a
+    power of two, a whole number, ldexp), so the native planner finds the same bins.
+
+    Examples
+    --------
+    >>> size_bin(1e-4), size_bin(1.05e-4), size_bin(0.75)
+    (0.0001068115234375, 0.0001068115234375, 0.8125)
+    """
+    fraction, exponent = math.frexp(dt)
+    part = int((fraction - 0.5) * (2 * SIZE_BINS_PER_OCTAVE))
+    return math.ldexp(0.5 + (part + 1) / (2 * SIZE_BINS_PER_OCTAVE), exponent)
+
+
+class PlanCacheInfo(NamedTuple):
+    """What the plans of the homogeneous observers' step sizes cost so far
+    (:meth:`_Observer.plan_cache_info`)."""
+
+    scans: int
+    """Tau scans made: one per bin of step sizes (again after its scan was dropped), and one
+    per step size whose own checks refused its bin's taus."""
+    bins: int
+    """Bins whose tau scan is kept now (at most ``max_bins``)."""
+    max_bins: int
+    """``BIN_CACHE_SIZE``."""
 
 
 Gains = FilteringGains | PrescribedTimeGains | LuenbergerGains
@@ -198,6 +233,8 @@ class _Observer:
         self._zoh: dict[float, Prediction] = {}
         self.tau_max: float | None = None
         self._caps: dict[float, tuple[float | None, float, float, float]] = {}
+        self._bins: OrderedDict[float, tuple[int | None, int] | None] = OrderedDict()
+        self._scans = 0
         self._roundoff_level: float | None = None
         self._trusted_levels: tuple[float, float] | None = None
         self._stepper: compiled.Stepper | None = None
@@ -413,7 +450,7 @@ class _Observer:
                 tau_min, tau_max = None, self.tau_max
                 floor = max((tau_max / dt) ** (1.0 / self._nu), self._roundoff_level)
             else:
-                tau_min, tau_max, floor = self._auto_taus(dt, self._roundoff_level)
+                tau_min, tau_max, floor = self._binned_taus(dt, self._roundoff_level)
             ceiling = math.inf if tau_min is None else max((tau_min / dt) ** (1.0 / self._nu),
                                                            floor)
             if len(self._caps) >= CAP_CACHE_SIZE:
@@ -425,7 +462,7 @@ class _Observer:
         """The level s at which ``||C|| ||(d(ln s))_x|| / s^(1+nu)`` equals
         ``AMPLIFICATION_LIMIT`` (bisection in ln s; 0 if no level below 1 reaches it);
         ``(.)_x``: the rows of the plant's states (a disturbance model's states are not)."""
-        dilation, c_norm = Dilation(self.gains.model.G_d), np.linalg.norm(self._C, 2)
+        dilation, c_norm = self._plain_dilation, np.linalg.norm(self._C, 2)
         n, nu = self._n, self._nu
 
         def amplification(log_s: float) -> float:
@@ -456,6 +493,12 @@ class _Observer:
         """Paper's right-hand side beyond ``A z + B u + L_inj v``: (d aux/dt, gain term of dz);
         dt is the communication step (for a gain cap)."""
         return np.zeros_like(aux), np.zeros(self._z.size)
+
+    @functools.cached_property
+    def _plain_dilation(self) -> Dilation:
+        """The dilation ``d(s) = expm(s G_d)`` of the homogeneous model (no right factor), for
+        the dilated error maps and the round-off floor."""
+        return Dilation(self.gains.model.G_d)
 
     def _error_scaling(self, level: float) -> np.ndarray:
         """The dilation ``S`` with error = S (dilated error) at a gain level (identity for an
@@ -515,17 +558,84 @@ class _Observer:
             edges.append(math.exp(inside))
         return edges[0], edges[1]
 
+    def plan_cache_info(self) -> PlanCacheInfo:
+        """The tau scans made so far and the bins of step sizes whose scan is kept.
+
+        Examples
+        --------
+        Sizes of one bin share one scan:
+
+        >>> from fhobs.design.observer import design_observer
+        >>> design = design_observer([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], rho=2.0)
+        >>> obs = FilteringObserver(design.filtering)
+        >>> for dt in (1.00e-3, 1.01e-3, 1.02e-3):
+        ...     obs.step(y=[0.0], u=[0.0], dt=dt)
+        >>> obs.plan_cache_info()
+        PlanCacheInfo(scans=1, bins=1, max_bins=64)
+        """
+        return PlanCacheInfo(self._scans, len(self._bins), BIN_CACHE_SIZE)
+
+    def _binned_taus(self, dt: float, roundoff: float) -> tuple[float | None, float, float]:
+        """``(tau_min, tau_max, floor)`` for dt from the tau scan of dt's bin
+        (:func:`size_bin`), checked at dt (docs/theory.md, "Variable communication steps"):
+        the floor's level must contract at dt, else dt gets a scan of its own
+        (:meth:`_auto_taus`); the ceiling is the level of the first tau from the bin's tau_min
+        towards tau_max whose level is trusted (at or above the floor, within the scaling
+        band) and contracts at dt, the floor when none does; no ceiling when the bin has
+        none."""
+        scan = self._bin_scan(size_bin(dt), roundoff)
+        if scan is None:
+            return self._auto_taus(dt, roundoff)
+        first, best = scan
+        inverse_nu = 1.0 / self._nu
+        floor = max((float(TAU_GRID[best]) / dt) ** inverse_nu, roundoff)
+        if not self._dilated_radius(floor, dt) < CONTRACTION_LIMIT:
+            return self._auto_taus(dt, roundoff)
+        if first is None:
+            return None, float(TAU_GRID[best]), floor
+        low, high = self._trusted_levels
+        for index in range(first, best):
+            level = (float(TAU_GRID[index]) / dt) ** inverse_nu
+            if (level >= floor and low <= level <= high
+                    and self._dilated_radius(level, dt) < CONTRACTION_LIMIT):
+                return float(TAU_GRID[index]), float(TAU_GRID[best]), floor
+        return float(TAU_GRID[best]), float(TAU_GRID[best]), floor
+
+    def _bin_scan(self, representative: float,
+                  roundoff: float) -> tuple[int | None, int] | None:
+        """The indices ``(first, best)`` into ``TAU_GRID`` of the tau scan at the bin's
+        representative step size (:meth:`_tau_scan`), None where no tau contracts there;
+        kept for the ``BIN_CACHE_SIZE`` bins used last."""
+        bins = self._bins
+        if representative in bins:
+            bins.move_to_end(representative)
+            return bins[representative]
+        try:
+            scan = self._tau_scan(representative, roundoff)[:2]
+        except ValueError:
+            scan = None
+        if len(bins) >= BIN_CACHE_SIZE:
+            bins.popitem(last=False)
+        bins[representative] = scan
+        return scan
+
     def _auto_taus(self, dt: float, roundoff: float) -> tuple[float | None, float, float]:
-        """``(tau_min, tau_max, floor)`` on ``TAU_GRID`` (module docstring): tau_max minimises
-        the spectral radius of the dilated error map (the largest such tau, ``RADIUS_TIE``),
-        the floor is its level or the round-off
-        floor ``roundoff``, whichever is higher; tau_min is the smallest tau of the run of
+        """``(tau_min, tau_max, floor)`` of dt's own tau scan (:meth:`_tau_scan`)."""
+        first, best, floor = self._tau_scan(dt, roundoff)
+        return (None if first is None else float(TAU_GRID[first])), float(TAU_GRID[best]), floor
+
+    def _tau_scan(self, dt: float, roundoff: float) -> tuple[int | None, int, float]:
+        """``(first, best, floor)`` on ``TAU_GRID`` (module docstring): ``TAU_GRID[best]``
+        (tau_max) minimises the spectral radius of the dilated error map (the largest such
+        tau, ``RADIUS_TIE``), the floor is its level or the round-off floor ``roundoff``,
+        whichever is higher; ``TAU_GRID[first]`` (tau_min) is the smallest tau of the run of
         contractive taus from tau_max towards higher levels, None when that run reaches the
         grid's first tau. The run reads only the radii it can trust: those of the levels that
         the observer uses (at or above the floor) and whose dilation is conditioned within
         ``SCALING_LIMIT`` (:meth:`_scaling_band`); it passes the others (round-off, or not
         finite), so the ceiling is the highest level that contracts as far as double
-        precision can tell."""
+        precision can tell. ValueError where no tau contracts."""
+        self._scans += 1
         inverse_nu = 1.0 / self._nu
         levels = [(float(tau) / dt) ** inverse_nu for tau in TAU_GRID]
         radii = [self._dilated_radius(level, dt) for level in levels]
@@ -544,9 +654,9 @@ class _Observer:
                     and math.isfinite(radii[index])):
                 continue
             if not radii[index] < CONTRACTION_LIMIT:
-                return float(TAU_GRID[first]), float(TAU_GRID[best]), floor
+                return first, best, floor
             first = index
-        return None, float(TAU_GRID[best]), floor
+        return None, best, floor
 
 
 class FilteringObserver(_Observer):
@@ -626,7 +736,7 @@ class FilteringObserver(_Observer):
         k, n = self._k, self._z.size
         S = np.zeros((k + n, k + n))
         S[:k, :k] = level * np.eye(k)
-        S[k:, k:] = Dilation(self.gains.model.G_d).matrix(math.log(level))
+        S[k:, k:] = self._plain_dilation.matrix(math.log(level))
         return S
 
     def _correct_own_level(self, aux: np.ndarray, v: np.ndarray,
@@ -886,7 +996,7 @@ class PrescribedTimeObserver(_Observer):
 
     def _error_scaling(self, level: float) -> np.ndarray:
         """``d_pt(ln level) = level^-nu d(ln level)``: the dilation of ``z - x``."""
-        return level ** -self._nu * Dilation(self.gains.model.G_d).matrix(math.log(level))
+        return level ** -self._nu * self._plain_dilation.matrix(math.log(level))
 
     def _level(self, aux: np.ndarray, dt: float) -> float:
         """The gain-level state (|xi| until dt's floor acts) between the floor and the ceiling

@@ -88,6 +88,9 @@ DESIGN_FILE = "design.json"
 CONFIG_FILE = "fmu_config.json"
 
 _hypot = math.hypot
+SIZE_CHECKS = 64
+"""The checks of this many step sizes are remembered per model (:meth:`FhobsSlave._size_problem`);
+then they are forgotten at once."""
 
 class SlaveModel(Protocol):
     """What the base class needs from a runtime object (observer or plant).
@@ -171,6 +174,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._clock = np.zeros(1)  # the last successful time, read by the wrapper
         self.via_wrapper = self._register_with_wrapper()
         self.model: SlaveModel = self._make_model()
+        self._size_checks: tuple[SlaveModel | None, dict[float, str]] = (None, {})
         # the start model and the parameters it was built from, until initialisation uses it
         self._start_model: tuple[SlaveModel, tuple] | None = (self.model, self._parameters())
         self._publish()
@@ -317,7 +321,9 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
                 and abs(current_time - self._time) <= self._time_slack
                 and _hypot(*self._inputs.tolist()) < self._bound.item()):
             problem = (time_problem(current_time, self._time, step_size)
-                       or self._step_size_problem(step_size) or self._input_problem())
+                       or self._size_problem(step_size)
+                       or ("" if _hypot(*self._inputs.tolist()) < self._bound.item()
+                           else self._input_problem()))
             if problem:
                 return self._fail(f"doStep at t = {number_text(current_time)} rejected: {problem}")
             self._accepted_step = step_size
@@ -360,6 +366,21 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self.status = STATUS_ERROR
         self.log(message, Fmi2Status.error)
         return False
+
+    def _size_problem(self, step_size: float) -> str:
+        """:meth:`_step_size_problem`, remembered per step size while the model is the same
+        (its parameters are fixed then; ``SIZE_CHECKS`` sizes), so a host that changes the
+        size at every step pays for the check of each size once."""
+        model, problems = self._size_checks
+        if model is not self.model:
+            problems = {}
+            self._size_checks = (self.model, problems)
+        problem = problems.get(step_size)
+        if problem is None:
+            if len(problems) >= SIZE_CHECKS:
+                problems.clear()
+            problem = problems[step_size] = self._step_size_problem(step_size)
+        return problem
 
     def _step_size_problem(self, step_size: float) -> str:
         """Describe what is wrong with the communication step size ('' when nothing is)."""
@@ -482,6 +503,9 @@ class ObserverSlave(FhobsSlave):
     ``q_hat``) starts them at zero (:meth:`_padded_z0`).
     """
 
+    _matrix_of_model: tuple[SlaveModel | None, np.ndarray | None] = (None, None)
+    """The model and the state matrix :meth:`_model_matrix` formed for it."""
+
     def scheme_name(self) -> str:
         """Name of the selected integration scheme; ValueError if the index is unknown."""
         return self.choice("scheme", SCHEMES)
@@ -503,8 +527,12 @@ class ObserverSlave(FhobsSlave):
 
     def _model_matrix(self) -> np.ndarray:
         """The state matrix of the model the (edited) observer runs on (its record's
-        ``model_matrices``)."""
-        return self.edited_record().model_matrices[0]
+        ``model_matrices``), formed once per model."""
+        model, matrix = self._matrix_of_model
+        if model is not self.model:
+            matrix = self.edited_record().model_matrices[0]
+            self._matrix_of_model = (self.model, matrix)
+        return matrix
 
     def _padded_z0(self) -> np.ndarray:
         """The model's initial state: the parameter z0 (the plant's states), then zeros (the

@@ -1,8 +1,9 @@
 /*
  * The plan of a communication step size of the homogeneous observers, the filtering and the
- * prescribed-time one (fhobs.core.runtime: _prediction, the tau scan of _Observer._auto_taus
- * with error_map and _dilated_radius, _step_size_plan): M, F, the gain-level floor and
- * ceiling; the scan is shared, each observer brings its dilated error map. The spectral
+ * prescribed-time one (fhobs.core.runtime: _prediction, the tau scan of _Observer._tau_scan
+ * with error_map and _dilated_radius, made once per bin of step sizes and checked at each
+ * size, _binned_taus, _step_size_plan): M, F, the gain-level floor and ceiling; the scan is
+ * shared, each observer brings its dilated error map. The spectral
  * radius of that map is computed by balancing, a Hessenberg reduction and Francis double-shift
  * QR sweeps; it only decides (the argmin over the tau grid, the contraction limit), so it needs the accuracy of
  * numpy's eigenvalues, not their bits.
@@ -260,17 +261,17 @@ static double dilated_map_radius(double *S, double *map, int N, double *work)
     return spectral_radius(map, N, work);
 }
 
-/* The tau scan of _Observer._auto_taus and the floor and ceiling of _step_size_plan for the
- * step size dt: the radius of each tau of the grid at the level (tau / dt)^(1/nu); 0 with
- * *floor_level and *ceiling set, or 1 when no tau contracts (*best: the smallest radius). The
- * floor is the level of the largest tau whose radius is within scan->tie of the smallest (or
- * the round-off floor, the higher); the run of contractive taus from the best one towards higher levels reads only the levels at or
- * above the floor, within the scan's trusted band, whose radius is finite, and passes the
- * others; the ceiling is the level of its last tau, at least the floor, inf when no tau ends
- * it. work: 2 n_tau doubles, then the radius function's. */
-static int scan_levels(const LevelScan *scan, double dt, double nu, LevelRadius radius,
-                       const void *plan, double *floor_level, double *ceiling, double *best,
-                       double *work)
+/* The tau scan of _Observer._tau_scan for the step size dt: the radius of each tau of the
+ * grid at the level (tau / dt)^(1/nu); 0 with *best_index (tau_max) and *first_index
+ * (tau_min, -1 for none) set, or 1 when no tau contracts (*best: the smallest radius).
+ * tau_max is the largest tau whose radius is within scan->tie of the smallest; its level or
+ * the round-off floor, the higher, is the floor; the run of contractive taus from tau_max
+ * towards higher levels reads only the levels at or above the floor, within the scan's
+ * trusted band, whose radius is finite, and passes the others; tau_min is its last tau, none
+ * when no tau ends it. work: 2 n_tau doubles, then the radius function's. */
+static int scan_taus(const LevelScan *scan, double dt, double nu, LevelRadius radius,
+                     const void *plan, int *best_index, int *first_index, double *best,
+                     double *work)
 {
     double *radii = work, *levels = work + scan->n_tau, *rest = levels + scan->n_tau;
     const double inverse_nu = 1.0 / nu;
@@ -291,19 +292,151 @@ static int scan_levels(const LevelScan *scan, double dt, double nu, LevelRadius 
         }
     const double floor = scan->roundoff > levels[arg] ? scan->roundoff : levels[arg];
     int first = arg;
-    *floor_level = floor;
-    *ceiling = INFINITY;
+    *best_index = arg;
+    *first_index = -1;
     for (int i = arg - 1; i >= 0; i--) {
         if (!(levels[i] >= floor && levels[i] >= scan->trusted_low &&
               levels[i] <= scan->trusted_high && isfinite(radii[i])))
             continue;
         if (!(radii[i] < scan->contraction)) {
-            *ceiling = levels[first] > floor ? levels[first] : floor;
+            *first_index = first;
             break;
         }
         first = i;
     }
     return 0;
+}
+
+/* The floor and ceiling of _step_size_plan for dt from dt's own tau scan: the floor the level
+ * of tau_max or the round-off floor, the higher; the ceiling the level of tau_min, at least
+ * the floor, inf without tau_min. 0, or 1 when no tau contracts (*best: the smallest
+ * radius). work: as scan_taus. */
+static int scan_levels(const LevelScan *scan, double dt, double nu, LevelRadius radius,
+                       const void *plan, double *floor_level, double *ceiling, double *best,
+                       double *work)
+{
+    int best_index, first_index;
+    if (scan_taus(scan, dt, nu, radius, plan, &best_index, &first_index, best, work))
+        return 1;
+    const double inverse_nu = 1.0 / nu, level = pow(scan->tau_grid[best_index] / dt, inverse_nu);
+    *floor_level = scan->roundoff > level ? scan->roundoff : level;
+    *ceiling = INFINITY;
+    if (first_index >= 0) {
+        const double top_level = pow(scan->tau_grid[first_index] / dt, inverse_nu);
+        *ceiling = top_level > *floor_level ? top_level : *floor_level;
+    }
+    return 0;
+}
+
+/* The floor and ceiling of dt from its bin's taus (tau_max = grid[best_index], tau_min =
+ * grid[first_index] or none), checked at dt (_Observer._binned_taus): the floor, the level
+ * of tau_max or the round-off floor, must contract at dt (else 1: dt needs its own scan);
+ * the ceiling is the level of the first tau from tau_min towards tau_max whose level is
+ * trusted (at or above the floor, within the band) and contracts at dt, the floor when none
+ * does, inf without tau_min. work: the radius function's. */
+static int binned_levels(const LevelScan *scan, int best_index, int first_index, double dt,
+                         double nu, LevelRadius radius, const void *plan, double *floor_level,
+                         double *ceiling, double *work)
+{
+    const double inverse_nu = 1.0 / nu;
+    const double level = pow(scan->tau_grid[best_index] / dt, inverse_nu);
+    const double floor = scan->roundoff > level ? scan->roundoff : level;
+    if (!(radius(plan, scan, floor, work) < scan->contraction))
+        return 1;
+    *floor_level = floor;
+    *ceiling = first_index < 0 ? INFINITY : floor;
+    for (int i = first_index; i >= 0 && i < best_index; i++) {
+        const double candidate = pow(scan->tau_grid[i] / dt, inverse_nu);
+        if (candidate >= floor && candidate >= scan->trusted_low &&
+            candidate <= scan->trusted_high &&
+            radius(plan, scan, candidate, work) < scan->contraction) {
+            *ceiling = candidate;
+            break;
+        }
+    }
+    return 0;
+}
+
+void bin_cache_init(BinCache *bins)
+{
+    for (int i = 0; i < FHOBS_BIN_SLOTS; i++) {
+        bins->size[i] = NAN;
+        bins->used[i] = 0;
+        bins->best[i] = bins->first[i] = -1;
+    }
+    bins->clock = 0;
+    bins->scans = 0;
+}
+
+double size_bin(double dt)
+{
+    int exponent;
+    const double fraction = frexp(dt, &exponent);
+    const int part = (int)((fraction - 0.5) * (2 * FHOBS_SIZE_BINS_PER_OCTAVE));
+    return ldexp(0.5 + (double)(part + 1) / (2 * FHOBS_SIZE_BINS_PER_OCTAVE), exponent);
+}
+
+/* The slot of the bin of representative size `size`, and whether it was taken for it now
+ * (*fresh: its scan is to be made): an empty slot or the least recently used one. */
+static int bin_slot(BinCache *bins, double size, int *fresh)
+{
+    int slot = 0;
+    for (int i = 0; i < FHOBS_BIN_SLOTS; i++) {
+        if (bins->size[i] == size) {
+            bins->used[i] = ++bins->clock;
+            *fresh = 0;
+            return i;
+        }
+        if (bins->used[i] < bins->used[slot])
+            slot = i;
+    }
+    bins->size[slot] = size;
+    bins->used[slot] = ++bins->clock;
+    *fresh = 1;
+    return slot;
+}
+
+/* A plan's fields that depend on the step size, and what the ZOH of another size needs. */
+typedef struct {
+    double *dt;
+    const double **M, **F; /* n x size, n x n */
+    const double *top, *C; /* the ZOH's augmented top rows (n x size), C (k x n) */
+    int n, size, k;
+} SizeFields;
+
+/* The floor and ceiling of the plan's step size (its fields `at`): from its bin's tau scan
+ * (made now at the bin's size if not kept, the plan's fields pointed there meanwhile)
+ * checked at the plan's size, or from a scan of its own where the bin has no contractive tau
+ * or the check fails. 0, or 1 when no tau contracts at the plan's size (*best: the smallest
+ * radius). work: the bin's M and F, then zoh_rows' or scan_taus'. */
+static int plan_levels(const LevelScan *scan, BinCache *bins, LevelRadius radius, void *plan,
+                       const SizeFields *at, double nu, double *floor_level, double *ceiling,
+                       double *best, double *work)
+{
+    const double dt = *at->dt;
+    int fresh, slot = bin_slot(bins, size_bin(dt), &fresh);
+    if (fresh) {
+        const double *own_M = *at->M, *own_F = *at->F;
+        double *M = work, *F = M + (size_t)at->n * at->size, *rest = F + (size_t)at->n * at->n;
+        double smallest;
+        *at->dt = bins->size[slot];
+        zoh_rows(at->top, at->n, at->size, *at->dt, M, rest);
+        carry_matrix(M, at->C, at->n, at->size, at->k, F);
+        *at->M = M;
+        *at->F = F;
+        bins->scans++;
+        if (scan_taus(scan, *at->dt, nu, radius, plan, &bins->best[slot], &bins->first[slot],
+                      &smallest, rest))
+            bins->best[slot] = -1;
+        *at->dt = dt;
+        *at->M = own_M;
+        *at->F = own_F;
+    }
+    if (bins->best[slot] >= 0 && !binned_levels(scan, bins->best[slot], bins->first[slot], dt,
+                                                nu, radius, plan, floor_level, ceiling, work))
+        return 0;
+    bins->scans++;
+    return scan_levels(scan, dt, nu, radius, plan, floor_level, ceiling, best, work);
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -356,7 +489,7 @@ static double dilated_radius(const void *plan, const LevelScan *scan, double lev
  * floor and ceiling (plan's factors and last_tau: the caller's cache, reset here). 0, or 1
  * when the observer cannot follow dt (*best: the smallest spectral radius). work:
  * FHOBS_PLAN_WORK_SIZE. */
-int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
+int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan, BinCache *bins,
                 const double *top, double dt, double *M, double *F, double *best, double *work)
 {
     cplx *factors = plan->factors, *cscratch = plan->cwork;
@@ -373,7 +506,8 @@ int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
     carry_matrix(M, base->C, n, size, base->k, F);
     plan->M = M;
     plan->F = F;
-    return scan_levels(scan, dt, plan->nu, dilated_radius, plan, &plan->floor_level,
+    const SizeFields at = {&plan->dt, &plan->M, &plan->F, top, base->C, n, size, base->k};
+    return plan_levels(scan, bins, dilated_radius, plan, &at, plan->nu, &plan->floor_level,
                        &plan->ceiling, best, work);
 }
 
@@ -417,8 +551,8 @@ static double prescribed_radius(const void *plan, const LevelScan *scan, double 
  * last_tau and work: the caller's, the cache reset here). 0, or 1 when the observer cannot
  * follow dt (*best: the smallest spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
 int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base, const LevelScan *scan,
-                    const double *top, double dt, double *M, double *F, double *best,
-                    double *work)
+                    BinCache *bins, const double *top, double dt, double *M, double *F,
+                    double *best, double *work)
 {
     cplx *factors = plan->factors;
     double *last_tau = plan->last_tau, *scratch = plan->work;
@@ -433,6 +567,7 @@ int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base, const Leve
     carry_matrix(M, base->C, n, size, base->k, F);
     plan->M = M;
     plan->F = F;
-    return scan_levels(scan, dt, plan->nu, prescribed_radius, plan, &plan->floor_level,
+    const SizeFields at = {&plan->dt, &plan->M, &plan->F, top, base->C, n, size, base->k};
+    return plan_levels(scan, bins, prescribed_radius, plan, &at, plan->nu, &plan->floor_level,
                        &plan->ceiling, best, work);
 }

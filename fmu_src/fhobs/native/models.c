@@ -188,6 +188,7 @@ struct Work {
     double last_tau[FHOBS_PLAN_SLOTS];
     double split_work[FHOBS_FILTER_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* the split plans' scratch */
     cplx split_cwork[FHOBS_FILTER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
+    BinCache bins; /* the tau scans per bin of step sizes */
 #endif
     double scratch[FHOBS_PLAN_WORK];
 #if FHOBS_HAS_EULER
@@ -204,6 +205,9 @@ struct Work {
 void work_init(Work *w)
 {
     plan_keys_init(&w->keys);
+#if FHOBS_FILTERING
+    bin_cache_init(&w->bins);
+#endif
 #if FHOBS_HAS_EULER
     w->euler = EULER_PLAN;
     w->euler.work = w->euler_work;
@@ -231,8 +235,8 @@ static const SplitPlan *split_plan(Work *w, double dt, char *msg, size_t len)
     plan->last_tau = &w->last_tau[i];
     plan->work = w->split_work;
     plan->cwork = w->split_cwork;
-    if (plan_filter(plan, &FILTER_BASE, &LEVEL_SCAN, ZOH_TOP, dt, w->M[i], w->F[i], &best,
-                    w->scratch)) {
+    if (plan_filter(plan, &FILTER_BASE, &LEVEL_SCAN, &w->bins, ZOH_TOP, dt, w->M[i], w->F[i],
+                    &best, w->scratch)) {
         w->keys.dt[i] = NAN;
         snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
                  "spectral radius %.6g); use a smaller communication step; state left unchanged",
@@ -942,11 +946,13 @@ struct Work {
     double last_tau[FHOBS_PLAN_SLOTS];
     double step_work[FHOBS_PRESCRIBED_WORK(FHOBS_N_MODEL, FHOBS_K)]; /* a step's scratch */
     double scratch[FHOBS_PLAN_WORK];
+    BinCache bins; /* the tau scans per bin of step sizes */
 };
 
 void work_init(Work *w)
 {
     plan_keys_init(&w->keys);
+    bin_cache_init(&w->bins);
 }
 
 /* The split plan of the step size dt: kept from an earlier step, or computed now into the
@@ -963,8 +969,8 @@ static const PrescribedPlan *prescribed_plan(Work *w, double dt, char *msg, size
     plan->factors = w->factors[i];
     plan->last_tau = &w->last_tau[i];
     plan->work = w->step_work;
-    if (plan_prescribed(plan, &PRESCRIBED_BASE, &LEVEL_SCAN, ZOH_TOP, dt, w->M[i], w->F[i],
-                        &best, w->scratch)) {
+    if (plan_prescribed(plan, &PRESCRIBED_BASE, &LEVEL_SCAN, &w->bins, ZOH_TOP, dt, w->M[i],
+                        w->F[i], &best, w->scratch)) {
         w->keys.dt[i] = NAN;
         snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
                  "spectral radius %.6g); use a smaller communication step; state left unchanged",

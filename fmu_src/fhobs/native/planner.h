@@ -12,7 +12,30 @@
 /* Scratch doubles needed by plan_filter (model states n, outputs k, inputs m, the ZOH's
  * augmented size z, taus scanned) and, a fortiori, by zoh_rows of size z. */
 #define FHOBS_PLAN_WORK_SIZE(n, k, m, z, taus)                                                 \
-    (9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + (m) + 2 * (taus) + 8)
+    ((n) * (z) + (n) * (n) + 9 * (z) * (z) + 2 * ((n) + (k)) * ((n) + (k)) + 4 * ((n) + (k)) + \
+     (m) + 2 * (taus) + 8)
+
+#define FHOBS_SIZE_BINS_PER_OCTAVE 8 /* fhobs.core.runtime.SIZE_BINS_PER_OCTAVE */
+#define FHOBS_BIN_SLOTS 64           /* fhobs.core.runtime.BIN_CACHE_SIZE */
+
+/* The tau scans of the bins of step sizes used last (fhobs.core.runtime._Observer._bin_scan):
+ * a scan is made once per bin, at the bin's representative size (size_bin), and each step
+ * size of the bin checks the taus it gives at its own size (plan_filter). */
+typedef struct {
+    double size[FHOBS_BIN_SLOTS];             /* the bins' representative sizes (NAN: empty) */
+    unsigned long long used[FHOBS_BIN_SLOTS]; /* when each was last used */
+    unsigned long long clock;
+    int best[FHOBS_BIN_SLOTS];  /* the grid index of tau_max; -1: no tau contracts */
+    int first[FHOBS_BIN_SLOTS]; /* the grid index of tau_min; -1: no ceiling */
+    long long scans;            /* tau scans made (fhobs.core.runtime.PlanCacheInfo.scans) */
+} BinCache;
+
+/* An empty BinCache. */
+FHOBS_HIDDEN void bin_cache_init(BinCache *bins);
+
+/* The representative step size of dt's bin (fhobs.core.runtime.size_bin): with dt = f 2^e,
+ * f in [1/2, 1), the upper end of f's part of FHOBS_SIZE_BINS_PER_OCTAVE equal parts. */
+FHOBS_HIDDEN double size_bin(double dt);
 
 /* The tau scan of the filtering observer (fhobs.core.runtime._Observer._auto_taus). */
 typedef struct {
@@ -64,17 +87,18 @@ FHOBS_HIDDEN double plan_luenberger(LinearPlan *plan, const LinearPlan *base,
                                     double *M, double *work);
 
 /* The filtering observer's plan of the step size dt (gain_levels.c): base's fields, M and F
- * (the caller's arrays), the gain-level floor and ceiling; plan's factors, last_tau, work and
+ * (the caller's arrays), the gain-level floor and ceiling from the tau scan of dt's bin
+ * (kept in bins) checked at dt, or from dt's own scan; plan's factors, last_tau, work and
  * cwork are the caller's. 0, or 1 when the observer cannot follow dt (*best: the smallest
  * spectral radius). work: FHOBS_PLAN_WORK_SIZE. */
 FHOBS_HIDDEN int plan_filter(FilterPlan *plan, const FilterPlan *base, const LevelScan *scan,
-                             const double *top, double dt, double *M, double *F, double *best,
-                             double *work);
+                             BinCache *bins, const double *top, double dt, double *M,
+                             double *F, double *best, double *work);
 
 /* The prescribed-time observer's plan of the step size dt (gain_levels.c), as plan_filter's
  * (plan's factors, last_tau and work: the caller's). */
 FHOBS_HIDDEN int plan_prescribed(PrescribedPlan *plan, const PrescribedPlan *base,
-                                 const LevelScan *scan, const double *top, double dt, double *M,
-                                 double *F, double *best, double *work);
+                                 const LevelScan *scan, BinCache *bins, const double *top,
+                                 double dt, double *M, double *F, double *best, double *work);
 
 #endif

@@ -34,11 +34,13 @@ from ..core import kernel
 from ..core.dilation import Dilation
 from ..core.linalg import PHI1_SERIES
 from ..core.runtime import (
+    BIN_CACHE_SIZE,
     CONTRACTION_LIMIT,
     HELD_INNOVATION_LIMIT,
     LEVEL_MISMATCH,
     RADIUS_TIE,
     TAU_GRID,
+    PlanCacheInfo,
 )
 
 HERE = Path(__file__).resolve().parent
@@ -62,6 +64,43 @@ class HeldInnovation(ctypes.Structure):
     """``HeldInnovation`` of planner.h."""
 
     _fields_ = [("held_top", _DOUBLE_P), ("C", _DOUBLE_P), ("limit", ctypes.c_double)]
+
+
+class BinScans:
+    """The C planner's cache of the tau scans per bin of step sizes (``BinCache`` of
+    planner.h), as a native FMU instance keeps it: pass one to :func:`c_plan` for a sequence
+    of step sizes.
+
+    Examples
+    --------
+    >>> from fhobs.design.observer import paper_gains
+    >>> from fhobs.core.runtime import FilteringObserver
+    >>> observer, bins = FilteringObserver(paper_gains().filtering), BinScans()
+    >>> for dt in (1.00e-3, 1.01e-3):  # doctest: +SKIP
+    ...     _ = c_plan("observer", observer, dt, bins)
+    >>> bins.info()  # doctest: +SKIP
+    PlanCacheInfo(scans=1, bins=1, max_bins=64)
+    """
+
+    def __init__(self) -> None:
+        lib = library()
+        if lib is None:
+            raise RuntimeError("the planner library needs a C compiler (cc or gcc)")
+        self._lib = lib
+        self._buffer = np.zeros(lib.fhobs_bin_cache_bytes(), dtype=np.uint8)
+        lib.fhobs_bin_cache_init(self.pointer)
+
+    @property
+    def pointer(self) -> ctypes.c_void_p:
+        """The address of the C structure."""
+        return ctypes.c_void_p(self._buffer.ctypes.data)
+
+    def info(self) -> PlanCacheInfo:
+        """The tau scans made so far and the bins kept, as the numpy runtime's
+        :meth:`~fhobs.core.runtime.FilteringObserver.plan_cache_info`."""
+        scans = ctypes.c_longlong()
+        kept = self._lib.fhobs_bin_cache_info(self.pointer, ctypes.byref(scans))
+        return PlanCacheInfo(scans.value, kept, BIN_CACHE_SIZE)
 
 
 def design_data(kind: str, model: Any) -> dict[str, Any]:
@@ -153,6 +192,9 @@ def library() -> ctypes.CDLL | None:
     lib.fhobs_plan_prescribed.restype = ctypes.c_int
     lib.fhobs_plan_zoh.restype = None
     lib.fhobs_plan_luenberger.restype = ctypes.c_double
+    lib.fhobs_bin_cache_bytes.restype = ctypes.c_int
+    lib.fhobs_bin_cache_init.restype = None
+    lib.fhobs_bin_cache_info.restype = ctypes.c_int
     return lib
 
 
@@ -170,8 +212,10 @@ def _structure(cls: type[ctypes.Structure], fields: dict[str, Any],
     return cls(**values)
 
 
-def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
-    """The C planner's plan of ``kind`` for the step size dt, as the native FMU makes it.
+def c_plan(kind: str, model: Any, dt: float, bins: BinScans | None = None) -> dict[str, Any]:
+    """The C planner's plan of ``kind`` for the step size dt, as the native FMU makes it
+    (observer, prescribed_time: with the tau scans of ``bins``, which it updates; None: a
+    fresh cache).
 
     Returns
     -------
@@ -233,7 +277,8 @@ def c_plan(kind: str, model: Any, dt: float) -> dict[str, Any]:
                                      work=kernel.pointer(scratch))
         function = lib.fhobs_plan_prescribed
     F, best = np.zeros((n, n)), ctypes.c_double()
-    refused = function(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan),
+    bins = BinScans() if bins is None else bins
+    refused = function(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan), bins.pointer,
                        kernel.pointer(top), ctypes.c_double(dt), kernel.pointer(M),
                        kernel.pointer(F), ctypes.byref(best), kernel.pointer(work))
     if refused:
