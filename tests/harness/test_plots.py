@@ -66,7 +66,7 @@ def test_state_panels_carry_names_units_and_a_colour_per_curve(figures, tmp_path
                          tmp_path / "states.png", "DC-Motor.SuT", names=labels)
     (fig,) = figures
     axes = fig.axes
-    assert [ax.get_ylabel() for ax in axes] == ["inductor.i [A]", "inertia.w [rad/s]"]
+    assert [ax.get_title(loc="left") for ax in axes] == ["inductor.i [A]", "inertia.w [rad/s]"]
     assert axes[0].get_title() == "DC-Motor.SuT"
     for ax in axes:
         colours = [to_hex(line.get_color()) for line in ax.get_lines()]
@@ -127,5 +127,6 @@ def test_disturbance_panels_and_the_plant_command_use_the_spec(figures, tmp_path
     errors, states = figures
     assert errors.axes[0].get_title().startswith("DC-Motor.SuT: ")
     assert states.axes[0].get_title() == "DC-Motor.SuT"
-    assert [ax.get_ylabel() for ax in states.axes] == ["inductor.i [A]", "inertia.w [rad/s]"]
+    assert [ax.get_title(loc="left") for ax in states.axes] == ["inductor.i [A]",
+                                                                 "inertia.w [rad/s]"]
     assert all("own_plant" not in fig.axes[0].get_title() for fig in figures)
