@@ -1,31 +1,56 @@
-"""The exported native SSP in OMSimulator 3.0, without Python, against the harness.
+"""Exported native SSPs in OMSimulator 3.0, without Python, against the harness.
 
 Usage: ``python bench/check_omsimulator.py --out DIR (--omsimulator PATH | --oms-src SRC)
-[--scenario pendulum_nominal] [--design spec|paper] [--stop-time T] [--timeout S]``.
+[--scenario NAME ...] [--plant SPEC ...] [--no-blocks] [--design spec|paper] [--stop-time T]
+[--timeout S]``.
 
-1. builds the pendulum FMUs of ``examples/pendulum.toml`` (``--design spec``: our design; or
-   the paper's published gains) with their native FMUs into ``DIR/fmus`` (as ``python -m
-   harness paper --native`` does), loads the scenario on ``DIR/fmus/native`` and exports it as
-   ``DIR/<scenario>.ssp`` (:func:`harness.ssp.export_ssp`: gains lowered to gain blocks, every
-   FMU native, the harness blocks included; checked here: no FMU of the SSP is a pythonfmu
-   FMU);
-2. runs ``OMSimulator --resultFile=DIR/oms_result.csv --stopTime=T DIR/<scenario>.ssp`` in an
-   empty environment (``env -i``: no PYTHONHOME, no PATH, no LD_LIBRARY_PATH; what the binary
-   needs beyond libc must come with it), its log in ``DIR/oms.log``;
-3. runs the harness on the scenario (gains applied by the master, as ``harness paper
-   --native``) and on the exported system (the gain blocks, as a Jacobi engine runs the SSP),
-   and prints OMSimulator's outcome (exit status, rows, the last time it reached, its error
-   lines), the scenario's figures (errors at the instants, max and RMS over the windows) for the
-   three runs, and the largest differences of the recorded signals at the common instants.
+The systems checked: every bundled scenario (``harness/scenarios/*.toml``, ``python -m harness
+list``; or the ``--scenario`` names), ``harness plant``'s system of each ``--plant`` spec (its
+``[disturbance]`` as a native ``signal`` block, its plant's seeded measurement noise; e.g.
+``fmu_src/fhobs/examples/stiff/dc_motor.toml``) and, unless ``--no-blocks``, a system of every
+source block (signal random walk and step from a start between two steps, Gaussian noise,
+constant) added by a sum block. For each:
+
+1. builds the FMUs natively (the pendulum FMUs of ``examples/pendulum.toml`` with
+   ``--design spec`` or the paper's published gains, as ``python -m harness paper --native``;
+   a plant spec's design as ``harness plant --native``) into ``DIR/fmus``, and exports the
+   system as ``DIR/<system>/<system>.ssp`` (:func:`harness.ssp.export_ssp` with
+   ``allow_python=False``: gains lowered to gain blocks, every FMU native, the harness blocks
+   native, refused if any FMU needed Python);
+2. runs ``OMSimulator --resultFile=... --stopTime=T <system>.ssp`` in an empty environment
+   (``env -i``: no PYTHONHOME, no PATH, no LD_LIBRARY_PATH; what the binary needs beyond libc
+   must come with it), its log in ``DIR/<system>/oms.log``;
+3. runs the harness on the system (gains applied by the master) and on the exported system
+   (the gain blocks, as a Jacobi engine runs the SSP), and prints OMSimulator's outcome (exit
+   status, rows, the last time it reached, its last step, its error lines), the figures
+   (errors at the instants, max and RMS over the windows, ...) of the three runs and the
+   largest differences of the recorded signals at the common instants; then one summary row
+   per system.
 
 OMSimulator reads an SSP only with OpenModelica's annotation of the top-level system
 (``oms:SimulationInformation`` with an ``oms:FixedStepMaster``; the export writes it with the
-scenario's step). Its master orders the exchange by the declared dependencies (the gain
-blocks' outputs depend on their inputs), so it follows the scenario itself rather than the
-lagged Jacobi exchange of fmpy and libcosim; both comparisons are printed. Its CSV holds 15
-significant digits.
+scenario's step). Its master orders the exchange by the declared dependencies (the gain and
+sum blocks' outputs depend on their inputs), so it follows the system itself rather than the
+lagged Jacobi exchange of fmpy and libcosim: the summary compares it with the harness's run of
+the system (in the system of blocks, whose sum block's output the harness's Jacobi exchange
+reads one step late, with that output formed from its inputs of the same instant:
+:func:`without_lag`). Its CSV result holds 12 significant digits (``%.12g``), so the script
+asks for its MAT v4 result (doubles, the times exact). A signal's difference is taken relative
+to the largest magnitude of the signal (the summary's "signals" column), a figure's relative to
+itself or, for an error figure far below its signals, to the scale of the error's reference
+signal (the largest norm of the true state, as the harness's settling figures take it); the
+check asks 1e-9 of both. OMSimulator writes two rows per step (after the doStep, after the
+exchange: the last row of a time is kept). It accumulates its time in floating point
+(t += h), so after N steps it is short of ``t0 + N h`` by up to a few 1e-13 s and, given that
+stop time, takes an extra step of that length: the native FMUs and blocks accept it (any
+positive step), the supervised observer refuses it (it steps whole Kalman samples: an error
+in OMSimulator's log), and it is one more draw of the seeded noise. So the script passes
+OMSimulator the time its master reaches after N steps (:func:`accumulated_time`, the same sum)
+as ``T``: it then stops after exactly the harness's N steps. Should a last step still come
+(its length is printed), its row is left out (of two instants within 1e-9 s the first is
+kept).
 
-Building OMSimulator 3.0 (linux64, offline, about 10 minutes on 2 cores, CMake >= 3.5 and a
+Building OMSimulator 3.0 (linux64, offline, about 10-20 minutes on 2 cores, CMake >= 3.5 and a
 C/C++ compiler): unpack tag ``v3.0.0`` of github.com/OpenModelica/OMSimulator, and in its
 empty ``3rdParty/`` commit ``f807ac3664cf21a86304e56e1b8ebf7b192f26b8`` of
 github.com/OpenModelica/OMSimulator-3rdParty (from git mirrors ``OMS.git`` and ``3RD.git``;
@@ -46,26 +71,37 @@ unpacked sources as ``--oms-src`` and this script runs the two CMake steps (unle
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import subprocess
 import sys
-import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import scipy.io
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.cli import build_paper_fmus, load_scenario  # noqa: E402
+from harness.cli import SCENARIO_DIR, build_paper_fmus, design_spec_file, load_scenario  # noqa: E402
 from harness.master import CoSimResult, run_system  # noqa: E402
+from harness.own_plant import RUNS_PER_SETTLING_TIME, own_plant_system, transient_end  # noqa: E402
 from harness.results import error_figures  # noqa: E402
-from harness.ssp import export_ssp, exported_system, is_pythonfmu  # noqa: E402
-from harness.system import SystemSpec, resolve_system  # noqa: E402
+from harness.ssp import export_ssp, exported_system  # noqa: E402
+from harness.system import (  # noqa: E402
+    ConnectionSpec,
+    FmuSpec,
+    SystemSpec,
+    build_blocks,
+    resolve_system,
+)
 
 OMS_BINARY = Path("install/bin/OMSimulator")
 """Where the build puts the binary, relative to the sources."""
+TOLERANCE = 1e-9
+"""What the check asks of the signals and the figures (relative, see the module docstring)."""
+SAME_INSTANT = 1e-9
+"""Two rows of OMSimulator's CSV this close in time (s) are one instant."""
 
 
 def build_omsimulator(src: Path) -> Path:
@@ -95,27 +131,85 @@ def build_omsimulator(src: Path) -> Path:
     return binary
 
 
-def export_native_ssp(out: Path, scenario: str, design: str) -> tuple[SystemSpec, Path]:
-    """Build the FMUs (pythonfmu and native) into ``out/fmus``, load ``scenario`` on the native
-    ones and export it as ``out/<scenario>.ssp``; check that every FMU of the SSP is native."""
-    native = build_paper_fmus(out / "fmus", design=design, native=True)
-    spec = load_scenario(scenario, native, out / "blocks")
-    ssp = export_ssp(spec, out / f"{scenario}.ssp", out / "blocks")
-    unpacked = out / "ssp_fmus"
-    with zipfile.ZipFile(ssp) as archive:
-        fmus = [Path(archive.extract(n, unpacked)) for n in archive.namelist()
-                if n.endswith(".fmu")]
-    python = [fmu.name for fmu in fmus if is_pythonfmu(fmu)]
-    if python:
-        raise SystemExit(f"the SSP holds pythonfmu FMUs: {python}")
-    return spec, ssp
+# -- the systems -------------------------------------------------------------------------------
 
+def scenario_systems(out: Path, names: list[str], design: str) -> list[SystemSpec]:
+    """The scenarios ``names`` on the native pendulum FMUs (built once into ``out/fmus``)."""
+    native = build_paper_fmus(out / "fmus", design=design, native=True)
+    return [load_scenario(name, native, out / "blocks") for name in names]
+
+
+def plant_system(out: Path, spec_path: Path, seed: int = 3) -> SystemSpec:
+    """``harness plant``'s system of the spec (its default step and stop time, its
+    ``[disturbance]``, the measurement noise of its ``[noise]`` table with ``seed``) on the
+    native FMUs of its design (built into ``out/fmus/<spec>``)."""
+    from fhobs.native.build import build_native_fmus
+
+    spec, design = design_spec_file(spec_path)
+    noise = 0.0 if spec.noise is None else float(np.sqrt(3.0) * np.max(spec.noise.measurement_std))
+    step = spec.noise.sample_time if spec.noise is not None else 1e-3
+    stop_time = step * round(RUNS_PER_SETTLING_TIME * spec.settling_time / step)
+    native = build_native_fmus(design, out / "fmus" / spec_path.stem, steps=(step,),
+                               T0=spec.settling_time, x0=spec.state_scale,
+                               noise_amplitude=noise, h=step)
+    settled = transient_end(design, spec.settling_time, step, stop_time)
+    system = own_plant_system(design, native, spec.state_scale, stop_time, step, noise,
+                              disturbance=spec.disturbance, settled=settled)
+    system = replace(system, name=f"plant_{spec_path.stem}")
+    return build_blocks(system.with_seed(seed) if noise else system, out / "blocks")
+
+
+def blocks_system(out: Path) -> SystemSpec:
+    """Every source block added by a sum block: a random walk and a step from a start between
+    two steps, Gaussian noise, a constant; 2000 steps of 1 ms (the draws cross a generator
+    block of 1024). No gain on the connections: OMSimulator's row at the start time does not
+    pass a value through two direct-feedthrough blocks in a row (a source through a gain block
+    into the sum: the sum's input still 0 there; from the first step on it does), while the
+    scenarios' gain blocks feed FMUs whose outputs at the start do not depend on their inputs."""
+    start = 0.2005
+    fmus = {
+        "walk": FmuSpec("walk", None, {"shape": 3, "seed": 5, "start": start, "size[1]": 0.5,
+                                       "size[2]": -1.0}, ("signal", (2,))),
+        "step": FmuSpec("step", None, {"shape": 0, "start": start, "size[1]": 1.0,
+                                       "size[2]": 2.0}, ("signal", (2,))),
+        "noise": FmuSpec("noise", None, {"distribution": 1, "seed": 7, "size[1]": 0.1,
+                                         "size[2]": 0.2}, ("noise", (2,))),
+        "offset": FmuSpec("offset", None, {"value[1]": 3.0, "value[2]": -4.0},
+                          ("constant", (2,))),
+        "total": FmuSpec("total", None, {}, ("sum", (2, 4))),
+    }
+    connections = tuple(ConnectionSpec(f"{source}.y[{i}]", f"total.u[{k + 1},{i}]")
+                        for k, source in enumerate(("walk", "step", "noise", "offset"))
+                        for i in (1, 2))
+    system = SystemSpec("blocks", fmus, connections, 1e-3, 2.0,
+                        record=("walk.y", "step.y", "noise.y", "offset.y", "total.y"))
+    return build_blocks(system, out / "blocks", native=True)
+
+
+def without_lag(result: CoSimResult) -> CoSimResult:
+    """The blocks system's harness run with ``total.y`` as the sum block gives it from its
+    inputs of the same instant, ``walk.y + step.y + noise.y + offset.y`` (the harness's
+    Jacobi exchange reads it one step late; OMSimulator orders the exchange by the block's
+    declared dependencies)."""
+    total = (result.vector("walk.y") + result.vector("step.y") + result.vector("noise.y")
+             + result.vector("offset.y"))
+    values = result.values.copy()
+    for i in range(2):
+        values[:, result.names.index(f"total.y[{i + 1}]")] = total[:, i]
+    return replace(result, values=values)
+
+
+REFERENCES = {"blocks": without_lag}
+"""The systems whose harness run is compared with OMSimulator's after a change."""
+
+
+# -- OMSimulator ---------------------------------------------------------------------------------
 
 def run_omsimulator(binary: Path, ssp: Path, out: Path, stop_time: float,
                     timeout: float) -> tuple[int, Path, str]:
     """Run ``binary`` on ``ssp`` under ``env -i``; return its exit status (-1: timeout), the
     result CSV and its log (stdout and stderr, also written to ``out/oms.log``)."""
-    result = out / "oms_result.csv"
+    result = out / "oms_result.mat"
     result.unlink(missing_ok=True)
     temp = out / "oms_temp"
     temp.mkdir(exist_ok=True)
@@ -132,25 +226,35 @@ def run_omsimulator(binary: Path, ssp: Path, out: Path, stop_time: float,
     return status, result, log
 
 
-def read_oms_result(path: Path, names: list[str]) -> CoSimResult | None:
-    """The signals ``names`` (``"fmu.var"``) from OMSimulator's CSV (columns named
-    ``<model>.<system>.<fmu>.<var>``), one row per time (the last row of a repeated time)."""
+def read_oms_result(path: Path, names: list[str]) -> tuple[CoSimResult, float] | None:
+    """The signals ``names`` (``"fmu.var"``) from OMSimulator's MAT v4 result (doubles; the
+    variables named ``<model>.<system>.<fmu>.<var>``, their values in ``data_2`` by
+    ``dataInfo``), one row per instant (the last row of a repeated time, the one after the
+    exchange; of two instants within :data:`SAME_INSTANT`, the first), and its last step (s)."""
     if not path.is_file():
         return None
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    header = [h.strip().strip('"') for h in rows[0]]
-    columns = {}
-    for name in names:
+    mat = scipy.io.loadmat(str(path))
+    info = mat["dataInfo"]
+    count = info.shape[1]
+    chars = np.array([list(row.ljust(count, "\0")) for row in mat["name"]])
+    header = ["".join(chars[:, j]).rstrip("\0 ") for j in range(count)]
+    data = mat["data_2"]
+    series = {}
+    for name in ["time", *names]:
         found = [j for j, h in enumerate(header) if h == name or h.endswith("." + name)]
-        if not found:
+        if not found or info[0, found[0]] not in (0, 2):
             return None
-        columns[name] = found[0]
-    table = np.array([[float(x) for x in row] for row in rows[1:] if row])
-    time = table[:, 0]
-    last = np.append(time[1:] != time[:-1], True)  # the last row of each time
-    values = np.column_stack([table[last, columns[n]] for n in names])
-    return CoSimResult(time[last], tuple(names), values, int(last.sum()) - 1, 0.0)
+        column = info[1, found[0]]
+        series[name] = np.sign(column) * data[abs(column) - 1]
+    time = series["time"]
+    last = np.flatnonzero(np.append(time[1:] != time[:-1], True))  # the last row of a time
+    keep = [last[0]]
+    for k in last[1:]:
+        if time[k] - time[keep[-1]] > SAME_INSTANT:
+            keep.append(k)
+    last_step = float(time[last[-1]] - time[last[-2]])
+    values = np.column_stack([series[n][keep] for n in names])
+    return CoSimResult(time[keep], tuple(names), values, len(keep) - 1, 0.0), last_step
 
 
 def on_grid(result: CoSimResult, reference: CoSimResult) -> tuple[np.ndarray, np.ndarray]:
@@ -162,43 +266,124 @@ def on_grid(result: CoSimResult, reference: CoSimResult) -> tuple[np.ndarray, np
     return result.values[match], theirs[index[match]]
 
 
-def differences(figures: dict, reference: dict) -> str:
-    """Per error signal, the largest relative and absolute difference of its figures."""
-    return ", ".join(
-        f"{e} {max(abs(figures[e][k] / reference[e][k] - 1) for k in reference[e]):.1e} rel "
-        f"{max(abs(figures[e][k] - reference[e][k]) for k in reference[e]):.1e} abs"
-        for e in reference)
+def signal_difference(result: CoSimResult, reference: CoSimResult) -> tuple[float, int]:
+    """The largest difference of a recorded signal between the runs at their common instants,
+    relative to that signal's largest magnitude in ``reference``; the number of instants."""
+    a, b = on_grid(result, reference)
+    scale = np.max(np.abs(b), axis=0)
+    scale[scale == 0.0] = 1.0
+    return float(np.max(np.abs(a - b) / scale)) if a.size else float("nan"), len(a)
 
 
-def print_report(status: int, log: str, oms: CoSimResult | None, runs: dict[str, CoSimResult],
-                 spec: SystemSpec) -> None:
-    """OMSimulator's outcome, the figures of every run and the differences."""
+def figure_difference(figures: dict, reference: dict, scales: dict[str, float]) -> float:
+    """The largest difference of a figure, relative to the figure or (when smaller) to the
+    scale of its error's reference signal (:func:`reference_scales`)."""
+    worst = 0.0
+    for e, values in reference.items():
+        for k, value in values.items():
+            diff = abs(figures[e][k] - value)
+            worst = max(worst, diff / max(abs(value), scales[e]) if diff else 0.0)
+    return worst
+
+
+def reference_scales(result: CoSimResult, spec: SystemSpec) -> dict[str, float]:
+    """Per error signal: the largest norm of its reference signal (the true state)."""
+    return {e: float(np.max(np.linalg.norm(result.vector(ref), axis=1)))
+            for e, (ref, _) in spec.evaluation.errors.items()}
+
+
+def print_report(status: int, log: str, oms: CoSimResult | None, last_step: float,
+                 runs: dict[str, CoSimResult], spec: SystemSpec) -> dict[str, float]:
+    """OMSimulator's outcome, the figures of every run and the differences; the comparison
+    with the harness's run of the system (its summary row)."""
     errors = [line for line in log.splitlines() if "error" in line.lower()]
     print(f"\nOMSimulator: exit status {status}, "
-          + (f"{len(oms.time)} rows, last t = {oms.time[-1]!r}" if oms is not None
-             else "no result file with the recorded signals"))
+          + (f"{len(oms.time)} instants, last t = {oms.time[-1]!r}, last step {last_step:.3g} s"
+             if oms is not None else "no result file with the recorded signals"))
     for line in errors[:20]:
         print(f"  {line}")
     if oms is not None:
         runs = {"OMSimulator": oms, **runs}
     figures = {label: error_figures(r, spec.evaluation) for label, r in runs.items()}
-    keys = [(e, k) for e in figures["harness (scenario)"]
-            for k in figures["harness (scenario)"][e]]
-    print("\n| figure | " + " | ".join(figures) + " |")
-    print("|---|" + "---|" * len(figures))
-    for e, k in keys:
-        cells = " | ".join(f"{f.get(e, {}).get(k, float('nan')):.6e}" for f in figures.values())
-        print(f"| {e} {k} | {cells} |")
+    keys = [(e, k) for e in figures["harness (system)"] for k in figures["harness (system)"][e]]
+    if keys:
+        print("\n| figure | " + " | ".join(figures) + " |")
+        print("|---|" + "---|" * len(figures))
+        for e, k in keys:
+            cells = " | ".join(f"{f.get(e, {}).get(k, float('nan')):.9e}" for f in figures.values())
+            print(f"| {e} {k} | {cells} |")
+    row = {"status": status, "errors": len(errors), "instants": 0 if oms is None else len(oms.time),
+           "last_step": last_step, "signals": float("nan"), "figures": float("nan")}
     if oms is None:
-        return
-    print("\n| OMSimulator against | figure differences (per error signal) | max abs. signal "
-          "difference | common instants |\n|---|---|---|---|")
+        return row
+    scales = reference_scales(runs["harness (system)"], spec)
+    print("\n| OMSimulator against | largest figure difference | largest signal difference "
+          "(relative to the signal) | common instants |\n|---|---|---|---|")
     for label, run in runs.items():
         if label == "OMSimulator":
             continue
-        a, b = on_grid(oms, run)
-        print(f"| {label} | {differences(figures['OMSimulator'], figures[label])} | "
-              f"{np.max(np.abs(a - b)) if a.size else float('nan'):.2e} | {len(a)} |")
+        signals, common = signal_difference(oms, run)
+        fig = figure_difference(figures["OMSimulator"], figures[label], scales)
+        print(f"| {label} | {fig:.2e} | {signals:.2e} | {common} |")
+        if label == "harness (system)":
+            row |= {"signals": signals, "figures": fig}
+    return row
+
+
+def accumulated_time(start: float, step: float, steps: int) -> float:
+    """``start + step + step + ...`` (``steps`` times) in floating point, as OMSimulator's
+    master accumulates its time.
+
+    Examples
+    --------
+    >>> accumulated_time(0.0, 5e-5, 60000)
+    2.9999999999996776
+    """
+    t = start
+    for _ in range(steps):
+        t += step
+    return t
+
+
+def check(binary: Path, spec: SystemSpec, out: Path, stop_time: float | None,
+          timeout: float) -> dict[str, float]:
+    """Export ``spec`` (native, no Python), run it in OMSimulator and in the harness, print the
+    report; the summary row."""
+    folder = out / spec.name
+    folder.mkdir(parents=True, exist_ok=True)
+    ssp = export_ssp(spec, folder / f"{spec.name}.ssp", out / "blocks", allow_python=False)
+    stop = stop_time if stop_time is not None else spec.stop_time
+    print(f"\n## {spec.name}: {ssp}, {round((stop - spec.start_time) / spec.step)} steps of "
+          f"{spec.step!r} s", flush=True)
+    steps = round((stop - spec.start_time) / spec.step)
+    status, result, log = run_omsimulator(
+        binary, ssp, folder, accumulated_time(spec.start_time, spec.step, steps), timeout)
+    harness = run_system(resolve_system(spec), stop_time=stop, progress=False)
+    runs = {
+        "harness (system)": REFERENCES.get(spec.name, lambda r: r)(harness),
+        "harness (exported system)": run_system(
+            resolve_system(exported_system(spec, out / "blocks")), stop_time=stop,
+            progress=False),
+    }
+    read = read_oms_result(result, list(runs["harness (system)"].names))
+    oms, last_step = read if read is not None else (None, float("nan"))
+    row = print_report(status, log, oms, last_step, runs, spec)
+    return row | {"steps": len(runs["harness (system)"].time) - 1}
+
+
+def print_summary(rows: dict[str, dict[str, float]]) -> bool:
+    """One row per system; whether every system passed."""
+    print("\n| system | steps | OMSimulator exit, errors logged | instants | its last step (s) | "
+          f"signals | figures | within {TOLERANCE:g} |\n|---|---|---|---|---|---|---|---|")
+    passed = True
+    for name, r in rows.items():
+        ok = (r["status"] == 0 and r["errors"] == 0 and r["instants"] == r["steps"] + 1
+              and r["signals"] <= TOLERANCE and r["figures"] <= TOLERANCE)
+        passed &= ok
+        print(f"| {name} | {r['steps']} | {r['status']}, {r['errors']} | {r['instants']} | "
+              f"{r['last_step']:.3g} | {r['signals']:.1e} | {r['figures']:.1e} | "
+              f"{'yes' if ok else 'NO'} |")
+    return passed
 
 
 def main() -> None:
@@ -208,9 +393,13 @@ def main() -> None:
     source.add_argument("--oms-src", type=Path,
                         help="OMSimulator v3.0.0 sources with 3rdParty/ (built if needed)")
     parser.add_argument("--out", type=Path, required=True, help="directory for FMUs and runs")
-    parser.add_argument("--scenario", default="pendulum_nominal")
+    parser.add_argument("--scenario", action="append",
+                        help="a bundled scenario (repeatable; default: every one)")
+    parser.add_argument("--plant", type=Path, action="append", default=[],
+                        help="a plant spec whose `harness plant` system is checked (repeatable)")
+    parser.add_argument("--no-blocks", action="store_true", help="skip the system of blocks")
     parser.add_argument("--design", choices=("spec", "paper"), default="spec")
-    parser.add_argument("--stop-time", type=float, help="default: the scenario's")
+    parser.add_argument("--stop-time", type=float, help="default: each system's")
     parser.add_argument("--timeout", type=float, default=1800.0, help="OMSimulator's, s")
     args = parser.parse_args()
     binary = args.omsimulator if args.omsimulator else build_omsimulator(args.oms_src)
@@ -218,18 +407,14 @@ def main() -> None:
         parser.error(f"--omsimulator {binary}: no such file (build it first, see the "
                      "docstring of this script)")
     args.out.mkdir(parents=True, exist_ok=True)
-    spec, ssp = export_native_ssp(args.out, args.scenario, args.design)
-    stop_time = args.stop_time if args.stop_time is not None else spec.stop_time
-    status, result, log = run_omsimulator(binary, ssp, args.out, stop_time, args.timeout)
-    runs = {
-        "harness (scenario)": run_system(resolve_system(spec), stop_time=stop_time,
-                                         progress=False),
-        "harness (exported system)": run_system(
-            resolve_system(exported_system(spec, args.out / "blocks")), stop_time=stop_time,
-            progress=False),
-    }
-    names = list(runs["harness (scenario)"].names)
-    print_report(status, log, read_oms_result(result, names), runs, spec)
+    names = args.scenario or sorted(path.stem for path in SCENARIO_DIR.glob("*.toml"))
+    systems = scenario_systems(args.out, names, args.design)
+    systems += [plant_system(args.out, path) for path in args.plant]
+    if not args.no_blocks:
+        systems.append(blocks_system(args.out))
+    rows = {spec.name: check(binary, spec, args.out, args.stop_time, args.timeout)
+            for spec in systems}
+    sys.exit(0 if print_summary(rows) else 1)
 
 
 if __name__ == "__main__":
