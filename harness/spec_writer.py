@@ -10,7 +10,10 @@ The ``[observer]`` defaults:
 - ``settling_time`` = 3 / (the decay rate of the plant's slowest stable mode): the observer
   settles in the time the plant's own slowest stable mode falls to e^-3 (5 %); without a
   stable mode it is left to the design's default;
-- ``state_scale`` = each state's ``nominal`` value (1 where the model declares none).
+- ``state_scale``: the larger of each state's ``nominal`` value (1 where the model declares
+  none) and how far the state moves within that settling time (2 s without one) after a step
+  of every input by its size at the operating point (at least 1): a state's typical size in
+  its own unit, which the nominal values alone may not give (a solver's scale, e.g. 1e-4 rad).
 
 Only the small subset of TOML the spec needs is written (no TOML writer is installed):
 numbers as ``repr(float)`` (which reads back to the same double), strings with JSON's escapes
@@ -26,12 +29,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from harness.linearize import Linearization
 from harness.writing import write_text
 
 SETTLING_MODES = 3.0
 """settling_time = SETTLING_MODES / the slowest stable decay rate."""
+DEFAULT_HORIZON = 2.0
+"""The horizon (s) of :func:`state_scale` for a plant without a stable mode."""
 
 
 def toml_value(value: Any) -> str:
@@ -78,6 +84,37 @@ def matrix_lines(name: str, M: np.ndarray) -> list[str]:
     return [f"{name} = ["] + [f"  {toml_value(list(map(float, row)))}," for row in M] + ["]"]
 
 
+def state_scale(A: np.ndarray, B: np.ndarray, nominal: np.ndarray, input_size: np.ndarray,
+                horizon: float) -> np.ndarray:
+    """Each state's typical size: the larger of its ``nominal`` value and the largest move
+    ``|x_i(t)|``, t in [0, horizon], of the linear plant from rest after a step of each input by
+    ``input_size`` (inputs taken one at a time, moves added), sampled at 50 instants.
+
+    Examples
+    --------
+    A current i' = (u - 0.5 i) / 1e-3 and an angle integrating it, 1 V for 1 s:
+
+    >>> A, B = np.array([[-500.0, 0.0], [1.0, 0.0]]), np.array([[1000.0], [0.0]])
+    >>> [round(float(v), 3) for v in state_scale(A, B, np.array([1e-4, 1e-4]), np.ones(1), 1.0)]
+    [2.0, 1.996]
+    """
+    n, m = B.shape
+    big = np.zeros((n + m, n + m))
+    big[:n, :n], big[:n, n:] = A, B * input_size
+    moves = np.zeros(n)
+    for t in np.linspace(0.0, horizon, 51)[1:]:
+        step = scipy.linalg.expm(big * t)[:n, n:]  # x(t) after unit steps of each input
+        moves = np.maximum(moves, np.abs(step).sum(axis=1))
+    return np.maximum(np.asarray(nominal, dtype=float), moves)
+
+
+def _input_size(lin: Linearization) -> np.ndarray:
+    """max(|u at the operating point|, 1) per input."""
+    m = lin.B.shape[1]
+    u_op = np.zeros(m) if lin.u is None else np.abs(np.asarray(lin.u, dtype=float)[:m])
+    return np.maximum(u_op, 1.0)
+
+
 def settling_time(A: np.ndarray) -> float | None:
     """:data:`SETTLING_MODES` over the decay rate of A's slowest stable mode (None without a
     stable mode).
@@ -119,8 +156,11 @@ def spec_text(lin: Linearization, spec_path: Path) -> str:
     else:
         lines += ["# 3 / the decay rate of the plant's slowest stable mode",
                   f"settling_time = {settle!r}"]
-    lines += ["# the states' nominal values (1 where the model declares none)",
-              f"state_scale = {toml_value(list(map(float, lin.state_nominal)))}", "",
+    scale = state_scale(lin.A, lin.B, lin.state_nominal, _input_size(lin),
+                        DEFAULT_HORIZON if settle is None else settle)
+    lines += ["# the larger of each state's nominal value and its move within the settling time "
+              "after a step of every input by max(|u_op|, 1)",
+              f"state_scale = {toml_value(list(map(float, scale)))}", "",
               "[signals]",
               f"states = {toml_value(lin.states)}",
               f"state_units = {toml_value(lin.state_units)}",

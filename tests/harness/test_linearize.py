@@ -176,7 +176,13 @@ def test_written_spec_reads_back_and_designs(fmus, tmp_path, capsys):
     assert model["inputs"] == ["U"] and model["unknown_inputs"] == ["M_load"]
     assert model["at"] == 0.0 and model["states"] == data["signals"]["states"]
     hand = dc_motor_matrices(**{**DC_MOTOR_BOUND, "J": 0.004})
-    assert data["observer"]["state_scale"] == [1.0, 1.0, 100.0]  # the nominal values
+    # each state's typical size: its nominal value or its largest move within the settling
+    # time after a 1 V step, by an ODE solver on the hand-derived matrices
+    settle = data["observer"]["settling_time"]
+    moves = solve_ivp(lambda t, x: hand["A"] @ x + hand["B"][:, 0], (0.0, settle), np.zeros(3),
+                      t_eval=np.linspace(0.0, settle, 51), rtol=1e-10, atol=1e-12).y
+    expected = np.maximum([1.0, 1.0, 100.0], np.abs(moves).max(axis=1))
+    assert np.allclose(data["observer"]["state_scale"], expected, rtol=1e-6)
 
     from fhobs.design.observer import design_for_spec
     from fhobs.design.spec import load_spec
