@@ -13,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import sysconfig
 import zipfile
 from pathlib import Path
 
@@ -136,7 +137,8 @@ def test_other_c_files_compile_warning_free(compiler, tmp_path):
     wrapper = NATIVE.parent / "fmu" / "status_wrapper.c"
     for optimise in ("-O0", "-O2"):  # gcc's -Wformat-truncation looks deeper at -O2
         compile_c(compiler, [optimise, *STRICT, f"-DFHOBS_STATUS_VR={STATUS_VALUE_REFERENCE}",
-                             fmi, f"-I{tmp_path}", "-c", str(wrapper), "-o",
+                             fmi, f"-I{tmp_path}", f"-I{sysconfig.get_paths()['include']}",
+                             "-c", str(wrapper), "-o",
                              str(tmp_path / "wrapper.o")])
         compile_c(compiler, [optimise, *STRICT, fmi, "-c", str(REPO_C[-2]), "-o",
                              str(tmp_path / "step_loop.o")])
