@@ -2,14 +2,15 @@
 
 Usage::
 
-    python bench/bench_variable_steps.py [--steps 2000] [--fresh 60]
+    python bench/bench_variable_steps.py [--steps 2000]
 
 The pendulum's filtering and prescribed-time observers (examples/pendulum.toml), pythonfmu
 and native, through fmpy's ``FMU2Slave`` (setReal of y and u, doStep, getReal of the
 outputs), with the step sequences a host may send: fixed 1e-4; 1e-4 / 3e-4 in turn; seeded
 random sizes among {5e-5, 1e-4, 2e-4, 3e-4, 5e-4, 1e-3}; and a new size at every step
-(log-uniform in [5e-5, 1e-3], ``--fresh`` steps), where each step pays for its size's plan.
-Prints a markdown table of microseconds per step.
+(distinct, log-uniform in [5e-5, 1e-3]), where each step pays for its size's plan (and the
+first size of each of the 36 bins of sizes for the bin's tau scan). Prints a markdown table of
+microseconds per step.
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ KINDS = ("observer", "prescribed_time")
 SIZES = (5e-5, 1e-4, 2e-4, 3e-4, 5e-4, 1e-3)
 
 
-def patterns(steps: int, fresh: int) -> dict[str, np.ndarray]:
+def patterns(steps: int) -> dict[str, np.ndarray]:
     """The step sequences (seeded)."""
     rng = np.random.default_rng(0)
     return {"fixed 1e-4": np.full(steps, 1e-4),
             "1e-4 / 3e-4": np.tile([1e-4, 3e-4], steps // 2),
             "random of 6 sizes": rng.choice(SIZES, steps),
-            "new size every step": np.exp(rng.uniform(np.log(5e-5), np.log(1e-3), fresh))}
+            "new size every step": np.exp(rng.uniform(np.log(5e-5), np.log(1e-3), steps))}
 
 
 def time_steps(path: Path, steps: np.ndarray) -> float:
@@ -71,13 +72,12 @@ def time_steps(path: Path, steps: np.ndarray) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--fresh", type=int, default=60)
     args = parser.parse_args()
     design = design_for_spec(dataclasses.replace(load_spec(PENDULUM_SPEC), noise=None))
     with tempfile.TemporaryDirectory(prefix="bench_variable_steps_") as tmp:
         builds = {"pythonfmu": build_fmus(design, Path(tmp) / "python", kinds=KINDS),
                   "native": build_native_fmus(design, Path(tmp) / "native", kinds=KINDS)}
-        sequences = patterns(args.steps, args.fresh)
+        sequences = patterns(args.steps)
         print("| FMU | build | " + " | ".join(sequences) + " |")
         print("|---|---|" + "---:|" * len(sequences))
         for kind in KINDS:
