@@ -14,6 +14,7 @@ import numpy as np
 from .core.gains import FilteringGains, ObserverDesign
 from .core.runtime import DEFAULT_H
 from .design.limits import check_design_limits
+from .design.settling import HORIZON
 from .design.spec import OBJECTIVES, load_spec
 from .errors import CertificateError, KalmanDesignError, LMIError, SpecError
 
@@ -111,7 +112,7 @@ def design_summary(design: ObserverDesign) -> list[str]:
     if tuning:
         lines.append(
             f"predicted settling time (error to 1e-3 of its start, from errors of the size of "
-            f"state_scale): {tuning['settling_time_predicted']:.3g} s (requested "
+            f"state_scale): {_settling_text(tuning)} (requested "
             f"{tuning['settling_time_requested']:.3g} s), peaking {tuning['peaking']:.3g}x"
         )
         if not tuning["met"]:
@@ -126,6 +127,23 @@ def design_summary(design: ObserverDesign) -> list[str]:
         lines.append(f"kalman filter: disturbance order {kalman.disturbance_order}, Ts = "
                      f"{kalman.sample_time:g} s; {kalman.tuning}")
     return lines
+
+
+def _settling_text(tuning: dict) -> str:
+    """The predicted settling time, or the horizon it was not reached within.
+
+    Examples
+    --------
+    >>> _settling_text({"settling_time_predicted": 0.5, "settling_time_requested": 2.0})
+    '0.5 s'
+    >>> _settling_text({"settling_time_predicted": math.inf, "settling_time_requested": 2.0})
+    "not within 6 s (the prediction's horizon)"
+    """
+    predicted = tuning["settling_time_predicted"]
+    if math.isfinite(predicted):
+        return f"{predicted:.3g} s"
+    return (f"not within {HORIZON * tuning['settling_time_requested']:.3g} s (the prediction's "
+            "horizon)")
 
 
 def slowest_mode(filtering: FilteringGains) -> float:

@@ -198,3 +198,17 @@ def test_a_settling_time_shorter_than_the_climb_can_reach_says_what_to_ask():
     text = str(caught.value)
     assert "no rho to try" in text and f"{RHO_MAX:g}" in text
     assert "a settling_time of at least 0.0003 s" in text
+
+
+@pytest.mark.parametrize("key, value", [("sample_time", 1e-300), ("process_intensity", 1e300),
+                                        ("measurement_std", [1e300])])
+def test_noise_numbers_beyond_the_designs_range_are_refused_before_the_riccati_equation(
+        key, value):
+    """Such numbers overflow inside scipy's Riccati solver (RuntimeWarnings, then a failure):
+    the limits refuse them first, naming the key."""
+    from fhobs.design.limits import check_design_limits
+    noise = {"measurement_std": [1e-3], "sample_time": 1e-3, "process_intensity": 1.0, key: value}
+    spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+                           "E": [[0], [1]], "noise": noise})
+    with pytest.raises(SpecError, match=f"noise.{key}.* is beyond the design's range"):
+        check_design_limits(spec)

@@ -11,10 +11,10 @@ overflow or a memory exhaustion deep inside the design. They were measured:
 - ``MAX_STATES``: the model's state count ``n + k * disturbance_order``. With chains of 10,
   300 states design in about 3 s and 600 in about 50 s (0.24 GB); the time grows as n^4,
   dominated by the powers of A0 that build the chain basis (:func:`fhobs.design.lmi.chain_basis`).
-- ``MAX_MAGNITUDE``: matrix entries, rho, gamma, filter_scale and state_scale (its entries and
-  their spread). The design squares and
-  multiplies them (A0^n_tilde, P (A + rho G)); a double integrator scaled by 1e12 is already
-  infeasible for the solver, and 1e200 overflows to inf.
+- ``MAX_MAGNITUDE``: matrix entries, rho, gamma, filter_scale, state_scale (its entries and
+  their spread) and the ``[noise]`` table's numbers (within its inverse and itself). The design
+  squares and multiplies them (A0^n_tilde, P (A + rho G)); a double integrator scaled by 1e12
+  is already infeasible for the solver, and 1e200 overflows to inf.
 - ``MIN_ABS_NU``: the dilation's weights ``1 + nu + j nu`` must be told apart by an eigenspace
   rank test; from ``|nu| = 1e-5`` on the eigenspaces are found wrong.
 """
@@ -77,11 +77,29 @@ def check_design_limits(spec: PlantSpec) -> None:
             f"{MAX_MAGNITUDE:g}], spanning at most a factor {MAX_MAGNITUDE:g}); rescale the "
             "plant's units"
         )
+    _check_noise(spec)
     if abs(spec.nu) < MIN_ABS_NU:
         raise SpecError(
             f"{spec.source}: observer.nu = {spec.nu!r} is too close to 0: the dilation weights "
             f"1 + nu + j nu cannot be told apart; use |nu| >= {MIN_ABS_NU:g}"
         )
+
+
+def _check_noise(spec: PlantSpec) -> None:
+    """The ``[noise]`` table's numbers within the design's range: the Kalman filter's Riccati
+    equation squares and multiplies them (a std of 1e300 or a sample time of 1e-300 overflow)."""
+    if spec.noise is None:
+        return
+    values = {"sample_time": spec.noise.sample_time,
+              "process_intensity": spec.noise.process_intensity}
+    values |= {f"measurement_std[{i + 1}]": float(v)
+               for i, v in enumerate(spec.noise.measurement_std)}
+    for name, value in values.items():
+        if not 1.0 / MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
+            raise SpecError(
+                f"{spec.source}: noise.{name} = {value!r} is beyond the design's range "
+                f"([{1 / MAX_MAGNITUDE:g}, {MAX_MAGNITUDE:g}]); rescale the plant's units or time"
+            )
 
 
 def _check_size(spec: PlantSpec) -> None:
