@@ -76,6 +76,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="a communication step size to check at build time: the build fails if the "
         "observer cannot follow it (repeatable; the native FMUs take every step size either way)",
     )
+    parser.add_argument(
+        "--fmi", type=int, choices=(2, 3), default=2,
+        help="FMI version of the native FMUs: 2 (default, into OUT/native/) or 3 (FMI 3.0 with "
+        "array variables, into OUT/native-fmi3/)",
+    )
     return parser.parse_args(argv)
 
 
@@ -122,6 +127,9 @@ def design_summary(design: ObserverDesign) -> list[str]:
                 "are not certified): ask for a longer settling_time, give rho yourself, or "
                 "accept the figures above"
             )
+    if filtering.max_communication_step > 0.0:
+        lines.append(f"communication step: at most {filtering.max_communication_step:.3g} s "
+                     "(inputs held; the observer FMUs warn once at a longer step)")
     kalman = design.kalman
     if kalman is not None:
         lines.append(f"kalman filter: disturbance order {kalman.disturbance_order}, Ts = "
@@ -206,6 +214,8 @@ def check_native_options(args: argparse.Namespace) -> None:
                             "and finite")
     if args.native_step and not args.native:
         raise SpecError("--native-step is for the native FMUs: add --native")
+    if args.fmi != 2 and not args.native:
+        raise SpecError(f"--fmi {args.fmi} is for the native FMUs: add --native")
     if args.native and args.design_only:
         raise SpecError("--native builds FMUs: drop --design-only")
 
@@ -277,8 +287,10 @@ def main(argv: list[str] | None = None) -> int:
             from .native.build import build_native_fmus
 
             try:
-                native = build_native_fmus(design, args.out / "native", steps=args.native_step,
-                                           h=args.h, names=spec.names, plant_name=spec.name)
+                folder = args.out / ("native" if args.fmi == 2 else f"native-fmi{args.fmi}")
+                native = build_native_fmus(design, folder, steps=args.native_step, h=args.h,
+                                           names=spec.names, plant_name=spec.name,
+                                           fmi_version=args.fmi)
             except BuildError as exc:
                 print(f"error: native FMUs: {exc}", file=sys.stderr)
                 return 2

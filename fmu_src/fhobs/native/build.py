@@ -75,7 +75,7 @@ from ..fmu.kinds import KINDS, Kind
 from ..fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 from ..fmu.variables import element_names
 from ..model_description import describe, naming_options
-from . import planner
+from . import fmi3, planner
 
 HERE = Path(__file__).resolve().parent
 C_ROLES = {"local": "LOCAL", "input": "INPUT", "output": "OUTPUT", "design": "COMPILED",
@@ -110,7 +110,7 @@ SCRATCH_FIELDS = {"factors", "last_tau", "work", "cwork"}
 COMPILE_FLAGS = (*kernel.COMPILE_FLAGS, "-fvisibility=hidden", "-std=c99")
 """``-fvisibility=hidden`` only confirms what the sources say (kernel.h's FHOBS_HIDDEN): the
 library exports the fmi2 functions alone either way."""
-UNIT_FLAGS = {"fmi2_layer.c": ("-O1",)}
+UNIT_FLAGS = {"fmi2_layer.c": ("-O1",), "fmi3_layer.c": ("-O1",)}
 """Flags added for one translation unit (after :data:`COMPILE_FLAGS`, so they win). The FMI
 layer is compiled once per FMU kind and design (ten times in the main job's first run) and
 holds argument checks and copies, no arithmetic a step repeats: at -O1 it compiles in 0.18 s
@@ -137,6 +137,7 @@ def build_native_fmus(
     kinds: Iterable[str] | None = None,
     names: SignalNames | None = None,
     plant_name: str | None = None,
+    fmi_version: int = 2,
     **options: Any,
 ) -> dict[str, Path]:
     """Build native FMUs into ``out_dir`` and return ``{kind: path}``.
@@ -159,6 +160,9 @@ def build_native_fmus(
     names, plant_name : optional
         The plant's signal names and name in the modelDescriptions, as for
         :func:`fhobs.build.build_fmus` (the same descriptions and units).
+    fmi_version : int
+        2 (default): FMI 2.0 co-simulation FMUs; 3: FMI 3.0 ones (:mod:`fhobs.native.fmi3`:
+        the same model and results, array variables).
     **options
         Start values of the setting parameters, as for :func:`fhobs.build.fmu_options`
         (``h``, ``scheme``, ``z0``, ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``,
@@ -188,6 +192,8 @@ def build_native_fmus(
     {'observer': PosixPath('out/observer.fmu')}
     """
     certify(design)  # first: the native FMUs do not check their design again
+    if fmi_version not in (2, 3):
+        raise BuildError(f"fmi_version {fmi_version!r}: native FMUs are FMI 2.0 or 3.0 (2 or 3)")
     if kinds is None:
         kinds = tuple(kind for kind in default_kinds(design) if kind != "prescribed_time"
                       or PrescribedTimeObserver(design.prescribed_time).eigen)
@@ -217,7 +223,7 @@ def build_native_fmus(
             data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
             data["norm1"] = _zoh_norm(KINDS[kind].runs(design))
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
-                                  stage / kind, naming)
+                                  stage / kind, naming, fmi_version)
         binaries = _compile_all(staged, stage / "shared", compiler)
         for kind, fmu in staged.items():
             built[kind] = _package(fmu, binaries[kind], out_dir / f"{kind}.fmu")
@@ -547,6 +553,7 @@ class _Staged:
     root: Path
     identifier: str
     files: tuple[str, ...]
+    platform: str = "linux64"
 
     @property
     def sources(self) -> Path:
@@ -554,12 +561,17 @@ class _Staged:
 
 
 def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
-           sizes: dict[str, int], stage: Path, naming: dict[str, Any]) -> _Staged:
+           sizes: dict[str, int], stage: Path, naming: dict[str, Any],
+           fmi_version: int = 2) -> _Staged:
     """Generate the sources of one native FMU, its modelDescription (its signals named by
     ``naming``, :func:`fhobs.model_description.naming_options`, part of its GUID) and
-    documentation into ``stage/fmu``."""
+    documentation into ``stage/fmu``; of FMI 3.0 (``fmi_version`` 3) with the layer and the
+    descriptions of :mod:`fhobs.native.fmi3`."""
     header, data = _model_data(kind, variables, native, sizes)
     sources = {name: (HERE / name).read_text() for name in C_SOURCES}
+    if fmi_version == 3:
+        del sources["fmi2_layer.c"]
+        sources.update(fmi3.layer_sources(variables))
     sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
     sources[call_rules.HEADER] = call_rules.c_header()
     if kind == "plant":
@@ -586,16 +598,23 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
     (root / "sources").mkdir(parents=True)
     for name, text in sources.items():
         (root / "sources" / name).write_text(text)
-    for name in FMI_HEADERS:
+    for name in FMI_HEADERS if fmi_version == 2 else fmi3.FMI_HEADERS:
         shutil.copy(_fmi_headers() / name, root / "sources" / name)
     files = tuple(sorted(name for name in sources if name.endswith(".c")))
-    tree = _model_description(KINDS[kind], variables, identifier, guid, list(files))
-    describe(tree.getroot(), KINDS[kind], naming["signals"], naming["plant_name"])
+    documentation = _documentation(kind, variables, native)
+    if fmi_version == 3:
+        tree = fmi3.model_description(KINDS[kind], variables, identifier, guid, naming)
+        fmi3.build_description(identifier, files).write(
+            root / "sources" / "buildDescription.xml", encoding="UTF-8", xml_declaration=True)
+        documentation = fmi3.documentation(documentation)
+    else:
+        tree = _model_description(KINDS[kind], variables, identifier, guid, list(files))
+        describe(tree.getroot(), KINDS[kind], naming["signals"], naming["plant_name"])
     ET.indent(tree, "\t")
     tree.write(root / "modelDescription.xml", encoding="UTF-8", xml_declaration=True)
     (root / "documentation").mkdir()
-    (root / "documentation" / "index.html").write_text(_documentation(kind, variables, native))
-    return _Staged(root, identifier, files)
+    (root / "documentation" / "index.html").write_text(documentation)
+    return _Staged(root, identifier, files, "linux64" if fmi_version == 2 else fmi3.BINARY_FOLDER)
 
 
 def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dict[str, Path]:
@@ -618,7 +637,7 @@ def _compile_all(staged: dict[str, _Staged], shared: Path, compiler: str) -> dic
         for kind, fmu in staged.items():
             objects = [job.result() for job in own[kind]]
             objects += [common[name].result() for name in fmu.files if name in SHARED_UNITS]
-            binaries[kind] = fmu.root / "binaries" / "linux64" / f"{fmu.identifier}.so"
+            binaries[kind] = fmu.root / "binaries" / fmu.platform / f"{fmu.identifier}.so"
             link_binary(objects, binaries[kind], compiler)
     return binaries
 
