@@ -85,12 +85,20 @@ sys.path.insert(0, str(ROOT))
 
 from harness.cli import SCENARIO_DIR, build_paper_fmus, design_spec_file, load_scenario  # noqa: E402
 from harness.master import CoSimResult, run_system  # noqa: E402
-from harness.own_plant import RUNS_PER_SETTLING_TIME, own_plant_system, transient_end  # noqa: E402
+from harness.own_plant import (  # noqa: E402
+    FIGURES,
+    RUNS_PER_SETTLING_TIME,
+    STEP,
+    own_plant_system,
+    plant_figures,
+    transient_end,
+)
 from harness.results import error_figures  # noqa: E402
 from harness.ssp import export_ssp, exported_system  # noqa: E402
 from harness.system import (  # noqa: E402
     ConnectionSpec,
     FmuSpec,
+    ResolvedSystem,
     SystemSpec,
     build_blocks,
     resolve_system,
@@ -157,6 +165,32 @@ def plant_system(out: Path, spec_path: Path, seed: int = 3) -> SystemSpec:
                               disturbance=spec.disturbance, settled=settled)
     system = replace(system, name=f"plant_{spec_path.stem}")
     return build_blocks(system.with_seed(seed) if noise else system, out / "blocks")
+
+
+PLANT_TABLES: dict[str, tuple[float, int, dict]] = {}
+"""Per ``--plant-spec`` system: its transient's end, its q channels and the harness run's
+summary (``harness plant``'s table)."""
+
+
+def plant_model_system(out: Path, spec_path: Path, seed: int = 3) -> SystemSpec:
+    """``harness plant --native``'s run of a ``[plant_model]`` spec (its default step and stop
+    time, its ``[disturbance]``, the master's measurement noise of its ``[noise]`` table with
+    ``seed``; results in ``out/runs/<spec>``): the run's system as ``--export-ssp`` writes it
+    (the user's FMUs as they are, with the run's start values; the native estimators), its
+    summary kept in :data:`PLANT_TABLES`."""
+    from harness.plant_model import run_plant_model
+
+    spec, design = design_spec_file(spec_path)
+    step = spec.noise.sample_time if spec.noise is not None else STEP
+    stop_time = step * round(RUNS_PER_SETTLING_TIME * spec.settling_time / step)
+    settled = transient_end(design, spec.settling_time, step, stop_time)
+    systems: list[SystemSpec] = []
+    data = run_plant_model(spec, design, out / "runs" / spec_path.stem, step=step,
+                           stop_time=stop_time, settled=settled, seed=seed, plots=False,
+                           native=True, block_cache=out / "blocks", export=systems.append)
+    system = replace(systems[0], name=f"plant_model_{spec_path.stem}")
+    PLANT_TABLES[system.name] = (settled, len(spec.plant_model.unknown_inputs), data)
+    return system
 
 
 def blocks_system(out: Path) -> SystemSpec:
@@ -255,6 +289,39 @@ def read_oms_result(path: Path, names: list[str]) -> tuple[CoSimResult, float] |
     last_step = float(time[last[-1]] - time[last[-2]])
     values = np.column_stack([series[n][keep] for n in names])
     return CoSimResult(time[keep], tuple(names), values, len(keep) - 1, 0.0), last_step
+
+
+def with_derived(result: CoSimResult, system: ResolvedSystem) -> CoSimResult:
+    """``result`` with the system's derived signals (``[[derived]]``) computed from its
+    columns as the master computes them after a run (OMSimulator has no such signals)."""
+    columns = [result.values]
+    for d in system.derived:
+        cols = [result.names.index(f"{f}.{v.name}") for f, v in d.sources]
+        columns.append((result.values[:, cols] - d.offset) @ d.gain.T + d.bias)
+    names = result.names + tuple(n for d in system.derived for n in d.names)
+    return replace(result, names=names, values=np.hstack(columns))
+
+
+def plant_table_difference(oms: CoSimResult, harness: CoSimResult, spec: SystemSpec) -> float:
+    """For a ``--plant-spec`` system: ``harness plant``'s table (x and q errors per window,
+    :func:`harness.own_plant.plant_figures`) of OMSimulator's run, of the harness's run and as
+    the harness run's summary wrote it; printed; the largest difference of OMSimulator's from
+    the summary's, relative to the figure."""
+    settled, channels, data = PLANT_TABLES[spec.name]
+    tables = {"OMSimulator": plant_figures(oms, spec, settled, channels),
+              "harness (system)": plant_figures(harness, spec, settled, channels)}
+    print("\n| estimator | figure | OMSimulator | harness (system) | harness plant summary |"
+          "\n|---|---|---|---|---|")
+    worst = 0.0
+    for label, figures in data.items():
+        if not isinstance(figures, dict) or not set(FIGURES) & set(figures):
+            continue
+        for key in (k for k in FIGURES if k in figures):
+            cells = [tables[run][label][key] for run in tables] + [figures[key]]
+            print(f"| {label} | {key} | " + " | ".join(f"{c:.9e}" for c in cells) + " |")
+            worst = max(worst, abs(cells[0] - cells[2]) / abs(cells[2]) if cells[0] != cells[2]
+                        else 0.0)
+    return worst
 
 
 def on_grid(result: CoSimResult, reference: CoSimResult) -> tuple[np.ndarray, np.ndarray]:
@@ -358,16 +425,24 @@ def check(binary: Path, spec: SystemSpec, out: Path, stop_time: float | None,
     steps = round((stop - spec.start_time) / spec.step)
     status, result, log = run_omsimulator(
         binary, ssp, folder, accumulated_time(spec.start_time, spec.step, steps), timeout)
-    harness = run_system(resolve_system(spec), stop_time=stop, progress=False)
+    system = resolve_system(spec)
+    harness = run_system(system, stop_time=stop, progress=False)
+    derived = {name for d in system.derived for name in d.names}
     runs = {
         "harness (system)": REFERENCES.get(spec.name, lambda r: r)(harness),
         "harness (exported system)": run_system(
             resolve_system(exported_system(spec, out / "blocks")), stop_time=stop,
             progress=False),
     }
-    read = read_oms_result(result, list(runs["harness (system)"].names))
+    read = read_oms_result(result, [n for n in harness.names if n not in derived])
     oms, last_step = read if read is not None else (None, float("nan"))
+    oms = oms if oms is None else with_derived(oms, system)
     row = print_report(status, log, oms, last_step, runs, spec)
+    if spec.name in PLANT_TABLES:
+        table = float("nan") if oms is None else plant_table_difference(oms, harness, spec)
+        print(f"\nharness plant's table: OMSimulator's figures within {table:.2e} of the "
+              "harness run's (relative to the figure)")
+        row["figures"] = max(row["figures"], table)
     return row | {"steps": len(runs["harness (system)"].time) - 1}
 
 
@@ -397,6 +472,9 @@ def main() -> None:
                         help="a bundled scenario (repeatable; default: every one)")
     parser.add_argument("--plant", type=Path, action="append", default=[],
                         help="a plant spec whose `harness plant` system is checked (repeatable)")
+    parser.add_argument("--plant-spec", type=Path, action="append", default=[],
+                        help="a [plant_model] spec whose `harness plant --native --export-ssp` "
+                             "system is checked (repeatable)")
     parser.add_argument("--no-blocks", action="store_true", help="skip the system of blocks")
     parser.add_argument("--design", choices=("spec", "paper"), default="spec")
     parser.add_argument("--stop-time", type=float, help="default: each system's")
@@ -407,9 +485,11 @@ def main() -> None:
         parser.error(f"--omsimulator {binary}: no such file (build it first, see the "
                      "docstring of this script)")
     args.out.mkdir(parents=True, exist_ok=True)
-    names = args.scenario or sorted(path.stem for path in SCENARIO_DIR.glob("*.toml"))
-    systems = scenario_systems(args.out, names, args.design)
+    every = sorted(path.stem for path in SCENARIO_DIR.glob("*.toml"))
+    names = args.scenario or ([] if args.plant_spec else every)
+    systems = scenario_systems(args.out, names, args.design) if names else []
     systems += [plant_system(args.out, path) for path in args.plant]
+    systems += [plant_model_system(args.out, path) for path in args.plant_spec]
     if not args.no_blocks:
         systems.append(blocks_system(args.out))
     rows = {spec.name: check(binary, spec, args.out, args.stop_time, args.timeout)

@@ -19,6 +19,11 @@
   three settling times; the spec's ``[disturbance]`` fed to the plant's q, its ``[mismatch]``
   or ``--mismatch`` perturbing the plant FMU's A and B); results (x and q errors over the
   transient and the steady window) and plots (errors, states, q against its estimates) in DIR.
+  ``--export-ssp FILE``: the run's system (a ``[plant_model]``'s FMUs as they are, with the
+  start values and bindings the run sets, the run's seed) also written as an SSP
+  (:func:`harness.ssp.export_ssp`: connections lowered to blocks), before the run, which then
+  goes on; with ``--native`` no FMU of it needs Python, else refused (exit 2, before anything
+  is built) unless ``--allow-python``.
 - ``list``: the bundled scenarios.
 - ``export-ssp SCENARIO --out FILE.ssp``: the system as an SSP file (gains as FMUs); refused
   (exit 2, each FMU named) when FMUs of it need Python (pythonfmu FMUs, the ``signal`` block),
@@ -201,6 +206,10 @@ def _parser() -> argparse.ArgumentParser:
                             "observers keep the nominal model")
     plant.add_argument("--mismatch-seed", type=int, metavar="N",
                        help="seed of the mismatch (default: the [mismatch] table's, else 0)")
+    plant.add_argument("--export-ssp", type=Path, metavar="FILE",
+                       help="also write the run's system as an SSP file (before the run)")
+    plant.add_argument("--allow-python", action="store_true",
+                       help="--export-ssp without --native: export the pythonfmu FMUs")
     sub.add_parser("list", help="list the bundled scenarios")
     ssp = sub.add_parser("export-ssp", parents=[common], help="export a scenario as SSP")
     ssp.add_argument("scenario")
@@ -666,6 +675,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.design.spec import load_spec
 
     check_output_folder(args.out)
+    export = plant_export(args)
     plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing
     spec, design = design_spec_file(args.spec, tune_noise=args.tune_noise)
     spec = plant_mismatch(spec, args.mismatch, args.mismatch_seed)
@@ -677,7 +687,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     stop_time = step * round(stop_time / step)
     check_timing(step, 0.0, stop_time, "--step/--stop-time")
     if spec.plant_model is not None:
-        return _plant_model_run(args, spec, design, step, stop_time)
+        return _plant_model_run(args, spec, design, step, stop_time, export)
     options = {"x0": spec.state_scale, "noise_amplitude": noise, "h": step,
                "names": spec.names, "plant_name": spec.name}
     fmus = build_fmus(design, args.out / "fmus", T0=spec.settling_time, **options)
@@ -704,6 +714,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
                               disturbance=spec.disturbance, plant_matrices=plant,
                               settled=settled)
     system = build_blocks(system, args.block_cache)
+    if export is not None:
+        export(system.with_seed(args.seed) if noise else system)
     data = run_own_plant(system, args.out, settled=settled,
                          channels=0 if design.plant.E is None else design.plant.E.shape[1],
                          seed=args.seed if noise else None, plots=not args.no_plots,
@@ -721,8 +733,33 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     return 0
 
 
+def plant_export(args: argparse.Namespace) -> Callable[[SystemSpec], None] | None:
+    """What ``harness plant --export-ssp FILE`` does with the run's system (write the SSP and
+    print its path), None without the option; DescriptionError for an export that would need
+    Python and is not allowed, before anything is built."""
+    if args.export_ssp is None:
+        return None
+    if args.export_ssp.is_dir():
+        raise IsADirectoryError(f"--export-ssp {args.export_ssp}: is a folder, expected the "
+                                ".ssp file to write")
+    if not (args.native or args.allow_python):
+        raise DescriptionError(
+            f"--export-ssp {args.export_ssp}: without --native the estimators are pythonfmu "
+            "FMUs, which need Python 3.11 with numpy in the host that runs the SSP; pass "
+            "--native (no FMU of the SSP needs Python) or --allow-python to export them anyway")
+
+    def export(system: SystemSpec) -> None:
+        from harness.ssp import export_ssp
+
+        written = export_ssp(system, args.export_ssp, args.block_cache,
+                             allow_python=args.allow_python)
+        print(f"ssp: {written}")
+
+    return export
+
+
 def _plant_model_run(args: argparse.Namespace, spec: Any, design: Any, step: float,
-                     stop_time: float) -> int:
+                     stop_time: float, export: Callable[[SystemSpec], None] | None) -> int:
     """``harness plant`` against the spec's ``[plant_model]`` (:mod:`harness.plant_model`)."""
     from harness.plant_model import run_plant_model, state_table
 
@@ -730,7 +767,7 @@ def _plant_model_run(args: argparse.Namespace, spec: Any, design: Any, step: flo
     data = run_plant_model(spec, design, args.out, step=step, stop_time=stop_time,
                            settled=settled, seed=args.seed, plots=not args.no_plots,
                            csv_every=csv_every(args, 1), native=args.native,
-                           block_cache=args.block_cache)
+                           block_cache=args.block_cache, export=export)
     model = data["plant_model"]
     print(f"model: {model['path']}" + (f", system {model['system']}" if model["system"] else "")
           + f"; {model['initial_error']}")

@@ -26,9 +26,13 @@ was recorded up to it: the error carries the partial :class:`CoSimResult` (``par
 A connection may subtract an offset from its sources and add a bias to its targets
 (``to = gain @ (from - offset) + bias``), and add measurement noise to its sources: the
 master adds a Gaussian draw to the value it passes on (no block, no step of delay). The draws
-of a run are row k (the step from t_k) of ``numpy.random.default_rng(noise_seed)
-.standard_normal((steps, p))`` times the standard deviations, p the noisy sources in the order
-of the recorded signals; every connection from one source gets the same draw. Derived
+are the noise block's (:mod:`harness.blocks.signal_source`: the product's portable generator,
+``default_rng([noise_seed, k // 1024])`` uniforms and their Box-Muller Gaussians): the step from
+t_k adds draw k of a noise block of p outputs seeded ``noise_seed``, times the standard
+deviations, p the noisy sources in the order of the recorded signals
+(:attr:`Master.noise_sources`); every connection from one source gets the same draw. So a
+``noise`` block with that seed and those sizes (:func:`harness.ssp.lower_gains`) reads out at
+t_k exactly what the master adds over the step from t_k. Derived
 signals (``[[derived]]`` of :mod:`harness.system`) are computed from the recorded rows after
 the run and recorded after the FMUs' signals.
 
@@ -61,6 +65,8 @@ from fmpy.fmi2 import (
 from fmpy.fmi2 import calloc as _calloc
 from fmpy.fmi2 import free as _free
 
+from harness.blocks.signal_source import Draws, gaussian
+from harness.fmi3 import Fmi3Slave
 from harness.fmu_files import unzipped
 from harness.native import CALLS as NATIVE_CALLS
 from harness.native import Gather, StepFmu, step_library
@@ -289,15 +295,22 @@ class Connections:
         self._noise_index = np.array([e[3] for e in flat] or [-1], dtype=np.intc)
         self._bias = np.array(self.bias or [0.0])
         self._draws = np.zeros((1, max(self.noisy.size, 1)))
+        self._source: Draws | None = None
         self.struct = Gather(len(rows), self._row_start.ctypes.data, self._cols.ctypes.data,
                              self._gains.ctypes.data, self._offsets.ctypes.data,
                              self._bias.ctypes.data, self._noise_index.ctypes.data,
                              self._draws.ctypes.data, int(self.noisy.size), 0)
 
-    def draw(self, rng: np.random.Generator, k_from: int, k_to: int) -> np.ndarray:
+    def draw(self, seed: int, k_from: int, k_to: int) -> np.ndarray:
         """The draws of steps ``k_from .. k_to - 1`` (one row per step, one column per noisy
-        output), kept for :meth:`gather` and the C loop."""
-        draws = rng.standard_normal((k_to - k_from, self.noisy.size)) * self.std[self.noisy]
+        output: the noise block's Gaussian numbers of ``seed`` times the standard deviations),
+        kept for :meth:`gather` and the C loop."""
+        p = self.noisy.size
+        if self._source is None or self._source.seed != seed:
+            self._source = Draws(seed, p)
+        rows = [self._source.row(k) for k in range(k_from, k_to)] if p else []
+        normal = np.array([[gaussian(row[c], row[p + c]) for c in range(p)] for row in rows])
+        draws = normal.reshape(k_to - k_from, p) * self.std[self.noisy]
         if self.noisy.size:
             self._draws = np.ascontiguousarray(draws)
             self.struct.noise = self._draws.ctypes.data
@@ -364,6 +377,14 @@ class Master:
         self.connections = Connections(self.matrix, offsets, bias, noise, std)
         self.derived = tuple(name for d in system.derived for name in d.names)
 
+    @property
+    def noise_sources(self) -> dict[str, float]:
+        """The noisy sources in the order of the draws' columns, with their standard
+        deviations: column c of draw k is the Gaussian number c of a noise block of
+        ``len(noise_sources)`` outputs seeded ``noise_seed`` (module docstring)."""
+        noisy = self.connections.noisy
+        return {self.names[j]: float(self.connections.std[j]) for j in noisy}
+
     def run(self, stop_time: float | None = None, progress: bool | None = None) -> CoSimResult:
         """Run from the system's start time to ``stop_time`` (default: the system's).
 
@@ -386,7 +407,6 @@ class Master:
         values = _recording(steps, len(self.names), spec.name)
         started = time.perf_counter()
         self._logs: dict[str, deque[str]] = {}
-        rng = np.random.default_rng(spec.noise_seed)
         done = -1  # the last step whose row is recorded (-1: not even t0's)
         try:
             with deferred_signals() as received, self._slaves(t0, t_end) as slaves:
@@ -402,7 +422,7 @@ class Master:
                     if received:
                         break
                     k1 = min(k0 + PROGRESS_CHUNK, steps)
-                    draws = self.connections.draw(rng, k0, k1)
+                    draws = self.connections.draw(spec.noise_seed, k0, k1)
                     if k0 == 0 and self.first_inputs == "zero":
                         unconnected = Connections(np.zeros_like(self.matrix))
                         self._steps(slaves, 0, 1, t0, h, *buffers, unconnected, draws)
@@ -602,18 +622,25 @@ class Master:
     def _instantiate(self, name: str, rf: ResolvedFmu, t0: float, t_end: float) -> _Slave:
         md = rf.description
         unzip_dir = unzipped(rf.spec.path)
-        fmu = FMU2Slave(
-            guid=md.guid,
-            unzipDirectory=unzip_dir,
-            instanceName=name,
-            modelIdentifier=md.coSimulation.modelIdentifier,
-        )
-        callbacks = self._callbacks(name)
+        if md.fmiVersion == "3.0":  # its arrays' elements as scalars (harness.fmi3)
+            log = self._logs.setdefault(name, deque(maxlen=LOG_LINES))
+            fmu, callbacks = Fmi3Slave(md, unzip_dir, name, t0, t_end, log.append), None
+        else:
+            fmu = FMU2Slave(
+                guid=md.guid,
+                unzipDirectory=unzip_dir,
+                instanceName=name,
+                modelIdentifier=md.coSimulation.modelIdentifier,
+            )
+            callbacks = self._callbacks(name)
         try:
-            _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
-                     loggingOn=True)
-            _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
-                     stopTime=t_end)
+            if callbacks is None:
+                _checked(name, "fmi3InstantiateCoSimulation", t0, fmu.instantiate)
+            else:
+                _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
+                         loggingOn=True)
+                _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
+                         stopTime=t_end)
             _checked(name, "setting the start values", t0, _set_start_values, fmu, rf)
         except Exception:
             if getattr(fmu, "component", None):

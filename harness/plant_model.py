@@ -31,6 +31,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -271,7 +272,8 @@ def plant_model_system(design: ObserverDesign, fmus: dict[str, Path], ports: Mod
 def run_plant_model(spec: Any, design: ObserverDesign, out: Path, *, step: float,
                     stop_time: float, settled: float, seed: int | None = None,
                     plots: bool = True, csv_every: int = 1, native: bool = False,
-                    block_cache: Path | None = None) -> dict[str, Any]:
+                    block_cache: Path | None = None,
+                    export: Callable[[SystemSpec], None] | None = None) -> dict[str, Any]:
     """``harness plant`` with a ``[plant_model]``: the model checked and its operating point
     found (nothing written before), the estimator FMUs built into ``out/fmus`` (native ones
     too with ``native``), the model's FMUs beside them in ``out/fmus/model`` (an SSP's), the
@@ -291,6 +293,9 @@ def run_plant_model(spec: Any, design: ObserverDesign, out: Path, *, step: float
         The noise seed (default 0).
     plots, csv_every, native, block_cache
         As for the plant command.
+    export : callable, optional
+        Called with the run's system (blocks built, the run's seed set) before the run
+        (``--export-ssp``).
 
     Returns
     -------
@@ -328,10 +333,12 @@ def run_plant_model(spec: Any, design: ObserverDesign, out: Path, *, step: float
     about = {"plant_model": about_model(model, spec.names, point, initial)}
     if spec.disturbance is not None:
         about["disturbance"] = {**vars(spec.disturbance), "size": spec.disturbance.size.tolist()}
-    return run_own_plant(build_blocks(system, block_cache), out, settled=settled,
-                         channels=len(model.unknown_inputs),
-                         seed=(0 if seed is None else seed) if std is not None else None,
-                         plots=plots, csv_every=csv_every, about=about, names=spec.names)
+    seed = (0 if seed is None else seed) if std is not None else None
+    system = build_blocks(system, block_cache)
+    if export is not None:
+        export(system if seed is None else system.with_seed(seed))
+    return run_own_plant(system, out, settled=settled, channels=len(model.unknown_inputs),
+                         seed=seed, plots=plots, csv_every=csv_every, about=about, names=spec.names)
 
 
 def state_table(data: dict[str, Any]) -> str:

@@ -3,11 +3,37 @@
 What the engines here understand (checked with fmpy 0.3.32 and libcosimpy 0.0.6):
 
 - connections: both; transformations on connections: fmpy ignores them, and SSP 1.0 has no
-  matrix transformation or summation anyway. So every connection gain ``u = K x`` is carried as
-  a :mod:`harness.blocks` matrix-gain FMU (:func:`lower_gains`). Under a Jacobi exchange that
-  block delays its path by one communication step (its output is read at ``t_k`` before its
-  input of ``t_k`` is set): the exported system is the *lowered* system, which the harness runs
-  the same way (``resolve_system(lower_gains(spec))``).
+  matrix transformation, offset, summation or noise anyway. So :func:`lower_gains` turns every
+  connection ``to = gain @ (from - offset + draw) + bias`` of the system (resolved: each
+  source and target a scalar) into plain wires and :mod:`harness.blocks` FMUs, connection
+  ``i`` (1-based) into:
+
+  ========================  =================================================================
+  ``constant_i``            a ``constant`` block: ``-offset``, the zeros of sources without
+                            noise in a noisy connection, ``bias`` (only the values used)
+  ``shift_i``               a ``sum`` block of the sources, ``-offset`` (when an offset is not
+                            0) and the draws (when the connection has noise):
+                            ``from - offset + draw``, in the master's order of operations
+  ``noise`` (one)           a ``noise`` block (Gaussian) of every noisy source of the system,
+                            in the master's column order (:attr:`harness.master.Master
+                            .noise_sources`), sizes the standard deviations, seed the run's
+                            ``noise_seed``: its output at ``t_k`` is exactly the draw the
+                            master adds over the step from ``t_k``
+  ``gain_i``                a ``gain`` block ``K`` when the gain is not the identity
+  ``bias_i``                a ``sum`` block adding ``bias`` (when a bias is not 0)
+  ========================  =================================================================
+
+  Several sources are wired element by element into the first block (or the targets). Each
+  block computes what the master computes, in the same order (``((0 + from) + (-offset)) +
+  draw``, ``0 + sum_j K_ij v_j``, ``(0 + w) + bias``), so the lowered system's values equal
+  the system's. Every one of these blocks feeds through (its output depends on its inputs):
+  OMSimulator orders its exchange by those declared dependencies, as the master applies a
+  connection, with no delay, and so follows the system itself; a Jacobi engine (fmpy,
+  libcosim, the harness running the exported system, ``resolve_system(exported_system
+  (spec))``) reads each block's output at ``t_k`` before its input of ``t_k`` is set, so the
+  path lags one communication step per block on it (up to three: shift, gain, bias). The
+  noise block has no input: its draws reach an estimator whose outputs do not depend on its
+  inputs without a lag in both.
 - start values: written as component ``ParameterBindings`` with inline ``ssv:ParameterSet``
   values (libcosim applies them; fmpy's ``simulate_ssp`` parses but does not apply them, so
   a caller hands them over as its ``parameter_set``).
@@ -30,16 +56,22 @@ the file.
 
 from __future__ import annotations
 
+import re
 import zipfile
 from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+import numpy as np
+
 from harness.blocks.build import is_pythonfmu
+from harness.blocks.signal_source import NOISE_DISTRIBUTIONS
+from harness.master import Master
 from harness.system import (
     ConnectionSpec,
     DescriptionError,
     FmuSpec,
+    ResolvedConnection,
     ResolvedSystem,
     SystemSpec,
     build_blocks,
@@ -64,36 +96,108 @@ NS = {
     "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
 FMU_MIME = "application/x-fmu-sharedlibrary"
+NOISE = "noise"
+"""The name of the lowered system's noise block (the master's connection noise)."""
 
 
-def lower_gains(spec: SystemSpec) -> SystemSpec:
-    """The same system with every connection gain replaced by a matrix-gain block FMU.
+def lower_gains(spec: SystemSpec, block_cache: Path | None = None) -> SystemSpec:
+    """The same system with every connection lowered to plain wires and block FMUs (the
+    module docstring's table): gains, offsets, biases, the master's noise, several sources.
 
-    A connection ``from -> to`` with gain ``K`` (p x m) becomes ``from -> gain_i.u`` and
-    ``gain_i.y -> to`` with a block ``gain_i`` whose start values are ``K``.
+    Parameters
+    ----------
+    spec
+        The system (its blocks built or not).
+    block_cache
+        Where the system's own blocks are built to resolve it (see
+        :func:`harness.blocks.block_fmu`); the new blocks are left unbuilt.
+
+    Returns
+    -------
+    SystemSpec
+        The system with scalar wires only (``"fmu.var" -> "fmu.var"``).
+
+    Raises
+    ------
+    ValueError
+        The system already has an FMU of a block's name.
+
+    Examples
+    --------
+    >>> from harness.cli import SCENARIO_DIR
+    >>> from harness.system import load_system
+    >>> spec = load_system(SCENARIO_DIR / "pendulum_nominal.toml",
+    ...                    {"fmu_dir": "build/pendulum/native"})
+    >>> sorted(lower_gains(spec).fmus)  # doctest: +SKIP
+    ['gain_4', 'gain_5', 'gain_6', 'gain_7', 'kalman', 'linear', 'observer', 'plant']
     """
+    system = resolve_system(build_blocks(spec, block_cache))
+    noise = Master(system).noise_sources
     fmus = dict(spec.fmus)
-    connections: list[ConnectionSpec] = []
-    for i, conn in enumerate(spec.connections, start=1):
-        extras = [key for key in ("offset", "bias", "noise") if getattr(conn, key) is not None]
-        if extras or not isinstance(conn.source, str):
-            what = ", ".join(extras) or "several sources"
-            raise DescriptionError(f"connection {conn}: {what}, which the master applies and "
-                                   "an SSP cannot express; export a system without them")
-        if conn.gain is None:
-            connections.append(conn)
-            continue
-        name = f"gain_{i}"
-        if name in fmus:
-            raise ValueError(f"cannot lower gains: the system already has an FMU {name!r}")
-        p, m = conn.gain.shape
+    if noise:
+        start = {"distribution": NOISE_DISTRIBUTIONS.index("gaussian"), "seed": spec.noise_seed,
+                 **{f"size[{c + 1}]": std for c, std in enumerate(noise.values())}}
+        _add_block(fmus, FmuSpec(NOISE, None, start, ("noise", (len(noise),))))
+    columns = {name: c + 1 for c, name in enumerate(noise)}
+    wires: list[ConnectionSpec] = []
+    for i, conn in enumerate(system.connections, start=1):
+        wires += _lowered(i, conn, columns, fmus)
+    return replace(spec, fmus=fmus, connections=tuple(wires))
+
+
+def _add_block(fmus: dict[str, FmuSpec], block: FmuSpec) -> None:
+    if block.name in fmus:
+        raise ValueError(f"cannot lower the connections: the system already has an FMU "
+                         f"{block.name!r}")
+    fmus[block.name] = block
+
+
+def _lowered(i: int, conn: ResolvedConnection, columns: dict[str, int],
+             fmus: dict[str, FmuSpec]) -> list[ConnectionSpec]:
+    """Connection ``i`` as wires and blocks (added to ``fmus``); ``columns``: the noise
+    block's output of each noisy source."""
+    sources = [f"{f}.{v.name}" for f, v in conn.sources]
+    wires: list[ConnectionSpec] = []
+    constants: list[float] = []
+
+    def constant(value: float) -> str:
+        constants.append(float(value))
+        return f"constant_{i}.y[{len(constants)}]"
+
+    terms = [sources]
+    if np.any(conn.offset != 0.0):
+        terms.append([constant(-o) for o in conn.offset])
+    if conn.noise is not None and np.any(conn.noise > 0.0):
+        terms.append([f"{NOISE}.y[{columns[s]}]" if sigma > 0.0 else constant(0.0)
+                      for s, sigma in zip(sources, conn.noise, strict=True)])
+    values = _summed(f"shift_{i}", terms, fmus, wires)
+    p, m = conn.gain.shape
+    if p != m or not np.array_equal(conn.gain, np.eye(m)):
         start = {f"K[{r + 1},{c + 1}]": float(conn.gain[r, c]) for r in range(p) for c in range(m)}
-        fmus[name] = FmuSpec(name, None, start, ("gain", (p, m)))
-        connections += [
-            ConnectionSpec(conn.source, f"{name}.u"),
-            ConnectionSpec(f"{name}.y", conn.target),
-        ]
-    return replace(spec, fmus=fmus, connections=tuple(connections))
+        _add_block(fmus, FmuSpec(f"gain_{i}", None, start, ("gain", (p, m))))
+        wires += [ConnectionSpec(v, f"gain_{i}.u[{j + 1}]") for j, v in enumerate(values)]
+        values = [f"gain_{i}.y[{r + 1}]" for r in range(p)]
+    if np.any(conn.bias != 0.0):
+        values = _summed(f"bias_{i}", [values, [constant(b) for b in conn.bias]], fmus, wires)
+    if constants:
+        _add_block(fmus, FmuSpec(f"constant_{i}", None,
+                                 {f"value[{k + 1}]": v for k, v in enumerate(constants)},
+                                 ("constant", (len(constants),))))
+    return wires + [ConnectionSpec(v, f"{f}.{t.name}")
+                    for v, (f, t) in zip(values, conn.targets, strict=True)]
+
+
+def _summed(name: str, terms: list[list[str]], fmus: dict[str, FmuSpec],
+            wires: list[ConnectionSpec]) -> list[str]:
+    """The element-wise sum of the signal lists ``terms``: the first itself when alone, else
+    the outputs of a sum block ``name`` (added to ``fmus``, its inputs wired in ``wires``)."""
+    if len(terms) == 1:
+        return terms[0]
+    width = len(terms[0])
+    _add_block(fmus, FmuSpec(name, None, {}, ("sum", (width, len(terms)))))
+    wires += [ConnectionSpec(signal, f"{name}.u[{k + 1},{j + 1}]")
+              for k, term in enumerate(terms) for j, signal in enumerate(term)]
+    return [f"{name}.y[{j + 1}]" for j in range(width)]
 
 
 def exported_system(spec: SystemSpec, block_cache: Path | None = None,
@@ -126,7 +230,7 @@ def exported_system(spec: SystemSpec, block_cache: Path | None = None,
     >>> sorted(exported_system(spec).fmus)  # doctest: +SKIP
     ['gain_4', 'gain_5', 'gain_6', 'gain_7', 'kalman', 'linear', 'observer', 'plant']
     """
-    lowered = lower_gains(spec)
+    lowered = lower_gains(spec, block_cache)
     fmus = {name: replace(fs, path=None) if fs.block else fs for name, fs in lowered.fmus.items()}
     return build_blocks(replace(lowered, fmus=fmus), block_cache, native_blocks)
 
@@ -225,6 +329,19 @@ def _resource_names(system: ResolvedSystem) -> dict[str, tuple[Path, str]]:
     return out
 
 
+def identifier(name: str) -> str:
+    """``name`` as the SSD's model and system name: OMSimulator takes only identifiers
+    (letters, digits, ``_``, not a digit first), so every other character becomes ``_``.
+
+    Examples
+    --------
+    >>> identifier("DC-Motor.SuT"), identifier("2nd")
+    ('DC_Motor_SuT', '_2nd')
+    """
+    text = re.sub(r"\W", "_", name, flags=re.ASCII)
+    return f"_{text}" if not text or text[0].isdigit() else text
+
+
 def _q(prefix: str, tag: str) -> str:
     return f"{{{NS[prefix]}}}{tag}"
 
@@ -233,8 +350,9 @@ def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.E
     for prefix, uri in NS.items():
         ET.register_namespace(prefix, uri)
     spec = system.spec
-    root = ET.Element(_q("ssd", "SystemStructureDescription"), version="1.0", name=spec.name)
-    sys_el = ET.SubElement(root, _q("ssd", "System"), name=spec.name)
+    name = identifier(spec.name)
+    root = ET.Element(_q("ssd", "SystemStructureDescription"), version="1.0", name=name)
+    sys_el = ET.SubElement(root, _q("ssd", "System"), name=name)
     elements = ET.SubElement(sys_el, _q("ssd", "Elements"))
     connectors = _connectors(system)
     for name, rf in system.fmus.items():

@@ -165,8 +165,9 @@ def _receiver(path: Path) -> Path:
 @pytest.mark.parametrize("loop", ["c", "python"])
 def test_master_adds_the_seeded_noise_without_delay(tmp_path, monkeypatch, loop):
     """The value two receivers get from t_k to t_k+1 is the model's output at t_k minus the
-    offset plus draw k of default_rng(seed).standard_normal((steps, 1)) times the std: the
-    same draw for both, no block and no step of delay; the C and Python loops alike."""
+    offset plus draw k of the noise block's generator (default_rng([seed, 0]) uniforms v, w,
+    the Gaussian sqrt(-2 log((1 - v) / 2)) cos(pi w)) times the std: the same draw for both,
+    no block and no step of delay; the C and Python loops alike."""
     if loop == "python":
         monkeypatch.setattr(master, "step_library", lambda: None)
     model = linear_fmu(tmp_path / "decay.fmu", [[-2.0]], [[0.0]], [[1.0]], x0=[1.0])
@@ -179,7 +180,8 @@ def test_master_adds_the_seeded_noise_without_delay(tmp_path, monkeypatch, loop)
                                         ConnectionSpec("model.y1", "b.u1", **noisy)),
                         0.01, steps * 0.01, record=("a.y1", "b.y1")).with_seed(seed)
     result = run_system(resolve_system(system), progress=False)
-    draws = np.random.default_rng(seed).standard_normal((steps, 1))[:, 0] * std
+    v, w = np.random.default_rng([seed, 0]).uniform(-1.0, 1.0, (1024, 2))[:steps].T
+    draws = np.sqrt(-2.0 * np.log(0.5 * (1.0 - v))) * np.cos(np.pi * w) * std
     y = result.signal("model.y1")
     for receiver_name in ("a", "b"):
         got = result.signal(f"{receiver_name}.y1")[1:]
@@ -346,15 +348,3 @@ def test_refusals_are_one_paragraph_and_write_nothing(motor, tmp_path, capsys, c
     if case == "unknown_state":
         assert "closest: phi" in message
     assert not out.exists() or not any(out.rglob("*"))
-
-
-def test_ssp_export_refuses_what_only_the_master_applies():
-    """An offset, a bias, noise or a list of sources has no SSP form: refused by name."""
-    from harness.ssp import lower_gains
-    from harness.system import DescriptionError
-
-    fmus = {"a": FmuSpec("a", None)}
-    for conn, what in ((ConnectionSpec("a.y", "a.u", noise=np.ones(1)), "noise"),
-                       (ConnectionSpec(("a.y", "a.x"), "a.u"), "several sources")):
-        with pytest.raises(DescriptionError, match=f"a.u: {what}, which the master applies"):
-            lower_gains(SystemSpec("s", fmus, (conn,), 0.1, 1.0))
