@@ -274,6 +274,7 @@ def fmu_options(
         "noise_amplitude": float(noise_amplitude),
         "noise_seed": int(noise_seed),
         "plant_scheme": plant_scheme,
+        "max_communication_step": float(design.filtering.max_communication_step),
     }
 
 

@@ -120,6 +120,9 @@ def describe(root: ET.Element, kind: Kind, signals: Mapping[str, Sequence[str]],
             variable = kind.variable(base)
         except KeyError:
             continue
+        if variable.unit:
+            element.find("Real").set("unit", variable.unit)
+            units.add(variable.unit)
         if not variable.signal:
             continue
         position = int(index.rstrip("]")) - 1 if index else 0

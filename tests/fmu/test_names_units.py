@@ -26,6 +26,8 @@ SIGNALS = {"states": ["inductor.i", "inertia.phi", "inertia.w"],
            "inputs": ["U"], "input_units": ["V"],
            "outputs": ["phiB"], "output_units": ["rad"],
            "unknown_inputs": ["M_load"], "unknown_input_units": ["N.m"]}
+PARAMETER_UNITS = {"max_communication_step": "s"}
+"""The parameters with a unit (the others have none), named or not."""
 KEYS = ("name", "valueReference", "type", "causality", "variability", "initial",
         "description", "unit")
 
@@ -110,11 +112,13 @@ def test_names_change_no_value_reference_start_or_parameter_text(named, kind):
     for name, variable in named_vars.items():
         if variable.causality not in ("input", "output") or _expected(name) is None:
             assert variable.description == plain[name].description, name
-            assert variable.unit is None
+            assert variable.unit == PARAMETER_UNITS.get(name), name
     x_hat = plain.get("x_hat[1]") or plain["x[1]"]
     assert x_hat.description.startswith(("estimate of x[1]", "true value of x[1]"))
     assert x_hat.unit is None
-    assert not read_model_description(str(named["unnamed"][kind])).unitDefinitions
+    units = read_model_description(str(named["unnamed"][kind])).unitDefinitions
+    assert {unit.name for unit in units} == {PARAMETER_UNITS[name] for name in plain
+                                             if name in PARAMETER_UNITS}
 
 
 @pytest.mark.parametrize("build", ["python", "native"])

@@ -24,7 +24,8 @@ from fhobs.core.gains import (
 from fhobs.design.observer import design_observer
 
 ESTIMATOR_FIELDS = {
-    "filtering": {"rho", "gamma", "L_tilde", "L", "P_bar", "certificate"},
+    "filtering": {"rho", "gamma", "L_tilde", "L", "P_bar", "certificate",
+                  "max_communication_step"},
     "prescribed_time": {"rho", "L_pt", "P_pt", "certificate"},
     "luenberger": {"L_lin", "certificate"},
     "kalman": {"disturbance_order", "sample_time", "measurement_std", "process_intensity",

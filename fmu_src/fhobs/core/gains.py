@@ -260,6 +260,11 @@ class FilteringGains(HomogeneousGains):
         :func:`fhobs.core.certificate.certify_filtering`), ``objective``, ``lmi_margin``,
         ``solver_status`` (the LMI solve's, absent for published gains) and
         ``matched_perturbation_residual`` (Corollary 1's condition; None without E).
+    max_communication_step : float
+        The longest communication step (s) over which the observer tolerates its inputs held
+        (:func:`fhobs.design.settling.communication_step_bracket`: the closed loop on the
+        estimate settles within twice the fine step's time); the observer FMUs warn once at a
+        longer step. 0: not computed (published gains), no warning.
     """
 
     rho: float
@@ -268,6 +273,7 @@ class FilteringGains(HomogeneousGains):
     L: np.ndarray
     P_bar: np.ndarray
     certificate: dict[str, Any] = field(default_factory=dict)
+    max_communication_step: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,7 @@ from ..core.linalg import diagonal_congruence, diagonal_similarity
 from ..errors import CertificateError, LMIError, SpecError
 from ..paper import PAPER_REFERENCE
 from .cache import cached
+from .feedback import state_feedback
 from .homogenisation import Homogenisation, dilation_basis, homogenise
 from .kalman import with_kalman
 from .limits import check_design_limits
@@ -69,7 +70,7 @@ from .partial import (
     fast_mode_cut,
     split_modes,
 )
-from .settling import ErrorResponse, error_response
+from .settling import ErrorResponse, communication_step_bracket, error_response
 from .spec import (
     DEFAULT_OBJECTIVE,
     DEFAULT_SETTLING_TIME,
@@ -341,10 +342,38 @@ def design_for_spec(
 def _designed(spec: PlantSpec, objective: str | None, margin: float,
               filter_scale: float | None) -> ObserverDesign:
     """:func:`design_for_spec` computed (no cache)."""
-    design = _observer_for_spec(spec, objective, margin, filter_scale)
+    design = with_communication_step(_observer_for_spec(spec, objective, margin, filter_scale),
+                                     spec)
     if spec.noise is None:
         return design
     return with_supervised(with_kalman(design, spec.noise), spec.noise)
+
+
+def with_communication_step(design: ObserverDesign, spec: PlantSpec) -> ObserverDesign:
+    """``design`` with its filtering record's ``max_communication_step``: the longest
+    communication step over which the observer tolerates its inputs held
+    (:func:`fhobs.design.settling.communication_step_bracket`), in the closed loop of the LQR
+    feedback on the estimate (:func:`fhobs.design.feedback.state_feedback`), from errors of
+    the size of ``spec.state_scale``, against the settling time at the fine step of
+    ``spec.settling_time``. A plant whose LQR gain cannot be computed (scipy's Riccati solver
+    fails, as on long chains of integrators) keeps the figure 0: no figure, no warning.
+
+    Examples
+    --------
+    >>> from fhobs.design.spec import spec_from_dict
+    >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]],
+    ...                        "observer": {"rho": 2.0, "gamma": 3.0}})
+    >>> design = with_communication_step(design_for_spec(spec), spec)
+    >>> bool(design.filtering.max_communication_step > spec.settling_time / 500)
+    True
+    """
+    scale = np.ones(spec.A.shape[0]) if spec.state_scale is None else spec.state_scale
+    try:
+        K = state_feedback(design.plant.A, design.plant.B)
+    except (np.linalg.LinAlgError, ValueError):
+        return design
+    held, _ = communication_step_bracket(design.filtering, scale, spec.settling_time, K)
+    return replace(design, filtering=replace(design.filtering, max_communication_step=held))
 
 
 def _certified_design(design: ObserverDesign) -> None:

@@ -85,6 +85,9 @@ class Variable:
         spec's ``[signals]`` table), named in the modelDescription (:meth:`element_text`).
     text : str
         The description of an element with ``{}`` for its signal's name.
+    unit : str
+        The unit of a variable that is not a signal (``"s"``; a signal's unit is its
+        signal's, :meth:`element_text`).
     source : str
         ``output`` role: where its value comes from. ``"state"``: the next elements of the
         runtime model's state vector (``get_state()``; in C the state the model keeps), taken
@@ -103,6 +106,7 @@ class Variable:
     signal: str = ""
     text: str = ""
     source: str = "state"
+    unit: str = ""
 
     def start(self, record: Any, options: Mapping[str, Any]) -> Any:
         """The start value for the kind's ``record`` and the build ``options`` (None: left
@@ -320,7 +324,8 @@ def _perturbations(plant: Any) -> tuple[int, ...]:
     return (0 if plant.E is None else plant.E.shape[1],)
 
 
-STATUS = Variable("status", "local", "status of the last call the slave answered (0 ok, 3 error)",
+STATUS = Variable("status", "local",
+                  "status of the last call the slave answered (0 ok, 1 warning, 3 error)",
                   integer=True)
 INPUT_BOUND = Variable("input_bound", "setting",
                        "inputs of larger magnitude are rejected as absurd", option="input_bound")
@@ -344,6 +349,11 @@ TIMING = (
              + ", ".join(f"{i} = {s}" for i, s in enumerate(SCHEMES)),
              option="scheme", choices=SCHEMES, integer=True),
 )
+MAX_COMMUNICATION_STEP = Variable(
+    "max_communication_step", "setting", "longest communication step (s) over which the "
+    "design tolerates its inputs held (fhobs.design.settling.communication_step_bracket); a "
+    "longer step is answered once with fmi2Warning; 0: no check", option="max_communication_step",
+    unit="s")
 Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its derivatives",
                  shape=_disturbance_states, signal="unknown_inputs",
                  text="estimate of the unknown input {}")
@@ -398,7 +408,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
-        appended=_SLOW_PROJECTOR,
+        appended=(*_SLOW_PROJECTOR, MAX_COMMUNICATION_STEP),
     ),
     _estimator(
         "prescribed_time", 5, "FhobsPrescribedTime",
@@ -420,7 +430,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             Q_HAT,
         ),
         outputs=("x_hat", "q_hat", "xi"),
-        appended=_SLOW_PROJECTOR,
+        appended=(*_SLOW_PROJECTOR, MAX_COMMUNICATION_STEP),
     ),
     _estimator(
         "luenberger", 2, "FhobsLuenberger",
@@ -494,6 +504,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             dataclasses.replace(Q_HAT, source="q_hat"),
         ),
         outputs=("statistic", "mode", "x_hat", "q_hat"),
+        appended=(MAX_COMMUNICATION_STEP,),
         signals=(*ESTIMATOR_SIGNALS[:2],
                  dataclasses.replace(ESTIMATOR_SIGNALS[2], source="x_hat",
                                      description="state estimate of the mode's estimator",

@@ -8,6 +8,7 @@ from .call_rules import STATES
 
 STATUS_VALUE_REFERENCE = 0
 STATUS_OK = int(Fmi2Status.ok)
+STATUS_WARNING = int(Fmi2Status.warning)
 STATUS_ERROR = int(Fmi2Status.error)
 
 MODES = STATES

@@ -67,6 +67,7 @@ from .call_rules import (
     ZOH_CONDITION_LIMIT,
     ZOH_MESSAGE,
     call_problem,
+    coarse_step_problem,
     number_text,
     time_problem,
 )
@@ -78,6 +79,7 @@ from .modes import (
     MODES,
     STATUS_ERROR,
     STATUS_OK,
+    STATUS_WARNING,
     STEP_MODE,
     TERMINATED,
 )
@@ -311,6 +313,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         written once the outputs are accepted.
         """
         self.status = STATUS_OK
+        warning = ""
         if self._mode != STEP_MODE:
             return self._fail(call_problem("fmi2DoStep", self._mode))
         # One comparison accepts a valid call: math.hypot of the inputs is within 1 ulp of
@@ -327,6 +330,7 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
             if problem:
                 return self._fail(f"doStep at t = {number_text(current_time)} rejected: {problem}")
             self._accepted_step = step_size
+            warning = self._coarse_step_warning(step_size)
         model = self.model
         attributes = model.__dict__
         saved = attributes.copy()
@@ -343,7 +347,22 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
         self._outputs[...] = outputs
         self._time = self._clock[0] = current_time + step_size
         self._time_slack = TIME_TOLERANCE * max(abs(self._time), step_size)
+        if warning:
+            self._warned_coarse_step = True
+            self.status = STATUS_WARNING
+            self.log(warning, Fmi2Status.warning)
         return True
+
+    _warned_coarse_step = False
+    """Whether the instance has warned of a step longer than its max_communication_step."""
+
+    def _coarse_step_warning(self, step_size: float) -> str:
+        """The warning of a step longer than the observer's ``max_communication_step``
+        (:func:`~fhobs.fmu.call_rules.coarse_step_problem`), given by the step (then fmi2Warning)
+        if it succeeds; '' once the instance has warned, and for kinds without the parameter."""
+        if self._warned_coarse_step or "max_communication_step" not in self._arrays:
+            return ""
+        return coarse_step_problem(step_size, self._arrays["max_communication_step"].item())
 
     def _check_all_parameters(self) -> None:
         """Raise ValueError naming the first problem of the current parameters: a non-finite

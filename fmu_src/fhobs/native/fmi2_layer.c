@@ -17,7 +17,9 @@
  *   - an FMU state (in memory or serialized) carries the FMU's identity (its GUID) and the
  *     last successful time, and is checked completely before any of it is used (every field
  *     of the model state that is a count or an index: a whole number in its range);
- *   - doStep refuses a step whose exact ZOH has no correct digit (step * ||A||_1 > 1e9).
+ *   - doStep refuses a step whose exact ZOH has no correct digit (step * ||A||_1 > 1e9);
+ *   - the first step of an instance longer than its max_communication_step (the observers)
+ *     is carried out and answered with fmi2Warning and the call rules' message.
  * Every instance owns all its data (no globals but constant ones): many instances of one or
  * several native FMUs run in one process. The model (models.c, the generated model_data.c)
  * is reached through model.h; the fmi2 functions are the only symbols the library exports.
@@ -39,8 +41,9 @@
 #define STATE_FORMAT 3u
 #define IDENTITY_FIELD 48
 #define MESSAGE_SIZE 1024
-#define STATUS_OK 0    /* fhobs.fmu.modes.STATUS_OK */
-#define STATUS_ERROR 3 /* fhobs.fmu.modes.STATUS_ERROR */
+#define STATUS_OK 0      /* fhobs.fmu.modes.STATUS_OK */
+#define STATUS_WARNING 1 /* fhobs.fmu.modes.STATUS_WARNING */
+#define STATUS_ERROR 3   /* fhobs.fmu.modes.STATUS_ERROR */
 
 /* the FMI states, numbered as in fhobs.fmu.call_rules.STATES */
 enum {
@@ -70,6 +73,7 @@ typedef struct {
     double time;       /* the end of the last step (the start time before one); NaN after an
                           FMU state was set: the next doStep's time is taken as it comes */
     Work *work;        /* the model's plans and scratch (model_work_size() bytes) */
+    int warned_coarse_step; /* a step longer than max_communication_step was warned of */
 } Instance;
 
 typedef struct {
@@ -114,6 +118,37 @@ static fmi2Status ok(Instance *c)
 {
     c->values.integer[VR_STATUS] = STATUS_OK;
     return fmi2OK;
+}
+
+/* The instance's max_communication_step (0, no figure, for a kind without it). */
+static double max_communication_step(const Instance *c)
+{
+#if VR_MAX_COMMUNICATION_STEP >= 0
+    return c->values.real[VR_MAX_COMMUNICATION_STEP];
+#else
+    (void)c;
+    return 0.0;
+#endif
+}
+
+/* Whether a successful step of size dt is the instance's first longer than its
+ * max_communication_step (the rule of fhobs.fmu.call_rules.coarse_step_problem). */
+static int coarse_step(const Instance *c, double dt)
+{
+    double max_step = max_communication_step(c);
+    return !c->warned_coarse_step && max_step > 0.0 &&
+           dt > max_step * (1.0 + FHOBS_COARSE_STEP_TOLERANCE);
+}
+
+/* The coarse step's warning, once per instance: fmi2Warning and the message. */
+static fmi2Status warn(Instance *c, double dt)
+{
+    char message[MESSAGE_SIZE];
+    snprintf(message, sizeof message, FHOBS_COARSE_STEP_MESSAGE, dt, max_communication_step(c));
+    c->warned_coarse_step = 1;
+    c->values.integer[VR_STATUS] = STATUS_WARNING;
+    log_message(c, fmi2Warning, "logStatusWarning", message);
+    return fmi2Warning;
 }
 
 static fmi2Status fail(Instance *c, const char *message)
@@ -375,6 +410,7 @@ fmi2Status fmi2Reset(fmi2Component component)
 {
     CHECK_CALL(component, FHOBS_CALL_RESET);
     c->start_time = c->time = 0.0;
+    c->warned_coarse_step = 0;
     work_init(c->work);
     start_values(c);
     return ok(c);
@@ -611,7 +647,7 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     memcpy(v->state, next, sizeof next);
     publish(c);
     c->time = v->time = currentCommunicationPoint + dt;
-    return ok(c);
+    return coarse_step(c, dt) ? warn(c, dt) : ok(c);
 }
 
 /* A function these FMUs do not provide: fmi2Error with the call rules' reason. */
