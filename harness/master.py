@@ -66,6 +66,7 @@ from fmpy.fmi2 import calloc as _calloc
 from fmpy.fmi2 import free as _free
 
 from harness.blocks.signal_source import Draws, gaussian
+from harness.fmi3 import Fmi3Slave
 from harness.fmu_files import unzipped
 from harness.native import CALLS as NATIVE_CALLS
 from harness.native import Gather, StepFmu, step_library
@@ -621,18 +622,25 @@ class Master:
     def _instantiate(self, name: str, rf: ResolvedFmu, t0: float, t_end: float) -> _Slave:
         md = rf.description
         unzip_dir = unzipped(rf.spec.path)
-        fmu = FMU2Slave(
-            guid=md.guid,
-            unzipDirectory=unzip_dir,
-            instanceName=name,
-            modelIdentifier=md.coSimulation.modelIdentifier,
-        )
-        callbacks = self._callbacks(name)
+        if md.fmiVersion == "3.0":  # its arrays' elements as scalars (harness.fmi3)
+            log = self._logs.setdefault(name, deque(maxlen=LOG_LINES))
+            fmu, callbacks = Fmi3Slave(md, unzip_dir, name, t0, t_end, log.append), None
+        else:
+            fmu = FMU2Slave(
+                guid=md.guid,
+                unzipDirectory=unzip_dir,
+                instanceName=name,
+                modelIdentifier=md.coSimulation.modelIdentifier,
+            )
+            callbacks = self._callbacks(name)
         try:
-            _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
-                     loggingOn=True)
-            _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
-                     stopTime=t_end)
+            if callbacks is None:
+                _checked(name, "fmi3InstantiateCoSimulation", t0, fmu.instantiate)
+            else:
+                _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
+                         loggingOn=True)
+                _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
+                         stopTime=t_end)
             _checked(name, "setting the start values", t0, _set_start_values, fmu, rf)
         except Exception:
             if getattr(fmu, "component", None):

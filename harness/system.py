@@ -97,6 +97,7 @@ from fmpy.model_description import ModelDescription, ScalarVariable
 
 from harness.blocks import BLOCK_KINDS, block_fmu
 from harness.blocks.build import native_by_default
+from harness.fmi3 import element_variables
 from harness.fmu_files import description
 
 StartValue = float | int | bool
@@ -876,9 +877,11 @@ def _resolve_fmu(fs: FmuSpec) -> ResolvedFmu:
         md = description(fs.path)
     except Exception as err:  # noqa: BLE001 - any parse failure is reported the same way
         raise DescriptionError(f"FMU {fs.name!r}: cannot read {fs.path}: {err}") from err
-    if md.fmiVersion != "2.0" or md.coSimulation is None:
-        raise DescriptionError(f"FMU {fs.name!r}: {fs.path} is not an FMI 2.0 co-simulation FMU")
-    variables = {v.name: v for v in md.modelVariables}
+    if md.fmiVersion not in ("2.0", "3.0") or md.coSimulation is None:
+        raise DescriptionError(f"FMU {fs.name!r}: {fs.path} is not an FMI 2.0 or 3.0 "
+                               "co-simulation FMU")
+    variables = ({v.name: v for v in md.modelVariables} if md.fmiVersion == "2.0"
+                 else element_variables(md))
     for var, value in fs.start.items():
         _check_start(fs.name, variables, var, value)
     for var, shape in fs.shapes.items():
@@ -1026,7 +1029,7 @@ def _check_inputs(
                 raise DescriptionError(f"input {key} is connected and also given a start value")
             connected.add(key)
     for name, rf in fmus.items():
-        for v in rf.description.modelVariables:
+        for v in rf.variables.values():
             key = f"{name}.{v.name}"
             if v.causality == "input" and key not in connected and v.name not in rf.spec.start:
                 raise DescriptionError(
