@@ -1025,7 +1025,6 @@ int model_initial_state(const double *real, double *state, char *msg, size_t len
     }
     state[FHOBS_N_MODEL] = xi0;
     state[FHOBS_N_MODEL + 1] = xi0; /* the gain-level state starts at xi0 (positive) */
-    state[FHOBS_N_MODEL + 1] = xi0; /* the gain-level state starts at xi0 (positive) */
     return 0;
 }
 
