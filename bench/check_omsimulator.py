@@ -9,7 +9,7 @@ list``; or the ``--scenario`` names), ``harness plant``'s system of each ``--pla
 ``[disturbance]`` as a native ``signal`` block, its plant's seeded measurement noise; e.g.
 ``fmu_src/fhobs/examples/stiff/dc_motor.toml``) and, unless ``--no-blocks``, a system of every
 source block (signal random walk and step from a start between two steps, Gaussian noise,
-constant) added by a sum block. For each:
+constant through a gain block) added by a sum block. For each:
 
 1. builds the FMUs natively (the pendulum FMUs of ``examples/pendulum.toml`` with
    ``--design spec`` or the paper's published gains, as ``python -m harness paper --native``;
@@ -193,13 +193,16 @@ def plant_model_system(out: Path, spec_path: Path, seed: int = 3) -> SystemSpec:
     return system
 
 
+SCALED = np.array([[0.5, -2.0], [1.5, 0.25]])
+"""The blocks system's gain on the constant."""
+
+
 def blocks_system(out: Path) -> SystemSpec:
-    """Every source block added by a sum block: a random walk and a step from a start between
-    two steps, Gaussian noise, a constant; 2000 steps of 1 ms (the draws cross a generator
-    block of 1024). No gain on the connections: OMSimulator's row at the start time does not
-    pass a value through two direct-feedthrough blocks in a row (a source through a gain block
-    into the sum: the sum's input still 0 there; from the first step on it does), while the
-    scenarios' gain blocks feed FMUs whose outputs at the start do not depend on their inputs."""
+    """Every source block, the constant through a gain block, added by a sum block: a random
+    walk and a step from a start between two steps, Gaussian noise, a constant; 2000 steps of
+    1 ms (the draws cross a generator block of 1024). The constant reaches the sum through two
+    direct-feedthrough blocks in a row, which OMSimulator passes on at the start time too (the
+    blocks' outputs are initial unknowns computed from their inputs)."""
     start = 0.2005
     fmus = {
         "walk": FmuSpec("walk", None, {"shape": 3, "seed": 5, "start": start, "size[1]": 0.5,
@@ -210,26 +213,35 @@ def blocks_system(out: Path) -> SystemSpec:
                                          "size[2]": 0.2}, ("noise", (2,))),
         "offset": FmuSpec("offset", None, {"value[1]": 3.0, "value[2]": -4.0},
                           ("constant", (2,))),
+        "scaled": FmuSpec("scaled", None, {f"K[{i + 1},{j + 1}]": float(SCALED[i, j])
+                                           for i in range(2) for j in range(2)},
+                          ("gain", (2, 2))),
         "total": FmuSpec("total", None, {}, ("sum", (2, 4))),
     }
     connections = tuple(ConnectionSpec(f"{source}.y[{i}]", f"total.u[{k + 1},{i}]")
-                        for k, source in enumerate(("walk", "step", "noise", "offset"))
+                        for k, source in enumerate(("walk", "step", "noise", "scaled"))
                         for i in (1, 2))
+    connections += tuple(ConnectionSpec(f"offset.y[{i}]", f"scaled.u[{i}]") for i in (1, 2))
     system = SystemSpec("blocks", fmus, connections, 1e-3, 2.0,
-                        record=("walk.y", "step.y", "noise.y", "offset.y", "total.y"))
+                        record=("walk.y", "step.y", "noise.y", "offset.y", "scaled.y",
+                                "total.y"))
     return build_blocks(system, out / "blocks", native=True)
 
 
 def without_lag(result: CoSimResult) -> CoSimResult:
-    """The blocks system's harness run with ``total.y`` as the sum block gives it from its
-    inputs of the same instant, ``walk.y + step.y + noise.y + offset.y`` (the harness's
-    Jacobi exchange reads it one step late; OMSimulator orders the exchange by the block's
-    declared dependencies)."""
-    total = (result.vector("walk.y") + result.vector("step.y") + result.vector("noise.y")
-             + result.vector("offset.y"))
+    """The blocks system's harness run with ``scaled.y`` and ``total.y`` as the gain and sum
+    blocks give them from their inputs of the same instant: ``SCALED offset.y`` and ``walk.y
+    + step.y + noise.y + scaled.y``, added in the blocks' order (the harness's Jacobi exchange
+    reads each one step late; OMSimulator orders the exchange by the blocks' declared
+    dependencies)."""
+    offset = result.vector("offset.y")
+    scaled = 0.0 + SCALED[:, 0] * offset[:, :1] + SCALED[:, 1] * offset[:, 1:]
+    total = (0.0 + result.vector("walk.y") + result.vector("step.y") + result.vector("noise.y")
+             + scaled)
     values = result.values.copy()
-    for i in range(2):
-        values[:, result.names.index(f"total.y[{i + 1}]")] = total[:, i]
+    for name, signal in (("scaled.y", scaled), ("total.y", total)):
+        for i in range(2):
+            values[:, result.names.index(f"{name}[{i + 1}]")] = signal[:, i]
     return replace(result, values=values)
 
 
@@ -239,16 +251,20 @@ REFERENCES = {"blocks": without_lag}
 
 # -- OMSimulator ---------------------------------------------------------------------------------
 
-def run_omsimulator(binary: Path, ssp: Path, out: Path, stop_time: float,
-                    timeout: float) -> tuple[int, Path, str]:
-    """Run ``binary`` on ``ssp`` under ``env -i``; return its exit status (-1: timeout), the
-    result CSV and its log (stdout and stderr, also written to ``out/oms.log``)."""
+def run_omsimulator(binary: Path, ssp: Path, out: Path, stop_time: float, timeout: float,
+                    tolerance: float | None = None) -> tuple[int, Path, str]:
+    """Run ``binary`` on ``ssp`` under ``env -i`` (with ``--tolerance`` when the system has a
+    run tolerance: the command line replaces the SSP's); return its exit status (-1:
+    timeout), the result file and its log (stdout and stderr, also written to
+    ``out/oms.log``)."""
     result = out / "oms_result.mat"
     result.unlink(missing_ok=True)
     temp = out / "oms_temp"
     temp.mkdir(exist_ok=True)
     command = ["env", "-i", str(binary.resolve()), f"--resultFile={result.resolve()}",
-               f"--stopTime={stop_time!r}", f"--tempDir={temp.resolve()}", str(ssp.resolve())]
+               f"--stopTime={stop_time!r}", f"--tempDir={temp.resolve()}",
+               *([f"--tolerance={tolerance!r}"] if tolerance is not None else []),
+               str(ssp.resolve())]
     print("$", " ".join(command), flush=True)
     try:
         run = subprocess.run(command, capture_output=True, text=True, timeout=timeout,
@@ -424,7 +440,8 @@ def check(binary: Path, spec: SystemSpec, out: Path, stop_time: float | None,
           f"{spec.step!r} s", flush=True)
     steps = round((stop - spec.start_time) / spec.step)
     status, result, log = run_omsimulator(
-        binary, ssp, folder, accumulated_time(spec.start_time, spec.step, steps), timeout)
+        binary, ssp, folder, accumulated_time(spec.start_time, spec.step, steps), timeout,
+        spec.tolerance)
     system = resolve_system(spec)
     harness = run_system(system, stop_time=stop, progress=False)
     derived = {name for d in system.derived for name in d.names}

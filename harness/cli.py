@@ -19,6 +19,8 @@
   three settling times; the spec's ``[disturbance]`` fed to the plant's q, its ``[mismatch]``
   or ``--mismatch`` perturbing the plant FMU's A and B); results (x and q errors over the
   transient and the steady window) and plots (errors, states, q against its estimates) in DIR.
+  ``--tolerance T``: the relative tolerance every FMU gets in ``fmi2SetupExperiment`` (default
+  1e-10 with a ``[plant_model]``, whose FMUs integrate with their own solver, none otherwise).
   ``--export-ssp FILE``: the run's system (a ``[plant_model]``'s FMUs as they are, with the
   start values and bindings the run sets, the run's seed) also written as an SSP
   (:func:`harness.ssp.export_ssp`: connections lowered to blocks), before the run, which then
@@ -85,6 +87,7 @@ from harness.system import (
     evaluation_outside,
     load_system,
     resolve_system,
+    run_tolerance,
 )
 from harness.writing import (
     NOTHING_WRITTEN,
@@ -100,6 +103,9 @@ PAPER_SCENARIO_FILES = {"nominal": "pendulum_nominal", "perturbed": "pendulum_pe
                         "perturbed_noisy": "pendulum_noisy"}
 """The bundled scenario of each of the paper's scenarios (keys of fhobs.paper.PAPER_SCENARIOS)."""
 PAPER_SEEDS = {"pendulum_noisy": 5}
+MAX_SEED = 2**31 - 1
+"""The largest seed: the seeds are 32-bit FMI Integers (the plant's and the noise block's
+``seed``), and numpy's seeds are non-negative."""
 PAPER_CSV_EVERY = 20
 """The main job writes every 20th point (1 ms at the paper's step) of its 60,000-step runs."""
 
@@ -193,6 +199,10 @@ def _parser() -> argparse.ArgumentParser:
     plant.add_argument("--step", type=float,
                        help=f"communication step (default the [noise] sample time, else {STEP:g})")
     plant.add_argument("--seed", type=int, default=0, help="measurement noise seed")
+    plant.add_argument("--tolerance", type=float,
+                       help="the relative tolerance every FMU gets in fmi2SetupExperiment "
+                            "(default: 1e-10 with a [plant_model], whose FMUs integrate with "
+                            "their own solver; none otherwise, the generated FMUs need none)")
     plant.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     plant.add_argument("--tune-noise", action="store_true",
                        help="design for the spec's [noise] and [disturbance] tables "
@@ -422,7 +432,25 @@ def csv_every(args: argparse.Namespace, default: int) -> int:
     return every
 
 
+def check_seed(seed: int | None, option: str = "--seed") -> None:
+    """DescriptionError unless the value ``seed`` of the command-line option ``option`` is
+    None or in ``0..MAX_SEED``.
+
+    Examples
+    --------
+    >>> check_seed(2**31 - 1)
+    >>> check_seed(-1)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    harness.system.DescriptionError: --seed = -1 must be an integer in 0..2147483647 (...)
+    """
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise DescriptionError(f"{option} = {seed} must be an integer in 0..{MAX_SEED} (a seed "
+                               "is a non-negative 32-bit FMI Integer)")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    check_seed(args.seed)
     for option in ("seeds", "jobs"):
         if getattr(args, option) is not None and getattr(args, option) < 1:
             raise DescriptionError(f"--{option} = {getattr(args, option)} must be >= 1")
@@ -674,6 +702,9 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     from fhobs.build import build_fmus
     from fhobs.design.spec import load_spec
 
+    check_seed(args.seed)
+    if args.tolerance is not None:
+        run_tolerance(args.tolerance, "--tolerance")
     check_output_folder(args.out)
     export = plant_export(args)
     plant_mismatch(load_spec(args.spec), args.mismatch, args.mismatch_seed)  # before designing
@@ -713,7 +744,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     system = own_plant_system(design, fmus, spec.state_scale, stop_time, step, noise,
                               disturbance=spec.disturbance, plant_matrices=plant,
                               settled=settled)
-    system = build_blocks(system, args.block_cache)
+    system = replace(build_blocks(system, args.block_cache), tolerance=args.tolerance)
     if export is not None:
         export(system.with_seed(args.seed) if noise else system)
     data = run_own_plant(system, args.out, settled=settled,
@@ -761,13 +792,14 @@ def plant_export(args: argparse.Namespace) -> Callable[[SystemSpec], None] | Non
 def _plant_model_run(args: argparse.Namespace, spec: Any, design: Any, step: float,
                      stop_time: float, export: Callable[[SystemSpec], None] | None) -> int:
     """``harness plant`` against the spec's ``[plant_model]`` (:mod:`harness.plant_model`)."""
-    from harness.plant_model import run_plant_model, state_table
+    from harness.plant_model import MODEL_TOLERANCE, run_plant_model, state_table
 
     settled = transient_end(design, spec.settling_time, step, stop_time)
     data = run_plant_model(spec, design, args.out, step=step, stop_time=stop_time,
                            settled=settled, seed=args.seed, plots=not args.no_plots,
                            csv_every=csv_every(args, 1), native=args.native,
-                           block_cache=args.block_cache, export=export)
+                           block_cache=args.block_cache, export=export,
+                           tolerance=MODEL_TOLERANCE if args.tolerance is None else args.tolerance)
     model = data["plant_model"]
     print(f"model: {model['path']}" + (f", system {model['system']}" if model["system"] else "")
           + f"; {model['initial_error']}")

@@ -3,7 +3,7 @@
 Call sequence (the one fmpy's ``simulate_fmu`` uses for setting up, and libcosim's fixed-step
 algorithm for stepping)::
 
-    for each FMU: instantiate, setupExperiment(t0, t_end), set start values,
+    for each FMU: instantiate, setupExperiment(tolerance, t0, t_end), set start values,
                   enterInitializationMode, exitInitializationMode
     outputs(t0) <- getReal
     for k = 0 .. N-1, t_k = t0 + k h (never accumulated):
@@ -12,6 +12,10 @@ algorithm for stepping)::
         for each FMU: doStep(t_k, h)
         for each FMU: getReal(outputs)   -> outputs(t_{k+1}), recorded
     for each FMU: terminate, freeInstance
+
+The tolerance is the system's ``[run] tolerance`` (:attr:`harness.system.SystemSpec.tolerance`;
+none by default: ``toleranceDefined`` false), for FMUs that integrate internally over a
+communication step (a modelling tool's Co-Simulation export: its solver's relative tolerance).
 
 Variables are looked up once (:func:`harness.system.resolve_system`), each FMU file is
 extracted once per process (:func:`harness.fmu_files.unzipped`); the step loop calls the
@@ -639,8 +643,8 @@ class Master:
             else:
                 _checked(name, "fmi2Instantiate", t0, fmu.instantiate, callbacks=callbacks,
                          loggingOn=True)
-                _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment, startTime=t0,
-                         stopTime=t_end)
+                _checked(name, "fmi2SetupExperiment", t0, fmu.setupExperiment,
+                         tolerance=self.system.spec.tolerance, startTime=t0, stopTime=t_end)
             _checked(name, "setting the start values", t0, _set_start_values, fmu, rf)
         except Exception:
             if getattr(fmu, "component", None):

@@ -51,7 +51,12 @@ The default experiment (start, stop) is written; the step size goes into two ven
 annotations, which other engines ignore: OSP's ``osp:FixedStepAlgorithm baseStepSize`` on the
 default experiment (libcosim) and OpenModelica's ``oms:FixedStepMaster stepSize`` in the
 ``oms:SimulationInformation`` of the top-level system, without which OMSimulator does not load
-the file.
+the file. The run's tolerance (``[run] tolerance``, :attr:`harness.system.SystemSpec.tolerance`),
+when it has one, goes into that ``oms:FixedStepMaster`` as ``relativeTolerance`` and
+``absoluteTolerance``: OMSimulator 3.0 reads them when it imports the SSP and passes the
+relative one to every FMU's ``fmi2SetupExperiment``, as the harness does. Its command line
+(``OMSimulator file.ssp``) then replaces both with its ``--tolerance`` option (default 1e-4):
+pass the run's tolerance there too (``bench/check_omsimulator.py`` does).
 """
 
 from __future__ import annotations
@@ -376,7 +381,7 @@ def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.E
                 endElement=tf,
                 endConnector=tv.name,
             )
-    _oms_annotation(sys_el, spec.step)
+    _oms_annotation(sys_el, spec.step, spec.tolerance)
     exp = ET.SubElement(
         root,
         _q("ssd", "DefaultExperiment"),
@@ -393,8 +398,10 @@ def _ssd(system: ResolvedSystem, resources: dict[str, tuple[Path, str]]) -> ET.E
     return root
 
 
-def _oms_annotation(system: ET.Element, step: float) -> None:
-    """OMSimulator's annotation of a system: a fixed-step master with the communication step."""
+def _oms_annotation(system: ET.Element, step: float, tolerance: float | None) -> None:
+    """OMSimulator's annotation of a system: a fixed-step master with the communication step
+    and, if there is one, the run's tolerance (relative and absolute, as OMSimulator's
+    ``--tolerance`` sets them)."""
     note = ET.SubElement(
         ET.SubElement(system, _q("ssd", "Annotations")),
         _q("ssc", "Annotation"),
@@ -403,7 +410,11 @@ def _oms_annotation(system: ET.Element, step: float) -> None:
     info = ET.SubElement(
         ET.SubElement(note, _q("oms", "Annotations")), _q("oms", "SimulationInformation")
     )
-    ET.SubElement(info, _q("oms", "FixedStepMaster"), description="oms-ma", stepSize=repr(step))
+    master = ET.SubElement(info, _q("oms", "FixedStepMaster"), description="oms-ma",
+                           stepSize=repr(step))
+    if tolerance is not None:
+        master.set("absoluteTolerance", repr(tolerance))
+        master.set("relativeTolerance", repr(tolerance))
 
 
 def _connectors(system: ResolvedSystem) -> dict[str, list[tuple[str, str]]]:

@@ -22,6 +22,9 @@ File format (all keys except ``fmus`` optional)::
     stop_time = 3.0
     seed = "plant.noise_seed"        # the start value that --seed sets
     noise_seed = 0                   # the seed of the master's connection noise (--seed too)
+    tolerance = 1e-10                # optional: the relative tolerance every FMU gets in
+                                     # fmi2SetupExperiment (an exported model's internal
+                                     # solver); none by default (toleranceDefined false)
     record = ["plant.x", "observer.x_hat"]   # extra signals; connected outputs are always kept
     [fmus.plant]
     path = "${fmu_dir}/plant.fmu"    # relative to this file
@@ -111,7 +114,7 @@ PAPER_VALUES: dict[str, Any] = {
 _PAPER_VALUE = re.compile(r"\$\{(paper\.[A-Za-z0-9_.]+)\}")
 TOP_KEYS = ("extends", "name", "variables", "run", "fmus", "connections", "derived",
             "evaluation", "plots")
-RUN_KEYS = ("step", "stop_time", "start_time", "seed", "noise_seed", "record")
+RUN_KEYS = ("step", "stop_time", "start_time", "seed", "noise_seed", "tolerance", "record")
 CONNECTION_KEYS = ("from", "to", "gain", "offset", "bias", "noise")
 READABLE = ("output", "local")
 """The causalities a connection, a record or an error may read (Real variables)."""
@@ -199,6 +202,7 @@ class SystemSpec:
     source: Path | None = None
     derived: tuple[ConnectionSpec, ...] = ()
     noise_seed: int = 0
+    tolerance: float | None = None
 
     def with_start(self, overrides: dict[str, StartValue]) -> SystemSpec:
         """Copy with start values ``{"fmu.variable": value}`` overriding the file's."""
@@ -353,6 +357,9 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
     if isinstance(noise_seed, bool) or not isinstance(noise_seed, int) or noise_seed < 0:
         raise DescriptionError(f"{where}: run.noise_seed = {noise_seed!r} must be an integer "
                                ">= 0")
+    tolerance = run.get("tolerance")
+    if tolerance is not None:
+        tolerance = run_tolerance(tolerance, f"{where}: run.tolerance")
     derived = _list(data, "derived", where)
     if not all(isinstance(d, dict) for d in derived):
         raise DescriptionError(f"{where}: derived must be [[derived]] tables")
@@ -372,6 +379,7 @@ def load_system(path: str | Path, variables: dict[str, str] | None = None) -> Sy
         derived=tuple(_connection_spec(d, f"{where}: derived {i}", derived=True)
                       for i, d in enumerate(derived, start=1)),
         noise_seed=noise_seed,
+        tolerance=tolerance,
     )
 
 
@@ -496,6 +504,25 @@ def build_blocks(spec: SystemSpec, block_cache: Path | None = None,
             else replace(fs, path=block_fmu(*fs.block, block_cache, native=native))
             for name, fs in spec.fmus.items()}
     return replace(spec, fmus=fmus)
+
+
+def run_tolerance(value: Any, where: str) -> float:
+    """``value`` as a run's tolerance (the relative tolerance of ``fmi2SetupExperiment``): a
+    number in (0, 1); DescriptionError naming ``where`` otherwise.
+
+    Examples
+    --------
+    >>> run_tolerance(1e-10, "run.tolerance")
+    1e-10
+    >>> run_tolerance(0, "run.tolerance")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    harness.system.DescriptionError: run.tolerance = 0 must be a number in (0, 1): ...
+    """
+    if not _is_number(value) or not 0.0 < value < 1.0:
+        raise DescriptionError(f"{where} = {value!r} must be a number in (0, 1): the relative "
+                               "tolerance of the FMUs' solvers")
+    return float(value)
 
 
 def check_timing(step: float, start_time: float, stop_time: float, where: str) -> int:

@@ -121,7 +121,7 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
         raise ValueError(
             f"block {kind_name!r} needs positive dimensions {kind.dimensions}, got {dims}"
         )
-    digest = hashlib.sha256(kind.source.read_bytes()
+    digest = hashlib.sha256(kind.source.read_bytes() + SOURCE.read_bytes()
                             + Path(__file__).read_bytes()).hexdigest()[:10]
     module, text = _script(kind, dims, digest)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()

@@ -101,8 +101,8 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
         name: Path(fhobs.native.__file__).with_name(name) for name in extra}
     units = [name for name in extra if name.endswith(".c")]
     header = call_rules.c_header()
-    digest = hashlib.sha256(repr((kind_name, dims)).encode() + kind.source.read_bytes()
-                            + header.encode())
+    digest = hashlib.sha256(repr((kind_name, dims)).encode() + reference.name.encode()
+                            + Path(__file__).read_bytes() + header.encode())
     for name, path in shipped.items():
         digest.update(name.encode() + path.read_bytes())
     suffix = "x".join(str(d) for d in dims)

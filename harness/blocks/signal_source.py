@@ -31,13 +31,18 @@ reached ``start`` within 1e-9 of ``max(1, start)``. The random walk is a Wiener 
 intensity ``size`` (its variance grows by ``size^2`` per second) sampled at the communication
 step; neither block has FMU states: no rollback.
 
-The module is self-contained (pythonfmu shares ``sys.modules`` between FMUs:
-:mod:`harness.blocks.build` bakes the dimensions into a uniquely named copy of it).
+The outputs are ``initial="calculated"``, initial unknowns depending on the parameters they
+are computed from, as the blocks of :mod:`harness.blocks.slaves`.
+
+The module is self-contained at run time (pythonfmu shares ``sys.modules`` between FMUs:
+:mod:`harness.blocks.build` bakes the dimensions into a uniquely named copy of it); only the
+build's model description takes a function of :mod:`harness.blocks.slaves`.
 """
 
 from __future__ import annotations
 
 import math
+from xml.etree.ElementTree import Element
 
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
@@ -111,7 +116,7 @@ class SeededSource(Fmi2Slave):
         for i in range(n_outputs):
             self.register_variable(Real(
                 f"y[{i + 1}]", causality=Fmi2Causality.output,
-                variability=Fmi2Variability.continuous, initial=Fmi2Initial.exact,
+                variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
                 getter=lambda i=i: self.value(i)))
 
     def _register_real(self, name: str, store, key) -> None:
@@ -149,6 +154,20 @@ class SeededSource(Fmi2Slave):
     def value(self, i: int) -> float:
         """Output ``i`` (0-based) at the block's current time."""
         raise NotImplementedError
+
+    def knowns_of(self, i: int, inputs: list[str]) -> list[str]:
+        """The parameters output ``i`` (0-based) is computed from: all but the other outputs'
+        sizes (there are no ``inputs``)."""
+        return [f"size[{i + 1}]", *self.reals, *self.integers]
+
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
+        """pythonfmu's model description with the outputs' dependencies (none) and initial
+        unknowns (:meth:`knowns_of`) declared. Only the build calls it, in the harness's
+        process, hence the import of :func:`harness.blocks.slaves.declare_structure` here."""
+        from harness.blocks.slaves import declare_structure
+
+        root = super().to_xml(model_options if model_options is not None else {})
+        return declare_structure(root, lambda i, inputs: [], self.knowns_of)
 
     def setup_experiment(self, start_time: float, stop_time, tolerance) -> None:
         self.time = float(start_time)

@@ -17,6 +17,11 @@
 The model descriptions declare the direct feedthrough of the gain and the sum: each output
 depends on the inputs it is computed from (``<Unknown dependencies>``; K is tunable, so no
 entry of it is assumed zero), which lets a master find algebraic loops through the block.
+The outputs are ``initial="calculated"`` (no start value) and listed as ``<InitialUnknowns>``
+depending on the inputs and parameters they are computed from (:meth:`Block.knowns_of`):
+every block computes its outputs in initialisation mode too, so a master that propagates the
+values at the start time through the blocks in the order of these dependencies (OMSimulator)
+gets each block's output from its inputs of the start time, not a start value of 0.
 
 The dimensions are constructor arguments; :mod:`harness.blocks.build` bakes them into a
 uniquely named copy of this module (pythonfmu shares ``sys.modules`` between FMUs), which is
@@ -26,12 +31,57 @@ why the module imports nothing from the harness.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from xml.etree.ElementTree import Element
+from collections.abc import Callable, Iterable
+from xml.etree.ElementTree import Element, SubElement
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
 
 SINE_PARAMETERS = ("amplitude", "omega", "phase", "offset")
+
+
+def declare_structure(root: Element, inputs_of: Callable[[int, list[str]], list[str]],
+                      knowns_of: Callable[[int, list[str]], list[str]]) -> Element:
+    """Complete the ``<ModelStructure>`` of a block's modelDescription ``root`` (pythonfmu's,
+    which lists the outputs only): each output's dependencies on the inputs
+    (``inputs_of(i, inputs)``, output ``i`` 0-based, ``inputs`` the names of the block's
+    inputs) and its ``<InitialUnknowns>`` entry with its dependencies on the inputs and
+    parameters (``knowns_of(i, inputs)``), as FMI 2.0 asks of outputs ``initial="calculated"``.
+
+    Parameters
+    ----------
+    root
+        The modelDescription, changed in place.
+    inputs_of, knowns_of
+        Output ``i``'s inputs, and its inputs and parameters, by name.
+
+    Returns
+    -------
+    Element
+        ``root``.
+
+    Examples
+    --------
+    >>> from xml.etree.ElementTree import fromstring
+    >>> root = fromstring(
+    ...     '<m><ModelVariables><ScalarVariable name="k" causality="parameter"/>'
+    ...     '<ScalarVariable name="u" causality="input"/><ScalarVariable name="y" '
+    ...     'causality="output"/></ModelVariables><ModelStructure><Outputs>'
+    ...     '<Unknown index="3"/></Outputs></ModelStructure></m>')
+    >>> root = declare_structure(root, lambda i, u: u, lambda i, u: ["k", *u])
+    >>> [(u.get("index"), u.get("dependencies")) for u in root.iterfind("ModelStructure/*/")]
+    [('3', '2'), ('3', '1 2')]
+    """
+    variables = list(root.find("ModelVariables"))
+    index = {v.get("name"): position for position, v in enumerate(variables, start=1)}
+    inputs = [v.get("name") for v in variables if v.get("causality") == "input"]
+    structure = root.find("ModelStructure")
+    initial = SubElement(structure, "InitialUnknowns")
+    for i, unknown in enumerate(structure.iterfind("Outputs/Unknown")):
+        for element, names in ((unknown, inputs_of(i, inputs)),
+                               (SubElement(initial, "Unknown", index=unknown.get("index")),
+                                knowns_of(i, inputs))):
+            element.set("dependencies", " ".join(str(k) for k in sorted(index[n] for n in names)))
+    return root
 
 
 def added(terms: Iterable[float]) -> float:
@@ -50,8 +100,9 @@ def added(terms: Iterable[float]) -> float:
 
 
 class Block(Fmi2Slave):
-    """What the blocks share: Real variables backed by list entries, outputs ``y[i]``, and the
-    outputs' dependencies on the inputs (:meth:`inputs_of`) in the model description."""
+    """What the blocks share: Real variables backed by list entries, outputs ``y[i]``, and in
+    the model description the outputs' dependencies on the inputs (:meth:`inputs_of`) and, as
+    initial unknowns, on the inputs and parameters (:meth:`knowns_of`)."""
 
     author = "fhobs harness"
 
@@ -93,7 +144,7 @@ class Block(Fmi2Slave):
                     f"y[{i + 1}]",
                     causality=Fmi2Causality.output,
                     variability=Fmi2Variability.continuous,
-                    initial=Fmi2Initial.exact,
+                    initial=Fmi2Initial.calculated,
                     getter=lambda i=i: self.value(i),
                 )
             )
@@ -106,19 +157,20 @@ class Block(Fmi2Slave):
         """The names among ``inputs`` that output ``i`` (0-based) is computed from: all."""
         return inputs
 
+    def parameters_of(self, i: int) -> list[str]:
+        """The names of the parameters that output ``i`` (0-based) is computed from."""
+        raise NotImplementedError
+
+    def knowns_of(self, i: int, inputs: list[str]) -> list[str]:
+        """The inputs (among ``inputs``) and parameters that output ``i`` (0-based) is
+        computed from at initialisation."""
+        return [*self.inputs_of(i, inputs), *self.parameters_of(i)]
+
     def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
-        """pythonfmu's model description with each output's dependencies on the inputs
-        declared (:meth:`inputs_of`; pythonfmu 0.7.0 writes no dependencies)."""
+        """pythonfmu's model description with the outputs' dependencies and initial unknowns
+        declared (:func:`declare_structure`; pythonfmu 0.7.0 writes neither)."""
         root = super().to_xml(model_options if model_options is not None else {})
-        index = {v.get("name"): position
-                 for position, v in enumerate(root.find("ModelVariables"), start=1)}
-        inputs = [v.get("name") for v in root.find("ModelVariables")
-                  if v.get("causality") == "input"]
-        if inputs:
-            for i, unknown in enumerate(root.iterfind("ModelStructure/Outputs/Unknown")):
-                unknown.set("dependencies",
-                            " ".join(str(index[name]) for name in self.inputs_of(i, inputs)))
-        return root
+        return declare_structure(root, self.inputs_of, self.knowns_of)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         return True
@@ -148,6 +200,10 @@ class SineSource(Block):
             p["amplitude"][i] * math.sin(p["omega"][i] * self.time + p["phase"][i]) + p["offset"][i]
         )
 
+    def parameters_of(self, i: int) -> list[str]:
+        """``amplitude[i+1]``, ``omega[i+1]``, ``phase[i+1]``, ``offset[i+1]``."""
+        return [f"{name}[{i + 1}]" for name in SINE_PARAMETERS]
+
     def setup_experiment(self, start_time: float, stop_time, tolerance) -> None:
         self.time = float(start_time)
 
@@ -171,6 +227,10 @@ class ConstantSource(Block):
         """Output ``i`` (0-based): its parameter."""
         return self.values[i]
 
+    def parameters_of(self, i: int) -> list[str]:
+        """``value[i+1]``."""
+        return [f"value[{i + 1}]"]
+
 
 class MatrixGain(Block):
     """``y = K u`` with ``K`` of shape ``(n_outputs, n_inputs)``, parameters ``K[i,j]``."""
@@ -190,6 +250,10 @@ class MatrixGain(Block):
     def value(self, i: int) -> float:
         """Output ``i`` (0-based): row i of K times the current inputs."""
         return added(k * u for k, u in zip(self.gain[i], self.inputs, strict=True))
+
+    def parameters_of(self, i: int) -> list[str]:
+        """Row ``i + 1`` of K."""
+        return [f"K[{i + 1},{j + 1}]" for j in range(len(self.inputs))]
 
 
 class Sum(Block):
@@ -212,3 +276,7 @@ class Sum(Block):
     def inputs_of(self, i: int, inputs: list[str]) -> list[str]:
         """Entry ``i`` of every term."""
         return inputs[i::self.n_outputs]
+
+    def parameters_of(self, i: int) -> list[str]:
+        """None: the sum has no parameters."""
+        return []

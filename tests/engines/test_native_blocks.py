@@ -115,6 +115,91 @@ def test_gain_outputs_declare_every_input():
     assert len(unknowns) == 2 and all(u.get("dependencies").split() == inputs for u in unknowns)
 
 
+def _known(kind: str, i: int, dims: tuple[int, ...]) -> set[str]:
+    """What output ``i`` (1-based) of a block of ``kind`` is computed from: its inputs and
+    parameters by name, from the formulas of harness/blocks (not from the slaves' code)."""
+    if kind == "sine":
+        return {f"{p}[{i}]" for p in ("amplitude", "omega", "phase", "offset")}
+    if kind == "constant":
+        return {f"value[{i}]"}
+    if kind == "gain":
+        return {f"K[{i},{j}]" for j in range(1, dims[1] + 1)} | {
+            f"u[{j}]" for j in range(1, dims[1] + 1)}
+    if kind == "sum":
+        return {f"u[{k},{i}]" for k in range(1, dims[1] + 1)}
+    selector = {"signal": ("shape", "start", "frequency"), "noise": ("distribution",)}[kind]
+    return {f"size[{i}]", "seed", *selector}
+
+
+@pytest.mark.parametrize("native", [False, True])
+@pytest.mark.parametrize("kind", BLOCKS)
+def test_outputs_are_initial_unknowns_of_what_they_are_computed_from(fmus, kind, native):
+    """FMI 2.0: outputs initial="calculated" have no start value and are listed in
+    <InitialUnknowns>, here with their dependencies on the inputs and parameters of their
+    formula; <Outputs> lists the inputs among them."""
+    root = _description(fmus[kind, native])
+    variables = root.findall("ModelVariables/ScalarVariable")
+    name = {str(k): v.get("name") for k, v in enumerate(variables, start=1)}
+    outputs = [(str(k), v) for k, v in enumerate(variables, start=1)
+               if v.get("causality") == "output"]
+    assert [v.get("initial") for _, v in outputs] == ["calculated"] * BLOCKS[kind][0]
+    assert all(v.find("Real").get("start") is None for _, v in outputs)
+    initial = root.findall("ModelStructure/InitialUnknowns/Unknown")
+    declared = root.findall("ModelStructure/Outputs/Unknown")
+    assert [u.get("index") for u in initial] == [k for k, _ in outputs]
+    for i, (unknown, output) in enumerate(zip(initial, declared, strict=True), start=1):
+        known = _known(kind, i, BLOCKS[kind])
+        indices = unknown.get("dependencies").split()
+        assert indices == sorted(indices, key=int)
+        assert {name[k] for k in indices} == known
+        assert {name[k] for k in output.get("dependencies").split()} == {
+            n for n in known if n.startswith("u[")}
+
+
+@pytest.mark.parametrize("native", [False, True])
+def test_outputs_are_computed_in_initialization_mode(open_block, native):
+    """Read in initialisation mode, after their inputs and parameters were set there, the
+    outputs are already the formula's values at the start time (what OMSimulator reads when it
+    initialises a system through the blocks)."""
+    values = {}
+    cases = {
+        "gain": {"K[1,1]": 2.0, "K[1,2]": -1.0, "K[1,3]": 0.5, "K[1,4]": 3.0,
+                 "K[2,1]": 0.0, "K[2,2]": 1.0, "K[2,3]": -4.0, "K[2,4]": 0.25,
+                 "u[1]": 1.5, "u[2]": -2.0, "u[3]": 8.0, "u[4]": 0.125},
+        "sum": {"u[1,1]": 1.0, "u[1,2]": 2.0, "u[2,1]": 10.0, "u[2,2]": 20.0, "u[3,1]": 0.5,
+                "u[3,2]": -0.25},
+        "constant": {"value[1]": 2.5, "value[2]": -1.0},
+        "sine": {"amplitude[1]": 2.0, "omega[1]": 3.0, "phase[1]": 0.25, "offset[1]": -1.0},
+        "signal": {"shape": 0, "start": 0.1, "size[1]": 1.5, "size[2]": -0.25},
+        "noise": {"distribution": 1, "seed": 4, "size[1]": 0.5, "size[2]": 2.0,
+                  "size[3]": -1.0},
+    }
+    for kind, parameters in cases.items():
+        driver = open_block(kind, native)
+        variables = {v.name: v for v in driver.description.modelVariables}
+        driver.fmu.setupExperiment(startTime=T0)
+        driver.fmu.enterInitializationMode()
+        for name, value in parameters.items():
+            if variables[name].type == "Integer":
+                driver.fmu.setInteger([variables[name].valueReference], [int(value)])
+            else:
+                driver.fmu.setReal([variables[name].valueReference], [float(value)])
+        outputs = [v.valueReference for v in driver.description.modelVariables
+                   if v.causality == "output"]
+        values[kind] = np.array(driver.fmu.getReal(outputs))
+        driver.fmu.exitInitializationMode()
+    K = np.array([[2.0, -1.0, 0.5, 3.0], [0.0, 1.0, -4.0, 0.25]])
+    assert values["gain"].tolist() == (K @ [1.5, -2.0, 8.0, 0.125]).tolist()
+    assert values["sum"].tolist() == [11.5, 21.75]
+    assert values["constant"].tolist() == [2.5, -1.0]
+    assert values["sine"][0] == pytest.approx(2.0 * math.sin(3.0 * T0 + 0.25) - 1.0,
+                                              rel=1e-15)
+    assert values["signal"].tolist() == [1.5, -0.25]  # the step started at 0.1 < T0
+    _, w = _draws(4, 1, 3)
+    np.testing.assert_allclose(values["noise"], np.array([0.5, 2.0, -1.0]) * w[0],
+                               rtol=1e-14)
+
+
 @pytest.mark.parametrize("kind", BLOCKS)
 def test_fmpy_validates_the_native_block(fmus, kind):
     assert validate_fmu(str(fmus[kind, True])) == []
