@@ -37,7 +37,7 @@ from fhobs.core.supervisor import sample_count
 from fhobs.design.feedback import state_feedback
 from fhobs.design.signals import SignalNames
 from fhobs.design.spec import DISTURBANCE_SHAPES, DisturbanceSpec
-from fhobs.fmu.kinds import LABELS
+from fhobs.fmu.kinds import KINDS, LABELS, kinds_where
 
 from harness.master import CoSimResult, MasterError, run_system
 from harness.results import (
@@ -101,12 +101,9 @@ def q_hat_kinds(design: ObserverDesign) -> set[str]:
     >>> q_hat_kinds(paper_gains())
     set()
     """
-    kinds = {"observer", "prescribed_time"} if design.model.disturbance_order >= 1 else set()
-    if design.kalman is not None and design.kalman.disturbance_order >= 1:
-        kinds.add("kalman")
-    if design.supervised is not None and design.model.disturbance_order >= 1:
-        kinds.add("supervised")
-    return kinds
+    kinds = (KINDS[name] for name in kinds_where(variable="q_hat"))
+    return {kind.name for kind in kinds if kind.built_when(design)
+            and int(np.prod(kind.variable("q_hat").shape(kind.runs(design))))}
 
 
 def transient_end(design: ObserverDesign, settling_time: float, step: float,
@@ -144,10 +141,10 @@ def signal_start(disturbance: DisturbanceSpec) -> dict[str, float | int]:
 
 def estimator_kinds(design: ObserverDesign, fmus: dict[str, object], step: float,
                     noisy: bool) -> dict[str, str]:
-    """``{kind: label}`` of the estimators that run: those in ``fmus``, but the
-    prescribed-time observer with noise (its gain grows without bound towards T0: noise,
-    amplified) and the supervised one unless ``step`` is a whole number of its Kalman
-    samples.
+    """``{kind: label}`` of the estimators that run: those in ``fmus`` built for the design
+    and the noise (:meth:`fhobs.fmu.kinds.Kind.built_when`: not the prescribed-time observer
+    with noise, its gain grows without bound towards T0: noise, amplified), but the
+    supervised one unless ``step`` is a whole number of its Kalman samples.
 
     Examples
     --------
@@ -156,9 +153,8 @@ def estimator_kinds(design: ObserverDesign, fmus: dict[str, object], step: float
     ...                 1e-3, True)
     {'observer': 'homogeneous'}
     """
-    observers = dict(LABELS)
-    if noisy:
-        observers.pop("prescribed_time")
+    observers = {kind: label for kind, label in LABELS.items()
+                 if KINDS[kind].built_when(design, noisy)}
     if design.supervised is not None and not whole_samples(step, design.supervised):
         observers.pop("supervised")
     return {kind: label for kind, label in observers.items() if kind in fmus}

@@ -948,7 +948,7 @@ def _build(design: Any, out: Path, flavour: str, options: dict[str, Any]) -> dic
 
     kinds = options.pop("kinds", None)
     if kinds is not None:  # a kind whose record the design lacks (no [noise] table) is not built
-        kinds = [kind for kind in kinds if getattr(design, KINDS[kind].record) is not None]
+        kinds = [kind for kind in kinds if KINDS[kind].built_when(design)]
     build = build_native_fmus if flavour == "native" else build_fmus
     return build(design, out, kinds=kinds, **options)
 
@@ -968,14 +968,16 @@ def scenario_kinds(job: dict[str, Any]) -> list[str]:
 
 def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     """The keyword arguments of a point's FMU build: the kinds its system runs and, for a
-    plant-spec base, the start values ``harness plant`` builds with.
+    plant-spec base, the start values ``harness plant`` builds with (every kind that runs on
+    its measurement noise, :attr:`fhobs.fmu.kinds.Kind.noise_free`; :func:`_build` leaves out
+    those whose record the design lacks).
 
     Examples
     --------
     >>> from fhobs.design.spec import spec_from_dict
     >>> spec = spec_from_dict({"A": [[0, 1], [0, 0]], "B": [[0], [1]], "C": [[1, 0]]})
     >>> build_options({"kind": "plant", "step": 1e-3}, spec)["kinds"]
-    ['observer', 'prescribed_time', 'luenberger', 'plant']
+    ['observer', 'prescribed_time', 'luenberger', 'kalman', 'supervised', 'plant']
     """
     from fhobs.fmu.kinds import KINDS
 
@@ -984,9 +986,7 @@ def build_options(job: dict[str, Any], spec: Any) -> dict[str, Any]:
     noise, step = _plant_noise(spec), _plant_step(job, spec)
     options: dict[str, Any] = {
         "x0": [float(v) for v in spec.state_scale], "noise_amplitude": noise, "h": step,
-        "kinds": [k for k in KINDS
-                  if (k not in ("kalman", "supervised") or spec.noise is not None)
-                  and (k != "prescribed_time" or noise == 0.0)],  # it runs without noise
+        "kinds": [k for k in KINDS if not (noise and KINDS[k].noise_free)],
     }
     if noise == 0.0:
         options["T0"] = float(spec.settling_time)

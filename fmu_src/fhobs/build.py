@@ -41,8 +41,6 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .core.cache_files import cache_unusable, is_fmu, trusted
 from .core.certificate import certify
 from .core.gains import ObserverDesign
@@ -55,20 +53,18 @@ from .core.kernel import (
     cached_build,
     replaced_atomically,
 )
-from .core.plant import PLANT_SCHEMES
-from .core.runtime import DEFAULT_H, SCHEMES, prescribed_xi0
 from .design.signals import SignalNames
 from .errors import BuildError
 from .fmu import call_rules
 from .fmu.kinds import KINDS, Kind
 from .fmu.modes import STATUS_VALUE_REFERENCE
+from .fmu.options import default_kinds, fmu_options
 from .fmu.slave_base import CONFIG_FILE, DESIGN_FILE
 from .model_description import describe, naming_options
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_PACKAGES = ("core", "fmu")
 """The subpackages of fhobs copied whole into each FMU."""
-DEFAULT_INPUT_BOUND = 1e8
 _LIB_DIR = "binaries/linux64/"
 PYTHON_RECORD = "resources/fhobs_python.txt"
 MODEL_DESCRIPTION = "modelDescription.xml"
@@ -174,118 +170,6 @@ def build_fmus(
     return built
 
 
-def default_kinds(design: ObserverDesign) -> tuple[str, ...]:
-    """The kinds built by default: every kind of :data:`~fhobs.fmu.kinds.KINDS` whose record
-    the design has (``kalman`` and ``supervised`` only with the ``[noise]`` table's records).
-
-    Examples
-    --------
-    >>> from fhobs.design.observer import paper_gains
-    >>> default_kinds(paper_gains())
-    ('observer', 'prescribed_time', 'luenberger', 'plant')
-    """
-    return tuple(name for name, kind in KINDS.items()
-                 if getattr(design, kind.record) is not None)
-
-
-def fmu_options(
-    design: ObserverDesign,
-    kinds: Iterable[str],
-    *,
-    h: float = DEFAULT_H,
-    scheme: str | None = None,
-    z0: Iterable[float] | None = None,
-    psi0: Iterable[float] | None = None,
-    xi0: float = 0.0,
-    T0: float = 1.0,
-    x0: Iterable[float] | None = None,
-    noise_amplitude: float = 0.0,
-    noise_seed: int = 0,
-    plant_scheme: str = "zoh",
-    input_bound: float = DEFAULT_INPUT_BOUND,
-) -> dict[str, Any]:
-    """The start values of the FMUs' setting parameters (``fmu_config.json``; the
-    :attr:`~fhobs.fmu.kinds.Variable.option` keys), checked, for both builds.
-
-    Parameters
-    ----------
-    design : ObserverDesign
-        The design.
-    kinds : iterable of str
-        The kinds to build (a prescribed-time FMU needs a T0 that gives an initial xi; a
-        Kalman FMU a design with a Kalman filter).
-    h : float
-        Start value of the observers' internal step.
-    scheme : str, optional
-        Start value of the observers' integration scheme (default: the runtime's first).
-    z0, psi0, xi0 : optional
-        Start values of the observers' initial state (default zero; the Kalman filter's
-        disturbance states start at zero).
-    T0 : float
-        Start value of the prescribed-time observer's convergence time (s), from which it
-        derives its initial xi.
-    x0 : iterable of float, optional
-        Start value of the plant's initial state (default zero).
-    noise_amplitude, noise_seed : float, int
-        Start values of the plant's measurement noise.
-    plant_scheme : str
-        Start value of the plant's step scheme (``fhobs.core.plant.PLANT_SCHEMES``).
-    input_bound : float
-        Start value of every FMU's ``input_bound`` (larger inputs are rejected).
-
-    Returns
-    -------
-    dict
-
-    Raises
-    ------
-    ValueError
-        Naming the option and the reason.
-
-    Examples
-    --------
-    >>> from fhobs.design.observer import paper_gains
-    >>> fmu_options(paper_gains(), ["observer"], z0=[1, 0, 0, 0])["z0"]
-    [1.0, 0.0, 0.0, 0.0]
-    """
-    for kind in kinds:
-        record = KINDS[kind].record
-        if getattr(design, record) is None:
-            what = KINDS[kind].description.split(" (")[0].split(":")[0]
-            raise ValueError(f"{kind}.fmu ({what}) needs a design with a {record} record "
-                             f"(design.{record} is None; give the spec a [noise] table)")
-    if "prescribed_time" in kinds:
-        # ValueError naming T0 if it gives no xi0
-        prescribed_xi0(T0, design.model.nu, design.prescribed_time.rho)
-    scheme = SCHEMES[0] if scheme is None else scheme
-    if scheme not in SCHEMES:
-        raise ValueError(f"scheme {scheme!r} is not one of {SCHEMES}")
-    if plant_scheme not in PLANT_SCHEMES:
-        raise ValueError(f"plant_scheme {plant_scheme!r} is not one of {PLANT_SCHEMES}")
-    return {
-        "input_bound": float(input_bound),
-        "h": float(h),
-        "scheme": scheme,
-        "z0": _vector(z0, design.plant.n, "z0"),
-        "psi0": _vector(psi0, design.plant.k, "psi0"),
-        "xi0": float(xi0),
-        "T0": float(T0),
-        "x0": _vector(x0, design.plant.n, "x0"),
-        "noise_amplitude": float(noise_amplitude),
-        "noise_seed": int(noise_seed),
-        "plant_scheme": plant_scheme,
-        "max_communication_step": float(design.filtering.max_communication_step),
-    }
-
-
-def _vector(value: Iterable[float] | None, size: int, name: str) -> list[float]:
-    """A start vector as a list of floats (zeros by default), its length checked."""
-    vector = np.zeros(size) if value is None else np.asarray(list(value), dtype=float)
-    if vector.shape != (size,):
-        raise ValueError(f"{name}: expected {size} values, got {vector.shape}")
-    return vector.tolist()
-
-
 def build_tag(extra: str) -> str:
     """Hash of the code shipped in the FMUs and of ``extra`` (design + options), 12 hex digits."""
     digest = hashlib.sha256(extra.encode())
@@ -322,15 +206,26 @@ def ship_package(package: Path, kernel_library: Path | None) -> None:
 
 def _write_script(stage: Path, kind: str, tag: str) -> Path:
     """The slave script: a build-unique subclass of the kind's slave class in the package
-    (:func:`slave_script`)."""
-    base = KINDS[kind].slave
+    (:func:`slave_script`): of ``fhobs.fmu.<slave_module>.<slave>``, or of the generic
+    :class:`~fhobs.fmu.slave_base.ObserverSlave` with the kind's declaration."""
+    declared = KINDS[kind]
+    base, module = declared.slave, declared.slave_module
+    package = package_name(kind, tag)
+    if module:
+        summary = f":class:`fhobs.fmu.{module}.{base}`"
+        definition = (f"from {package}.fmu import {module} as _slaves\n\n\n"
+                      f"class {base}_{tag}(_slaves.{base}):\n"
+                      f'    """{base} under a class name unique to this build."""\n')
+    else:
+        summary = f":class:`fhobs.fmu.slave_base.ObserverSlave` of the {kind} kind"
+        definition = (f"from {package}.fmu.kinds import KINDS as _kinds\n"
+                      f"from {package}.fmu.slave_base import ObserverSlave as _base\n\n\n"
+                      f"class {base}_{tag}(_base):\n"
+                      f'    """{base} under a class name unique to this build."""\n\n'
+                      f"    kind = _kinds[{kind!r}]\n")
     script = stage / f"slave_{kind}_{tag}.py"
-    script.write_text(slave_script(
-        f"The {kind} FMU of build {tag}: :class:`fhobs.fmu.{kind}.{base}`.",
-        f"{base}_{tag}",
-        f"from {package_name(kind, tag)}.fmu import {kind} as _slaves\n\n\n"
-        f"class {base}_{tag}(_slaves.{base}):\n"
-        f'    """{base} under a class name unique to this build."""\n'))
+    script.write_text(slave_script(f"The {kind} FMU of build {tag}: {summary}.",
+                                   f"{base}_{tag}", definition))
     return script
 
 

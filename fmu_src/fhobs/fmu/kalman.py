@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.certificate import certify_kalman
-from ..core.kalman_filter import KalmanObserver
 from .kinds import KINDS
 from .slave_base import ObserverSlave, positive_parameter
 
@@ -32,9 +30,3 @@ class FhobsKalman(ObserverSlave):
             return ""
         return (f"its Kalman filter's offset to the next sample {offset!r} is not in "
                 f"[0, Ts = {ts!r})")
-
-    def _check_gains(self) -> None:
-        certify_kalman(self.edited_record())
-
-    def _make_model(self) -> KalmanObserver:
-        return KalmanObserver(self.edited_record(), z0=self._padded_z0())

@@ -9,11 +9,23 @@ its start value comes from. Everything else is derived from it:
   this order (so the value references are these), maps the design parameters back to the
   record it runs at initialisation (:func:`edited_record`) and lays its output buffer out as
   :attr:`Kind.outputs`;
-- :mod:`fhobs.build` finds the slave class and the default kinds here;
+- :mod:`fhobs.build` finds the slave class here, and the build options
+  (:mod:`fhobs.fmu.options`) which kinds a design builds (:meth:`Kind.built_when`);
 - :mod:`fhobs.native.build` writes the native FMU's modelDescription, its value references
-  (``VR_<NAME>``), its variable table and its kind number (``FHOBS_KIND_<NAME>``) from the same
-  declaration, without building the pythonfmu FMU: both builds of a kind have one interface;
-- the harness labels an estimator's figures with :attr:`Kind.label`.
+  (``VR_<NAME>``), its variable table, its start values (:meth:`Kind.initial_outputs`: the
+  runtime model, no pythonfmu slave) and its kind number (``FHOBS_KIND_<NAME>``,
+  :data:`KIND_CODES`, generated from the order below) from the same declaration, and compiles
+  the C unit and the plan data of its :attr:`Kind.family`: both builds of a kind have one
+  interface;
+- the harness labels an estimator's figures with :attr:`Kind.label` and builds the kinds
+  :meth:`Kind.built_when` names for its design and its measurement noise;
+- the tests enumerate the kinds here (:func:`kinds_where`), so a new kind is covered.
+
+Each kind names its runtime model (:attr:`Kind.model`, made from the record and the setting
+parameters, the same in the pythonfmu slave and the native build's start values), its
+certificate (:attr:`Kind.certificate`, re-checked by the pythonfmu FMU on edited design
+parameters), its family (:data:`FAMILIES`: the native FMU's C model and plan data) and its
+build rules (the record present, :attr:`Kind.noise_free`, :attr:`Kind.check_options`).
 
 Each kind runs one record of the design (:attr:`Kind.record`: ``filtering``,
 ``prescribed_time``, ``luenberger``, ``kalman``, ``supervised`` or ``plant``, an attribute of
@@ -33,8 +45,8 @@ Examples
 --------
 >>> [v.name for v in KINDS["luenberger"].variables]
 ['status', 'A', 'B', 'C', 'L_lin', 'z0', 'h', 'scheme', 'y', 'u', 'x_hat', 'input_bound']
->>> KINDS["plant"].code, KINDS["observer"].label
-(3, 'homogeneous')
+>>> KINDS["plant"].family, KINDS["observer"].label
+('plant', 'homogeneous')
 """
 
 from __future__ import annotations
@@ -46,12 +58,34 @@ from typing import Any
 
 import numpy as np
 
+from ..core.certificate import (
+    certify_filtering,
+    certify_kalman,
+    certify_luenberger,
+    certify_prescribed_time,
+    certify_supervised,
+)
 from ..core.gains import SHARED, ObserverDesign
-from ..core.plant import PLANT_SCHEMES
-from ..core.runtime import SCHEMES
+from ..core.kalman_filter import KalmanObserver
+from ..core.plant import PLANT_SCHEMES, LTIPlant
+from ..core.runtime import (
+    SCHEMES,
+    FilteringObserver,
+    LuenbergerObserver,
+    PrescribedTimeObserver,
+    prescribed_xi0,
+)
+from ..core.supervisor import SupervisedObserver
 
 ROLES = ("local", "input", "output", "design", "setting")
 """The roles of a variable (see the module docstring)."""
+FAMILIES = ("filtering", "prescribed_time", "linear", "kalman", "supervised", "plant")
+"""The native plan families: the C model (``native/family_<family>.c``) and plan data
+(:data:`fhobs.native.build.FAMILIES`) a kind's native FMU is built with. ``linear``: an
+observer of a constant gain, dz/dt = A z + B u + L (C z - y) (the Luenberger observer)."""
+Setting = Callable[[str], Any]
+"""The value of a setting parameter by name: a float, an array, an Integer or, for a choice,
+its name (the pythonfmu slave's current values, or the build options)."""
 
 
 @dataclass(frozen=True)
@@ -169,10 +203,10 @@ class Kind:
     ----------
     name : str
         The kind (and the FMU's file name without ``.fmu``).
-    code : int
-        ``FHOBS_KIND_<NAME>``, the kind's code in the native FMUs' C sources.
     slave : str
-        The pythonfmu slave class, in ``fhobs.fmu.<name>``.
+        The pythonfmu slave class: in ``fhobs.fmu.<name>`` for a kind with checks of its own
+        (:attr:`slave_module`), else the generic :class:`~fhobs.fmu.slave_base.ObserverSlave`
+        under this name.
     description : str
         The modelDescription's description.
     label : str
@@ -184,16 +218,77 @@ class Kind:
         In value-reference order.
     outputs : tuple of str
         The output arrays in the order the runtime model gives them (the slave's buffer).
+    family : str
+        One of :data:`FAMILIES`.
+    model : callable
+        ``model(record, setting)``: the runtime model of ``record`` with the setting
+        parameters ``setting`` (:data:`Setting`).
+    certificate : callable or None
+        ``certificate(record)``: raises CertificateError if the (edited) record is not
+        certified (None: the plant, nothing to certify).
+    noise_free : bool
+        Not run on noisy measurements (its gain grows without bound: noise, amplified).
+    check_options : callable, optional
+        ``check_options(record, options)``: ValueError naming a build option the kind cannot
+        start from (beyond each option's own check, :mod:`fhobs.fmu.options`).
+    slave_module : str
+        The module of ``fhobs.fmu`` holding :attr:`slave` ('': the generic slave).
     """
 
     name: str
-    code: int
     slave: str
     description: str
     label: str
     record: str
     variables: tuple[Variable, ...]
     outputs: tuple[str, ...]
+    family: str
+    model: Callable[[Any, Setting], Any]
+    certificate: Callable[[Any], Any] | None
+    noise_free: bool = False
+    check_options: Callable[[Any, Mapping[str, Any]], None] | None = None
+    slave_module: str = ""
+
+    @property
+    def code(self) -> int:
+        """``FHOBS_KIND_<NAME>``, the kind's code in the native FMUs' C sources
+        (:data:`KIND_CODES`)."""
+        return KIND_CODES[self.name]
+
+    def built_when(self, design: ObserverDesign, noise: bool = False) -> bool:
+        """Whether the kind is built (and run) for ``design`` with measurement ``noise``: the
+        design has its record and, with noise, the kind is not :attr:`noise_free`.
+
+        Examples
+        --------
+        >>> from fhobs.design.observer import paper_gains
+        >>> [name for name, kind in KINDS.items() if kind.built_when(paper_gains(), True)]
+        ['observer', 'luenberger', 'plant']
+        """
+        return getattr(design, self.record) is not None and not (noise and self.noise_free)
+
+    def initial_outputs(self, record: Any, setting: Setting) -> dict[str, np.ndarray]:
+        """The outputs present at the start (what the FMU publishes when instantiated): the
+        runtime model's (:attr:`model`) at its initial state, from where
+        :meth:`output_sources` says, each in its variable's shape.
+
+        Examples
+        --------
+        >>> from fhobs.design.observer import paper_gains
+        >>> settings = {"z0": [1.0, 0, 0, 0], "psi0": [0.0, 0.0], "xi0": 4.0, "h": 5e-5,
+        ...             "scheme": "split"}
+        >>> out = KINDS["observer"].initial_outputs(paper_gains().filtering, settings.get)
+        >>> out["x_hat"].tolist(), float(out["sigma"])
+        ([1.0, 0.0, 0.0, 0.0], 2.0)
+        """
+        shapes = {v.name: v.shape(record) for v in self.variables if v.role == "output"}
+        sizes = {name: int(np.prod(shape)) for name, shape in shapes.items()
+                 if int(np.prod(shape)) or not shape}
+        model = self.model(record, setting)
+        state = model.get_state()
+        return {name: np.reshape(state[offset:offset + size] if source == "state"
+                                 else np.ravel(getattr(model, source)), shapes[name])
+                for name, source, offset, size in self.output_sources(sizes)}
 
     def variable(self, name: str) -> Variable:
         """The variable called ``name`` (KeyError if the kind has none)."""
@@ -359,17 +454,66 @@ Q_HAT = Variable("q_hat", "output", "disturbance-model estimates: q, then its de
                  text="estimate of the unknown input {}")
 
 
-def _estimator(name: str, number: int, slave: str, description: str, label: str, record: str,
+def _estimator(name: str, slave: str, description: str, label: str, record: str,
                gains: tuple[Variable, ...], outputs: tuple[str, ...],
                timing: tuple[Variable, ...] = TIMING,
                appended: tuple[Variable, ...] = (),
-               signals: tuple[Variable, ...] = ESTIMATOR_SIGNALS) -> Kind:
+               signals: tuple[Variable, ...] = ESTIMATOR_SIGNALS, **rules: Any) -> Kind:
     """An estimator kind: the plant's matrices, its gains, z0, its timing, y, u, x_hat (the
     ``signals``), then ``appended`` (variables added after the others, so that no value
-    reference moves)."""
+    reference moves); ``rules``: the other fields of :class:`Kind` (family, model,
+    certificate, ...)."""
     variables = (STATUS, *PLANT_MATRICES, *gains, Z0, *timing, *signals, INPUT_BOUND,
                  *appended)
-    return Kind(name, number, slave, description, label, record, variables, outputs)
+    return Kind(name, slave, description, label, record, variables, outputs, **rules)
+
+
+# -- the runtime models: record + setting parameters -> the model the FMU steps ----------------
+def _initial_z(record: Any, setting: Setting, disturbance_states: Callable) -> np.ndarray:
+    """The model's initial state: z0 (the plant's states), then zeros (the disturbance
+    states)."""
+    return np.concatenate((np.asarray(setting("z0"), dtype=float),
+                           np.zeros(disturbance_states(record))))
+
+
+def _filtering_model(record: Any, setting: Setting) -> FilteringObserver:
+    return FilteringObserver(record, h=float(setting("h")), scheme=setting("scheme"),
+                             z0=_initial_z(record, setting, _disturbance_states),
+                             psi0=np.asarray(setting("psi0"), dtype=float),
+                             xi0=float(setting("xi0")))
+
+
+def _prescribed_time_model(record: Any, setting: Setting) -> PrescribedTimeObserver:
+    return PrescribedTimeObserver(record, h=float(setting("h")), scheme=setting("scheme"),
+                                  z0=_initial_z(record, setting, _disturbance_states),
+                                  xi0=prescribed_xi0(float(setting("T0")), record.model.nu,
+                                                     record.rho))
+
+
+def _prescribed_time_options(record: Any, options: Mapping[str, Any]) -> None:
+    """ValueError naming T0 if it gives no initial xi."""
+    prescribed_xi0(options["T0"], record.model.nu, record.rho)
+
+
+def _luenberger_model(record: Any, setting: Setting) -> LuenbergerObserver:
+    return LuenbergerObserver(record, h=float(setting("h")), scheme=setting("scheme"),
+                              z0=np.asarray(setting("z0"), dtype=float))
+
+
+def _kalman_model(record: Any, setting: Setting) -> KalmanObserver:
+    return KalmanObserver(record, z0=_initial_z(record, setting, _kalman_disturbance_states))
+
+
+def _supervised_model(record: Any, setting: Setting) -> SupervisedObserver:
+    return SupervisedObserver(record, h=float(setting("h")), scheme=setting("scheme"),
+                              z0=_initial_z(record, setting, _disturbance_states))
+
+
+def _plant_model(record: Any, setting: Setting) -> LTIPlant:
+    return LTIPlant(record.A, record.B, record.C, E=record.E,
+                    x0=np.asarray(setting("x0"), dtype=float),
+                    noise_amplitude=float(setting("noise_amplitude")),
+                    seed=int(setting("noise_seed")), scheme=setting("scheme"))
 
 
 # N below: states of the observer's model (n, or n + r q-states with a disturbance model)
@@ -384,7 +528,7 @@ _SLOW_PROJECTOR = (
 )
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (
     _estimator(
-        "observer", 1, "FhobsObserver",
+        "observer", "FhobsObserver",
         "Filtering homogeneous observer (Ping, Zimenko, Polyakov, Efimov), Theorem 2",
         "homogeneous", "filtering",
         gains=(
@@ -409,9 +553,10 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         ),
         outputs=("x_hat", "q_hat", "psi", "xi", "sigma"),
         appended=(*_SLOW_PROJECTOR, MAX_COMMUNICATION_STEP),
+        family="filtering", model=_filtering_model, certificate=certify_filtering,
     ),
     _estimator(
-        "prescribed_time", 5, "FhobsPrescribedTime",
+        "prescribed_time", "FhobsPrescribedTime",
         "Prescribed-time observer (Ping, Zimenko, Polyakov, Efimov), Theorem 1: nominal "
         "convergence at T0", "prescribed_time", "prescribed_time",
         gains=(
@@ -431,15 +576,19 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         ),
         outputs=("x_hat", "q_hat", "xi"),
         appended=(*_SLOW_PROJECTOR, MAX_COMMUNICATION_STEP),
+        family="prescribed_time", model=_prescribed_time_model,
+        certificate=certify_prescribed_time, noise_free=True,
+        check_options=_prescribed_time_options, slave_module="prescribed_time",
     ),
     _estimator(
-        "luenberger", 2, "FhobsLuenberger",
+        "luenberger", "FhobsLuenberger",
         "Luenberger observer dz/dt = A z + B u + L_lin (C z - y)", "linear", "luenberger",
         gains=(Variable("L_lin", "design", "observer gain (n x k)", field="L_lin"),),
         outputs=("x_hat",),
+        family="linear", model=_luenberger_model, certificate=certify_luenberger,
     ),
     _estimator(
-        "kalman", 4, "FhobsKalman",
+        "kalman", "FhobsKalman",
         "Steady-state discrete Kalman filter (exact ZOH model, disturbance model)", "kalman",
         "kalman",
         gains=(
@@ -451,9 +600,10 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         timing=(Variable("Ts", "design", "sample time of the filter (s): one cycle per sample "
                          "instant inside a step", field="sample_time"),),
         outputs=("x_hat", "q_hat"),
+        family="kalman", model=_kalman_model, certificate=certify_kalman, slave_module="kalman",
     ),
     _estimator(
-        "supervised", 6, "FhobsSupervised",
+        "supervised", "FhobsSupervised",
         "Supervised observer: the filtering homogeneous observer (Theorem 2) and a Kalman "
         "filter of its model; an innovation test with hysteresis and dwell picks the output, "
         "the homogeneous estimate handed over to the Kalman filter", "supervised", "supervised",
@@ -509,9 +659,11 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
                  dataclasses.replace(ESTIMATOR_SIGNALS[2], source="x_hat",
                                      description="state estimate of the mode's estimator",
                                      text="estimate of {} (by the mode's estimator)")),
+        family="supervised", model=_supervised_model, certificate=certify_supervised,
+        slave_module="supervised",
     ),
     Kind(
-        "plant", 3, "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",
+        "plant", "FhobsPlant", "LTI plant dx/dt = A x + B u + E q, y = C x + noise", "",
         "plant",
         variables=(
             STATUS,
@@ -539,12 +691,54 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
             INPUT_BOUND,
         ),
         outputs=("y", "x"),
+        family="plant", model=_plant_model, certificate=None, slave_module="plant",
     ),
 
 )}
 """Every FMU kind, by name: the estimators in the order of the harness's tables, then
 the plant."""
 
+KIND_CODES = {name: number for number, name in enumerate(KINDS, start=1)}
+"""FMU kind -> its code in the native FMUs' C sources (``FHOBS_KIND_<NAME>``): its place in
+:data:`KINDS`, unique by construction."""
 LABELS = {name: kind.label for name, kind in KINDS.items() if kind.label}
 """FMU kind -> the estimator's label in the harness's figures (the kinds that run an estimator
 record)."""
+
+
+def kinds_where(condition: Callable[[Kind], bool] = lambda kind: True, *,
+                family: str | None = None, variable: str | None = None,
+                estimator: bool | None = None) -> tuple[str, ...]:
+    """The kinds of :data:`KINDS`, in order, that meet every condition given: ``condition``
+    (of the :class:`Kind`), its ``family``, a ``variable`` it declares, whether it is an
+    ``estimator`` (a kind with a label, not the plant).
+
+    Examples
+    --------
+    >>> kinds_where(variable="psi0"), kinds_where(estimator=False)
+    (('observer',), ('plant',))
+    >>> kinds_where(lambda kind: kind.noise_free)
+    ('prescribed_time',)
+    """
+    names = {v.name for kind in KINDS.values() for v in kind.variables}
+    if variable is not None and variable not in names:
+        raise KeyError(f"no kind declares a variable {variable!r}")
+    return tuple(name for name, kind in KINDS.items()
+                 if condition(kind)
+                 and (family is None or kind.family == family)
+                 and (variable is None or any(v.name == variable for v in kind.variables))
+                 and (estimator is None or bool(kind.label) == estimator))
+
+
+def _check_declaration() -> None:
+    """Every kind's name a C identifier (its ``FHOBS_KIND_<NAME>``, its ``VR_<NAME>``s), its
+    family one of :data:`FAMILIES`, its variables' names unique."""
+    for name, kind in KINDS.items():
+        if not name.isidentifier() or name != name.lower() or kind.family not in FAMILIES:
+            raise ValueError(f"kind {name!r}: a lower-case identifier of a family of {FAMILIES}")
+        counts = {v.name: [w.name for w in kind.variables].count(v.name) for v in kind.variables}
+        if max(counts.values()) > 1:
+            raise ValueError(f"kind {name!r} declares a variable twice: {counts}")
+
+
+_check_declaration()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.plant import PLANT_SCHEMES, LTIPlant
+from ..core.plant import PLANT_SCHEMES
 from .call_rules import MAX_STEP_INDEX
 from .kinds import KINDS
 from .slave_base import FhobsSlave, zoh_problem
@@ -35,15 +35,3 @@ class FhobsPlant(FhobsSlave):
             return ""
         return (f"its step index k = {k!r} is not a whole number in [0, {MAX_STEP_INDEX}) (the "
                 "plant's noise sample)")
-
-    def _make_model(self) -> LTIPlant:
-        return LTIPlant(
-            self.array("A"),
-            self.array("B"),
-            self.array("C"),
-            E=self.array("E") if "E" in self._arrays else None,
-            x0=self.array("x0"),
-            noise_amplitude=float(self.array("noise_amplitude")),
-            seed=self.integer("noise_seed"),
-            scheme=self.choice("scheme", PLANT_SCHEMES),
-        )

@@ -12,8 +12,7 @@ value of the output ``xi``.
 
 from __future__ import annotations
 
-from ..core.certificate import certify_prescribed_time
-from ..core.runtime import PrescribedTimeObserver, prescribed_xi0
+from ..core.runtime import prescribed_xi0
 from .kinds import KINDS
 from .slave_base import ObserverSlave, positive_parameter
 
@@ -24,20 +23,8 @@ class FhobsPrescribedTime(ObserverSlave):
     kind = KINDS["prescribed_time"]
 
     def _check_gains(self) -> None:
+        """The certificate, then T0: ValueError naming T0 if it gives no xi0."""
+        super()._check_gains()
         prescribed_time = self.edited_record()
-        certify_prescribed_time(prescribed_time)
-        self._xi0(prescribed_time.model.nu, prescribed_time.rho)
-
-    def _xi0(self, nu: float, rho: float) -> float:
-        """xi0 of the parameter T0; ValueError naming T0 if it gives none."""
-        return prescribed_xi0(positive_parameter(self, "T0", "prescribed time T0"), nu, rho)
-
-    def _make_model(self) -> PrescribedTimeObserver:
-        prescribed_time = self.edited_record()
-        return PrescribedTimeObserver(
-            prescribed_time,
-            h=float(self.array("h")),
-            scheme=self.scheme_name(),
-            z0=self._padded_z0(),
-            xi0=self._xi0(prescribed_time.model.nu, prescribed_time.rho),
-        )
+        prescribed_xi0(positive_parameter(self, "T0", "prescribed time T0"),
+                       prescribed_time.model.nu, prescribed_time.rho)

@@ -137,11 +137,11 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     """Common base of the fhobs slaves (abstract: subclasses define the model).
 
     Subclasses name their :attr:`kind` (whose declaration gives the variables, in
-    value-reference order, the output layout and where each output comes from) and implement
-    :meth:`_check_parameters` and :meth:`_make_model`. The record the kind runs (of the design
-    in ``design.json``) and the build options are read from the instance's own ``resources``
-    folder, never from module globals, so that two FMUs sharing Python modules in one process
-    stay independent.
+    value-reference order, the output layout, where each output comes from and the runtime
+    model, :meth:`_make_model`) and implement :meth:`_check_parameters`. The record the kind
+    runs (of the design in ``design.json``) and the build options are read from the
+    instance's own ``resources`` folder, never from module globals, so that two FMUs sharing
+    Python modules in one process stay independent.
     """
 
     author = "fhobs"
@@ -442,9 +442,20 @@ class FhobsSlave(Variables, AccessRules, WrapperCalls, FmuStates, Fmi2Slave):
     def _check_parameters(self) -> None:
         """Raise ValueError, naming the check and the amount, if the parameters are unusable."""
 
-    @abstractmethod
     def _make_model(self) -> SlaveModel:
-        """Build the runtime object from the current parameter values."""
+        """Build the runtime object from the current parameter values: the kind's runtime
+        model (:attr:`~fhobs.fmu.kinds.Kind.model`) of the edited record with the current
+        setting parameters."""
+        return self.kind.model(self.edited_record(), self.setting)
+
+    def setting(self, name: str) -> Any:
+        """The current value of the setting parameter ``name`` as the kind's runtime model
+        takes it (:data:`~fhobs.fmu.kinds.Setting`): an array, an Integer, a choice's name
+        (ValueError if its index is unknown)."""
+        variable = self.kind.variable(name)
+        if variable.choices:
+            return self.choice(name, variable.choices)
+        return self.integer(name) if variable.integer else self.array(name)
 
     def _step_problem(self, step_size: float) -> str:
         """Why the model cannot take a communication step of ``step_size`` (positive and
@@ -513,13 +524,13 @@ def positive_parameter(slave: FhobsSlave, name: str, what: str) -> float:
 
 
 class ObserverSlave(FhobsSlave):
-    """Base of the observer slaves: the timing checks, the ZOH check of a step size and the
-    model's initial state.
+    """The observer slave: the timing checks, the certificate of the edited record, the ZOH
+    check of a step size; as it is, the slave of every estimator kind without checks of its
+    own (:attr:`~fhobs.fmu.kinds.Kind.slave_module`), subclassed by the others.
 
     The timing parameters are by default those of :mod:`fhobs.core.runtime` (internal step
     ``h`` and ``scheme``); a sampled-data observer replaces their check
-    (:meth:`_check_timing`). An observer whose model has disturbance states (its output
-    ``q_hat``) starts them at zero (:meth:`_padded_z0`).
+    (:meth:`_check_timing`).
     """
 
     _matrix_of_model: tuple[SlaveModel | None, np.ndarray | None] = (None, None)
@@ -553,12 +564,7 @@ class ObserverSlave(FhobsSlave):
             self._matrix_of_model = (self.model, matrix)
         return matrix
 
-    def _padded_z0(self) -> np.ndarray:
-        """The model's initial state: the parameter z0 (the plant's states), then zeros (the
-        disturbance states, as many as ``q_hat`` has)."""
-        q_states = self._arrays["q_hat"].size if "q_hat" in self._arrays else 0
-        return np.concatenate((self.array("z0"), np.zeros(q_states)))
-
-    @abstractmethod
     def _check_gains(self) -> None:
-        """Raise ValueError (CertificateError) if the edited record is not certified."""
+        """Raise ValueError (CertificateError) if the edited record is not certified (the
+        kind's :attr:`~fhobs.fmu.kinds.Kind.certificate`)."""
+        self.kind.certificate(self.edited_record())

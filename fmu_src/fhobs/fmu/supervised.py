@@ -8,8 +8,7 @@ innovation to the statistic. Shipped in the FMU by :mod:`fhobs.build` like ``obs
 
 from __future__ import annotations
 
-from ..core.certificate import certify_supervised
-from ..core.supervisor import SupervisedObserver, sample_count
+from ..core.supervisor import sample_count
 from .kinds import KINDS
 from .slave_base import ObserverSlave, positive_parameter
 
@@ -24,9 +23,6 @@ class FhobsSupervised(ObserverSlave):
         super()._check_timing()
         positive_parameter(self, "Ts", "sample time Ts")
 
-    def _check_gains(self) -> None:
-        certify_supervised(self.edited_record())
-
     def _step_problem(self, step_size: float) -> str:
         """The Kalman filter's rule (a whole number of samples Ts), then the ZOH check."""
         try:
@@ -34,11 +30,3 @@ class FhobsSupervised(ObserverSlave):
         except ValueError as err:
             return str(err).removesuffix("; state left unchanged")
         return super()._step_problem(step_size)
-
-    def _make_model(self) -> SupervisedObserver:
-        return SupervisedObserver(
-            self.edited_record(),
-            h=float(self.array("h")),
-            scheme=self.scheme_name(),
-            z0=self._padded_z0(),
-        )

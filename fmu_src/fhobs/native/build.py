@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import importlib
 import json
 import os
 import re
@@ -51,7 +50,7 @@ import uuid
 import xml.etree.ElementTree as ET
 import zipfile
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from ..build import cache_copy, default_kinds, fmu_options
+from ..build import cache_copy
 from ..core import kernel
 from ..core.cache_files import cache_unusable, is_elf, trusted
 from ..core.certificate import certify
@@ -72,7 +71,7 @@ from ..design.signals import SignalNames
 from ..errors import BuildError
 from ..fmu import call_rules
 from ..fmu.kinds import KINDS, Kind
-from ..fmu.slave_base import CONFIG_FILE, DESIGN_FILE
+from ..fmu.options import default_kinds, fmu_options
 from ..fmu.variables import element_names
 from ..model_description import describe, naming_options
 from . import fmi3, planner
@@ -164,7 +163,7 @@ def build_native_fmus(
         2 (default): FMI 2.0 co-simulation FMUs; 3: FMI 3.0 ones (:mod:`fhobs.native.fmi3`:
         the same model and results, array variables).
     **options
-        Start values of the setting parameters, as for :func:`fhobs.build.fmu_options`
+        Start values of the setting parameters, as for :func:`fhobs.fmu.options.fmu_options`
         (``h``, ``scheme``, ``z0``, ``psi0``, ``xi0``, ``x0``, ``noise_amplitude``,
         ``noise_seed``, ``plant_scheme``, ``input_bound``, ``T0``).
 
@@ -195,8 +194,8 @@ def build_native_fmus(
     if fmi_version not in (2, 3):
         raise BuildError(f"fmi_version {fmi_version!r}: native FMUs are FMI 2.0 or 3.0 (2 or 3)")
     if kinds is None:
-        kinds = tuple(kind for kind in default_kinds(design) if kind != "prescribed_time"
-                      or PrescribedTimeObserver(design.prescribed_time).eigen)
+        kinds = tuple(kind for kind in default_kinds(design)
+                      if FAMILIES[KINDS[kind].family].runs(KINDS[kind].runs(design)))
     kinds = tuple(kinds)
     unknown = sorted(set(kinds) - set(KINDS))
     if unknown:
@@ -219,9 +218,10 @@ def build_native_fmus(
         stage = Path(tmp)
         staged = {}
         for kind in kinds:
+            record, family = KINDS[kind].runs(design), FAMILIES[KINDS[kind].family]
             variables = _variables(KINDS[kind], design, config)
-            data = _native_data(kind, KINDS[kind].runs(design), steps, config["h"])
-            data["norm1"] = _zoh_norm(KINDS[kind].runs(design))
+            data = family.data(kind, record, steps, config["h"])
+            data["norm1"] = _zoh_norm(record)
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
                                   stage / kind, naming, fmi_version)
         binaries = _compile_all(staged, stage / "shared", compiler)
@@ -230,30 +230,11 @@ def build_native_fmus(
     return built
 
 
-# -- the design data of the planner ----------------------------------------------------------------
-def _native_data(kind: str, record: Any, steps: tuple[float, ...],
-                 h: float) -> dict[str, Any]:
-    """What the native FMU of ``kind`` compiles in, from the numpy runtime's model of the
-    ``record`` it runs (:meth:`fhobs.fmu.kinds.Kind.runs`): the
-    planner's design data (:func:`fhobs.native.planner.design_data`), the plant's matrices, the
-    euler plan (None without one), the Kalman filter's cycle plan and Ts. Each step size of
-    ``steps`` must have a plan in the numpy runtime (:class:`BuildError` otherwise)."""
-    if kind == "kalman":
-        observer = KalmanObserver(record)
-        return {"kalman": captured_plan(observer, 1.0),  # one cycle; doStep sets the count
-                "Ts": float(record.sample_time)}
-    if kind == "supervised":
-        return _supervised_data(record, steps, h)
-    if kind == "plant":
-        model = LTIPlant(record.A, record.B, record.C, E=record.E)
-    else:
-        cls = {"observer": FilteringObserver, "luenberger": LuenbergerObserver,
-               "prescribed_time": PrescribedTimeObserver}[kind]
-        model = cls(record, h=h)
-    if kind == "prescribed_time" and not model.eigen:
-        raise BuildError("the prescribed_time's split step does not run in the compiled kernel "
-                         "for this design (C L_pt's exponential or the dilation of G_d has no "
-                         "eigen path: ill-conditioned eigenvectors): no native FMU")
+# -- the design data of the planner, per family ------------------------------------------------
+def _stepped_data(kind: str, model: Any, steps: tuple[float, ...]) -> dict[str, Any]:
+    """What the native FMU of a model with a split (or ZOH) step compiles in: the planner's
+    design data (:func:`fhobs.native.planner.design_data`). Each step size of ``steps`` must
+    have a plan in the numpy runtime (:class:`BuildError` otherwise)."""
     if not model.compiled:
         raise BuildError(f"the {kind}'s split step does not run in the compiled kernel for this "
                          "design (the injection flow has no eigen path): no native FMU")
@@ -262,15 +243,45 @@ def _native_data(kind: str, record: Any, steps: tuple[float, ...],
             captured_plan(model, dt)
         except ValueError as err:
             raise BuildError(f"--native-step {dt!r}: {err}") from err
-    data = planner.design_data(kind, model)
-    if kind == "plant":
-        data.update({"A": model.A, "B": model.B, "C": model.C, "E": model.E})
-    elif kind == "prescribed_time":
-        data["euler"] = None  # split only: the euler scheme's gain level needs the tau scan
-    else:
-        euler = cls(record, h=h, scheme="euler")
-        data["euler"] = captured_plan(euler, h) if euler.compiled else None
-    return data
+    return planner.design_data(kind, model)
+
+
+def _euler_plan(model: Any, h: float) -> dict[str, Any] | None:
+    """The euler scheme's plan of ``model`` at h (None when it does not run in the kernel)."""
+    return captured_plan(model, h) if model.compiled else None
+
+
+def _filtering_data(kind: str, record: Any, steps: tuple[float, ...],
+                    h: float) -> dict[str, Any]:
+    return {**_stepped_data(kind, FilteringObserver(record, h=h), steps),
+            "euler": _euler_plan(FilteringObserver(record, h=h, scheme="euler"), h)}
+
+
+def _linear_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
+    return {**_stepped_data(kind, LuenbergerObserver(record, h=h), steps),
+            "euler": _euler_plan(LuenbergerObserver(record, h=h, scheme="euler"), h)}
+
+
+def _prescribed_time_data(kind: str, record: Any, steps: tuple[float, ...],
+                          h: float) -> dict[str, Any]:
+    """Split only: the euler scheme's gain level needs the tau scan."""
+    model = PrescribedTimeObserver(record, h=h)
+    if not model.eigen:
+        raise BuildError(f"the {kind}'s split step does not run in the compiled kernel "
+                         "for this design (C L_pt's exponential or the dilation of G_d has no "
+                         "eigen path: ill-conditioned eigenvectors): no native FMU")
+    return {**_stepped_data(kind, model, steps), "euler": None}
+
+
+def _plant_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
+    model = LTIPlant(record.A, record.B, record.C, E=record.E)
+    return {**_stepped_data(kind, model, steps),
+            "A": model.A, "B": model.B, "C": model.C, "E": model.E}
+
+
+def _kalman_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
+    return {"kalman": captured_plan(KalmanObserver(record), 1.0),  # one cycle; doStep sets
+            "Ts": float(record.sample_time)}                          # the count
 
 
 def _zoh_norm(record: Any) -> float:
@@ -281,9 +292,9 @@ def _zoh_norm(record: Any) -> float:
     return float(np.linalg.norm(matrix, 1))
 
 
-def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
+def _supervised_data(kind: str, record: SupervisedGains, steps: tuple[float, ...],
                      h: float) -> dict[str, Any]:
-    """The supervised observer's data: its filtering observer's (:func:`_native_data`), its
+    """The supervised observer's data: its filtering observer's (:func:`_filtering_data`), its
     Kalman filter's one-cycle plan and Ts, and the statistics' and the handover's data from
     the numpy runtime's model (``supervisor``: C of the model, the Kalman filter's and the
     homogeneous statistic's S^-1, the weight, the thresholds, and for the time-varying
@@ -296,7 +307,7 @@ def _supervised_data(record: SupervisedGains, steps: tuple[float, ...],
             sample_count(dt, model.sample_time)
         except ValueError as err:
             raise BuildError(f"--native-step {dt!r}: {err}") from err
-    data = _native_data("observer", record.filtering, steps, h)
+    data = _filtering_data("observer", record.filtering, steps, h)
     data.update(kalman=captured_plan(model.kalman, 1.0), Ts=float(model.sample_time))
     data["supervisor"] = {
         "C": model._C, "S_inv": model._S_inv, "S_homogeneous_inv": model._S_homogeneous_inv,
@@ -391,8 +402,8 @@ def _plan_initializer(plan: dict[str, Any], arrays: _Arrays) -> str:
 def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any],
                sizes: dict[str, int]) -> tuple[str, str]:
     """The texts of model_data.h and model_data.c (without their comments and identity): sizes,
-    value references, the variable table and the design data of the kind
-    (:func:`_native_data`). The header has the ``#define``s and declares the named data, which
+    value references, the variable table and the design data of the kind's family
+    (:data:`FAMILIES`). The header has the ``#define``s and declares the named data, which
     the source defines (hidden: not exported by the FMU's library)."""
     arrays = _Arrays()
     first_vr = {}
@@ -409,49 +420,152 @@ def _model_data(kind: str, variables: list[dict[str, Any]], data: dict[str, Any]
     rows = [f'    {{"{var["name"]}", FHOBS_{var["type"].upper()}, FHOBS_{var["role"].upper()}, '
             f'{c_number(var["start"])}}},' for var in variables]
     table = ["static const FhobsVariable VARIABLES[FHOBS_N_VARIABLES] = {", *rows, "};"]
-    body = []
-    if kind in ("kalman", "supervised"):
-        body.append(f"static const LinearPlan KALMAN_PLAN = "
-                    f"{_plan_initializer(data['kalman'], arrays)};")
-        body.append(f"static const double KALMAN_TS = {c_number(data['Ts'])};")
-    if kind == "supervised":
-        for name, value in data["supervisor"].items():
-            if isinstance(value, np.ndarray):
-                body.append(f"#define SUPERVISOR_{name.upper()} {arrays.name(value)}")
-            else:
-                body.append(f"static const double SUPERVISOR_{name.upper()} = "
-                            f"{c_number(value)};")
-    if kind != "kalman":
-        scan = data.get("scan")
-        body.append(f"#define FHOBS_ZOH_SIZE {data['top'].shape[1]}")
-        body.append(f"#define FHOBS_N_TAU {0 if scan is None else scan['tau_grid'].size}")
-        body.append(f"#define ZOH_TOP {arrays.name(data['top'])}")
-        if kind in ("observer", "supervised"):
-            body.append(f"static const FilterPlan FILTER_BASE = "
-                        f"{_plan_initializer(data['base'], arrays)};")
-            fields = {**scan, "n_tau": scan["tau_grid"].size}
-            body.append(f"static const LevelScan LEVEL_SCAN = "
-                        f"{_plan_initializer(fields, arrays)};")
-        elif kind == "prescribed_time":
-            body.append(f"static const PrescribedPlan PRESCRIBED_BASE = "
-                        f"{_plan_initializer(data['base'], arrays)};")
-            fields = {**scan, "n_tau": scan["tau_grid"].size}
-            body.append(f"static const LevelScan LEVEL_SCAN = "
-                        f"{_plan_initializer(fields, arrays)};")
-        elif kind == "luenberger":
-            body.append(f"static const LinearPlan LINEAR_BASE = "
-                        f"{_plan_initializer(data['base'], arrays)};")
-            body.append(f"static const HeldInnovation HELD_INNOVATION = "
-                        f"{_plan_initializer(data['held'], arrays)};")
-        if kind == "plant":
-            for name in ("A", "B", "E", "C"):
-                body.append(f"#define PLANT_{name} {arrays.name(data[name])}")
-        else:
-            body.append(f"#define FHOBS_HAS_EULER {int(data['euler'] is not None)}")
-            if data["euler"] is not None:
-                body.append(f"static const EulerPlan EULER_PLAN = "
-                            f"{_plan_initializer(data['euler'], arrays)};")
+    body = [line for lines_of in FAMILIES[KINDS[kind].family].data_lines
+            for line in lines_of(data, arrays)]
     return _split_data([*lines, "", *table, "", *arrays.lines, "", *body], arrays.types)
+
+
+# -- the generated data of each family ------------------------------------------------------------
+def _kalman_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"static const LinearPlan KALMAN_PLAN = {_plan_initializer(data['kalman'], arrays)};",
+            f"static const double KALMAN_TS = {c_number(data['Ts'])};"]
+
+
+def _supervisor_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"#define SUPERVISOR_{name.upper()} {arrays.name(value)}"
+            if isinstance(value, np.ndarray) else
+            f"static const double SUPERVISOR_{name.upper()} = {c_number(value)};"
+            for name, value in data["supervisor"].items()]
+
+
+def _zoh_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    scan = data.get("scan")
+    return [f"#define FHOBS_ZOH_SIZE {data['top'].shape[1]}",
+            f"#define FHOBS_N_TAU {0 if scan is None else scan['tau_grid'].size}",
+            f"#define ZOH_TOP {arrays.name(data['top'])}"]
+
+
+def _level_scan_line(data: dict[str, Any], arrays: _Arrays) -> str:
+    fields = {**data["scan"], "n_tau": data["scan"]["tau_grid"].size}
+    return f"static const LevelScan LEVEL_SCAN = {_plan_initializer(fields, arrays)};"
+
+
+def _filter_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"static const FilterPlan FILTER_BASE = {_plan_initializer(data['base'], arrays)};",
+            _level_scan_line(data, arrays)]
+
+
+def _prescribed_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"static const PrescribedPlan PRESCRIBED_BASE = "
+            f"{_plan_initializer(data['base'], arrays)};", _level_scan_line(data, arrays)]
+
+
+def _linear_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"static const LinearPlan LINEAR_BASE = {_plan_initializer(data['base'], arrays)};",
+            f"static const HeldInnovation HELD_INNOVATION = "
+            f"{_plan_initializer(data['held'], arrays)};"]
+
+
+def _euler_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    lines = [f"#define FHOBS_HAS_EULER {int(data['euler'] is not None)}"]
+    if data["euler"] is not None:
+        lines.append(f"static const EulerPlan EULER_PLAN = "
+                     f"{_plan_initializer(data['euler'], arrays)};")
+    return lines
+
+
+def _plant_lines(data: dict[str, Any], arrays: _Arrays) -> list[str]:
+    return [f"#define PLANT_{name} {arrays.name(data[name])}" for name in ("A", "B", "E", "C")]
+
+
+_SCANNED_STEPS = (" A step size for which no gain level makes the split step contractive is "
+                  "refused with fmi2Error (the log names the smallest spectral radius), the "
+                  "state unchanged: use a smaller communication step.")
+
+
+def _any_step(scanned: bool) -> Callable[[dict[str, Any]], str]:
+    """The documentation's paragraph on the step sizes of a family with plans per step size
+    (``scanned``: a gain level's floor and ceiling among them)."""
+    def text(data: dict[str, Any]) -> str:
+        return ("Any positive finite communication step, fixed or variable "
+                "(canHandleVariableCommunicationStepSize). The plan of a step size (the "
+                "exact zero-order-hold matrices" + (
+                    ", the gain level's floor and ceiling from the scan of the dilated error "
+                    "map's spectral radius" if scanned else "") +
+                ") is computed at the first step of that size, by the algorithms of the numpy "
+                "runtime (to 1e-12 relative of its plan), and kept for the 8 step sizes used "
+                "last; a step size is matched exactly, so a host that forms t_k+1 - t_k gets "
+                "the plan of the step it asked for." + (_SCANNED_STEPS if scanned else ""))
+    return text
+
+
+def _kalman_steps(data: dict[str, Any]) -> str:
+    return (f"Any communication step: one filter cycle for every sample instant (a "
+            f"multiple of Ts = {data['Ts']!r} from the start) inside the step, the "
+            "estimate held between samples.")
+
+
+def _supervised_steps(data: dict[str, Any]) -> str:
+    return (f"Communication steps that are whole multiples of the Kalman filter's sample "
+            f"time Ts = {data['Ts']!r} (within 1e-6 Ts; any other step is refused with "
+            "fmi2Error, the state unchanged): the homogeneous observer's step, its plan "
+            "computed at the first step of that size, and one Kalman cycle per sample, "
+            "each adding one innovation to the statistic; the mode is decided once per "
+            "step.")
+
+
+@dataclass(frozen=True)
+class Family:
+    """How the native FMUs of a plan family (:data:`fhobs.fmu.kinds.FAMILIES`) are made.
+
+    Attributes
+    ----------
+    data : callable
+        ``data(kind, record, steps, h)``: what the FMU compiles in, from the numpy runtime's
+        model of the ``record`` the kind runs (the planner's design data, the euler plan, the
+        plant's matrices, the Kalman filter's cycle plan and Ts...); :class:`BuildError` for a
+        step size of ``steps`` the numpy runtime refuses.
+    data_lines : tuple of callable
+        ``lines(data, arrays)``: the family's lines of model_data (its C model,
+        ``family_<name>.c``, reads them by name), in this order.
+    state_size : callable
+        ``state_size(n_model, plant)``: the length of the state the C model keeps.
+    n_model : callable
+        ``n_model(data)``: the states of the model the plan steps.
+    steps : callable
+        ``steps(data)``: the documentation's paragraph on the step sizes the FMU takes.
+    runs : callable
+        ``runs(record)``: whether a native FMU of the record is built by default (the
+        prescribed-time observer's: when its correction has an eigen path).
+    """
+
+    data: Callable[[str, Any, tuple[float, ...], float], dict[str, Any]]
+    data_lines: tuple[Callable[[dict[str, Any], _Arrays], list[str]], ...]
+    state_size: Callable[[int, PlantModel], int]
+    steps: Callable[[dict[str, Any]], str]
+    n_model: Callable[[dict[str, Any]], int] = lambda data: data["top"].shape[0]
+    runs: Callable[[Any], bool] = lambda record: True
+
+
+FAMILIES: dict[str, Family] = {
+    "filtering": Family(_filtering_data, (_zoh_lines, _filter_lines, _euler_lines),
+                        lambda n_model, plant: n_model + plant.k + 1, _any_step(True)),
+    "prescribed_time": Family(_prescribed_time_data,
+                              (_zoh_lines, _prescribed_lines, _euler_lines),
+                              lambda n_model, plant: n_model + 2, _any_step(True),
+                              runs=lambda record: PrescribedTimeObserver(record).eigen),
+    "linear": Family(_linear_data, (_zoh_lines, _linear_lines, _euler_lines),
+                     lambda n_model, plant: n_model, _any_step(False)),
+    "kalman": Family(_kalman_data, (_kalman_lines,), lambda n_model, plant: n_model + 1,
+                     _kalman_steps, lambda data: data["kalman"]["n"]),
+    "supervised": Family(_supervised_data, (_kalman_lines, _supervisor_lines, _zoh_lines,
+                                            _filter_lines, _euler_lines),
+                         lambda n_model, plant: HEAD_SIZE + (n_model + plant.k + 1)
+                         + (n_model + 1) + n_model * n_model + 1, _supervised_steps),
+    "plant": Family(_plant_data, (_zoh_lines, _plant_lines), lambda n_model, plant: plant.n + 1,
+                    _any_step(False)),
+}
+"""Plan family -> how its native FMUs are made; the C model of each is ``family_<name>.c``."""
 
 
 def _state_outputs(kind: str, variables: list[dict[str, Any]],
@@ -517,32 +631,24 @@ def _variables(kind: Kind, design: ObserverDesign,
 
 def _start_outputs(kind: Kind, design: ObserverDesign,
                    options: dict[str, Any]) -> dict[str, np.ndarray]:
-    """The start values of the outputs: what the pythonfmu slave of ``kind`` publishes when it
-    is instantiated (the model's outputs at its initial state), from an instance made in this
-    process (no FMU built, no status wrapper)."""
-    with tempfile.TemporaryDirectory(prefix="fhobs_interface_") as tmp:
-        resources = Path(tmp)
-        (resources / DESIGN_FILE).write_text(json.dumps(design.to_dict()))
-        config = {"status_wrapper": False, "kernel": False, **options}
-        (resources / CONFIG_FILE).write_text(json.dumps(config))
-        module = importlib.import_module(f"{__package__.rpartition('.')[0]}.fmu.{kind.name}")
-        slave = getattr(module, kind.slave)(instance_name="interface", resources=str(resources))
-        return {variable.name: slave.array(variable.name) for variable in kind.variables
-                if variable.role == "output" and slave.has(variable.name)}
+    """The start values of the outputs: what the pythonfmu FMU of ``kind`` publishes when it
+    is instantiated, the kind's runtime model's outputs at its initial state
+    (:meth:`fhobs.fmu.kinds.Kind.initial_outputs`) from the build ``options``."""
+    def setting(name: str) -> Any:
+        return options[kind.variable(name).option]
+
+    return kind.initial_outputs(kind.runs(design), setting)
 
 
 def _sizes(kind: str, plant: PlantModel, data: dict[str, Any]) -> dict[str, int]:
     """The sizes model_data.c defines (``FHOBS_<NAME>``): the plant's states n, the model's
-    states (the plan's n), outputs k, inputs m, perturbations r, the state kept."""
-    n_model = data["kalman"]["n"] if kind == "kalman" else data["top"].shape[0]
+    states (the plan's n), outputs k, inputs m, perturbations r, the state kept (its
+    family's, :class:`Family`)."""
+    family = FAMILIES[KINDS[kind].family]
+    n_model = family.n_model(data)
     r = 0 if plant.E is None else plant.E.shape[1]
-    state = {"observer": n_model + plant.k + 1, "plant": plant.n + 1,
-             "kalman": n_model + 1, "prescribed_time": n_model + 2,
-             "supervised": HEAD_SIZE + (n_model + plant.k + 1) + (n_model + 1)
-                           + n_model * n_model + 1,
-             }.get(kind, n_model)
     return {"n": plant.n, "n_model": n_model, "k": plant.k, "m": plant.m, "r": r,
-            "state_size": state}
+            "state_size": family.state_size(n_model, plant)}
 
 
 @dataclass(frozen=True)
@@ -811,32 +917,7 @@ def _documentation(kind: str, variables: list[dict[str, Any]], data: dict[str, A
     """documentation/index.html: what the FMU runs, its step sizes and its parameters."""
     compiled = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "COMPILED"})
     settable = sorted({v["name"].split("[")[0] for v in variables if v["role"] == "SETTABLE"})
-    if kind == "kalman":
-        steps = (f"Any communication step: one filter cycle for every sample instant (a "
-                 f"multiple of Ts = {data['Ts']!r} from the start) inside the step, the "
-                 "estimate held between samples.")
-    elif kind == "supervised":
-        steps = (f"Communication steps that are whole multiples of the Kalman filter's sample "
-                 f"time Ts = {data['Ts']!r} (within 1e-6 Ts; any other step is refused with "
-                 "fmi2Error, the state unchanged): the homogeneous observer's step, its plan "
-                 "computed at the first step of that size, and one Kalman cycle per sample, "
-                 "each adding one innovation to the statistic; the mode is decided once per "
-                 "step.")
-    else:
-        steps = ("Any positive finite communication step, fixed or variable "
-                 "(canHandleVariableCommunicationStepSize). The plan of a step size (the "
-                 "exact zero-order-hold matrices" + (
-                     ", the gain level's floor and ceiling from the scan of the dilated error "
-                     "map's spectral radius" if kind in ("observer", "prescribed_time")
-                     else "") +
-                 ") is computed at the first step of that size, by the algorithms of the numpy "
-                 "runtime (to 1e-12 relative of its plan), and kept for the 8 step sizes used "
-                 "last; a step size is matched exactly, so a host that forms t_k+1 - t_k gets "
-                 "the plan of the step it asked for.")
-        if kind in ("observer", "prescribed_time"):
-            steps += (" A step size for which no gain level makes the split step contractive "
-                      "is refused with fmi2Error (the log names the smallest spectral radius), "
-                      "the state unchanged: use a smaller communication step.")
+    steps = FAMILIES[KINDS[kind].family].steps(data)
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>fhobs native {kind} FMU</title></head><body>
 <h1>fhobs native {kind} FMU</h1>

@@ -25,6 +25,7 @@ import functools
 import hashlib
 import shutil
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,7 @@ from ..core.runtime import (
     TAU_GRID,
     PlanCacheInfo,
 )
+from ..fmu.kinds import KINDS
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "planner.c"
@@ -104,12 +106,14 @@ class BinScans:
 
 
 def design_data(kind: str, model: Any) -> dict[str, Any]:
-    """What the planner of ``kind`` needs beyond the step size, from a runtime model of it.
+    """What the planner of ``kind`` needs beyond the step size, from a runtime model of it:
+    its family's (:data:`fhobs.fmu.kinds.FAMILIES`, :data:`DESIGN_DATA`).
 
     Parameters
     ----------
     kind : str
-        ``observer`` (a :class:`~fhobs.core.runtime.FilteringObserver`), ``luenberger`` (a
+        A kind of the ``filtering`` family (a
+        :class:`~fhobs.core.runtime.FilteringObserver`), ``linear`` (a
         :class:`~fhobs.core.runtime.LuenbergerObserver`), ``prescribed_time`` (a
         :class:`~fhobs.core.runtime.PrescribedTimeObserver`) or ``plant`` (an
         :class:`~fhobs.core.plant.LTIPlant`).
@@ -134,39 +138,63 @@ def design_data(kind: str, model: Any) -> dict[str, Any]:
     >>> sorted(data), data["top"].shape
     (['base', 'scan', 'top'], (4, 7))
     """
-    if kind == "plant":
-        return {"top": np.hstack((model.A, model.B, model.E))}
+    return DESIGN_DATA[KINDS[kind].family](model)
+
+
+def _plant_data(model: Any) -> dict[str, Any]:
+    return {"top": np.hstack((model.A, model.B, model.E))}
+
+
+def _linear_data(model: Any) -> dict[str, Any]:
     n, k, m = model._z.size, model._k, model._m
-    if kind == "luenberger":
-        held = {"held_top": np.hstack((model._A, model._B, model._L_inj)),
-                "C": np.ascontiguousarray(model._C, dtype=float),
-                "limit": HELD_INNOVATION_LIMIT}
-        return {"top": model.zoh_top, "base": {"n": n, "k": k, "m": m, "cycles": 1},
-                "held": held}
-    top = np.hstack((model._A, model._B, model._L_inj))
-    C = np.ascontiguousarray(model._C, dtype=float)
-    gains = model.gains
-    nu = float(gains.model.nu)
-    dilation = Dilation(gains.model.G_d)
+    held = {"held_top": np.hstack((model._A, model._B, model._L_inj)),
+            "C": np.ascontiguousarray(model._C, dtype=float),
+            "limit": HELD_INNOVATION_LIMIT}
+    return {"top": model.zoh_top, "base": {"n": n, "k": k, "m": m, "cycles": 1},
+            "held": held}
+
+
+def _level_scan(model: Any) -> dict[str, Any]:
+    """The :class:`LevelScan` fields of a model with a gain level (filtering,
+    prescribed-time)."""
+    dilation = Dilation(model.gains.model.G_d)
     trusted_low, trusted_high = model._scaling_band()
-    scan = {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
+    return {"tau_grid": np.ascontiguousarray(TAU_GRID, dtype=float),
             "Vg_inv": np.ascontiguousarray(dilation.inverse_right, dtype=complex),
             "roundoff": float(model._amplification_level()),
             "contraction": CONTRACTION_LIMIT, "tie": RADIUS_TIE, "trusted_low": trusted_low,
             "trusted_high": trusted_high}
-    if kind == "prescribed_time":
-        data = model.kernel_arrays()
-        base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"], "nu": nu,
-                "rho": float(gains.rho), "tiny": data["tiny"], "series": PHI1_SERIES, "C": C,
-                **{name: data[name] for name in ("Q_inv", "Q_V", "lam", "V_g", "g",
-                                                 "inverse_L")}}
-        return {"top": top, "base": base, "scan": scan}
+
+
+def _prescribed_time_data(model: Any) -> dict[str, Any]:
+    n, k, m = model._z.size, model._k, model._m
+    data = model.kernel_arrays()
+    base = {"n": n, "k": k, "m": m, "real_lam": data["real_lam"],
+            "nu": float(model.gains.model.nu), "rho": float(model.gains.rho),
+            "tiny": data["tiny"], "series": PHI1_SERIES,
+            "C": np.ascontiguousarray(model._C, dtype=float),
+            **{name: data[name] for name in ("Q_inv", "Q_V", "lam", "V_g", "g", "inverse_L")}}
+    return {"top": np.hstack((model._A, model._B, model._L_inj)), "base": base,
+            "scan": _level_scan(model)}
+
+
+def _filtering_data(model: Any) -> dict[str, Any]:
+    n, k, m = model._z.size, model._k, model._m
     flow = model._flow.kernel_arrays()
-    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]), "nu": nu,
-            "gamma": float(gains.gamma), "p": model._p, "mismatch": LEVEL_MISMATCH,
-            "tiny": flow["tiny"], "series": PHI1_SERIES, "C": C,
+    base = {"n": n, "k": k, "m": m, "real_lam": int(flow["real_lam"]),
+            "nu": float(model.gains.model.nu), "gamma": float(model.gains.gamma),
+            "p": model._p, "mismatch": LEVEL_MISMATCH, "tiny": flow["tiny"],
+            "series": PHI1_SERIES, "C": np.ascontiguousarray(model._C, dtype=float),
             **{name: flow[name] for name in ("V_inv", "V_k", "WL", "V_g", "g", "lam")}}
-    return {"top": top, "base": base, "scan": scan}
+    return {"top": np.hstack((model._A, model._B, model._L_inj)), "base": base,
+            "scan": _level_scan(model)}
+
+
+DESIGN_DATA: dict[str, Callable[[Any], dict[str, Any]]] = {
+    "filtering": _filtering_data, "supervised": _filtering_data,
+    "prescribed_time": _prescribed_time_data, "linear": _linear_data, "plant": _plant_data}
+"""Plan family -> its planner's design data from a runtime model (the supervised family's:
+of its filtering observer; the Kalman filter's plan does not depend on the step size)."""
 
 
 @functools.cache
@@ -214,13 +242,13 @@ def _structure(cls: type[ctypes.Structure], fields: dict[str, Any],
 
 def c_plan(kind: str, model: Any, dt: float, bins: BinScans | None = None) -> dict[str, Any]:
     """The C planner's plan of ``kind`` for the step size dt, as the native FMU makes it
-    (observer, prescribed_time: with the tau scans of ``bins``, which it updates; None: a
-    fresh cache).
+    (the filtering and prescribed-time families: with the tau scans of ``bins``, which it
+    updates; None: a fresh cache), by its family (:data:`C_PLANS`).
 
     Returns
     -------
     dict
-        observer, prescribed_time: ``M``, ``F``, ``floor_level``, ``ceiling``; luenberger:
+        filtering, prescribed_time: ``M``, ``F``, ``floor_level``, ``ceiling``; linear:
         ``M`` and ``radius`` (of the held innovation's error map, which chose M); plant:
         ``Phi``, ``Gamma_B``, ``Gamma_E``.
 
@@ -241,47 +269,80 @@ def c_plan(kind: str, model: Any, dt: float, bins: BinScans | None = None) -> di
     k = data["base"]["k"] if "base" in data else 0
     m = data["base"]["m"] if "base" in data else 0
     work = np.zeros(lib.fhobs_plan_work_size(n, k, m, size, TAU_GRID.size))
-    M = np.zeros((n, size))
-    keep: list[np.ndarray] = []
-    if kind == "luenberger":
-        base = _structure(kernel.LinearPlan, data["base"], keep)
-        held = _structure(HeldInnovation, data["held"], keep)
-        radius = lib.fhobs_plan_luenberger(ctypes.byref(kernel.LinearPlan()), ctypes.byref(base),
-                                           ctypes.byref(held), kernel.pointer(top),
-                                           ctypes.c_double(dt), kernel.pointer(M),
-                                           kernel.pointer(work))
-        return {"M": M, "radius": radius}
-    if kind == "plant":
-        lib.fhobs_plan_zoh(kernel.pointer(top), n, size, ctypes.c_double(dt),
-                           kernel.pointer(M), kernel.pointer(work))
-        widths = np.cumsum([n, model.B.shape[1]])
-        Phi, Gamma_B, Gamma_E = np.split(M, widths, axis=1)
-        return {"Phi": Phi, "Gamma_B": Gamma_B, "Gamma_E": Gamma_E}
-    scan = _structure(LevelScan, {**data["scan"], "n_tau": TAU_GRID.size}, keep)
-    last_tau = np.zeros(1)
-    if kind == "observer":
-        base = _structure(kernel.FilterPlan, data["base"], keep)
-        factors = np.zeros(4 * k, dtype=complex)
-        work_size, cwork_size = kernel.filter_work_size(n, k)
-        scratch, cscratch = np.zeros(work_size), np.zeros(cwork_size, dtype=complex)
-        plan = kernel.FilterPlan(factors=kernel.pointer(factors),
-                                 last_tau=kernel.pointer(last_tau),
-                                 work=kernel.pointer(scratch), cwork=kernel.pointer(cscratch))
-        function = lib.fhobs_plan_filter
-    else:
-        base = _structure(kernel.PrescribedPlan, data["base"], keep)
-        factors = np.zeros(2 * k, dtype=complex)
-        scratch = np.zeros(kernel.prescribed_work_size(n, k))
-        plan = kernel.PrescribedPlan(factors=kernel.pointer(factors),
-                                     last_tau=kernel.pointer(last_tau),
-                                     work=kernel.pointer(scratch))
-        function = lib.fhobs_plan_prescribed
+    return C_PLANS[KINDS[kind].family](_PlanCall(lib, model, data, top, dt, work, bins))
+
+
+class _PlanCall:
+    """One call of the C planner: its library, the model, its design data, the ZOH's top rows,
+    the step size, the scratch and the bins of tau scans."""
+
+    def __init__(self, lib: ctypes.CDLL, model: Any, data: dict[str, Any], top: np.ndarray,
+                 dt: float, work: np.ndarray, bins: BinScans | None) -> None:
+        self.lib, self.model, self.data, self.top, self.dt = lib, model, data, top, dt
+        self.work, self.bins = work, bins
+        self.M = np.zeros(top.shape)
+        self.keep: list[np.ndarray] = []
+
+
+def _linear_plan(call: _PlanCall) -> dict[str, Any]:
+    base = _structure(kernel.LinearPlan, call.data["base"], call.keep)
+    held = _structure(HeldInnovation, call.data["held"], call.keep)
+    radius = call.lib.fhobs_plan_luenberger(
+        ctypes.byref(kernel.LinearPlan()), ctypes.byref(base), ctypes.byref(held),
+        kernel.pointer(call.top), ctypes.c_double(call.dt), kernel.pointer(call.M),
+        kernel.pointer(call.work))
+    return {"M": call.M, "radius": radius}
+
+
+def _plant_plan(call: _PlanCall) -> dict[str, Any]:
+    n, size = call.top.shape
+    call.lib.fhobs_plan_zoh(kernel.pointer(call.top), n, size, ctypes.c_double(call.dt),
+                            kernel.pointer(call.M), kernel.pointer(call.work))
+    widths = np.cumsum([n, call.model.B.shape[1]])
+    Phi, Gamma_B, Gamma_E = np.split(call.M, widths, axis=1)
+    return {"Phi": Phi, "Gamma_B": Gamma_B, "Gamma_E": Gamma_E}
+
+
+def _filter_plan(call: _PlanCall) -> dict[str, Any]:
+    n, k = call.data["base"]["n"], call.data["base"]["k"]
+    base = _structure(kernel.FilterPlan, call.data["base"], call.keep)
+    factors, last_tau = np.zeros(4 * k, dtype=complex), np.zeros(1)
+    work_size, cwork_size = kernel.filter_work_size(n, k)
+    scratch, cscratch = np.zeros(work_size), np.zeros(cwork_size, dtype=complex)
+    call.keep += [factors, last_tau, scratch, cscratch]
+    plan = kernel.FilterPlan(factors=kernel.pointer(factors), last_tau=kernel.pointer(last_tau),
+                             work=kernel.pointer(scratch), cwork=kernel.pointer(cscratch))
+    return _scanned_plan(call, call.lib.fhobs_plan_filter, plan, base)
+
+
+def _prescribed_plan(call: _PlanCall) -> dict[str, Any]:
+    n, k = call.data["base"]["n"], call.data["base"]["k"]
+    base = _structure(kernel.PrescribedPlan, call.data["base"], call.keep)
+    factors, last_tau = np.zeros(2 * k, dtype=complex), np.zeros(1)
+    scratch = np.zeros(kernel.prescribed_work_size(n, k))
+    call.keep += [factors, last_tau, scratch]
+    plan = kernel.PrescribedPlan(factors=kernel.pointer(factors),
+                                 last_tau=kernel.pointer(last_tau), work=kernel.pointer(scratch))
+    return _scanned_plan(call, call.lib.fhobs_plan_prescribed, plan, base)
+
+
+def _scanned_plan(call: _PlanCall, function: Any, plan: ctypes.Structure,
+                  base: ctypes.Structure) -> dict[str, Any]:
+    """A plan with a gain level: the tau scan (of the call's bins), then the plan."""
+    n = call.top.shape[0]
+    scan = _structure(LevelScan, {**call.data["scan"], "n_tau": TAU_GRID.size}, call.keep)
     F, best = np.zeros((n, n)), ctypes.c_double()
-    bins = BinScans() if bins is None else bins
+    bins = BinScans() if call.bins is None else call.bins
     refused = function(ctypes.byref(plan), ctypes.byref(base), ctypes.byref(scan), bins.pointer,
-                       kernel.pointer(top), ctypes.c_double(dt), kernel.pointer(M),
-                       kernel.pointer(F), ctypes.byref(best), kernel.pointer(work))
+                       kernel.pointer(call.top), ctypes.c_double(call.dt), kernel.pointer(call.M),
+                       kernel.pointer(F), ctypes.byref(best), kernel.pointer(call.work))
     if refused:
-        raise ValueError(f"no gain level makes the split step of size {dt!r} contractive "
+        raise ValueError(f"no gain level makes the split step of size {call.dt!r} contractive "
                          f"(smallest spectral radius {best.value:.6g})")
-    return {"M": M, "F": F, "floor_level": plan.floor_level, "ceiling": plan.ceiling}
+    return {"M": call.M, "F": F, "floor_level": plan.floor_level, "ceiling": plan.ceiling}
+
+
+C_PLANS: dict[str, Callable[[_PlanCall], dict[str, Any]]] = {
+    "filtering": _filter_plan, "supervised": _filter_plan,
+    "prescribed_time": _prescribed_plan, "linear": _linear_plan, "plant": _plant_plan}
+"""Plan family -> the C planner's call (the supervised family's: its filtering observer's)."""
