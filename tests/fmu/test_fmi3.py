@@ -23,7 +23,7 @@ from fhobs.design.spec import load_spec
 from fhobs.fmu.call_rules import EXPORTED3
 from fhobs.native import fmi3
 from fhobs.native.build import _variables, build_native_fmus
-from fmpy.fmi3 import FMU3Slave
+from fmpy.fmi3 import FMU3Slave, fmi3OK, fmi3Warning
 from fmpy.validation import validate_fmu
 
 from harness.cli import SCENARIO_DIR
@@ -212,6 +212,82 @@ def test_simulate_fmu(pendulum: dict[int, dict[str, Path]], kind: str, event_mod
     b = np.asarray(results[1][first]).reshape(len(results[1]), -1)
     scale = np.maximum(np.abs(a).max(axis=0), np.finfo(float).tiny)
     assert np.all(np.abs(b - a) <= 1e-12 * scale)
+
+
+COARSE = 0.05
+"""A communication step above the pendulum design's max_communication_step (0.0259 s)."""
+WARNED_KINDS = ("observer", "prescribed_time", "supervised")
+"""The kinds that carry max_communication_step."""
+
+
+def simulate_logged(path: Path, step: float) -> tuple[np.ndarray, list[tuple[int, str]]]:
+    """fmpy.simulate_fmu of an FMU of either version at ``step`` for 0.3 s: the result and the
+    FMU's log messages (status, text)."""
+    messages: list[tuple[int, str]] = []
+    if fmpy.read_model_description(str(path)).fmiVersion == "3.0":
+        def logger(env, status, category, text) -> None:  # noqa: ANN001
+            messages.append((int(status), text.decode()))
+    else:
+        def logger(env, name, status, category, text) -> None:  # noqa: ANN001
+            messages.append((int(status), text.decode()))
+    result = fmpy.simulate_fmu(str(path), stop_time=0.3, output_interval=step, logger=logger)
+    return result, messages
+
+
+def max_communication_step(path: Path) -> float:
+    variables = fmpy.read_model_description(str(path)).modelVariables
+    return float(next(v.start for v in variables if v.name == "max_communication_step"))
+
+
+@pytest.mark.parametrize("kind", WARNED_KINDS)
+def test_a_coarse_step_is_warned_of_once_as_in_fmi2(pendulum: dict[int, dict[str, Path]],
+                                                    kind: str) -> None:
+    """simulate_fmu at a communication step longer than max_communication_step: one
+    fmi3Warning, the FMI 2.0 build's message naming both steps, and the FMI 2.0 build's
+    outputs; at 1 ms (within the figure) no warning."""
+    figure = max_communication_step(pendulum[3][kind])
+    assert figure == max_communication_step(pendulum[2][kind]) and 1e-3 < figure < COARSE
+    runs = {version: simulate_logged(pendulum[version][kind], COARSE) for version in (2, 3)}
+    warnings = {version: [text for status, text in messages if status == fmi3Warning]
+                for version, (_, messages) in runs.items()}
+    assert len(warnings[3]) == 1 and warnings[3] == warnings[2]
+    assert warnings[3][0].startswith(f"communication step {COARSE:.3g} s is longer than the "
+                                     f"{figure:.3g} s")
+    assert all(status in (fmi3OK, fmi3Warning) for status, _ in runs[3][1])
+    a, b = (runs[v][0] for v in (2, 3))
+    first = b.dtype.names[1]
+    a = np.column_stack([a[n] for n in a.dtype.names if n.split("[")[0] == first])
+    b = np.asarray(b[first]).reshape(len(b), -1)
+    scale = np.maximum(np.abs(a).max(axis=0), np.finfo(float).tiny)
+    assert np.all(np.abs(b - a) <= 1e-12 * scale)
+    _, fine = simulate_logged(pendulum[3][kind], 1e-3)
+    assert [text for status, text in fine if status == fmi3Warning] == []
+
+
+def test_the_warning_is_once_per_instance_and_off_at_zero(
+        pendulum: dict[int, dict[str, Path]]) -> None:
+    """fmi3DoStep statuses at the coarse step: fmi3Warning once, then fmi3OK; fmi3Reset gives
+    the warning again; max_communication_step = 0 turns it off."""
+    fmu = Logged(pendulum[3]["observer"])
+    flags = [ctypes.c_bool() for _ in range(3)]
+    last = ctypes.c_double()
+
+    def run(steps: int) -> list[int]:
+        fmu.fmu.enterInitializationMode(startTime=0.0)
+        fmu.fmu.exitInitializationMode()
+        return [fmu.status("fmi3DoStep", ctypes.c_double(k * COARSE), ctypes.c_double(COARSE),
+                           True, *map(ctypes.byref, flags), ctypes.byref(last))
+                for k in range(steps)]
+
+    assert run(4) == [fmi3Warning, fmi3OK, fmi3OK, fmi3OK]
+    assert last.value == pytest.approx(4 * COARSE, rel=1e-15)
+    assert fmu.fmu.getInt32([fmu.vr["status"]], 1) == [fmi3OK]
+    fmu.fmu.reset()
+    assert run(2) == [fmi3Warning, fmi3OK]
+    assert sum("max_communication_step" in m for m in fmu.messages) == 2
+    fmu.fmu.reset()
+    fmu.fmu.setFloat64([fmu.vr["max_communication_step"]], [0.0])
+    assert run(3) == [fmi3OK] * 3
 
 
 class Logged:

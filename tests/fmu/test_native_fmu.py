@@ -131,7 +131,8 @@ def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned
         assert start["nu"] == tuned_design.model.nu
     assert native.coSimulation.needsExecutionTool is False
     files = native.buildConfigurations[0].sourceFileSets[0].sourceFiles
-    units = ["fmi2_layer.c", "gain_levels.c", "kernel.c", "model_data.c", "models.c", "planner.c"]
+    units = ["fmi2_layer.c", "gain_levels.c", "instance.c", "kernel.c", "model_data.c", "models.c",
+             "planner.c"]
     assert files == sorted(units + (["noise.c"] if kind == "plant" else []))
 
 

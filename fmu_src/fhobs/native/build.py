@@ -86,7 +86,7 @@ LAYOUT = tuple(dict.fromkeys(variable.name for kind in KINDS.values()
 """Variables whose first value reference model_data.h names (``VR_<NAME>``, -1 if absent):
 every signal and setting of every kind (the C model reads them by these names)."""
 C_SOURCES = ("fhobs_native.h", "planner.h", "planner.c", "gain_levels.c", "model.h",
-             "models.c", "fmi2_layer.c")
+             "models.c", "instance.h", "instance.c", "fmi2_layer.c")
 """Sources of every native FMU from this folder (with the kernel's, :data:`KERNEL_SOURCES`,
 and the generated model_data.h, model_data.c and fhobs_call_rules.h; the plant adds
 :data:`NOISE_SOURCES`)."""

@@ -3,10 +3,10 @@ generated array table and the C layer's sources.
 
 A native FMU of FMI 3.0 (``build_fmu.py SPEC --native --fmi 3``,
 ``build_native_fmus(..., fmi_version=3)``) has the model of its FMI 2.0 build (``models.c``
-behind ``model.h``, the generated ``model_data``: the same results) and the FMI 3.0 layer
-``fmi3_layer.c`` over ``instance.c`` in place of ``fmi2_layer.c``. Its modelDescription is
-written here from the same scalar variables (:func:`fhobs.native.build._variables`, from the
-kind's declaration :mod:`fhobs.fmu.kinds`):
+behind ``model.h``, the generated ``model_data``: the same results) and its instance core
+``instance.c``, under the FMI 3.0 layer ``fmi3_layer.c`` in place of ``fmi2_layer.c``. Its
+modelDescription is written here from the same scalar variables
+(:func:`fhobs.native.build._variables`, from the kind's declaration :mod:`fhobs.fmu.kinds`):
 
 - every array of the declaration (``y``, ``u``, ``x_hat``, ``q_hat``, ``psi``, ``A``, ``L``,
   ``P_bar``, ``z0``...) is one variable with fixed dimensions (``<Dimension start="n"/>``), its
@@ -51,13 +51,13 @@ from ..fmu.kinds import Kind
 HERE = Path(__file__).resolve().parent
 BINARY_FOLDER = "x86_64-linux"
 """The binaries' folder of the FMI 3.0 platform tuple."""
-LAYER_SOURCES = ("fmi3_layer.c", "instance.c", "instance.h")
+LAYER_SOURCES = ("fmi3_layer.c",)
 """The FMI 3.0 layer's files from this folder (in place of ``fmi2_layer.c``)."""
 FMI_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 ARRAY_HEADER = "fhobs_fmi3.h"
 """The generated header of :func:`c_header`."""
-LOG_CATEGORIES = ("logStatusError",)
-"""The log categories: the FMUs log their errors only."""
+LOG_CATEGORIES = ("logStatusWarning", "logStatusError")
+"""The log categories: the FMUs log their errors and the coarse-step warning only."""
 CAPABILITIES = (("needsExecutionTool", "false"),
                 ("canBeInstantiatedOnlyOncePerProcess", "false"),
                 ("canGetAndSetFMUState", "true"), ("canSerializeFMUState", "true"),

@@ -2,8 +2,9 @@
  * FMI 3.0 co-simulation interface of a native fhobs FMU: instances, the call sequence (the FMI
  * 3.0 table of fhobs_call_rules.h), typed get/set of array variables, doStep, event mode
  * passed through, FMU states (in memory and serialized). The values, the checks, the step and
- * a state's bytes are instance.c's, the model is model.h's: the FMU behaves as the FMI 2.0
- * build of the same design, value for value.
+ * a state's bytes are instance.c's (shared with the FMI 2.0 layer), the model is model.h's:
+ * the FMU behaves as the FMI 2.0 build of the same design, value for value, and warns as it
+ * does of the first step longer than max_communication_step (fmi3Warning, the same message).
  *
  * Variables: every array of the kind's declaration is one FMI 3.0 variable with fixed
  * dimensions, row-major; its value reference is the FMI 2.0 value reference of its first
@@ -31,13 +32,9 @@
 #include "fhobs_fmi3.h"
 #include "fmi3Functions.h"
 #include "instance.h"
-#include "kernel.h"
 #include "model.h"
 
 #define INSTANCE_MAGIC 0x66683369u /* "fh3i" */
-#define SNAPSHOT_MAGIC 0x66683373u /* "fh3s" */
-#define STATUS_OK 0    /* fhobs.fmu.modes.STATUS_OK */
-#define STATUS_ERROR 3 /* fhobs.fmu.modes.STATUS_ERROR */
 #define FIXED_MESSAGE                                                                          \
     "%s: %s (value reference %u) is a fixed parameter: it can be set only before "          \
     "fmi3ExitInitializationMode (the instance is in %s; fmi3Reset returns to the start values)"
@@ -55,18 +52,8 @@ typedef struct {
     fmi3InstanceEnvironment environment;
     fmi3LogMessageCallback logger;
     int event_mode_used;
-    Values values;
-    double start_time; /* fmi3EnterInitializationMode's */
-    double time;       /* the end of the last step (the start time before one); NaN after an
-                          FMU state was set: the next doStep's time is taken as it comes */
-    Work *work;        /* the model's plans and scratch (model_work_size() bytes) */
+    Core core;
 } Instance;
-
-typedef struct {
-    uint32_t magic;
-    char identity[FHOBS_IDENTITY_FIELD]; /* the instantiation token of the FMU that made it */
-    Values values;
-} Snapshot;
 
 /* -- messages and calls ------------------------------------------------------------------------ */
 
@@ -77,17 +64,32 @@ static void log_message(const Instance *c, fmi3Status status, const char *catego
         c->logger(c->environment, status, category, message);
 }
 
+/* A call's end: its status into `status`, a message logged unless the call was fine. */
+static fmi3Status report(Instance *c, int status, const char *message)
+{
+    c->core.values.integer[VR_STATUS] = status;
+    if (status == FHOBS_STATUS_WARNING)
+        log_message(c, fmi3Warning, "logStatusWarning", message);
+    else if (status != FHOBS_STATUS_OK)
+        log_message(c, fmi3Error, "logStatusError", message);
+    return (fmi3Status)status;
+}
+
 static fmi3Status ok(Instance *c)
 {
-    c->values.integer[VR_STATUS] = STATUS_OK;
-    return fmi3OK;
+    return report(c, FHOBS_STATUS_OK, NULL);
 }
 
 static fmi3Status fail(Instance *c, const char *message)
 {
-    c->values.integer[VR_STATUS] = STATUS_ERROR;
-    log_message(c, fmi3Error, "logStatusError", message);
-    return fmi3Error;
+    return report(c, FHOBS_STATUS_ERROR, message);
+}
+
+/* `size` bytes, zeroed (instance.h's Allocate; FMI 3.0 has no host allocator). */
+static void *zeroed(void *context, size_t size)
+{
+    (void)context;
+    return calloc(1, size);
 }
 
 /* The instance behind a pointer, or NULL when it is not one of this FMU's. */
@@ -102,7 +104,7 @@ static Instance *instance(fmi3Instance pointer)
 static int refused(Instance *c, int call)
 {
     char msg[FHOBS_MESSAGE_SIZE];
-    int mode = c->values.mode;
+    int mode = c->core.values.mode;
     if (FHOBS3_CALL_MASKS[call] >> mode & 1u)
         return 0;
     snprintf(msg, sizeof msg, FHOBS3_CALL_MESSAGES[call], FHOBS3_STATE_NAMES[mode]);
@@ -212,8 +214,8 @@ fmi3Instance fmi3InstantiateCoSimulation(
     Instance *c = calloc(1, sizeof(Instance));
     if (!c)
         return NULL;
-    c->work = calloc(1, model_work_size());
-    if (!c->work) {
+    c->core.work = calloc(1, model_work_size());
+    if (!c->core.work) {
         free(c);
         return NULL;
     }
@@ -221,8 +223,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
     c->environment = instanceEnvironment;
     c->logger = logMessage;
     c->event_mode_used = eventModeUsed ? 1 : 0;
-    work_init(c->work);
-    instance_start(&c->values, c->work);
+    instance_reset(&c->core);
     return c;
 }
 
@@ -232,7 +233,7 @@ void fmi3FreeInstance(fmi3Instance pointer)
     if (!c)
         return;
     c->magic = 0;
-    free(c->work);
+    free(c->core.work);
     free(c);
 }
 
@@ -254,19 +255,16 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance pointer, fmi3Boolean toleran
     (void)tolerance;
     char msg[FHOBS_MESSAGE_SIZE], a[32], b[32];
     CHECK_CALL(pointer, FHOBS3_CALL_ENTERINITIALIZATIONMODE);
-    if (!isfinite(startTime)) {
-        snprintf(msg, sizeof msg, "fmi3EnterInitializationMode: startTime %s is not finite",
-                 fhobs_number(startTime, a, sizeof a));
-        return fail(c, msg);
-    }
-    if (stopTimeDefined && !(stopTime >= startTime)) {
+    if (isfinite(startTime) && stopTimeDefined && !(stopTime >= startTime)) {
         snprintf(msg, sizeof msg, "fmi3EnterInitializationMode: stopTime %s is not a time at "
                  "or after startTime %s", fhobs_number(stopTime, a, sizeof a),
                  fhobs_number(startTime, b, sizeof b));
         return fail(c, msg);
     }
-    c->start_time = c->values.time = startTime;
-    c->values.mode = INITIALISATION;
+    if (instance_set_start_time(&c->core, startTime, "fmi3EnterInitializationMode", msg,
+                                sizeof msg))
+        return fail(c, msg);
+    c->core.values.mode = INITIALISATION;
     return ok(c);
 }
 
@@ -274,10 +272,9 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance pointer)
 {
     char msg[FHOBS_MESSAGE_SIZE];
     CHECK_CALL(pointer, FHOBS3_CALL_EXITINITIALIZATIONMODE);
-    if (instance_initialise(&c->values, c->work, msg, sizeof msg))
+    if (instance_exit_initialisation(&c->core, c->event_mode_used ? EVENT_MODE : STEP_MODE, msg,
+                                     sizeof msg))
         return fail(c, msg);
-    c->values.mode = c->event_mode_used ? EVENT_MODE : STEP_MODE;
-    c->time = c->values.time = c->start_time;
     return ok(c);
 }
 
@@ -286,7 +283,7 @@ fmi3Status fmi3EnterEventMode(fmi3Instance pointer)
     CHECK_CALL(pointer, FHOBS3_CALL_ENTEREVENTMODE);
     if (!c->event_mode_used)
         return fail(c, "fmi3EnterEventMode: the instance was made with eventModeUsed = false");
-    c->values.mode = EVENT_MODE;
+    c->core.values.mode = EVENT_MODE;
     return ok(c);
 }
 
@@ -315,23 +312,21 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance pointer, fmi3Boolean *discreteS
 fmi3Status fmi3EnterStepMode(fmi3Instance pointer)
 {
     CHECK_CALL(pointer, FHOBS3_CALL_ENTERSTEPMODE);
-    c->values.mode = STEP_MODE;
+    c->core.values.mode = STEP_MODE;
     return ok(c);
 }
 
 fmi3Status fmi3Terminate(fmi3Instance pointer)
 {
     CHECK_CALL(pointer, FHOBS3_CALL_TERMINATE);
-    c->values.mode = TERMINATED;
+    c->core.values.mode = TERMINATED;
     return ok(c);
 }
 
 fmi3Status fmi3Reset(fmi3Instance pointer)
 {
     CHECK_CALL(pointer, FHOBS3_CALL_RESET);
-    c->start_time = c->time = 0.0;
-    work_init(c->work);
-    instance_start(&c->values, c->work);
+    instance_reset(&c->core);
     return ok(c);
 }
 
@@ -396,12 +391,12 @@ static int access_problem(const Instance *c, const char *function, const char *t
     }
     if (!write)
         return 0;
-    int fixed = c->values.mode != INSTANTIATED && c->values.mode != INITIALISATION;
+    int fixed = c->core.values.mode != INSTANTIATED && c->core.values.mode != INITIALISATION;
     size_t k = 0;
     for (size_t i = 0; i < nvr; i++) {
         for (unsigned j = 0; j < FHOBS3_SIZE[vr[i]]; j++, k++) {
             if (instance_write_problem(vr[i] + j, values ? values[k] : 0.0, fixed, function,
-                                       FIXED_MESSAGE, FHOBS3_STATE_NAMES[c->values.mode], msg,
+                                       FIXED_MESSAGE, FHOBS3_STATE_NAMES[c->core.values.mode], msg,
                                        len))
                 return 1;
         }
@@ -420,10 +415,10 @@ fmi3Status fmi3GetFloat64(fmi3Instance pointer, const fmi3ValueReference vr[], s
     size_t k = 0;
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] == FHOBS3_TIME_VR) {
-            values[k++] = c->values.time;
+            values[k++] = c->core.values.time;
             continue;
         }
-        memcpy(values + k, c->values.real + vr[i], sizeof(double) * FHOBS3_SIZE[vr[i]]);
+        memcpy(values + k, c->core.values.real + vr[i], sizeof(double) * FHOBS3_SIZE[vr[i]]);
         k += FHOBS3_SIZE[vr[i]];
     }
     return ok(c);
@@ -439,7 +434,7 @@ fmi3Status fmi3SetFloat64(fmi3Instance pointer, const fmi3ValueReference vr[], s
         return fail(c, msg);
     size_t k = 0;
     for (size_t i = 0; i < nvr; i++) {
-        memcpy(c->values.real + vr[i], values + k, sizeof(double) * FHOBS3_SIZE[vr[i]]);
+        memcpy(c->core.values.real + vr[i], values + k, sizeof(double) * FHOBS3_SIZE[vr[i]]);
         k += FHOBS3_SIZE[vr[i]];
     }
     return ok(c);
@@ -453,12 +448,12 @@ fmi3Status fmi3GetInt32(fmi3Instance pointer, const fmi3ValueReference vr[], siz
     if (access_problem(c, "fmi3GetInt32", "Int32", vr, nvr, nValues, 0, NULL, values, msg,
                        sizeof msg))
         return fail(c, msg);
-    int status = c->values.integer[VR_STATUS];
+    int status = c->core.values.integer[VR_STATUS];
     ok(c);
     size_t k = 0; /* `status`: the status of the call before this one */
     for (size_t i = 0; i < nvr; i++)
         for (unsigned j = 0; j < FHOBS3_SIZE[vr[i]]; j++)
-            values[k++] = vr[i] + j == VR_STATUS ? status : c->values.integer[vr[i] + j];
+            values[k++] = vr[i] + j == VR_STATUS ? status : c->core.values.integer[vr[i] + j];
     return fmi3OK;
 }
 
@@ -473,7 +468,7 @@ fmi3Status fmi3SetInt32(fmi3Instance pointer, const fmi3ValueReference vr[], siz
     size_t k = 0;
     for (size_t i = 0; i < nvr; i++)
         for (unsigned j = 0; j < FHOBS3_SIZE[vr[i]]; j++)
-            c->values.integer[vr[i] + j] = values[k++];
+            c->core.values.integer[vr[i] + j] = values[k++];
     return ok(c);
 }
 
@@ -534,7 +529,8 @@ fmi3Status fmi3SetBinary(fmi3Instance pointer, const fmi3ValueReference vr[], si
 
 /* The FMU has no events and never returns early: eventHandlingNeeded, terminateSimulation and
  * earlyReturn are false, lastSuccessfulTime the end of the step (of a refused step: the time
- * before it). */
+ * before it). The first step longer than max_communication_step is made and answered with
+ * fmi3Warning. */
 fmi3Status fmi3DoStep(fmi3Instance pointer, fmi3Float64 currentCommunicationPoint,
                       fmi3Float64 communicationStepSize,
                       fmi3Boolean noSetFMUStatePriorToCurrentPoint,
@@ -547,25 +543,13 @@ fmi3Status fmi3DoStep(fmi3Instance pointer, fmi3Float64 currentCommunicationPoin
     if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime)
         return fail(c, "fmi3DoStep: NULL output argument");
     *eventHandlingNeeded = *terminateSimulation = *earlyReturn = fmi3False;
-    int refused_step = instance_step(&c->values, c->work, c->time, currentCommunicationPoint,
-                                     communicationStepSize, msg, sizeof msg);
-    *lastSuccessfulTime = c->values.time;
-    if (refused_step)
-        return fail(c, msg);
-    c->time = c->values.time;
-    return ok(c);
+    int status = instance_do_step(&c->core, currentCommunicationPoint, communicationStepSize,
+                                  msg, sizeof msg);
+    *lastSuccessfulTime = c->core.values.time;
+    return report(c, status, msg);
 }
 
 /* -- FMU states -------------------------------------------------------------------------------- */
-
-static Snapshot *snapshot(fmi3FMUState state)
-{
-    Snapshot *s = state;
-    return s && s->magic == SNAPSHOT_MAGIC &&
-                   strncmp(s->identity, FHOBS_IDENTITY, FHOBS_IDENTITY_FIELD) == 0
-               ? s
-               : NULL;
-}
 
 /* Why `v` is not a state this instance can take (1, message) or 0. */
 static int state_problem(const Instance *c, const Values *v, char *msg, size_t len)
@@ -588,17 +572,8 @@ static fmi3Status store(Instance *c, const Values *values, fmi3FMUState *state,
                         const char *function)
 {
     char msg[FHOBS_MESSAGE_SIZE];
-    Snapshot *s = *state ? snapshot(*state) : calloc(1, sizeof(Snapshot));
-    if (!s) {
-        snprintf(msg, sizeof msg, "%s: %s", function, *state ? "the state to overwrite is not "
-                 "one of this FMU" : "out of memory");
+    if (instance_store(state, values, zeroed, NULL, function, msg, sizeof msg))
         return fail(c, msg);
-    }
-    s->magic = SNAPSHOT_MAGIC;
-    memset(s->identity, 0, FHOBS_IDENTITY_FIELD);
-    strncpy(s->identity, FHOBS_IDENTITY, FHOBS_IDENTITY_FIELD - 1);
-    s->values = *values;
-    *state = s;
     return ok(c);
 }
 
@@ -607,22 +582,21 @@ fmi3Status fmi3GetFMUState(fmi3Instance pointer, fmi3FMUState *state)
     CHECK_CALL(pointer, FHOBS3_CALL_GETFMUSTATE);
     if (!state)
         return fail(c, "fmi3GetFMUState: NULL state pointer");
-    return store(c, &c->values, state, "fmi3GetFMUState");
+    return store(c, &c->core.values, state, "fmi3GetFMUState");
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance pointer, fmi3FMUState state)
 {
     char msg[FHOBS_MESSAGE_SIZE], reason[FHOBS_MESSAGE_SIZE - 64];
     CHECK_CALL(pointer, FHOBS3_CALL_SETFMUSTATE);
-    Snapshot *s = snapshot(state);
-    if (!s)
+    const Values *values = instance_snapshot(state);
+    if (!values)
         return fail(c, "fmi3SetFMUState rejected the state: not an FMU state of this FMU");
-    if (state_problem(c, &s->values, reason, sizeof reason)) {
+    if (state_problem(c, values, reason, sizeof reason)) {
         snprintf(msg, sizeof msg, "fmi3SetFMUState rejected the state: %s", reason);
         return fail(c, msg);
     }
-    c->values = s->values;
-    c->time = NAN;
+    instance_take(&c->core, values);
     return ok(c);
 }
 
@@ -631,11 +605,10 @@ fmi3Status fmi3FreeFMUState(fmi3Instance pointer, fmi3FMUState *state)
     CHECK_CALL(pointer, FHOBS3_CALL_FREEFMUSTATE);
     if (!state || !*state)
         return ok(c);
-    Snapshot *s = snapshot(*state);
-    if (!s)
+    if (!instance_snapshot(*state))
         return fail(c, "fmi3FreeFMUState: not an FMU state of this FMU");
-    s->magic = 0;
-    free(s);
+    instance_forget(*state);
+    free(*state);
     *state = NULL;
     return ok(c);
 }
@@ -643,7 +616,7 @@ fmi3Status fmi3FreeFMUState(fmi3Instance pointer, fmi3FMUState *state)
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance pointer, fmi3FMUState state, size_t *size)
 {
     CHECK_CALL(pointer, FHOBS3_CALL_SERIALIZEDFMUSTATESIZE);
-    if (!snapshot(state) || !size)
+    if (!instance_snapshot(state) || !size)
         return fail(c, "fmi3SerializedFMUStateSize: not an FMU state of this FMU");
     *size = instance_serialized_size();
     return ok(c);
@@ -653,11 +626,11 @@ fmi3Status fmi3SerializeFMUState(fmi3Instance pointer, fmi3FMUState state,
                                  fmi3Byte serializedState[], size_t size)
 {
     CHECK_CALL(pointer, FHOBS3_CALL_SERIALIZEFMUSTATE);
-    Snapshot *s = snapshot(state);
-    if (!s || !serializedState || size != instance_serialized_size())
+    const Values *values = instance_snapshot(state);
+    if (!values || !serializedState || size != instance_serialized_size())
         return fail(c, "fmi3SerializeFMUState: not an FMU state of this FMU, or a buffer of "
                        "another size than fmi3SerializedFMUStateSize's");
-    instance_serialize(&s->values, serializedState);
+    instance_serialize(values, serializedState);
     return ok(c);
 }
 

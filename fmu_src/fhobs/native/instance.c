@@ -1,7 +1,7 @@
 /*
- * The version-independent part of a native fhobs FMU instance (instance.h): start values,
- * checks, the step, a state's bytes. Each function checks completely before it changes
- * anything, so a refused call leaves the instance as it was.
+ * A native fhobs FMU instance whatever its FMI version (instance.h): start values, checks, the
+ * step and the coarse-step warning, FMU states and their bytes. Each function checks
+ * completely before it changes anything, so a refused call leaves the instance as it was.
  */
 #include "instance.h"
 
@@ -16,6 +16,15 @@
 
 #define STATE_HEADER "FHOBSNAT"
 #define STATE_FORMAT 3u
+#define SNAPSHOT_MAGIC 0x66687374u /* "fhst" */
+
+/* An FMU state in memory (the pointer a layer hands out as fmi2FMUstate / fmi3FMUState). */
+typedef struct {
+    uint32_t magic;
+    char identity[FHOBS_IDENTITY_FIELD]; /* the GUID of the FMU that made it (kept inline: a
+                                            state may outlive the library of another FMU) */
+    Values values;
+} Snapshot;
 
 /* serialized: header, format, identity, the Values' fields, then a 64-bit FNV-1a checksum of
  * everything before it */
@@ -23,12 +32,14 @@
     (8 + 4 + FHOBS_IDENTITY_FIELD + 4 + 8 + 8 * FHOBS_N_VARIABLES + 4 * FHOBS_N_VARIABLES +    \
      8 * FHOBS_STATE_SIZE + 8)
 
-void instance_publish(Values *v, Work *w)
+/* The outputs of the model's state into the variables. */
+static void publish(Values *v, Work *w)
 {
     model_outputs(w, v->real, v->integer, v->state);
 }
 
-void instance_start(Values *v, Work *w)
+/* The start values (state instantiated, time 0), the initial state and its outputs. */
+static void start_values(Values *v, Work *w)
 {
     char msg[FHOBS_MESSAGE_SIZE];
     v->mode = FHOBS_STATE_INSTANTIATED;
@@ -38,10 +49,12 @@ void instance_start(Values *v, Work *w)
         v->integer[i] = VARIABLES[i].type == FHOBS_INTEGER ? (int)VARIABLES[i].start : 0;
     }
     model_initial_state(v->real, v->state, msg, sizeof msg); /* the built starts are valid */
-    instance_publish(v, w);
+    publish(v, w);
 }
 
-int instance_parameters_problem(const Values *v, char *msg, size_t len)
+/* Why the parameters of v cannot start a run (1, message) or 0: a non-finite parameter,
+ * input_bound <= 0, or what the model refuses. */
+static int parameters_problem(const Values *v, char *msg, size_t len)
 {
     char a[32];
     for (int i = 0; i < FHOBS_N_VARIABLES; i++) {
@@ -60,17 +73,18 @@ int instance_parameters_problem(const Values *v, char *msg, size_t len)
     return model_parameters_problem(v->real, v->integer, msg, len);
 }
 
-int instance_initialise(Values *v, Work *w, char *msg, size_t len)
+/* The initial state of the parameters (1 and the message if they cannot start a run). */
+static int initialise(Values *v, Work *w, char *msg, size_t len)
 {
     char reason[FHOBS_MESSAGE_SIZE - 64];
     double state[FHOBS_STATE_SIZE];
-    if (instance_parameters_problem(v, reason, sizeof reason) ||
+    if (parameters_problem(v, reason, sizeof reason) ||
         model_initial_state(v->real, state, reason, sizeof reason)) {
         snprintf(msg, len, "initialisation rejected the parameters: %s", reason);
         return 1;
     }
     memcpy(v->state, state, sizeof state);
-    instance_publish(v, w);
+    publish(v, w);
     return 0;
 }
 
@@ -103,7 +117,7 @@ int instance_values_problem(const Values *v, int initialised, char *msg, size_t 
     if (model_state_problem(v->state, msg, len))
         return 1;
     if (initialised)
-        return instance_parameters_problem(v, msg, len);
+        return parameters_problem(v, msg, len);
     double state[FHOBS_STATE_SIZE]; /* before initialisation: the initial state must be one */
     return model_initial_state(v->real, state, msg, len);
 }
@@ -133,6 +147,44 @@ int instance_write_problem(unsigned index, double value, int fixed, const char *
         return 1;
     }
     return 0;
+}
+
+/* -- an instance ----------------------------------------------------------------------------- */
+
+void instance_reset(Core *c)
+{
+    c->start_time = c->time = 0.0;
+    c->warned_coarse_step = 0;
+    work_init(c->work);
+    start_values(&c->values, c->work);
+}
+
+int instance_set_start_time(Core *c, double start_time, const char *function, char *msg,
+                            size_t len)
+{
+    char a[32];
+    if (!isfinite(start_time)) {
+        snprintf(msg, len, "%s: startTime %s is not finite", function,
+                 fhobs_number(start_time, a, sizeof a));
+        return 1;
+    }
+    c->start_time = c->values.time = start_time;
+    return 0;
+}
+
+int instance_exit_initialisation(Core *c, int mode, char *msg, size_t len)
+{
+    if (initialise(&c->values, c->work, msg, len))
+        return 1;
+    c->values.mode = mode;
+    c->time = c->values.time = c->start_time;
+    return 0;
+}
+
+void instance_take(Core *c, const Values *v)
+{
+    c->values = *v;
+    c->time = NAN;
 }
 
 /* -- the step -------------------------------------------------------------------------------- */
@@ -192,8 +244,9 @@ static int zoh_problem(double dt, char *msg, size_t len)
     return 1;
 }
 
-int instance_step(Values *v, Work *w, double own_time, double t, double dt, char *msg,
-                  size_t len)
+/* A communication step of dt from t of an instance whose own time is own_time (NaN: any):
+ * 1 and the message (the values unchanged), or 0 with the step made and v->time = t + dt. */
+static int step(Values *v, Work *w, double own_time, double t, double dt, char *msg, size_t len)
 {
     char reason[FHOBS_MESSAGE_SIZE - 64], a[32];
     double next[FHOBS_STATE_SIZE];
@@ -213,9 +266,75 @@ int instance_step(Values *v, Work *w, double own_time, double t, double dt, char
         return 1;
     }
     memcpy(v->state, next, sizeof next);
-    instance_publish(v, w);
+    publish(v, w);
     v->time = t + dt;
     return 0;
+}
+
+/* The instance's max_communication_step (0, no figure, for a kind without it). */
+static double max_communication_step(const Values *v)
+{
+#if VR_MAX_COMMUNICATION_STEP >= 0
+    return v->real[VR_MAX_COMMUNICATION_STEP];
+#else
+    (void)v;
+    return 0.0;
+#endif
+}
+
+/* Whether a successful step of size dt is the instance's first longer than its
+ * max_communication_step (the rule of fhobs.fmu.call_rules.coarse_step_problem). */
+static int coarse_step(const Core *c, double dt)
+{
+    double max_step = max_communication_step(&c->values);
+    return !c->warned_coarse_step && max_step > 0.0 &&
+           dt > max_step * (1.0 + FHOBS_COARSE_STEP_TOLERANCE);
+}
+
+int instance_do_step(Core *c, double t, double dt, char *msg, size_t len)
+{
+    if (step(&c->values, c->work, c->time, t, dt, msg, len))
+        return FHOBS_STATUS_ERROR;
+    c->time = c->values.time;
+    if (!coarse_step(c, dt))
+        return FHOBS_STATUS_OK;
+    snprintf(msg, len, FHOBS_COARSE_STEP_MESSAGE, dt, max_communication_step(&c->values));
+    c->warned_coarse_step = 1;
+    return FHOBS_STATUS_WARNING;
+}
+
+/* -- FMU states ------------------------------------------------------------------------------ */
+
+const Values *instance_snapshot(const void *state)
+{
+    const Snapshot *s = state;
+    return s && s->magic == SNAPSHOT_MAGIC &&
+                   strncmp(s->identity, FHOBS_IDENTITY, FHOBS_IDENTITY_FIELD) == 0
+               ? &s->values
+               : NULL;
+}
+
+int instance_store(void **state, const Values *v, Allocate *allocate, void *context,
+                   const char *function, char *msg, size_t len)
+{
+    Snapshot *s = *state ? (instance_snapshot(*state) ? *state : NULL)
+                         : allocate(context, sizeof(Snapshot));
+    if (!s) {
+        snprintf(msg, len, "%s: %s", function,
+                 *state ? "the state to overwrite is not one of this FMU" : "out of memory");
+        return 1;
+    }
+    s->magic = SNAPSHOT_MAGIC;
+    memset(s->identity, 0, FHOBS_IDENTITY_FIELD);
+    strncpy(s->identity, FHOBS_IDENTITY, FHOBS_IDENTITY_FIELD - 1);
+    s->values = *v;
+    *state = s;
+    return 0;
+}
+
+void instance_forget(void *state)
+{
+    ((Snapshot *)state)->magic = 0;
 }
 
 /* -- a state's bytes ------------------------------------------------------------------------- */
