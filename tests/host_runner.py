@@ -1,5 +1,5 @@
-"""The C test host (``tests/native_host.c``) for the native FMU tests: compiled once per
-session, run with a CSV of inputs, its output CSV read back."""
+"""The C test host (``tests/native_host.c``, FMI 2.0 and FMI 3.0) for the native FMU tests:
+compiled once per session, run with a CSV of inputs, its output CSV read back."""
 
 from __future__ import annotations
 
@@ -41,10 +41,11 @@ def write_inputs(path: Path, names: list[str], times: np.ndarray, values: np.nda
 
 
 def run_host(host: Path, fmu_dir: Path, inputs: Path, outputs: Path, step: float,
-             parameters: dict[str, float] | None = None, env: dict[str, str] | None = None
-             ) -> subprocess.CompletedProcess:
-    """Run the host (by default with an empty environment) and return the finished process."""
-    args = [str(host), str(fmu_dir), str(inputs), str(outputs), repr(step)]
+             parameters: dict[str, float] | None = None, env: dict[str, str] | None = None,
+             wrapper: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
+    """Run the host (by default with an empty environment; under ``wrapper``, a command such as
+    valgrind with its options, when given) and return the finished process."""
+    args = [*wrapper, str(host), str(fmu_dir), str(inputs), str(outputs), repr(step)]
     args += [f"{name}={value!r}" for name, value in (parameters or {}).items()]
     return subprocess.run(args, env={} if env is None else env, capture_output=True,
                           text=True, timeout=300)
