@@ -47,7 +47,6 @@
 
 #define MAX_VARS 4096
 #define MAX_LINE 65536
-#define MAX_ROWS 100000
 #define MAX_DIMS 4
 #define STATUS_OK 0    /* fmi2OK, fmi3OK */
 #define STATUS_ERROR 3 /* fmi2Error, fmi3Error */
@@ -393,14 +392,25 @@ static int read_rows(const char *path, int step_column, Rows *rows)
         }
         rows->index[i] = (int)(v - vars);
     }
-    rows->step = calloc(MAX_ROWS, sizeof(double));
-    rows->inputs = calloc((size_t)MAX_ROWS * (rows->n_inputs + 1), sizeof(double));
+    size_t capacity = 0;
     rows->n_rows = 0;
-    while (rows->step && rows->inputs && fgets(line, sizeof line, in)) {
-        if (rows->n_rows == MAX_ROWS || split(line, fields, MAX_VARS) != n_columns) {
+    while (fgets(line, sizeof line, in)) {
+        if (split(line, fields, MAX_VARS) != n_columns) {
             fclose(in);
-            return fail(1, "row %d of %s has the wrong number of fields (or too many rows)",
-                        rows->n_rows + 1, path);
+            return fail(1, "row %d of %s has the wrong number of fields", rows->n_rows + 1,
+                        path);
+        }
+        if ((size_t)rows->n_rows == capacity) { /* room for twice as many rows */
+            capacity = capacity ? 2 * capacity : 1024;
+            double *step = realloc(rows->step, capacity * sizeof(double));
+            rows->step = step ? step : rows->step;
+            double *inputs = realloc(rows->inputs,
+                                     capacity * (size_t)(rows->n_inputs + 1) * sizeof(double));
+            rows->inputs = inputs ? inputs : rows->inputs;
+            if (!step || !inputs) {
+                fclose(in);
+                return fail(1, "out of memory");
+            }
         }
         if (rows->n_rows == 0)
             rows->t0 = strtod(fields[0], NULL);
@@ -411,8 +421,6 @@ static int read_rows(const char *path, int step_column, Rows *rows)
         rows->n_rows++;
     }
     fclose(in);
-    if (!rows->step || !rows->inputs)
-        return fail(1, "out of memory");
     return rows->n_rows ? 0 : fail(1, "%s has no data row", path);
 }
 
