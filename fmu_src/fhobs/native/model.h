@@ -1,8 +1,9 @@
 /*
- * The model of a native fhobs FMU as its FMI layer (fmi2_layer.c) sees it: the sizes, value
- * references and variable table of the generated model_data.h / model_data.c, and the
- * functions of models.c for the kind compiled in. The model's per-instance data (Work: its
- * plan cache and scratch memory) is opaque here: the layer allocates model_work_size() bytes.
+ * The model of a native fhobs FMU as its instance core (instance.c) and FMI layer see it: the
+ * sizes, value references and variable table of the generated model_data.h / model_data.c,
+ * and the functions of models.c for the kind compiled in. The model's per-instance data (Work:
+ * its plan cache and scratch memory) is opaque here: the layer allocates model_work_size()
+ * bytes.
  */
 #ifndef FHOBS_MODEL_H
 #define FHOBS_MODEL_H
