@@ -15,6 +15,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from fhobs.core.cache_files import is_fmu, trusted
+
 from harness.fmu_files import description
 
 CACHE_ENV = "FHOBS_HARNESS_CACHE"
@@ -126,7 +128,7 @@ def block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | None = No
     module, text = _script(kind, dims, digest)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     target = cache / f"{module}.fmu"
-    if not target.exists():
+    if not trusted(target, is_fmu):  # a cached FMU is used only if this user alone made it
         _build(module, text, target, kind.source)
     return target
 

@@ -24,6 +24,8 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from fhobs.core.cache_files import is_fmu, trusted
+
 from harness.blocks.build import BLOCK_KINDS, block_fmu, default_cache_dir
 
 HERE = Path(__file__).resolve().parent
@@ -110,7 +112,7 @@ def native_block_fmu(kind_name: str, dims: tuple[int, ...], cache_dir: Path | No
     guid = str(uuid.UUID(bytes=digest.digest()[:16]))
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     target = cache / f"{identifier}.fmu"
-    if target.exists():
+    if trusted(target, is_fmu):  # a cached FMU is used only if this user alone made it
         return target
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None:

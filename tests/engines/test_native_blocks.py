@@ -561,3 +561,23 @@ def test_kinds_without_a_native_version_are_refused(cache):
 def test_docstring_examples():
     result = doctest.testmod(harness.blocks.native, optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
+
+
+@pytest.mark.parametrize("native", [False, True], ids=["pythonfmu", "native"])
+def test_a_foreign_or_broken_cached_block_is_built_again(tmp_path, native):
+    """A block FMU in the cache is used only if this user alone could have put it there and it
+    is an FMU: a text file in its place, or one others may write, is built again over it."""
+    from harness.blocks.build import block_fmu
+    from harness.blocks.native import native_block_fmu
+
+    build = native_block_fmu if native else block_fmu
+    cache = tmp_path / "cache"
+    cache.mkdir(mode=0o700)
+    fmu = build("gain", (1, 2), cache)
+    good = fmu.read_bytes()
+    fmu.write_text("not an FMU")
+    assert build("gain", (1, 2), cache) == fmu and fmu.read_bytes()[:2] == b"PK"
+    fmu.chmod(0o666)
+    rebuilt = build("gain", (1, 2), cache)
+    assert rebuilt.stat().st_mode & 0o022 == 0 and zipfile.is_zipfile(rebuilt)
+    assert len(fmu.read_bytes()) > 1000 and len(good) > 1000
