@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 from fhobs.cli import main as cli_main
 from fhobs.errors import BuildError
-from fhobs.native.build import build_native_fmus
+from fhobs.fmu.kinds import KINDS as ALL
+from fhobs.native.build import FAMILIES, build_native_fmus
 from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 from fmu_fixtures import (
@@ -131,9 +132,11 @@ def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned
         assert start["nu"] == tuned_design.model.nu
     assert native.coSimulation.needsExecutionTool is False
     files = native.buildConfigurations[0].sourceFileSets[0].sourceFiles
-    units = ["fmi2_layer.c", "gain_levels.c", "instance.c", "kernel.c", "model_data.c", "models.c",
-             "planner.c"]
-    assert files == sorted(units + (["noise.c"] if kind == "plant" else []))
+    units = ["fmi2_layer.c", "gain_levels.c", "instance.c", "kernel.c", "model_common.c",
+             "model_data.c", "planner.c"]
+    family = [name for name in FAMILIES[ALL[kind].family].units if name.endswith(".c")]
+    assert family and f"family_{ALL[kind].family}.c" in family
+    assert files == sorted(units + family)
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -37,7 +37,7 @@ KINDS = ("observer", "plant", "kalman", "luenberger")
 COMPILERS = tuple(name for name in ("gcc", "clang") if shutil.which(name))
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror")
 NATIVE = Path(fhobs.native.__file__).resolve().parent
-REPO_C = (kernel.SOURCE, *sorted(NATIVE.glob("*.c")),
+REPO_C = (kernel.SOURCE, *sorted(NATIVE.glob("*.[ch]")),
           NATIVE.parent / "fmu" / "status_wrapper.c", Path(harness.__file__).parent / "step_loop.c",
           Path(harness.__file__).parent / "blocks" / "native_blocks.c")
 
@@ -176,7 +176,7 @@ def test_constants_pinned_to_python_values():
     for file, name, value, module, attribute in pins:
         expected = getattr(importlib.import_module(module), attribute)
         assert float(value) == float(expected), (file, name, value, module, attribute)
-    models = c_defines(NATIVE / "models.c")
+    models = c_defines(NATIVE / "model_common.h")
     euler = int(models["FHOBS_SCHEME_EULER"])
     assert SCHEMES[euler] == "euler" and PLANT_SCHEMES[euler] == "euler"
 

@@ -6,7 +6,8 @@ Each native FMU (``observer.fmu``, ``luenberger.fmu``, ``plant.fmu``, ``kalman.f
 (:mod:`fhobs.fmu.kinds`), so they have the same variable names, value references,
 causalities, variabilities and start values (exact: hexadecimal in the C data). Its binary
 ``binaries/linux64/<modelIdentifier>.so`` is the runtime's step kernel (``kernel.c``) with the
-step planner (``planner.c``), an FMI layer (``fmi2_layer.c``, ``models.c``) and the generated
+step planner (``planner.c``), an FMI layer (``fmi2_layer.c``), the C model of the kind's plan
+family (``family_<family>.c``, :data:`FAMILIES`, with ``model_common.c``) and the generated
 ``model_data.h`` and ``model_data.c``: the design and what the planner needs that does not
 depend on the step size (the injection flow's and the dilation's eigen data, the tau
 grid, the gain level's round-off floor; :mod:`fhobs.native.planner`). Every positive finite
@@ -86,19 +87,21 @@ LAYOUT = tuple(dict.fromkeys(variable.name for kind in KINDS.values()
 """Variables whose first value reference model_data.h names (``VR_<NAME>``, -1 if absent):
 every signal and setting of every kind (the C model reads them by these names)."""
 C_SOURCES = ("fhobs_native.h", "planner.h", "planner.c", "gain_levels.c", "model.h",
-             "models.c", "instance.h", "instance.c", "fmi2_layer.c")
+             "model_common.h", "model_common.c", "instance.h", "instance.c", "fmi2_layer.c")
 """Sources of every native FMU from this folder (with the kernel's, :data:`KERNEL_SOURCES`,
-and the generated model_data.h, model_data.c and fhobs_call_rules.h; the plant adds
-:data:`NOISE_SOURCES`)."""
+the generated model_data.h, model_data.c and fhobs_call_rules.h, and the C model of the kind's
+family, :attr:`Family.units`)."""
 KERNEL_SOURCES = (kernel.SOURCE, kernel.HEADER)
 """The step kernel (``core/kernel.c``, ``core/kernel.h``), copied into every native FMU."""
 NOISE_SOURCES = ("noise.c", "noise.h")
 """The plant's measurement noise (numpy's generator in C)."""
+FILTER_PLANS = ("filter_plans.h", "filter_plans.c")
+"""The filtering observer's split plans, of the filtering and supervised families."""
 SHARED_UNITS = ("kernel.c", "planner.c", "gain_levels.c", "noise.c")
 """Translation units that do not include the generated model data: compiled once per machine
 (:func:`cached_object`) and linked into the binary of every FMU that has them."""
-GENERATED_HEADERS = ("model_data.h", "model.h")
-"""The headers with the design of one FMU (``model.h`` includes ``model_data.h``)."""
+GENERATED_HEADERS = ("model_data.h", "model.h", "model_common.h", "filter_plans.h")
+"""The headers with the design of one FMU (the others include ``model_data.h``)."""
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SUPERVISOR_THRESHOLDS = ("ceiling", "lower", "upper", "lower_return", "upper_return",
                          "dwell_time")
@@ -534,6 +537,9 @@ class Family:
         ``n_model(data)``: the states of the model the plan steps.
     steps : callable
         ``steps(data)``: the documentation's paragraph on the step sizes the FMU takes.
+    units : tuple of str
+        The family's C model: its files of this folder (``family_<name>.c``, behind
+        ``model.h``, and the units it calls), added to :data:`C_SOURCES`.
     runs : callable
         ``runs(record)``: whether a native FMU of the record is built by default (the
         prescribed-time observer's: when its correction has an eigen path).
@@ -543,27 +549,31 @@ class Family:
     data_lines: tuple[Callable[[dict[str, Any], _Arrays], list[str]], ...]
     state_size: Callable[[int, PlantModel], int]
     steps: Callable[[dict[str, Any]], str]
+    units: tuple[str, ...]
     n_model: Callable[[dict[str, Any]], int] = lambda data: data["top"].shape[0]
     runs: Callable[[Any], bool] = lambda record: True
 
 
 FAMILIES: dict[str, Family] = {
     "filtering": Family(_filtering_data, (_zoh_lines, _filter_lines, _euler_lines),
-                        lambda n_model, plant: n_model + plant.k + 1, _any_step(True)),
+                        lambda n_model, plant: n_model + plant.k + 1, _any_step(True),
+                        FILTER_PLANS + ("family_filtering.c",)),
     "prescribed_time": Family(_prescribed_time_data,
                               (_zoh_lines, _prescribed_lines, _euler_lines),
                               lambda n_model, plant: n_model + 2, _any_step(True),
+                              ("family_prescribed_time.c",),
                               runs=lambda record: PrescribedTimeObserver(record).eigen),
     "linear": Family(_linear_data, (_zoh_lines, _linear_lines, _euler_lines),
-                     lambda n_model, plant: n_model, _any_step(False)),
+                     lambda n_model, plant: n_model, _any_step(False), ("family_linear.c",)),
     "kalman": Family(_kalman_data, (_kalman_lines,), lambda n_model, plant: n_model + 1,
-                     _kalman_steps, lambda data: data["kalman"]["n"]),
+                     _kalman_steps, ("family_kalman.c",), lambda data: data["kalman"]["n"]),
     "supervised": Family(_supervised_data, (_kalman_lines, _supervisor_lines, _zoh_lines,
                                             _filter_lines, _euler_lines),
                          lambda n_model, plant: HEAD_SIZE + (n_model + plant.k + 1)
-                         + (n_model + 1) + n_model * n_model + 1, _supervised_steps),
+                         + (n_model + 1) + n_model * n_model + 1, _supervised_steps,
+                         FILTER_PLANS + ("family_supervised.c",)),
     "plant": Family(_plant_data, (_zoh_lines, _plant_lines), lambda n_model, plant: plant.n + 1,
-                    _any_step(False)),
+                    _any_step(False), ("family_plant.c", *NOISE_SOURCES)),
 }
 """Plan family -> how its native FMUs are made; the C model of each is ``family_<name>.c``."""
 
@@ -572,7 +582,7 @@ def _state_outputs(kind: str, variables: list[dict[str, Any]],
                    first_vr: dict[str, int]) -> list[str]:
     """The outputs that are elements of the model's state, as the declaration places them
     (:meth:`fhobs.fmu.kinds.Kind.output_sources`): ``STATE_OUTPUTS``, (value reference, state
-    offset, count) triples, which models.c copies; the other outputs it computes by name."""
+    offset, count) triples, which model_common.c copies; the other outputs it computes by name."""
     sizes = Counter(var["name"].split("[")[0] for var in variables
                     if var["causality"] == "output")
     triples = [(first_vr[name], offset, size) for name, source, offset, size
@@ -674,14 +684,13 @@ def _stage(kind: str, variables: list[dict[str, Any]], native: dict[str, Any],
     documentation into ``stage/fmu``; of FMI 3.0 (``fmi_version`` 3) with the layer and the
     descriptions of :mod:`fhobs.native.fmi3`."""
     header, data = _model_data(kind, variables, native, sizes)
-    sources = {name: (HERE / name).read_text() for name in C_SOURCES}
+    units = FAMILIES[KINDS[kind].family].units
+    sources = {name: (HERE / name).read_text() for name in (*C_SOURCES, *units)}
     if fmi_version == 3:
         del sources["fmi2_layer.c"]
         sources.update(fmi3.layer_sources(variables))
     sources.update({path.name: path.read_text() for path in KERNEL_SOURCES})
     sources[call_rules.HEADER] = call_rules.c_header()
-    if kind == "plant":
-        sources.update({name: (HERE / name).read_text() for name in NOISE_SOURCES})
     digest = hashlib.sha256(header.encode() + data.encode())
     digest.update(json.dumps(naming, sort_keys=True).encode())
     for name in sorted(sources):
@@ -781,7 +790,7 @@ def compile_binary(sources: Path, target: Path, compiler: str,
     Examples
     --------
     >>> compile_binary(Path("sources"), Path("binaries/linux64/id.so"), "cc",
-    ...                ["kernel.c", "models.c"])  # doctest: +SKIP
+    ...                ["kernel.c", "model_common.c"])  # doctest: +SKIP
     """
     objects = target.parent / "objects"
     link_binary([compile_object(sources, name, objects, compiler) for name in files], target,

@@ -1,9 +1,10 @@
 /*
- * Types shared by the generated data (model_data.h, model_data.c), the model steps (models.c),
+ * Types shared by the generated data (model_data.h, model_data.c), the model (family_*.c),
  * the instance core (instance.c) and the FMI layer (fmi2_layer.c or fmi3_layer.c) of a native
  * fhobs FMU. Each .c file of the FMU's sources is a translation unit of its own (kernel.c,
- * planner.c, gain_levels.c, model_data.c, models.c, instance.c, the layer, and noise.c for the
- * plant), linked into one library that exports only the layer's fmi2 or fmi3 functions.
+ * planner.c, gain_levels.c, model_data.c, model_common.c, the family's units, instance.c, the
+ * layer, and noise.c for the plant), linked into one library that exports only the layer's
+ * fmi2 or fmi3 functions.
  */
 #ifndef FHOBS_NATIVE_H
 #define FHOBS_NATIVE_H

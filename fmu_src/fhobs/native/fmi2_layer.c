@@ -23,7 +23,7 @@
  * Every instance owns all its data (no globals but constant ones): many instances of one or
  * several native FMUs run in one process. The values, the checks, the step, the coarse-step
  * warning and FMU states are instance.c's (shared with the FMI 3.0 layer), the model
- * (models.c, the generated model_data.c) is model.h's; the fmi2 functions are the only symbols
+ * (family_<family>.c, the generated model_data.c) is model.h's; the fmi2 functions are the only symbols
  * the library exports.
  */
 #include <stdint.h>

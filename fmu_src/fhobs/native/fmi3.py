@@ -2,7 +2,7 @@
 generated array table and the C layer's sources.
 
 A native FMU of FMI 3.0 (``build_fmu.py SPEC --native --fmi 3``,
-``build_native_fmus(..., fmi_version=3)``) has the model of its FMI 2.0 build (``models.c``
+``build_native_fmus(..., fmi_version=3)``) has the model of its FMI 2.0 build (``family_<family>.c``
 behind ``model.h``, the generated ``model_data``: the same results) and its instance core
 ``instance.c``, under the FMI 3.0 layer ``fmi3_layer.c`` in place of ``fmi2_layer.c``. Its
 modelDescription is written here from the same scalar variables

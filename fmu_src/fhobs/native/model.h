@@ -1,9 +1,10 @@
 /*
  * The model of a native fhobs FMU as its instance core (instance.c) and FMI layer see it: the
  * sizes, value references and variable table of the generated model_data.h / model_data.c,
- * and the functions of models.c for the kind compiled in. The model's per-instance data (Work:
- * its plan cache and scratch memory) is opaque here: the layer allocates model_work_size()
- * bytes.
+ * and the functions of the C model of the kind's plan family (family_<family>.c, one compiled
+ * into each FMU, chosen by the generated source list; model_common.c beside it). The model's
+ * per-instance data (Work: its plan cache and scratch memory) is opaque here: the layer
+ * allocates model_work_size() bytes.
  */
 #ifndef FHOBS_MODEL_H
 #define FHOBS_MODEL_H
