@@ -21,6 +21,7 @@ import pytest
 from fhobs.design.observer import design_for_spec
 from fhobs.design.spec import load_spec
 from fhobs.fmu.call_rules import EXPORTED3
+from fhobs.fmu.kinds import KINDS as DECLARED
 from fhobs.native import fmi3
 from fhobs.native.build import _variables, build_native_fmus
 from fmpy.fmi3 import FMU3Slave, fmi3OK, fmi3Warning
@@ -34,7 +35,7 @@ pytestmark = pytest.mark.skipif(sys.platform != "linux" or not shutil.which("cc"
                                 reason="native FMUs need linux and cc")
 ROOT = Path(__file__).resolve().parents[2]
 ZOO = ROOT / "fmu_src" / "fhobs" / "examples" / "zoo"
-KINDS = ("observer", "luenberger", "kalman", "plant", "prescribed_time", "supervised")
+KINDS = tuple(DECLARED)
 
 
 def both_builds(spec_path: Path, out: Path) -> dict[int, dict[str, Path]]:

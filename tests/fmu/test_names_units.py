@@ -14,13 +14,14 @@ from fhobs.build import build_fmus
 from fhobs.design.observer import design_for_spec
 from fhobs.design.signals import SignalNames
 from fhobs.design.spec import spec_from_dict
+from fhobs.fmu.kinds import KINDS as DECLARED
 from fhobs.model_description import naming_options
 from fhobs.native.build import build_native_fmus
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 ROOT = Path(__file__).resolve().parents[2]
-KINDS = ("observer", "prescribed_time", "luenberger", "kalman", "supervised", "plant")
+KINDS = tuple(DECLARED)
 SIGNALS = {"states": ["inductor.i", "inertia.phi", "inertia.w"],
            "state_units": ["A", "rad", ""],
            "inputs": ["U"], "input_units": ["V"],

@@ -21,6 +21,7 @@ from pathlib import Path
 import fmu_fixtures
 import numpy as np
 import pytest
+from fhobs.build import build_fmus
 from fhobs.cli import main as cli_main
 from fhobs.errors import BuildError
 from fhobs.fmu.kinds import KINDS as ALL
@@ -28,8 +29,10 @@ from fhobs.native.build import FAMILIES, build_native_fmus
 from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 from fmu_fixtures import (
+    COMPARED_KINDS,
     FMI_ERROR,
     PENDULUM_X0,
+    SHARED_KINDS,
     FmuDriver,
     assert_error,
     random_walk,
@@ -46,8 +49,8 @@ pytestmark = pytest.mark.skipif(
     reason="native FMUs are built for linux64 with cc",
 )
 
-KINDS = ("observer", "luenberger", "kalman", "plant")
-OBSERVERS = ("observer", "luenberger", "kalman")
+KINDS = COMPARED_KINDS
+OBSERVERS = tuple(kind for kind in KINDS if ALL[kind].label)
 RTOL = 1e-12
 STEPS = (5e-5, 1e-4, 1e-3)
 """Step sizes of the bundled scenarios (5e-5) and the zoo bench (1e-4, 1e-3)."""
@@ -137,6 +140,30 @@ def test_interface_is_the_pythonfmu_fmus(pendulum_fmus, native_fmus, kind, tuned
     family = [name for name in FAMILIES[ALL[kind].family].units if name.endswith(".c")]
     assert family and f"family_{ALL[kind].family}.c" in family
     assert files == sorted(units + family)
+
+
+def test_start_values_of_moved_starts_are_the_pythonfmu_fmus(kalman_design, tmp_path):
+    """The native build computes its outputs' start values from the kind's declaration (its
+    runtime model at the initial state, no pythonfmu slave): with start values that move the
+    outputs off zero (z0, psi0, xi0, T0, x0, the plant's noise) every variable's start is the
+    pythonfmu FMU's of every kind the design builds, to the pythonfmu XML's 16 digits."""
+    plant = kalman_design.plant
+    options = {"z0": np.linspace(0.3, -0.4, plant.n), "psi0": np.linspace(0.05, -0.1, plant.k),
+               "xi0": 0.7, "T0": 0.4, "x0": np.linspace(-0.2, 0.6, plant.n),
+               "noise_amplitude": 1e-3, "noise_seed": 11}
+    python = build_fmus(kalman_design, tmp_path / "python", kinds=SHARED_KINDS,
+                        status_wrapper=False, kernel=False, **options)
+    native = build_native_fmus(kalman_design, tmp_path / "native", kinds=SHARED_KINDS,
+                               **options)
+    moved = 0
+    for kind in SHARED_KINDS:
+        a, b = (read_model_description(str(fmus[kind])).modelVariables for fmus in (native, python))
+        assert [v.name for v in a] == [v.name for v in b]
+        for x, y in zip(a, b, strict=True):
+            assert math.isclose(float(x.start), float(y.start), rel_tol=1e-15, abs_tol=1e-300), (
+                kind, x.name, x.start, y.start)
+            moved += x.causality == "output" and float(x.start) != 0.0
+    assert moved >= 3 * plant.n  # x_hat of the observers, the plant's x and y: not all zero
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from fhobs.native.build import build_native_fmus
 from fmpy import read_model_description
-from fmu_fixtures import NATIVE_KINDS, NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, H
+from fmu_fixtures import NOISE_AMPLITUDE, NOISE_SEED, PENDULUM_X0, SHARED_KINDS, H
 from host_runner import EXIT_LIBPYTHON, libpython_environment, read_outputs, run_host, write_inputs
 
 
@@ -72,11 +72,11 @@ def unzipped(tmp_path_factory, native_fmus, kalman_design) -> dict[tuple[int, st
     """The native FMUs of ``native_fmus``' design and options, FMI 2.0 and FMI 3.0, extracted:
     {(version, kind): folder}."""
     fmi3 = build_native_fmus(kalman_design, tmp_path_factory.mktemp("native3"),
-                             kinds=NATIVE_KINDS, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
+                             kinds=SHARED_KINDS, x0=PENDULUM_X0, noise_amplitude=NOISE_AMPLITUDE,
                              noise_seed=NOISE_SEED, h=H, fmi_version=3)
     folders = {}
     for version, fmus in ((2, native_fmus), (3, fmi3)):
-        for kind in NATIVE_KINDS:
+        for kind in SHARED_KINDS:
             folders[version, kind] = tmp_path_factory.mktemp(f"fmi{version}_{kind}")
             with zipfile.ZipFile(fmus[kind]) as z:
                 z.extractall(folders[version, kind])
@@ -97,7 +97,7 @@ def host_checks(stdout: str) -> list[str]:
             if line.startswith("check: ")]
 
 
-@pytest.mark.parametrize("kind", ["observer", "luenberger", "kalman", "plant", "prescribed_time"])
+@pytest.mark.parametrize("kind", SHARED_KINDS)
 def test_the_fmi3_build_runs_in_the_host_as_the_fmi2_build(native_host, unzipped, kind,
                                                            tmp_path):
     """The FMI 3.0 FMU through whole arrays gives the FMI 2.0 build's outputs (the same names,

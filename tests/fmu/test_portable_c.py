@@ -27,13 +27,14 @@ from fhobs.fmu import call_rules
 from fhobs.native.build import FMI_HEADERS, _fmi_headers
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
+from fmu_fixtures import COMPARED_KINDS
 
 import harness
 
 needs_gcc = pytest.mark.skipif(sys.platform != "linux" or shutil.which("gcc") is None,
                                reason="native FMUs are built for linux64 with gcc")
 
-KINDS = ("observer", "plant", "kalman", "luenberger")
+KINDS = COMPARED_KINDS
 COMPILERS = tuple(name for name in ("gcc", "clang") if shutil.which(name))
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror")
 NATIVE = Path(fhobs.native.__file__).resolve().parent
