@@ -66,7 +66,7 @@ from ..core.certificate import certify
 from ..core.gains import ObserverDesign, PlantModel, SupervisedGains
 from ..core.kalman_filter import KalmanObserver
 from ..core.plant import LTIPlant
-from ..core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from ..core.runtime import FilteringObserver, PrescribedTimeObserver
 from ..core.supervisor import HEAD_SIZE, SupervisedObserver, sample_count
 from ..design.signals import SignalNames
 from ..errors import BuildError
@@ -223,7 +223,7 @@ def build_native_fmus(
         for kind in kinds:
             record, family = KINDS[kind].runs(design), FAMILIES[KINDS[kind].family]
             variables = _variables(KINDS[kind], design, config)
-            data = family.data(kind, record, steps, config["h"])
+            data = family.data(kind, record, steps, config)
             data["norm1"] = _zoh_norm(record)
             staged[kind] = _stage(kind, variables, data, _sizes(kind, design.plant, data),
                                   stage / kind, naming, fmi_version)
@@ -255,20 +255,28 @@ def _euler_plan(model: Any, h: float) -> dict[str, Any] | None:
 
 
 def _filtering_data(kind: str, record: Any, steps: tuple[float, ...],
-                    h: float) -> dict[str, Any]:
+                    config: dict[str, Any]) -> dict[str, Any]:
+    h = config["h"]
     return {**_stepped_data(kind, FilteringObserver(record, h=h), steps),
             "euler": _euler_plan(FilteringObserver(record, h=h, scheme="euler"), h)}
 
 
-def _linear_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
-    return {**_stepped_data(kind, LuenbergerObserver(record, h=h), steps),
-            "euler": _euler_plan(LuenbergerObserver(record, h=h, scheme="euler"), h)}
+def _linear_data(kind: str, record: Any, steps: tuple[float, ...],
+                 config: dict[str, Any]) -> dict[str, Any]:
+    """The kind's runtime model (:attr:`fhobs.fmu.kinds.Kind.model`, a
+    :class:`~fhobs.core.runtime.LuenbergerObserver` of the gain it runs) of each scheme."""
+    def model(scheme: str) -> Any:
+        options = {**config, "scheme": scheme}
+        return KINDS[kind].model(record, lambda name: options[KINDS[kind].variable(name).option])
+
+    return {**_stepped_data(kind, model("split"), steps),
+            "euler": _euler_plan(model("euler"), config["h"])}
 
 
 def _prescribed_time_data(kind: str, record: Any, steps: tuple[float, ...],
-                          h: float) -> dict[str, Any]:
+                          config: dict[str, Any]) -> dict[str, Any]:
     """Split only: the euler scheme's gain level needs the tau scan."""
-    model = PrescribedTimeObserver(record, h=h)
+    model = PrescribedTimeObserver(record, h=config["h"])
     if not model.eigen:
         raise BuildError(f"the {kind}'s split step does not run in the compiled kernel "
                          "for this design (C L_pt's exponential or the dilation of G_d has no "
@@ -276,13 +284,15 @@ def _prescribed_time_data(kind: str, record: Any, steps: tuple[float, ...],
     return {**_stepped_data(kind, model, steps), "euler": None}
 
 
-def _plant_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
+def _plant_data(kind: str, record: Any, steps: tuple[float, ...],
+                config: dict[str, Any]) -> dict[str, Any]:
     model = LTIPlant(record.A, record.B, record.C, E=record.E)
     return {**_stepped_data(kind, model, steps),
             "A": model.A, "B": model.B, "C": model.C, "E": model.E}
 
 
-def _kalman_data(kind: str, record: Any, steps: tuple[float, ...], h: float) -> dict[str, Any]:
+def _kalman_data(kind: str, record: Any, steps: tuple[float, ...],
+                 config: dict[str, Any]) -> dict[str, Any]:
     return {"kalman": captured_plan(KalmanObserver(record), 1.0),  # one cycle; doStep sets
             "Ts": float(record.sample_time)}                          # the count
 
@@ -296,7 +306,7 @@ def _zoh_norm(record: Any) -> float:
 
 
 def _supervised_data(kind: str, record: SupervisedGains, steps: tuple[float, ...],
-                     h: float) -> dict[str, Any]:
+                     config: dict[str, Any]) -> dict[str, Any]:
     """The supervised observer's data: its filtering observer's (:func:`_filtering_data`), its
     Kalman filter's one-cycle plan and Ts, and the statistics' and the handover's data from
     the numpy runtime's model (``supervisor``: C of the model, the Kalman filter's and the
@@ -304,13 +314,13 @@ def _supervised_data(kind: str, record: SupervisedGains, steps: tuple[float, ...
     recursion Phi, Gamma, R, Q_d, the steady-state and the handover covariances). Each step
     size of ``steps`` must also be a whole number of samples Ts (:class:`BuildError`
     otherwise)."""
-    model = SupervisedObserver(record, h=h)
+    model = SupervisedObserver(record, h=config["h"])
     for dt in steps:
         try:
             sample_count(dt, model.sample_time)
         except ValueError as err:
             raise BuildError(f"--native-step {dt!r}: {err}") from err
-    data = _filtering_data("observer", record.filtering, steps, h)
+    data = _filtering_data("observer", record.filtering, steps, config)
     data.update(kalman=captured_plan(model.kalman, 1.0), Ts=float(model.sample_time))
     data["supervisor"] = {
         "C": model._C, "S_inv": model._S_inv, "S_homogeneous_inv": model._S_homogeneous_inv,
@@ -524,7 +534,8 @@ class Family:
     Attributes
     ----------
     data : callable
-        ``data(kind, record, steps, h)``: what the FMU compiles in, from the numpy runtime's
+        ``data(kind, record, steps, options)``: what the FMU compiles in (``options``: the
+        build options, :func:`fhobs.fmu.options.fmu_options`), from the numpy runtime's
         model of the ``record`` the kind runs (the planner's design data, the euler plan, the
         plant's matrices, the Kalman filter's cycle plan and Ts...); :class:`BuildError` for a
         step size of ``steps`` the numpy runtime refuses.
@@ -545,7 +556,7 @@ class Family:
         prescribed-time observer's: when its correction has an eigen path).
     """
 
-    data: Callable[[str, Any, tuple[float, ...], float], dict[str, Any]]
+    data: Callable[[str, Any, tuple[float, ...], dict[str, Any]], dict[str, Any]]
     data_lines: tuple[Callable[[dict[str, Any], _Arrays], list[str]], ...]
     state_size: Callable[[int, PlantModel], int]
     steps: Callable[[dict[str, Any]], str]
