@@ -86,15 +86,10 @@ def inputs(kind: str, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
                                                                               0.3)}
 
 
-OUTPUTS = {"observer": (("x_hat", (4,)), ("q_hat", (1,)), ("psi", (2,)), ("xi", ()),
-                        ("sigma", ())),
-           "luenberger": (("x_hat", (4,)),), "kalman": (("x_hat", (4,)),),
-           "plant": (("y", (2,)), ("x", (4,)))}
-
-
 def outputs(driver: FmuDriver, kind: str) -> np.ndarray:
-    """Every output of a kind, flat."""
-    return np.concatenate([driver.get(name, shape).ravel() for name, shape in OUTPUTS[kind]])
+    """Every output of the FMU (of a kind), flat, in value-reference order."""
+    return np.array(driver.fmu.getReal([v.valueReference for v in driver.description.modelVariables
+                                        if v.causality == "output"]))
 
 
 def run(driver: FmuDriver, kind: str, signals: dict[str, np.ndarray], dt: float,
@@ -300,8 +295,9 @@ def test_compiled_parameter_accepts_only_its_built_value(open_pair, kind):
     reals = [v for v in description.modelVariables
              if v.causality == "parameter" and v.type == "Real"]
     native.fmu.setReal([v.valueReference for v in reals], [float(v.start) for v in reals])
-    name = {"observer": "L[1,1]", "luenberger": "L_lin[1,1]", "kalman": "kalman_gain[1,1]",
-            "plant": "A[1,1]"}[kind]
+    gain = next(v for v in ALL[kind].variables  # the kind's own gain (the plant: A)
+                if v.role == "design" and not v.field.startswith("plant."))
+    name = f"{gain.name}[1,1]"
     value = float(next(v.start for v in reals if v.name == name))
     assert_error(native, native.fmu.setReal, [native.vr[name]], [value * (1 + 1e-15) + 1e-300],
                  words=f"parameter {name}")
@@ -395,8 +391,7 @@ def test_native_step_sizes_a_design_cannot_take_are_refused(tuned_design, tmp_pa
 
 def test_a_kind_without_a_native_fmu_is_refused_by_name(tuned_design, tmp_path):
     with pytest.raises(BuildError, match="no native FMU of kind sampled: native FMUs are built "
-                                         "for observer, prescribed_time, luenberger, "
-                                         "kalman, supervised, plant"):
+                                         f"for {', '.join(ALL)}$"):
         build_native_fmus(tuned_design, tmp_path, kinds=["observer", "sampled"])
     assert not any(tmp_path.iterdir())
 

@@ -8,36 +8,36 @@ import fhobs.fmu.kinds
 import numpy as np
 import pytest
 from fhobs.core.gains import ESTIMATORS
-from fhobs.core.kalman_filter import KalmanObserver
 from fhobs.core.plant import LTIPlant
-from fhobs.core.runtime import FilteringObserver, LuenbergerObserver, PrescribedTimeObserver
+from fhobs.core.runtime import FilteringObserver
 from fhobs.core.supervisor import MODE_HOMOGENEOUS, MODE_KALMAN, SupervisedObserver
+from fhobs.design.kalman import with_kalman
 from fhobs.design.spec import NoiseSpec
-from fhobs.design.supervised import design_supervised
+from fhobs.design.supervised import design_supervised, with_supervised
 from fhobs.fmu.kinds import KINDS, LABELS
+from fhobs.fmu.options import fmu_options
 from fhobs.fmu.slave_base import output_reads
 
 from tests.designs import random_design
 
 
+def _noise(design):
+    """A [noise] table of std 1e-3, Ts = 1e-3 s for ``design``."""
+    return NoiseSpec(np.full(design.plant.k, 1e-3), 1e-3, 1.0, design.model.disturbance_order)
+
+
 def _supervised(design):
-    """A supervised record of ``design`` (a [noise] table of std 1e-3, Ts = 1e-3 s)."""
-    noise = NoiseSpec(np.full(design.plant.k, 1e-3), 1e-3, 1.0,
-                      design.model.disturbance_order)
-    return design_supervised(design, noise)
+    """A supervised record of ``design`` (of :func:`_noise`)."""
+    return design_supervised(design, _noise(design))
 
 
-def _models(design):
-    E = design.plant.B if design.plant.E is None else design.plant.E
-    return {
-        "supervised": SupervisedObserver(_supervised(design), h=1e-4),
-        "observer": FilteringObserver(design.filtering, h=1e-4),
-        "prescribed_time": PrescribedTimeObserver(design.prescribed_time, h=1e-4),
-        "luenberger": LuenbergerObserver(design.luenberger, h=1e-4),
-        "kalman": KalmanObserver(design.kalman) if design.kalman else None,
-        "plant": LTIPlant(design.plant.A, design.plant.B, design.plant.C, E,
-                          x0=np.ones(design.plant.n)),
-    }
+def _declared_model(design, kind):
+    """The kind's declared runtime model (:attr:`fhobs.fmu.kinds.Kind.model`) of the record of
+    ``design`` with the records of :func:`_noise` attached, at the default build options."""
+    design = with_supervised(with_kalman(design, _noise(design)), _noise(design))
+    options = fmu_options(design, [kind], h=1e-4, x0=np.ones(design.plant.n))
+    return KINDS[kind].model(KINDS[kind].runs(design),
+                             lambda name: options[KINDS[kind].variable(name).option])
 
 
 def _flat_outputs(kind, model, sizes):
@@ -54,8 +54,7 @@ def test_every_output_has_a_source(kind):
     """A declared attribute source exists on the kind's runtime model, and every kind has an
     output that is part of the model state (the slaves read the state at every step; the C
     table of state outputs cannot be empty)."""
-    design = random_design(3, 3, 2, 1)
-    model = _models(design)[kind]
+    model = _declared_model(random_design(3, 3, 2, 1), kind)
     for variable in KINDS[kind].variables:
         if variable.role == "output" and variable.source != "state":
             assert hasattr(model, variable.source), (kind, variable.name)
