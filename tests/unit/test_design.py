@@ -28,7 +28,6 @@ from fhobs.core.certificate import (
 )
 from fhobs.core.disturbance import extended_model
 from fhobs.core.gains import PlantModel
-from fhobs.core.runtime import prescribed_xi0
 from fhobs.design.homogenisation import homogenise, observability_index
 from fhobs.design.lmi import LMISolution
 from fhobs.design.observer import augmented_system, design_for_spec, matched_perturbation_residual
@@ -277,10 +276,13 @@ def test_certificate_rejects_broken_designs(kalman_design, path, edit, check, re
 
 def slave_check(kind: str, record) -> None:
     """The gain check the pythonfmu slave of ``kind`` makes at initialisation, on ``record``
-    as its edited parameters (the prescribed-time slave's xi0 of its default T0 = 1 s)."""
-    slave = getattr(importlib.import_module(f"fhobs.fmu.{kind}"), KINDS[kind].slave)
-    stub = SimpleNamespace(edited_record=lambda: record,
-                           _xi0=lambda nu, rho: prescribed_xi0(1.0, nu, rho))
+    as its edited parameters (the prescribed-time slave's xi0 of its default T0 = 1 s): the
+    slave class of its own module, else the generic observer slave."""
+    declared = KINDS[kind]
+    module = importlib.import_module(f"fhobs.fmu.{declared.slave_module or 'slave_base'}")
+    slave = getattr(module, declared.slave if declared.slave_module else "ObserverSlave")
+    stub = SimpleNamespace(kind=declared, edited_record=lambda: record,
+                           array=lambda name: np.array(1.0))
     slave._check_gains(stub)
 
 

@@ -24,7 +24,7 @@ class FhobsPrescribedTime(ObserverSlave):
 
     def _check_gains(self) -> None:
         """The certificate, then T0: ValueError naming T0 if it gives no xi0."""
-        super()._check_gains()
         prescribed_time = self.edited_record()
+        self.kind.certificate(prescribed_time)
         prescribed_xi0(positive_parameter(self, "T0", "prescribed time T0"),
                        prescribed_time.model.nu, prescribed_time.rho)
