@@ -157,6 +157,7 @@ def test_a_foreign_design_pickle_is_not_read(cache_home, caplog):
     assert str(path) in line
 
 
+@pytest.mark.slow
 @needs_cc
 def test_an_unusable_cache_folder_builds_without_it(unusable_cache, tmp_path, caplog):
     design = design_observer(*PLANT, rho=2.0)
@@ -173,6 +174,7 @@ def test_an_unusable_cache_folder_builds_without_it(unusable_cache, tmp_path, ca
     assert f"the cache folder {unusable_cache} is not used" in line
 
 
+@pytest.mark.slow
 @needs_cc
 def test_a_full_cache_is_skipped_with_one_warning(cache_home, tmp_path, caplog, monkeypatch):
     def full(source, target):

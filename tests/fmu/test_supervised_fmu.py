@@ -132,6 +132,7 @@ def assert_agree(run, reference, what, loose=()):  # noqa: ANN001
 
 @pytest.mark.parametrize("noise, seed", [(0.0, 1), (SCENARIO.noise_amplitude, 2),
                                          (SCENARIO.noise_amplitude, 3)])
+@pytest.mark.slow
 def test_both_builds_run_the_numpy_runtime(design, open_supervised, noise, seed):
     """The closed loop through the pythonfmu and the native FMU agrees with SupervisedObserver
     to 1e-12 of each signal's size (ROUNDOFF_FLOOR_AGREEMENT for two native signals without

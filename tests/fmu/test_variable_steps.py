@@ -173,6 +173,7 @@ def test_builds_agree_under_random_steps(kind, kalman_design, pendulum_fmus, nat
     assert_agree(python, reference)
 
 
+@pytest.mark.slow
 @native_only
 @pytest.mark.parametrize("kind", ["observer", "prescribed_time"])
 def test_builds_agree_with_a_new_size_every_step(kind, kalman_design, pendulum_fmus, native_fmus,

@@ -201,14 +201,14 @@ def outcome(done: subprocess.CompletedProcess, out: Path, signum: int) -> str:
 SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
 
 
-@pytest.mark.parametrize("name", SIGNALS)
+@pytest.mark.parametrize("name", ["SIGINT", pytest.param("SIGTERM", marks=pytest.mark.slow)])
 @pytest.mark.parametrize(
     ("moments", "stop_time", "expected"),
     [(["start-up"], 1000.0, "nothing"),
-     (["instantiated"], 1000.0, "incomplete"),
+     pytest.param(["instantiated"], 1000.0, "incomplete", marks=pytest.mark.slow),
      (["stepping"], 1000.0, "incomplete"),
-     (["stepping", "results.csv"], 1000.0, "incomplete"),
-     (["stepping", "summary.json"], 1000.0, "incomplete"),
+     pytest.param(["stepping", "results.csv"], 1000.0, "incomplete", marks=pytest.mark.slow),
+     pytest.param(["stepping", "summary.json"], 1000.0, "incomplete", marks=pytest.mark.slow),
      (["results.csv"], 2.0, "complete"),
      (["summary.json"], 2.0, "complete")],
     ids=["start-up", "instantiated", "stepping", "stepping-then-writing-results",
@@ -293,6 +293,7 @@ def read_table(out: Path) -> tuple[list[int], list[int]]:
             pa_csv.read_csv(out / "sweep.csv").column("point").to_pylist())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("moment", ["sweep.parquet", "sweep.csv"])
 def test_sweep_table_is_written_whole_and_together(tmp_path, moment):
     pytest.importorskip("pyarrow")

@@ -36,6 +36,7 @@ def _system(tmp_path: Path) -> SystemSpec:
                       record=("a.y1", "b.y1")).with_seed(SEED)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("native", [True, False])
 def test_noise_block_draws_the_masters_draws(tmp_path, native):
     """The lowered system's noise block reads out at t_k exactly the draw the master adds over
@@ -51,6 +52,7 @@ def test_noise_block_draws_the_masters_draws(tmp_path, native):
     assert np.std(draws) == pytest.approx(0.05, rel=0.1)
 
 
+@pytest.mark.slow
 def test_lowered_connections_equal_the_masters_with_one_step_per_block(tmp_path):
     """The harness (a Jacobi engine) on the lowered system: each receiver gets the master's
     value late by one step per feedthrough block on its path (shift, gain, bias: 3; shift: 1),

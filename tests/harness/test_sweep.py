@@ -144,6 +144,7 @@ def silent_server() -> tuple[int, object]:
     return server.getsockname()[1], server
 
 
+@pytest.mark.slow
 def test_scheduler_that_never_answers_or_is_no_dask_address(tmp_path, capsys):
     """--scheduler: a server that accepts and says nothing is given up after
     --connect-timeout (1 s here, not the 300 s it hung before), an HTTP or TLS address at once:

@@ -54,6 +54,7 @@ def test_failure_lines_group_the_rows_by_reason():
     assert "engine log" not in text
 
 
+@pytest.mark.slow
 def test_failed_points_exit_1_with_the_tracebacks_in_the_engine_log(tmp_path):
     """The sweep command on a local cluster: exit 1; stdout has one line per reason (2 points
     of rho = 1e13, 1 of rho = 2e13) and names the log; the console has no traceback and none

@@ -150,6 +150,7 @@ def zoo_comparison():
     return rows
 
 
+@pytest.mark.slow
 def test_the_direct_route_solves_what_cvxpy_solves(zoo_comparison):
     """(It also solves a few LMIs at rho = 12 where cvxpy's route stops on numerical errors.)"""
     refused = [where for where, _, (direct, _), (reference, _) in zoo_comparison
@@ -158,6 +159,7 @@ def test_the_direct_route_solves_what_cvxpy_solves(zoo_comparison):
     assert sum(d is not None for _, _, (d, _), _ in zoo_comparison) >= 0.8 * len(zoo_comparison)
 
 
+@pytest.mark.slow
 def test_the_optimal_kappa_is_cvxpys(zoo_comparison):
     for where, _, (direct, k_direct), (reference, k_reference) in zoo_comparison:
         if direct is not None and reference is not None:
@@ -165,6 +167,7 @@ def test_the_optimal_kappa_is_cvxpys(zoo_comparison):
             assert abs(k_direct / k_reference - 1) < KAPPA_RTOL, (where, k_direct, k_reference)
 
 
+@pytest.mark.slow
 def test_the_gains_are_cvxpys(zoo_comparison):
     errors = {field: [relative(getattr(d, field), getattr(r, field))
                       for _, _, (d, _), (r, _) in zoo_comparison if d and r]
@@ -174,6 +177,7 @@ def test_the_gains_are_cvxpys(zoo_comparison):
         assert max(values) < FACE_RTOL, (field, max(values))
 
 
+@pytest.mark.slow
 def test_the_direct_solutions_satisfy_the_lmi(zoo_comparison):
     """In the original coordinates, wherever the cvxpy route's solutions do (where neither
     does, the design's certificate refuses both and solves again with a wider margin)."""

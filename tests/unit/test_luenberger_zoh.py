@@ -117,7 +117,8 @@ def test_step_holds_the_innovation_where_its_error_map_contracts(motor, paper_de
     assert holds == {"motor": dt == 1e-4, "pendulum": True}
 
 
-@pytest.mark.parametrize("dt", [1e-4, 1e-3, pytest.param(2e-2, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("dt", [1e-4, pytest.param(1e-3, marks=pytest.mark.slow),
+                                pytest.param(2e-2, marks=pytest.mark.slow)])
 def test_steps_follow_the_continuous_observer_with_held_inputs(motor, dt):
     """50 steps with seeded y, u held: the observer's states are those of the continuous
     observer integrated finely (solve_ivp, Radau, tight tolerances) over each step, with the
@@ -198,6 +199,7 @@ FINE_CASES = {"motor-1e-4": ("motor", 1e-4, 1.5), "pendulum-1e-4": ("pendulum", 
 (the observer's own transient decayed below 1e-14 of the initial error)."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", FINE_CASES)
 def test_error_falls_to_roundoff_at_fine_steps(motor, paper_design, case):
     """A moving plant (the motor driven by 0.5 sin(2 pi t); the pendulum under the paper's K

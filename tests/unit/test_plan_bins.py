@@ -114,6 +114,7 @@ def test_every_level_in_use_contracts_at_its_own_size(kind, kalman_design):
 
 @pytest.mark.skipif(sys.platform != "linux" or shutil.which("cc") is None,
                     reason="the planner is compiled with cc on linux")
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["observer", "prescribed_time"])
 def test_native_planner_makes_the_same_plans_and_scans(kind, kalman_design):
     """The C planner with one bin cache over the 200 sizes: the same floors and ceilings as

@@ -251,6 +251,7 @@ def test_design_refuses_a_false_alarm_rate_out_of_range_and_a_spec_without_noise
 
 
 # -- the paper's scenarios ---------------------------------------------------------------------
+@pytest.mark.slow
 def test_noise_free_output_is_the_homogeneous_observer_and_reaches_round_off(design, record):
     """No noise, no disturbance: the homogeneous part is the observer run alone (never reset);
     once the transient is over the statistic stays below the band and the output is that
@@ -272,6 +273,7 @@ def test_noise_free_output_is_the_homogeneous_observer_and_reaches_round_off(des
     assert out["statistic"][-1] < record.lower
 
 
+@pytest.mark.slow
 def test_perturbed_noise_free_rejects_the_disturbance(design, record):
     result = simulate(design, "perturbed")
     out = run(record, result.y, result.u, result.t[1])
@@ -293,6 +295,7 @@ def test_noisy_rms_is_within_5_percent_of_the_kalman_filter(design, record):
     assert ours <= 1.05 * kalman and ours < homogeneous
 
 
+@pytest.mark.slow
 def test_kalman_mode_is_the_filter_written_out_from_the_handover(design, record):
     """After its one switch to K (the transient over: a handover) the output and the statistic
     are those of a time-varying Kalman filter written out here with scipy, started at the
@@ -321,6 +324,7 @@ def test_kalman_mode_is_the_filter_written_out_from_the_handover(design, record)
     assert not out["recursion"][-1]
 
 
+@pytest.mark.slow
 def test_recursion_is_the_riccati_recursion_back_to_the_steady_state(record):
     """A handover forced through the state (mode K, z = 0, the handover covariance, the cycles
     left at their bound), then the table's noise at rest: the covariance after every sample is
@@ -371,6 +375,7 @@ def at_rest(record, seed, amplitude, n_steps):
     return run(record, ys, np.zeros((n_steps, record.plant.m)), record.kalman.sample_time)
 
 
+@pytest.mark.slow
 def test_no_false_alarm_on_data_the_kalman_model_explains(record):
     """4 seeds of 1 s (80000 samples): at the documented 1e-9 per sample, 8e-5 false alarms
     are expected; the output goes to K after the dwell and stays there."""
