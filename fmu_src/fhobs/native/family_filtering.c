@@ -9,11 +9,7 @@
 
 struct Work {
     FilterPlans plans;
-#if FHOBS_HAS_EULER
-    EulerPlan euler;
-    double euler_work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
-    cplx euler_cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
-#endif
+    EulerScheme euler;
 };
 
 size_t model_work_size(void)
@@ -24,11 +20,7 @@ size_t model_work_size(void)
 void work_init(Work *w)
 {
     filter_plans_init(&w->plans);
-#if FHOBS_HAS_EULER
-    w->euler = EULER_PLAN;
-    w->euler.work = w->euler_work;
-    w->euler.cwork = w->euler_cwork;
-#endif
+    euler_scheme_init(&w->euler);
 }
 
 static const void *split_plan(Work *w, double dt, char *msg, size_t len)
@@ -60,12 +52,7 @@ int model_state_problem(const double *state, char *msg, size_t len)
 int model_step(Work *w, const double *real, const int *integer, const double *src, double *dst,
                double dt, char *msg, size_t len)
 {
-#if FHOBS_HAS_EULER
-    EulerPlan *euler = &w->euler;
-#else
-    EulerPlan *euler = NULL;
-#endif
-    return observer_step(w, split_plan, fhobs_filter_step, euler, real, integer, src, dst, dt,
+    return observer_step(w, split_plan, fhobs_filter_step, &w->euler, real, integer, src, dst, dt,
                          msg, len);
 }
 

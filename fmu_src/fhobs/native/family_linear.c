@@ -12,11 +12,7 @@ struct Work {
     LinearPlan split[FHOBS_PLAN_SLOTS];
     double M[FHOBS_PLAN_SLOTS][FHOBS_ZOH_ROWS]; /* the split plans' ZOH prediction */
     double scratch[FHOBS_PLAN_WORK];
-#if FHOBS_HAS_EULER
-    EulerPlan euler;
-    double euler_work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
-    cplx euler_cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
-#endif
+    EulerScheme euler;
 };
 
 size_t model_work_size(void)
@@ -27,11 +23,7 @@ size_t model_work_size(void)
 void work_init(Work *w)
 {
     plan_keys_init(&w->keys);
-#if FHOBS_HAS_EULER
-    w->euler = EULER_PLAN;
-    w->euler.work = w->euler_work;
-    w->euler.cwork = w->euler_cwork;
-#endif
+    euler_scheme_init(&w->euler);
 }
 
 /* The split plan of the step size dt: kept from an earlier step, or computed now into the
@@ -68,12 +60,7 @@ int model_state_problem(const double *state, char *msg, size_t len)
 int model_step(Work *w, const double *real, const int *integer, const double *src, double *dst,
                double dt, char *msg, size_t len)
 {
-#if FHOBS_HAS_EULER
-    EulerPlan *euler = &w->euler;
-#else
-    EulerPlan *euler = NULL;
-#endif
-    return observer_step(w, split_plan, fhobs_luenberger_step, euler, real, integer, src, dst,
+    return observer_step(w, split_plan, fhobs_luenberger_step, &w->euler, real, integer, src, dst,
                          dt, msg, len);
 }
 

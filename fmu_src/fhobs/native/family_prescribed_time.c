@@ -37,7 +37,6 @@ void work_init(Work *w)
  * the split step contractive. */
 static const void *split_plan(Work *w, double dt, char *msg, size_t len)
 {
-    char a[32];
     double best;
     int fresh, i = plan_slot(&w->keys, dt, &fresh);
     PrescribedPlan *plan = &w->split[i];
@@ -48,10 +47,7 @@ static const void *split_plan(Work *w, double dt, char *msg, size_t len)
     plan->work = w->step_work;
     if (plan_prescribed(plan, &PRESCRIBED_BASE, &LEVEL_SCAN, &w->bins, ZOH_TOP, dt, w->M[i],
                         w->F[i], &best, w->scratch)) {
-        w->keys.dt[i] = NAN;
-        snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
-                 "spectral radius %.6g); use a smaller communication step; state left unchanged",
-                 fhobs_number(dt, a, sizeof a), best);
+        plan_refused(&w->keys, i, dt, best, msg, len);
         return NULL;
     }
     return plan;

@@ -27,11 +27,7 @@
 
 struct Work {
     FilterPlans plans;
-#if FHOBS_HAS_EULER
-    EulerPlan euler;
-    double euler_work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
-    cplx euler_cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
-#endif
+    EulerScheme euler;
     LinearPlan kalman; /* one cycle of the Kalman filter */
     double kalman_work[FHOBS_KALMAN_WORK(FHOBS_N_MODEL, FHOBS_K)];
 };
@@ -44,11 +40,7 @@ size_t model_work_size(void)
 void work_init(Work *w)
 {
     filter_plans_init(&w->plans);
-#if FHOBS_HAS_EULER
-    w->euler = EULER_PLAN;
-    w->euler.work = w->euler_work;
-    w->euler.cwork = w->euler_cwork;
-#endif
+    euler_scheme_init(&w->euler);
     w->kalman = KALMAN_PLAN;
     w->kalman.work = w->kalman_work;
 }
@@ -303,12 +295,7 @@ int model_step(Work *w, const double *real, const int *integer, const double *sr
     read_vector(real, VR_U, FHOBS_M, inputs + FHOBS_K);
     const double residual =
         normalised_squared(inputs, src + HOMOGENEOUS_STATE, SUPERVISOR_S_HOMOGENEOUS_INV);
-#if FHOBS_HAS_EULER
-    EulerPlan *euler = &w->euler;
-#else
-    EulerPlan *euler = NULL;
-#endif
-    if (observer_step(w, split_plan, fhobs_filter_step, euler, real, integer,
+    if (observer_step(w, split_plan, fhobs_filter_step, &w->euler, real, integer,
                       src + HOMOGENEOUS_STATE, dst + HOMOGENEOUS_STATE, dt, msg, len))
         return 1;
     double kalman = src[0], homogeneous = src[2], left = src[CYCLES_STATE];

@@ -60,6 +60,26 @@ int plan_slot(PlanKeys *keys, double dt, int *fresh)
     return slot;
 }
 
+void plan_refused(PlanKeys *keys, int slot, double dt, double best, char *msg, size_t len)
+{
+    char a[32];
+    keys->dt[slot] = NAN;
+    snprintf(msg, len, "no gain level makes the split step of size %s contractive (smallest "
+             "spectral radius %.6g); use a smaller communication step; state left unchanged",
+             fhobs_number(dt, a, sizeof a), best);
+}
+
+void euler_scheme_init(EulerScheme *euler)
+{
+#if FHOBS_HAS_EULER
+    euler->plan = EULER_PLAN;
+    euler->plan.work = euler->work;
+    euler->plan.cwork = euler->cwork;
+#else
+    (void)euler;
+#endif
+}
+
 void read_vector(const double *real, int vr, int n, double *out)
 {
     for (int i = 0; i < n; i++)
@@ -152,9 +172,15 @@ int timing_problem(const double *real, const int *integer, int has_euler, const 
 }
 
 int observer_step(Work *w, SplitPlanOf plan_of, int (*split_step)(const Call *),
-                  EulerPlan *euler, const double *real, const int *integer, const double *src,
-                  double *dst, double dt, char *msg, size_t len)
+                  EulerScheme *scheme_euler, const double *real, const int *integer,
+                  const double *src, double *dst, double dt, char *msg, size_t len)
 {
+#if FHOBS_HAS_EULER
+    EulerPlan *euler = scheme_euler ? &scheme_euler->plan : NULL;
+#else
+    EulerPlan *euler = NULL;
+    (void)scheme_euler;
+#endif
     double n_sub, inputs[FHOBS_K + FHOBS_M];
     if (substeps_of(real, dt, &n_sub, msg, len))
         return 1;

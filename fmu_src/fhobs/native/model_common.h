@@ -1,9 +1,10 @@
 /*
  * What the C models of the plan families (family_<family>.c, one compiled into each native
  * FMU, chosen by its kind's family: fhobs.native.build.FAMILIES) share, behind model.h: the
- * plan cache's keys, reading the variables, the checks of counts and offsets, the estimators'
- * initial z, their internal-step count and timing check, and one observer step (split or
- * euler) of a family's plans (observer_step). Defined in model_common.c.
+ * plan cache's keys and the refusal of a step size no gain level follows, the euler plan,
+ * reading the variables, the checks of counts and offsets, the estimators' initial z, their
+ * internal-step count and timing check, and one observer step (split or euler) of a family's
+ * plans (observer_step). Defined in model_common.c.
  */
 #ifndef FHOBS_MODEL_COMMON_H
 #define FHOBS_MODEL_COMMON_H
@@ -36,12 +37,30 @@ typedef struct {
     unsigned long long clock;
 } PlanKeys;
 
+/* The euler plan of a family's design (FHOBS_HAS_EULER: the generated EULER_PLAN) with its
+ * scratch; without one, nothing (timing_problem refuses the scheme). */
+typedef struct {
+#if FHOBS_HAS_EULER
+    EulerPlan plan;
+    double work[FHOBS_EULER_WORK(FHOBS_N_MODEL, FHOBS_K)];
+    cplx cwork[FHOBS_EULER_CWORK(FHOBS_N_MODEL, FHOBS_K)];
+#else
+    char none;
+#endif
+} EulerScheme;
+
 /* Every slot empty. */
 FHOBS_HIDDEN void plan_keys_init(PlanKeys *keys);
 /* The slot of the step size dt (exactly dt: the numpy runtime keys its plans so too) and
  * whether it was taken for dt now (*fresh; the plan is then to be computed): an empty slot or
  * the least recently used one. */
 FHOBS_HIDDEN int plan_slot(PlanKeys *keys, double dt, int *fresh);
+/* A split plan of the step size dt in slot `slot` that no gain level of the tau scan makes
+ * contractive (`best`: the smallest spectral radius): the slot emptied, the message. */
+FHOBS_HIDDEN void plan_refused(PlanKeys *keys, int slot, double dt, double best, char *msg,
+                               size_t len);
+/* The euler plan's scratch pointers set (nothing without an euler plan). */
+FHOBS_HIDDEN void euler_scheme_init(EulerScheme *euler);
 
 /* The outputs that are elements of the model state, where the kind's declaration places them
  * (the generated STATE_OUTPUTS: value reference, state offset, count); each family's
@@ -75,10 +94,10 @@ FHOBS_HIDDEN int timing_problem(const double *real, const int *integer, int has_
  * size cannot be followed). */
 typedef const void *(*SplitPlanOf)(Work *w, double dt, char *msg, size_t len);
 /* One observer step dt from src into dst (its own state), y and u from the variables: the
- * euler substeps of `euler` (NULL: none) when the scheme says so, else `split_step` with the
- * plan `plan_of` gives. */
+ * euler substeps of `euler` (NULL or a design without an euler plan: none) when the scheme
+ * says so, else `split_step` with the plan `plan_of` gives. */
 FHOBS_HIDDEN int observer_step(Work *w, SplitPlanOf plan_of, int (*split_step)(const Call *),
-                               EulerPlan *euler, const double *real, const int *integer,
+                               EulerScheme *euler, const double *real, const int *integer,
                                const double *src, double *dst, double dt, char *msg,
                                size_t len);
 
