@@ -631,23 +631,37 @@ def _variables(kind: Kind, design: ObserverDesign,
                options: dict[str, Any]) -> list[dict[str, Any]]:
     """Every scalar variable of the FMU of ``kind`` for ``design`` and the build ``options``,
     in value-reference order (:meth:`fhobs.fmu.kinds.Kind.starts`): name, value reference,
-    type, C role, causality, description and exact start value (of an output: the model's
-    output at its initial state, :func:`_start_outputs`)."""
+    type, C role, causality, the FMI attributes of its causality (:func:`_fmi_attributes`),
+    description and exact start value (of an output: the model's output at its initial state,
+    :func:`_start_outputs`)."""
     variables = []
     outputs = _start_outputs(kind, design, options)
     for variable, start in kind.starts(kind.runs(design), options):
         start = outputs.get(variable.name, start)
         values = np.asarray(start, dtype=float)
+        causality = variable.role if variable.role in ("local", "input", "output") else (
+            "parameter")
         for name, value in zip(element_names(variable.name, values.shape), values.flat,
                                strict=True):
             variables.append({"name": name, "vr": len(variables),
                               "type": "integer" if variable.integer else "real",
-                              "role": C_ROLES[variable.role],
-                              "causality": variable.role if variable.role in (
-                                  "local", "input", "output") else "parameter",
+                              "role": C_ROLES[variable.role], "causality": causality,
+                              "attributes": _fmi_attributes(causality),
                               "description": variable.description,
                               "start": int(value) if variable.integer else float(value)})
     return variables
+
+
+def _fmi_attributes(causality: str) -> dict[str, str]:
+    """A native FMU variable's attributes in either FMI version's modelDescription: its
+    causality, its variability (states discrete, signals continuous, parameters fixed: compiled
+    in or set before the initialisation) and, of a state or an output, ``initial="exact"``."""
+    attributes = {"causality": causality,
+                  "variability": {"local": "discrete", "input": "continuous",
+                                  "output": "continuous"}.get(causality, "fixed")}
+    if causality in ("local", "output"):
+        attributes["initial"] = "exact"
+    return attributes
 
 
 def _start_outputs(kind: Kind, design: ObserverDesign,
@@ -914,11 +928,7 @@ def _model_description(kind: Kind, variables: list[dict[str, Any]], identifier: 
     model_variables = ET.SubElement(root, "ModelVariables")
     for var in variables:
         attributes = {"name": var["name"], "valueReference": str(var["vr"]),
-                      "description": var["description"], "causality": var["causality"],
-                      "variability": {"local": "discrete", "input": "continuous",
-                                      "output": "continuous"}.get(var["causality"], "fixed")}
-        if var["causality"] in ("local", "output"):
-            attributes["initial"] = "exact"
+                      "description": var["description"], **var["attributes"]}
         element = ET.SubElement(model_variables, "ScalarVariable", attributes)
         if var["type"] == "real":
             ET.SubElement(element, "Real", start=repr(var["start"]))

@@ -206,11 +206,7 @@ def model_description(kind: Kind, variables: Sequence[Mapping[str, Any]], identi
         causality = array.elements[0]["causality"]
         text, unit = texts[array.name]
         attributes = {"name": array.name, "valueReference": str(array.vr), "description": text,
-                      "causality": causality,
-                      "variability": {"local": "discrete", "input": "continuous",
-                                      "output": "continuous"}.get(causality, "fixed")}
-        if causality in ("local", "output"):
-            attributes["initial"] = "exact"
+                      **array.elements[0]["attributes"]}
         if unit:
             attributes["unit"] = unit
         attributes["start"] = _start(array)
