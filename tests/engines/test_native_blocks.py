@@ -156,6 +156,19 @@ def test_outputs_are_initial_unknowns_of_what_they_are_computed_from(fmus, kind,
             n for n in known if n.startswith("u[")}
 
 
+def _initialising(driver: FmuDriver, t0: float, parameters: dict[str, float]) -> None:
+    """setupExperiment(t0), initialisation mode entered, the scalar ``parameters`` set (Integer
+    ones as such)."""
+    variables = {v.name: v for v in driver.description.modelVariables}
+    driver.fmu.setupExperiment(startTime=t0)
+    driver.fmu.enterInitializationMode()
+    for name, value in parameters.items():
+        if variables[name].type == "Integer":
+            driver.fmu.setInteger([variables[name].valueReference], [int(value)])
+        else:
+            driver.fmu.setReal([variables[name].valueReference], [float(value)])
+
+
 @pytest.mark.parametrize("native", [False, True])
 def test_outputs_are_computed_in_initialization_mode(open_block, native):
     """Read in initialisation mode, after their inputs and parameters were set there, the
@@ -176,14 +189,7 @@ def test_outputs_are_computed_in_initialization_mode(open_block, native):
     }
     for kind, parameters in cases.items():
         driver = open_block(kind, native)
-        variables = {v.name: v for v in driver.description.modelVariables}
-        driver.fmu.setupExperiment(startTime=T0)
-        driver.fmu.enterInitializationMode()
-        for name, value in parameters.items():
-            if variables[name].type == "Integer":
-                driver.fmu.setInteger([variables[name].valueReference], [int(value)])
-            else:
-                driver.fmu.setReal([variables[name].valueReference], [float(value)])
+        _initialising(driver, T0, parameters)
         outputs = [v.valueReference for v in driver.description.modelVariables
                    if v.causality == "output"]
         values[kind] = np.array(driver.fmu.getReal(outputs))
@@ -390,18 +396,11 @@ def _run(driver: FmuDriver, t0: float, steps: np.ndarray, parameters: dict[str, 
     then a doStep of each of ``steps``, the time accumulated in floating point (t += h) as
     OMSimulator does; row k of ``inputs`` set before the outputs are read at t_k. The times
     and the outputs (rows) after initialisation and after each step."""
-    variables = {v.name: v for v in driver.description.modelVariables}
     outputs = [v.valueReference for v in driver.description.modelVariables
                if v.causality == "output"]
     ins = [v.valueReference for v in driver.description.modelVariables
            if v.causality == "input"]
-    driver.fmu.setupExperiment(startTime=t0)
-    driver.fmu.enterInitializationMode()
-    for name, value in parameters.items():
-        if variables[name].type == "Integer":
-            driver.fmu.setInteger([variables[name].valueReference], [int(value)])
-        else:
-            driver.fmu.setReal([variables[name].valueReference], [float(value)])
+    _initialising(driver, t0, parameters)
     driver.fmu.exitInitializationMode()
     t, times, rows = t0, [], []
     for k in range(len(steps) + 1):
