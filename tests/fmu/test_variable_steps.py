@@ -160,17 +160,25 @@ def assert_agree(a: np.ndarray, b: np.ndarray) -> None:
     assert np.delete(relative, Q_HAT).max() <= RTOL, relative
 
 
+def assert_builds_agree(kind: str, design, python_fmu, native_fmu, steps: np.ndarray,
+                        tmp_path) -> None:
+    """The native and the pythonfmu FMU of ``kind`` agree with the numpy runtime
+    (:func:`assert_agree`) on the plant's y and u of a run of ``steps``."""
+    _, ys, us = plant_run(design, steps)
+    native = fmu_rows(native_fmu, tmp_path / "native", kind, ys, us, steps)
+    python = fmu_rows(python_fmu, tmp_path / "python", kind, ys, us, steps)
+    reference = runtime_rows(kind, design, ys, us, steps)
+    assert_agree(native, reference)
+    assert_agree(python, reference)
+
+
 @native_only
 @pytest.mark.parametrize("kind", ["observer", "prescribed_time"])
 def test_builds_agree_under_random_steps(kind, kalman_design, pendulum_fmus, native_fmus,
                                          tmp_path):
     steps = random_steps(4, 1.3)
-    _, ys, us = plant_run(kalman_design, steps)
-    native = fmu_rows(native_fmus[kind], tmp_path / "native", kind, ys, us, steps)
-    python = fmu_rows(pendulum_fmus[kind], tmp_path / "python", kind, ys, us, steps)
-    reference = runtime_rows(kind, kalman_design, ys, us, steps)
-    assert_agree(native, reference)
-    assert_agree(python, reference)
+    assert_builds_agree(kind, kalman_design, pendulum_fmus[kind], native_fmus[kind], steps,
+                        tmp_path)
 
 
 @pytest.mark.slow
@@ -182,9 +190,5 @@ def test_builds_agree_with_a_new_size_every_step(kind, kalman_design, pendulum_f
     caches keep): each size's plan from its bin's tau scan, checked at the size, in all three."""
     steps = np.exp(np.random.default_rng(6).uniform(np.log(1e-6), np.log(1e-3), 200))
     assert np.unique(steps).size == steps.size
-    _, ys, us = plant_run(kalman_design, steps)
-    native = fmu_rows(native_fmus[kind], tmp_path / "native", kind, ys, us, steps)
-    python = fmu_rows(pendulum_fmus[kind], tmp_path / "python", kind, ys, us, steps)
-    reference = runtime_rows(kind, kalman_design, ys, us, steps)
-    assert_agree(native, reference)
-    assert_agree(python, reference)
+    assert_builds_agree(kind, kalman_design, pendulum_fmus[kind], native_fmus[kind], steps,
+                        tmp_path)
