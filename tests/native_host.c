@@ -45,6 +45,9 @@
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
 
+#define HOST_NAME "native_host"
+#include "host_common.h"
+
 #define MAX_VARS 4096
 #define MAX_LINE 65536
 #define MAX_DIMS 4
@@ -66,76 +69,12 @@ typedef struct {
 static Variable vars[MAX_VARS];
 static int n_vars;
 
-static int fail(int code, const char *format, ...)
-{
-    va_list args;
-    va_start(args, format);
-    fprintf(stderr, "native_host: ");
-    vfprintf(stderr, format, args);
-    fprintf(stderr, "\n");
-    va_end(args);
-    return code;
-}
-
-static void logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status,
-                   fmi2String category, fmi2String message, ...)
-{
-    (void)env;
-    va_list args;
-    va_start(args, message);
-    fprintf(stderr, "[%s] status %d %s: ", instance ? instance : "?", (int)status,
-            category ? category : "");
-    vfprintf(stderr, message, args);
-    fprintf(stderr, "\n");
-    va_end(args);
-}
-
 static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category,
                     fmi3String message)
 {
     (void)env;
     fprintf(stderr, "[host] status %d %s: %s\n", (int)status, category ? category : "",
             message ? message : "");
-}
-
-static char *read_file(const char *path)
-{
-    /* read in chunks: files of /proc report a size of 0 */
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return NULL;
-    size_t size = 0, capacity = 1 << 16;
-    char *text = malloc(capacity);
-    while (text) {
-        size += fread(text + size, 1, capacity - size - 1, f);
-        if (size < capacity - 1)
-            break;
-        char *grown = realloc(text, capacity *= 2);
-        if (!grown)
-            free(text);
-        text = grown;
-    }
-    if (text)
-        text[size] = '\0';
-    fclose(f);
-    return text;
-}
-
-/* The value of attribute `name` inside the tag [tag, end): copied to out, 0 if absent. */
-static int attribute(const char *tag, const char *end, const char *name, char *out, size_t size)
-{
-    char key[64];
-    snprintf(key, sizeof key, " %s=\"", name);
-    const char *start = strstr(tag, key);
-    if (!start || start >= end)
-        return 0;
-    start += strlen(key);
-    const char *stop = strchr(start, '"');
-    if (!stop || (size_t)(stop - start) >= size)
-        return 0;
-    memcpy(out, start, (size_t)(stop - start));
-    out[stop - start] = '\0';
-    return 1;
 }
 
 /* Name, value reference and causality of the variable whose tag starts at p (up to end). */
@@ -254,14 +193,6 @@ static int libpython_mapped(void)
 }
 
 /* Split a CSV line in place into at most max fields; returns the count. */
-static int split(char *line, char **fields, int max)
-{
-    int count = 0;
-    line[strcspn(line, "\r\n")] = '\0';
-    for (char *tok = strtok(line, ","); tok && count < max; tok = strtok(NULL, ","))
-        fields[count++] = tok;
-    return count;
-}
 
 /* -- the FMU, either version ------------------------------------------------------------- */
 
