@@ -65,6 +65,7 @@ from fhobs.paper import H_PAPER, PENDULUM_SPEC
 
 from harness.figures import new_figure
 from harness.reference import replay, simulate
+from harness.sweep_plots import pareto_front
 from harness.zoo import zoo_spec_paths
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -300,22 +301,18 @@ def measure_all(benches: list[Bench], workers: int) -> dict[str, list[Point]]:
     return points
 
 
-def pareto_front(points: list[Point]) -> list[Point]:
-    """The points that no other point beats in both figures, by increasing noise.
+def front_of(points: list[Point]) -> list[Point]:
+    """The points that no other point beats in both figures, by increasing noise
+    (:func:`harness.sweep_plots.pareto_front` of noise and rejection).
 
     Examples
     --------
     >>> p = [Point("f", str(i), n, r, False) for i, (n, r) in enumerate([(1, 3), (2, 1),
     ...      (2, 2), (3, 1)])]
-    >>> [q.label for q in pareto_front(p)]
+    >>> [q.label for q in front_of(p)]
     ['0', '1']
     """
-    front, best = [], np.inf
-    for point in sorted(points, key=lambda p: (p.noise, p.rejection)):
-        if point.rejection < best:
-            front.append(point)
-            best = point.rejection
-    return front
+    return pareto_front(points, lambda p: (p.noise, p.rejection))
 
 
 def dominated(front: list[Point], others: list[Point]) -> int:
@@ -331,7 +328,7 @@ def by_family(points: list[Point]) -> dict[str, list[Point]]:
 def tables(bench: Bench, points: list[Point]) -> str:
     """The markdown tables of a bench (module docstring)."""
     families = by_family(points)
-    fronts = {family: pareto_front(ps) for family, ps in families.items()}
+    fronts = {family: front_of(ps) for family, ps in families.items()}
     t0, t1 = bench.window
     lines = [f"### {bench.name}: window [{t0:g}, {t1:g}] s, {len(bench.noisy)} noisy seeds, "
              f"{len(points)} variants", "",
@@ -365,7 +362,7 @@ def plot(benches: list[Bench], points: dict[str, list[Point]], path: Path) -> Pa
             name, colour, marker = FAMILIES[family]
             ax.loglog([p.noise for p in ps], [p.rejection for p in ps], marker, color=colour,
                       ms=4, alpha=0.45, ls="none", label=f"{name}: variants")
-            front = pareto_front(ps)
+            front = front_of(ps)
             ax.loglog([p.noise for p in front], [p.rejection for p in front], "-",
                       marker=marker, color=colour, lw=1.4, ms=5, label=f"{name}: Pareto front")
             ax.loglog([p.noise for p in ps if p.default], [p.rejection for p in ps if p.default],

@@ -22,8 +22,9 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -384,8 +385,17 @@ def plot_sweep(rows: list[dict[str, Any]], sweep: Sweep, out: Path) -> list[Path
 
 
 # -- the Pareto picture -----------------------------------------------------------------------
-def pareto_front(points: list[ParetoPoint]) -> list[ParetoPoint]:
-    """The points no other beats in both x and y (both smaller or equal, one smaller), by x.
+P = TypeVar("P")
+
+
+def _xy(point: ParetoPoint) -> tuple[float, float]:
+    return point.x, point.y
+
+
+def pareto_front(points: list[P], figures: Callable[[P], tuple[float, float]] = _xy
+                 ) -> list[P]:
+    """The points no other beats in both figures (both smaller or equal, one smaller), by the
+    first; ``figures``: a point's two figures, a :class:`ParetoPoint`'s x and y by default.
 
     Examples
     --------
@@ -393,12 +403,15 @@ def pareto_front(points: list[ParetoPoint]) -> list[ParetoPoint]:
     ...                       ParetoPoint(3, 3, "c", {}), ParetoPoint(4, 1, "d", {})])
     >>> [p.label for p in front]
     ['a', 'b', 'd']
+    >>> [p for p in pareto_front([(1, 3), (2, 1), (2, 2)], figures=lambda p: p)]
+    [(1, 3), (2, 1)]
     """
     front, best = [], math.inf
-    for p in sorted(points, key=lambda p: (p.x, p.y)):
-        if p.y < best:
+    for p in sorted(points, key=figures):
+        y = figures(p)[1]
+        if y < best:
             front.append(p)
-            best = p.y
+            best = y
     return front
 
 
