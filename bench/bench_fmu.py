@@ -14,25 +14,18 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_native import started  # the script's folder is on sys.path
 from fhobs.build import build_fmus
 from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fhobs.design.observer import paper_gains
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
 
 DT, H = 1e-3, 5e-5
 
 
 def time_fmu(path: Path, ys: np.ndarray, us: np.ndarray) -> float:
     """Seconds per (setReal y,u + doStep + getReal x_hat) through fmpy."""
-    md = read_model_description(str(path))
+    fmu, md = started(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     inputs = [vr[f"y[{i + 1}]"] for i in range(ys.shape[1])]
     inputs += [vr[f"u[{i + 1}]"] for i in range(us.shape[1])]
     outputs = [vr[n] for n in vr if n.startswith("x_hat[")]

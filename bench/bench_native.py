@@ -27,23 +27,35 @@ from fhobs.native.build import build_native_fmus
 from fhobs.paper import PENDULUM_SPEC
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
+from fmpy.model_description import ModelDescription
 
 KINDS = ("observer", "luenberger", "kalman", "plant")
+
+
+def started(path: Path, name: str = "bench") -> tuple[FMU2Slave, ModelDescription]:
+    """An instance `name` of the FMU at `path` through fmpy's ``FMU2Slave``, initialised at
+    time 0, and the FMU's model description."""
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, md
+
+
+def references(md: ModelDescription, causality: str) -> list[int]:
+    """The value references of the FMU's variables of a causality, in their order."""
+    return [v.valueReference for v in md.modelVariables if v.causality == causality]
 
 
 def time_kind(path: Path, steps: int, dt: float) -> tuple[float, float, float]:
     """Seconds per doStep alone through fmpy, per (setReal inputs + doStep + getReal outputs)
     through fmpy, and per doStep called through ctypes without fmpy's wrapper (as the harness
     calls it)."""
-    md = read_model_description(str(path))
-    inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
-    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    fmu, md = started(path)
+    inputs, outputs = references(md, "input"), references(md, "output")
     values = 0.1 + np.cumsum(np.random.default_rng(0).normal(scale=0.01,
                                                               size=(steps, len(inputs))), axis=0)
     fmu.setReal(inputs, values[0].tolist())
@@ -84,13 +96,7 @@ def time_first_steps(path: Path) -> tuple[float, float, float]:
     """Seconds of the first doStep at each of :data:`FIRST_STEP_SIZES` (median and largest,
     the plan included) and of a doStep at a step size already planned (median of 2000), called
     through ctypes as the harness calls it."""
-    md = read_model_description(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="first")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    fmu, _ = started(path, "first")
     do_step = fmu.dll.fmi2DoStep
     do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
     do_step.restype = ctypes.c_int

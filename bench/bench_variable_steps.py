@@ -22,13 +22,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_native import references, started  # the script's folder is on sys.path
 from fhobs.build import build_fmus
 from fhobs.design.observer import design_for_spec
 from fhobs.design.spec import load_spec
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import PENDULUM_SPEC
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
 
 KINDS = ("observer", "prescribed_time")
 SIZES = (5e-5, 1e-4, 2e-4, 3e-4, 5e-4, 1e-3)
@@ -45,15 +44,8 @@ def patterns(steps: int) -> dict[str, np.ndarray]:
 
 def time_steps(path: Path, steps: np.ndarray) -> float:
     """Microseconds per (setReal y, u + doStep + getReal outputs) of a fresh instance."""
-    md = read_model_description(str(path))
-    inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
-    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    fmu, md = started(path)
+    inputs, outputs = references(md, "input"), references(md, "output")
     rows = (0.1 + np.cumsum(np.random.default_rng(1).normal(
         scale=0.01, size=(steps.size, len(inputs))), axis=0)).tolist()
     t = 0.0
