@@ -376,22 +376,21 @@ double size_bin(double dt)
     return ldexp(0.5 + (double)(part + 1) / (2 * FHOBS_SIZE_BINS_PER_OCTAVE), exponent);
 }
 
-/* The slot of the bin of representative size `size`, and whether it was taken for it now
- * (*fresh: its scan is to be made): an empty slot or the least recently used one. */
-static int bin_slot(BinCache *bins, double size, int *fresh)
+int lru_slot(double key[], unsigned long long used[], unsigned long long *clock, int n,
+             double value, int *fresh)
 {
     int slot = 0;
-    for (int i = 0; i < FHOBS_BIN_SLOTS; i++) {
-        if (bins->size[i] == size) {
-            bins->used[i] = ++bins->clock;
+    for (int i = 0; i < n; i++) {
+        if (key[i] == value) {
+            used[i] = ++*clock;
             *fresh = 0;
             return i;
         }
-        if (bins->used[i] < bins->used[slot])
+        if (used[i] < used[slot])
             slot = i;
     }
-    bins->size[slot] = size;
-    bins->used[slot] = ++bins->clock;
+    key[slot] = value;
+    used[slot] = ++*clock;
     *fresh = 1;
     return slot;
 }
@@ -414,7 +413,8 @@ static int plan_levels(const LevelScan *scan, BinCache *bins, LevelRadius radius
                        double *best, double *work)
 {
     const double dt = *at->dt;
-    int fresh, slot = bin_slot(bins, size_bin(dt), &fresh);
+    int fresh, slot = lru_slot(bins->size, bins->used, &bins->clock, FHOBS_BIN_SLOTS,
+                              size_bin(dt), &fresh); /* fresh: the bin's scan is to be made */
     if (fresh) {
         const double *own_M = *at->M, *own_F = *at->F;
         double *M = work, *F = M + (size_t)at->n * at->size, *rest = F + (size_t)at->n * at->n;

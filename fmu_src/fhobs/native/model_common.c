@@ -44,20 +44,7 @@ void plan_keys_init(PlanKeys *keys)
 
 int plan_slot(PlanKeys *keys, double dt, int *fresh)
 {
-    int slot = 0;
-    for (int i = 0; i < FHOBS_PLAN_SLOTS; i++) {
-        if (keys->dt[i] == dt) {
-            keys->used[i] = ++keys->clock;
-            *fresh = 0;
-            return i;
-        }
-        if (keys->used[i] < keys->used[slot])
-            slot = i;
-    }
-    keys->dt[slot] = dt;
-    keys->used[slot] = ++keys->clock;
-    *fresh = 1;
-    return slot;
+    return lru_slot(keys->dt, keys->used, &keys->clock, FHOBS_PLAN_SLOTS, dt, fresh);
 }
 
 void plan_refused(PlanKeys *keys, int slot, double dt, double best, char *msg, size_t len)

@@ -32,6 +32,12 @@ typedef struct {
 
 /* An empty BinCache. */
 FHOBS_HIDDEN void bin_cache_init(BinCache *bins);
+/* The slot of `value` among the n slots of a cache kept by least recent use (key[i]: a slot's
+ * key, NAN when empty; used[i]: when it was last used, by the cache's *clock) and whether it
+ * was taken for `value` now (*fresh: its content is to be computed): an empty slot or the
+ * least recently used one (gain_levels.c). */
+FHOBS_HIDDEN int lru_slot(double key[], unsigned long long used[], unsigned long long *clock,
+                          int n, double value, int *fresh);
 
 /* The representative step size of dt's bin (fhobs.core.runtime.size_bin): with dt = f 2^e,
  * f in [1/2, 1), the upper end of f's part of FHOBS_SIZE_BINS_PER_OCTAVE equal parts. */
