@@ -145,7 +145,10 @@ def test_each_certificate_report_holds_its_own_records_figures(noise_design):
                           ("luenberger", certify_luenberger), ("kalman", certify_kalman),
                           ("supervised", certify_supervised)):
         record = getattr(noise_design, name)
-        assert record.certificate["checks"] == certify(record), name
+        # to round-off: a cached design's report may come from another BLAS kernel
+        checks = certify(record)
+        assert set(record.certificate["checks"]) == set(checks), name
+        assert record.certificate["checks"] == pytest.approx(checks, rel=1e-9, abs=1e-12), name
     assert "lmi_pt" not in noise_design.filtering.certificate["checks"]
     assert "lmi_filtering" not in noise_design.prescribed_time.certificate["checks"]
     assert set(noise_design.luenberger.certificate["checks"]) == {"hurwitz_luenberger"}
