@@ -8,6 +8,7 @@ Variable names are formatted here independently of :mod:`fhobs.fmu.slave_base`.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from fhobs.build import build_fmus
 from fhobs.core.gains import ObserverDesign
 from fhobs.core.plant import LTIPlant
 from fhobs.design.spec import load_spec
+from fhobs.fmu.fmu_state import fnv1a64, state_from_bytes, state_to_bytes
 from fhobs.fmu.kinds import kinds_where
 from fhobs.native.build import build_native_fmus
 from fhobs.paper import EXAMPLES, H_PAPER, PAPER_SCENARIOS, X0_PAPER
@@ -237,3 +239,32 @@ def steps_until_error(driver: FmuDriver, step_size: float, before: Callable[[], 
             assert err.status == FMI_ERROR and driver.messages[-1][0] == FMI_ERROR
             return k, saved
     pytest.fail(f"none of {limit} steps was an error")
+
+
+def serialized(driver: FmuDriver) -> bytes:
+    """The instance's serialized FMU state (the state object freed again)."""
+    state = driver.fmu.getFMUstate()
+    data = bytes(driver.fmu.serializeFMUstate(state))
+    driver.fmu.freeFMUstate(state)
+    return data
+
+
+NATIVE_TAIL = 8  # the native serialized state ends with its 64-bit FNV-1a checksum
+
+
+def forged(driver: FmuDriver, build: str, data: bytes, edit) -> bytes:  # noqa: ANN001
+    """``data`` (a serialized state of ``driver``'s FMU) with its model state edited by
+    ``edit`` (on a list of floats, in place) and its checksum recomputed: a checksum proves
+    nothing. The native layout: header (8), format (4), GUID (48), FMI state (4), time (8), the
+    Real (8 each) and Integer (4 each) variables, the model state, the checksum (8)."""
+    if build == "pythonfmu":
+        state = state_from_bytes(data)
+        edit(state["model"])
+        return state_to_bytes(state)
+    body = bytearray(data[:-NATIVE_TAIL])
+    start = 8 + 4 + 48 + 4 + 8 + 12 * len(driver.description.modelVariables)
+    size = (len(body) - start) // 8
+    model = list(struct.unpack_from(f"<{size}d", body, start))
+    edit(model)
+    struct.pack_into(f"<{size}d", body, start, *model)
+    return bytes(body) + struct.pack("<Q", fnv1a64(bytes(body)))

@@ -23,7 +23,7 @@ from fhobs.core.runtime import SCHEMES, FilteringObserver
 from fhobs.fmu.fmu_state import state_from_bytes, state_to_bytes
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
-from fmu_fixtures import FMI_ERROR, UNREADABLE, assert_error, names
+from fmu_fixtures import FMI_ERROR, UNREADABLE, assert_error, names, serialized
 
 DT = 1e-3
 REPEAT = 5
@@ -170,13 +170,6 @@ def run_steps(driver, steps: int = 3) -> list[float]:
         driver.fmu.doStep(t0 + k * DT, DT)
     driver.time = t0 + steps * DT
     return driver.get("x_hat", (4,)).tolist()
-
-
-def serialized(driver) -> bytes:
-    state = driver.fmu.getFMUstate()
-    data = bytes(driver.fmu.serializeFMUstate(state))
-    driver.fmu.freeFMUstate(state)
-    return data
 
 
 def test_parameters_are_fixed_after_initialisation(open_fmu):

@@ -5,16 +5,14 @@ message naming the mistake; the instance stays as it was."""
 from __future__ import annotations
 
 import shutil
-import struct
 import sys
 
 import numpy as np
 import pytest
 from fhobs.core.kalman_filter import KalmanObserver
-from fhobs.fmu.fmu_state import fnv1a64, state_from_bytes, state_to_bytes
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
-from fmu_fixtures import FMI_ERROR, FmuDriver, assert_error
+from fmu_fixtures import FMI_ERROR, FmuDriver, assert_error, forged, serialized
 
 pytestmark = pytest.mark.skipif(
     sys.platform != "linux" or shutil.which("cc") is None,
@@ -88,14 +86,6 @@ def stepped(driver: FmuDriver, steps: int, t0: float = 0.0) -> list[float]:
         driver.fmu.setReal([driver.vr["y[1]"], driver.vr["u[1]"]], [0.3, 0.1])
         driver.fmu.doStep(t0 + k * DT, DT)
     return driver.fmu.getReal([driver.vr[f"x_hat[{i}]"] for i in range(1, 5)])
-
-
-def serialized(driver: FmuDriver) -> bytes:
-    """The instance's serialized FMU state (the state object freed again)."""
-    state = driver.fmu.getFMUstate()
-    data = bytes(driver.fmu.serializeFMUstate(state))
-    driver.fmu.freeFMUstate(state)
-    return data
 
 
 def flip_positions(data: bytes, header: int = 0) -> dict[str, int]:
@@ -178,7 +168,6 @@ def test_a_changed_bit_of_a_native_state_is_refused(native_fmus, tmp_path):
 
 # -- both builds: forged states, logging, restored time, steps the model cannot or should not take
 BUILDS = ("pythonfmu", "native")
-NATIVE_TAIL = 8  # the native serialized state ends with its 64-bit FNV-1a checksum
 
 
 @pytest.fixture(scope="module")
@@ -203,24 +192,6 @@ def open_fmu(both_builds):
     yield factory
     for driver in opened:
         driver.fmu.freeInstance()
-
-
-def forged(driver: FmuDriver, build: str, data: bytes, edit) -> bytes:  # noqa: ANN001
-    """``data`` (a serialized state of ``driver``'s FMU) with its model state edited by
-    ``edit`` (on a list of floats, in place) and its checksum recomputed: a checksum proves
-    nothing. The native layout: header (8), format (4), GUID (48), FMI state (4), time (8), the
-    Real (8 each) and Integer (4 each) variables, the model state, the checksum (8)."""
-    if build == "pythonfmu":
-        state = state_from_bytes(data)
-        edit(state["model"])
-        return state_to_bytes(state)
-    body = bytearray(data[:-NATIVE_TAIL])
-    start = 8 + 4 + 48 + 4 + 8 + 12 * len(driver.description.modelVariables)
-    size = (len(body) - start) // 8
-    model = list(struct.unpack_from(f"<{size}d", body, start))
-    edit(model)
-    struct.pack_into(f"<{size}d", body, start, *model)
-    return bytes(body) + struct.pack("<Q", fnv1a64(bytes(body)))
 
 
 @pytest.mark.parametrize("build", BUILDS)

@@ -16,7 +16,7 @@ from fhobs.native.build import build_native_fmus
 from fhobs.paper import K_PAPER, PAPER_SCENARIOS
 from fmpy import extract
 
-from tests.fmu_fixtures import FmuDriver, assert_error
+from tests.fmu_fixtures import FmuDriver, assert_error, forged, serialized
 
 SCENARIO = PAPER_SCENARIOS["perturbed_noisy"]
 SAMPLES_PER_STEP = 4
@@ -219,3 +219,31 @@ def test_edited_parameters_are_certified_again(design, open_supervised):
     driver.set("upper", 1.5 * record.upper)
     driver.fmu.exitInitializationMode()
     driver.fmu.doStep(0.0, record.kalman.sample_time)
+
+
+@pytest.mark.parametrize("build", ["pythonfmu", "native"])
+@pytest.mark.parametrize("field, value, words", [
+    (1, 0.5, "mode"), (1, 7.0, "mode"), (0, -1.0, "statistic"), (3, -1e-3, "time in"),
+    (-1, 1e9, "cycles left")])
+def test_a_forged_state_is_refused(open_supervised, build, field, value, words):
+    """A serialized state with one count, mode or time forged and its checksum recomputed (a
+    checksum proves nothing): fmi2DeSerializeFMUstate or fmi2SetFMUstate refuses it with
+    fmi2Error naming the field; the instance steps on. Head: statistic, mode, (kept), time in
+    the return band; the last entry: the Kalman recursion's cycles left."""
+    driver = open_supervised(build)
+    Ts = 5e-5
+    for k in range(4):
+        driver.fmu.doStep(k * 2 * Ts, 2 * Ts)
+    data = serialized(driver)
+
+    def edit(model: list[float]) -> None:
+        model[field] = value
+
+    bad = forged(driver, build, data, edit)
+    if build == "native":
+        assert_error(driver, driver.fmu.deSerializeFMUstate, bad, words=words)
+    else:  # the pythonfmu FMU checks a restored state where it is set
+        state = driver.fmu.deSerializeFMUstate(bad)
+        assert_error(driver, driver.fmu.setFMUstate, state, words=words)
+    driver.fmu.doStep(8 * Ts, 2 * Ts)
+    assert np.all(np.isfinite(driver.get("x_hat", (4,))))
