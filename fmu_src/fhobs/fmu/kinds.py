@@ -526,6 +526,25 @@ _SLOW_PROJECTOR = (
              "along the fast stable modes kept by the model; I when all is homogenised (N x N)",
              field="model.slow_projector"),
 )
+
+
+def _theorem2_gains(prefix: str) -> tuple[Variable, ...]:
+    """The filtering observer's design parameters (Theorem 2: G_d, L_tilde, L, P_bar, nu, gamma,
+    rho), read from the record at ``prefix`` (``""`` for a FilteringGains, ``"filtering."`` for
+    the supervised record holding one)."""
+    return (
+        Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)", field="model.G_d"),
+        Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
+                 field=f"{prefix}L_tilde"),
+        Variable("L", "design", "gain of the estimate z (N x k)", field=f"{prefix}L"),
+        Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
+                 field=f"{prefix}P_bar"),
+        Variable("nu", "design", "homogeneity degree", field="model.nu"),
+        Variable("gamma", "design", "gain of the xi equation", field=f"{prefix}gamma"),
+        Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field=f"{prefix}rho"),
+    )
+
+
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (
     _estimator(
         "observer", "FhobsObserver",
@@ -533,16 +552,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         "homogeneous", "filtering",
         gains=(
             *_HOMOGENISATION,
-            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)",
-                     field="model.G_d"),
-            Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
-                     field="L_tilde"),
-            Variable("L", "design", "gain of the estimate z (N x k)", field="L"),
-            Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
-                     field="P_bar"),
-            Variable("nu", "design", "homogeneity degree", field="model.nu"),
-            Variable("gamma", "design", "gain of the xi equation", field="gamma"),
-            Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field="rho"),
+            *_theorem2_gains(""),
             Variable("psi0", "setting", "initial output-filter state", option="psi0"),
             Variable("xi0", "setting", "initial xi", option="xi0"),
             Variable("psi", "output", "output-filter state psi", shape=lambda r: (r.plant.k,)),
@@ -609,16 +619,7 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in (
         "the homogeneous estimate handed over to the Kalman filter", "supervised", "supervised",
         gains=(
             *_HOMOGENISATION,
-            Variable("G_d", "design", "dilation generator of Theorem 2 (N x N)",
-                     field="model.G_d"),
-            Variable("L_tilde", "design", "gain of the output filter psi (k x k)",
-                     field="filtering.L_tilde"),
-            Variable("L", "design", "gain of the estimate z (N x k)", field="filtering.L"),
-            Variable("P_bar", "design", "Lyapunov matrix of the Theorem 2 LMI ((k+N) x (k+N))",
-                     field="filtering.P_bar"),
-            Variable("nu", "design", "homogeneity degree", field="model.nu"),
-            Variable("gamma", "design", "gain of the xi equation", field="filtering.gamma"),
-            Variable("rho", "design", "LMI decay parameter, rho > gamma/2", field="filtering.rho"),
+            *_theorem2_gains("filtering."),
             *_SLOW_PROJECTOR,
             Variable("kalman_gain", "design", "the Kalman filter's measurement-update gain "
                      "M = P C^T (C P C^T + R)^-1 (N x k)", field="kalman.gain"),
